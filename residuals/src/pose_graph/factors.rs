@@ -1,0 +1,286 @@
+//! Between and prior factors on SE(2) and SE(3) with analytic Jacobians.
+//!
+//! For `e = Log(E)`, `E = Z⁻¹ X_i⁻¹ X_j`, right perturbations give (Solà et al. 2018, sec. 4):
+//! `∂e/∂δ_j = Jr⁻¹(e)` and `∂e/∂δ_i = −Jr⁻¹(e) Ad((X_i⁻¹ X_j)⁻¹)`; the residual is `r = U e` with
+//! `UᵀU = Ω`.
+
+use dynamap_solver::lie::{se2, se3};
+use dynamap_solver::{Jacobians, Residual, Var};
+use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6, SMatrix, SVector};
+
+/// The upper-triangular U with UᵀU = Ω, or `None` when Ω is not symmetric positive definite.
+pub fn sqrt_information<const N: usize>(info: &SMatrix<f64, N, N>) -> Option<SMatrix<f64, N, N>> {
+    if (info - info.transpose()).abs().max() > 1e-9 * info.abs().max() {
+        return None;
+    }
+    nalgebra::Cholesky::new(*info).map(|c| c.l().transpose())
+}
+
+fn write_block<const N: usize>(jac: &mut Jacobians<'_>, k: usize, m: &SMatrix<f64, N, N>) {
+    jac.block(k).copy_from_slice(m.as_slice());
+}
+
+fn whiten<const N: usize>(u: &SMatrix<f64, N, N>, e: &SVector<f64, N>, out: &mut [f64]) {
+    out[..N].copy_from_slice((u * e).as_slice());
+}
+
+/// SE(2) between factor: `r = U Log(Z⁻¹ X_i⁻¹ X_j)`, variables X_i, X_j on [`dynamap_solver::SE2`].
+#[derive(Clone, Debug)]
+pub struct Between2 {
+    z_inv: Isometry2<f64>,
+    sqrt_info: Matrix3<f64>,
+}
+
+impl Between2 {
+    /// A factor with measurement `z` and square-root information `sqrt_info` (UᵀU = Ω).
+    pub fn new(z: Isometry2<f64>, sqrt_info: Matrix3<f64>) -> Self {
+        Self {
+            z_inv: z.inverse(),
+            sqrt_info,
+        }
+    }
+}
+
+impl Residual for Between2 {
+    fn dim(&self) -> usize {
+        3
+    }
+    fn arity(&self) -> Option<usize> {
+        Some(2)
+    }
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
+        let xi = se2::from_coordinates(vars[0].value);
+        let xj = se2::from_coordinates(vars[1].value);
+        let xij = xi.inverse() * xj;
+        let e = se2::log(&(self.z_inv * xij));
+        whiten(&self.sqrt_info, &e, residual);
+        if let Some(jac) = jacobians {
+            let jj = self.sqrt_info * se2::right_jacobian_inv(&e);
+            let ji = -jj * se2::adjoint(&xij.inverse());
+            write_block(jac, 0, &ji);
+            write_block(jac, 1, &jj);
+        }
+    }
+}
+
+/// SE(3) between factor: `r = U Log(Z⁻¹ X_i⁻¹ X_j)`, variables on [`dynamap_solver::SE3`].
+#[derive(Clone, Debug)]
+pub struct Between3 {
+    z_inv: Isometry3<f64>,
+    sqrt_info: Matrix6<f64>,
+}
+
+impl Between3 {
+    /// A factor with measurement `z` and square-root information `sqrt_info` (UᵀU = Ω, `[ω; v]` order).
+    pub fn new(z: Isometry3<f64>, sqrt_info: Matrix6<f64>) -> Self {
+        Self {
+            z_inv: z.inverse(),
+            sqrt_info,
+        }
+    }
+}
+
+impl Residual for Between3 {
+    fn dim(&self) -> usize {
+        6
+    }
+    fn arity(&self) -> Option<usize> {
+        Some(2)
+    }
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
+        let xi = se3::from_slice(vars[0].value);
+        let xj = se3::from_slice(vars[1].value);
+        let xij = xi.inverse() * xj;
+        let e = se3::log(&(self.z_inv * xij));
+        whiten(&self.sqrt_info, &e, residual);
+        if let Some(jac) = jacobians {
+            let jj = self.sqrt_info * se3::right_jacobian_inv(&e);
+            let ji = -jj * se3::adjoint(&xij.inverse());
+            write_block(jac, 0, &ji);
+            write_block(jac, 1, &jj);
+        }
+    }
+}
+
+/// SE(2) prior: `r = U Log(Z⁻¹ X)`.
+#[derive(Clone, Debug)]
+pub struct Prior2 {
+    z_inv: Isometry2<f64>,
+    sqrt_info: Matrix3<f64>,
+}
+
+impl Prior2 {
+    /// A prior at `z` with square-root information `sqrt_info`.
+    pub fn new(z: Isometry2<f64>, sqrt_info: Matrix3<f64>) -> Self {
+        Self {
+            z_inv: z.inverse(),
+            sqrt_info,
+        }
+    }
+}
+
+impl Residual for Prior2 {
+    fn dim(&self) -> usize {
+        3
+    }
+    fn arity(&self) -> Option<usize> {
+        Some(1)
+    }
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
+        let e = se2::log(&(self.z_inv * se2::from_coordinates(vars[0].value)));
+        whiten(&self.sqrt_info, &e, residual);
+        if let Some(jac) = jacobians {
+            write_block(jac, 0, &(self.sqrt_info * se2::right_jacobian_inv(&e)));
+        }
+    }
+}
+
+/// SE(3) prior: `r = U Log(Z⁻¹ X)`.
+#[derive(Clone, Debug)]
+pub struct Prior3 {
+    z_inv: Isometry3<f64>,
+    sqrt_info: Matrix6<f64>,
+}
+
+impl Prior3 {
+    /// A prior at `z` with square-root information `sqrt_info` (`[ω; v]` order).
+    pub fn new(z: Isometry3<f64>, sqrt_info: Matrix6<f64>) -> Self {
+        Self {
+            z_inv: z.inverse(),
+            sqrt_info,
+        }
+    }
+}
+
+impl Residual for Prior3 {
+    fn dim(&self) -> usize {
+        6
+    }
+    fn arity(&self) -> Option<usize> {
+        Some(1)
+    }
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
+        let e = se3::log(&(self.z_inv * se3::from_slice(vars[0].value)));
+        whiten(&self.sqrt_info, &e, residual);
+        if let Some(jac) = jacobians {
+            write_block(jac, 0, &(self.sqrt_info * se3::right_jacobian_inv(&e)));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynamap_solver::{check_jacobians, Manifold, SE2, SE3};
+    use nalgebra::{Vector3, Vector6};
+    use proptest::prelude::*;
+
+    fn pose3(a: &[f64]) -> Isometry3<f64> {
+        se3::exp(&Vector6::new(
+            a[0] * 2.0,
+            a[1] * 2.0,
+            a[2] * 2.0,
+            a[3] * 5.0,
+            a[4] * 5.0,
+            a[5] * 5.0,
+        ))
+    }
+    fn pose2(a: &[f64]) -> Isometry2<f64> {
+        se2::exp(&Vector3::new(a[0] * 5.0, a[1] * 5.0, a[2] * 3.0))
+    }
+    fn spd<const N: usize>(a: &[f64]) -> SMatrix<f64, N, N> {
+        let m = SMatrix::<f64, N, N>::from_fn(|i, j| a[(i * N + j) % a.len()]);
+        m * m.transpose() + SMatrix::<f64, N, N>::identity() * 0.5
+    }
+    fn slice3(t: &Isometry3<f64>) -> [f64; 7] {
+        let mut s = [0.0; 7];
+        se3::to_slice(t, &mut s);
+        s
+    }
+    fn slice2(t: &Isometry2<f64>) -> [f64; 3] {
+        let c = se2::coordinates(t);
+        [c.x, c.y, c.z]
+    }
+
+    proptest! {
+        #[test]
+        fn se3_factor_jacobians_match_central_differences(a in prop::collection::vec(-1.0f64..1.0, 24)) {
+            let (xi, xj, z) = (pose3(&a[0..6]), pose3(&a[6..12]), pose3(&a[12..18]));
+            let u = sqrt_information(&spd::<6>(&a[18..24])).unwrap();
+            let (si, sj) = (slice3(&xi), slice3(&xj));
+            let vars = [Var { value: &si, manifold: &SE3 as &dyn Manifold }, Var { value: &sj, manifold: &SE3 }];
+            let between = check_jacobians(&Between3::new(z, u), &vars);
+            prop_assert!(between.passes(1e-6), "{between:?}");
+            let prior = check_jacobians(&Prior3::new(z, u), &vars[..1]);
+            prop_assert!(prior.passes(1e-6), "{prior:?}");
+        }
+
+        #[test]
+        fn se2_factor_jacobians_match_central_differences(a in prop::collection::vec(-1.0f64..1.0, 18)) {
+            let (xi, xj, z) = (pose2(&a[0..3]), pose2(&a[3..6]), pose2(&a[6..9]));
+            let u = sqrt_information(&spd::<3>(&a[9..18])).unwrap();
+            let (si, sj) = (slice2(&xi), slice2(&xj));
+            let vars = [Var { value: &si, manifold: &SE2 as &dyn Manifold }, Var { value: &sj, manifold: &SE2 }];
+            // Log is discontinuous where the relative rotation crosses ±π.
+            let e = se2::log(&(z.inverse() * xi.inverse() * xj));
+            prop_assume!(e.z.abs() < 3.0);
+            let between = check_jacobians(&Between2::new(z, u), &vars);
+            prop_assert!(between.passes(1e-6), "{between:?}");
+            let ep = se2::log(&(z.inverse() * xi));
+            prop_assume!(ep.z.abs() < 3.0);
+            let prior = check_jacobians(&Prior2::new(z, u), &vars[..1]);
+            prop_assert!(prior.passes(1e-6), "{prior:?}");
+        }
+    }
+
+    #[test]
+    fn zero_error_at_the_measurement() {
+        let xi = pose3(&[0.1, 0.2, -0.3, 0.4, 0.5, 0.6]);
+        let z = pose3(&[0.3, -0.1, 0.2, -0.4, 0.1, 0.2]);
+        let xj = xi * z;
+        let (si, sj) = (slice3(&xi), slice3(&xj));
+        let vars = [
+            Var {
+                value: &si,
+                manifold: &SE3 as &dyn Manifold,
+            },
+            Var {
+                value: &sj,
+                manifold: &SE3,
+            },
+        ];
+        let mut r = [1.0; 6];
+        Between3::new(z, Matrix6::identity()).evaluate(&vars, &mut r, None);
+        assert!(r.iter().all(|v| v.abs() < 1e-12), "{r:?}");
+    }
+
+    #[test]
+    fn non_spd_information_is_refused() {
+        assert!(
+            sqrt_information(&Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0)).is_none()
+        );
+        assert!(
+            sqrt_information(&Matrix3::new(1.0, 2.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)).is_none()
+        );
+    }
+}

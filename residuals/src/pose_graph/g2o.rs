@@ -1,0 +1,446 @@
+//! The g2o text format for pose graphs: `VERTEX_SE2`, `EDGE_SE2`, `VERTEX_SE3:QUAT`,
+//! `EDGE_SE3:QUAT` and `FIX` (Kümmerle et al., *g2o: A General Framework for Graph Optimization*,
+//! ICRA 2011).
+//!
+//! Information matrices are stored as their upper triangle, row by row. For SE(3), g2o orders the
+//! coordinates `[x, y, z, qx, qy, qz]`; they are permuted to the solver's `[ω; v]` on reading and back
+//! on writing, as GTSAM's `readG2o` does.
+
+use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
+use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
+use std::collections::btree_map::Entry;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+use thiserror::Error;
+
+/// A g2o file that could not be read or written, with the place of the fault.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[error("{path}:{line}: {message}")]
+pub struct G2oError {
+    /// The file.
+    pub path: String,
+    /// 1-based line number (0 for the file as a whole).
+    pub line: usize,
+    /// What is wrong, naming the field where there is one.
+    pub message: String,
+}
+
+const SE2_VERTEX: &[&str] = &["id", "x", "y", "theta"];
+const SE2_EDGE: &[&str] = &[
+    "from", "to", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33",
+];
+const SE3_VERTEX: &[&str] = &["id", "x", "y", "z", "qx", "qy", "qz", "qw"];
+
+fn se3_edge_fields() -> Vec<String> {
+    let mut f: Vec<String> = ["from", "to", "x", "y", "z", "qx", "qy", "qz", "qw"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    for i in 1..=6 {
+        for j in i..=6 {
+            f.push(format!("I{i}{j}"));
+        }
+    }
+    f
+}
+
+struct LineParser<'a> {
+    path: &'a str,
+    line: usize,
+}
+
+impl LineParser<'_> {
+    fn err(&self, message: impl Into<String>) -> G2oError {
+        G2oError {
+            path: self.path.to_string(),
+            line: self.line,
+            message: message.into(),
+        }
+    }
+    fn count<S: AsRef<str>>(
+        &self,
+        tag: &str,
+        tokens: &[&str],
+        names: &[S],
+    ) -> Result<(), G2oError> {
+        if tokens.len() != names.len() {
+            let what = if tokens.len() < names.len() {
+                format!("missing field {}", names[tokens.len()].as_ref())
+            } else {
+                format!("{} unexpected extra fields", tokens.len() - names.len())
+            };
+            return Err(self.err(format!(
+                "{tag} needs {} fields ({}), found {}: {what}",
+                names.len(),
+                names
+                    .iter()
+                    .map(|s| s.as_ref())
+                    .collect::<Vec<_>>()
+                    .join(" "),
+                tokens.len()
+            )));
+        }
+        Ok(())
+    }
+    fn id(&self, tok: &str, name: &str) -> Result<usize, G2oError> {
+        tok.parse::<usize>().map_err(|_| {
+            self.err(format!(
+                "field {name}: '{tok}' is not a non-negative integer id"
+            ))
+        })
+    }
+    fn num(&self, tok: &str, name: &str) -> Result<f64, G2oError> {
+        let v: f64 = tok
+            .parse()
+            .map_err(|_| self.err(format!("field {name}: '{tok}' is not a number")))?;
+        if !v.is_finite() {
+            return Err(self.err(format!("field {name}: '{tok}' is not finite")));
+        }
+        Ok(v)
+    }
+    fn nums<S: AsRef<str>>(&self, tokens: &[&str], names: &[S]) -> Result<Vec<f64>, G2oError> {
+        tokens
+            .iter()
+            .zip(names)
+            .map(|(t, n)| self.num(t, n.as_ref()))
+            .collect()
+    }
+    fn quaternion(&self, q: &[f64]) -> Result<UnitQuaternion<f64>, G2oError> {
+        let quat = Quaternion::new(q[3], q[0], q[1], q[2]);
+        let n = quat.norm();
+        if !(n > 1e-9) {
+            return Err(self.err("fields qx qy qz qw: the quaternion is zero, not a rotation"));
+        }
+        Ok(UnitQuaternion::from_quaternion(quat))
+    }
+}
+
+/// Reads a g2o pose graph from a file.
+pub fn read(path: impl AsRef<Path>) -> Result<PoseGraph, G2oError> {
+    let path = path.as_ref();
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| G2oError {
+        path: name.clone(),
+        line: 0,
+        message: format!("cannot read: {e}"),
+    })?;
+    parse(&text, &name)
+}
+
+fn upper<const N: usize>(values: &[f64]) -> nalgebra::SMatrix<f64, N, N> {
+    let mut m = nalgebra::SMatrix::<f64, N, N>::zeros();
+    let mut k = 0;
+    for i in 0..N {
+        for j in i..N {
+            m[(i, j)] = values[k];
+            m[(j, i)] = values[k];
+            k += 1;
+        }
+    }
+    m
+}
+
+/// g2o's SE(3) order `[t; r]` to the solver's `[ω; v]` (and back: the permutation is its own inverse).
+fn swap_halves(m: &Matrix6<f64>) -> Matrix6<f64> {
+    Matrix6::from_fn(|i, j| m[((i + 3) % 6, (j + 3) % 6)])
+}
+
+/// Parses g2o text; `path` names the source in errors.
+pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
+    let mut graph = PoseGraph::new(Dimension::Two);
+    graph.source = path.to_string();
+    let mut dimension: Option<(Dimension, usize)> = None;
+    let edge3 = se3_edge_fields();
+    for (i, raw) in text.lines().enumerate() {
+        let p = LineParser { path, line: i + 1 };
+        let content = raw.split('#').next().unwrap_or("").trim();
+        if content.is_empty() {
+            continue;
+        }
+        let mut tokens = content.split_whitespace();
+        let tag = tokens.next().unwrap_or("");
+        let rest: Vec<&str> = tokens.collect();
+        let this_dim = match tag {
+            "VERTEX_SE2" | "EDGE_SE2" => Some(Dimension::Two),
+            "VERTEX_SE3:QUAT" | "EDGE_SE3:QUAT" => Some(Dimension::Three),
+            _ => None,
+        };
+        if let Some(d) = this_dim {
+            match dimension {
+                None => dimension = Some((d, i + 1)),
+                Some((prev, at)) if prev != d => {
+                    return Err(p.err(format!(
+                        "{tag} mixes dimensions: line {at} started a {} graph",
+                        if prev == Dimension::Two { "2D" } else { "3D" }
+                    )));
+                }
+                _ => {}
+            }
+        }
+        match tag {
+            "VERTEX_SE2" | "VERTEX_SE3:QUAT" => {
+                let (names, pose) = if tag == "VERTEX_SE2" {
+                    p.count(tag, &rest, SE2_VERTEX)?;
+                    let v = p.nums(&rest[1..], &SE2_VERTEX[1..])?;
+                    (
+                        SE2_VERTEX,
+                        Pose::Se2(Isometry2::new(Vector2::new(v[0], v[1]), v[2])),
+                    )
+                } else {
+                    p.count(tag, &rest, SE3_VERTEX)?;
+                    let v = p.nums(&rest[1..], &SE3_VERTEX[1..])?;
+                    let q = p.quaternion(&v[3..7])?;
+                    (
+                        SE3_VERTEX,
+                        Pose::Se3(Isometry3::from_parts(
+                            Translation3::new(v[0], v[1], v[2]),
+                            q,
+                        )),
+                    )
+                };
+                let id = p.id(rest[0], names[0])?;
+                match graph.vertices.entry(id) {
+                    Entry::Occupied(_) => {
+                        return Err(p.err(format!(
+                            "duplicate vertex id {id} (first defined on line {})",
+                            graph.vertex_lines[&id]
+                        )));
+                    }
+                    Entry::Vacant(slot) => {
+                        slot.insert(pose);
+                        graph.vertex_lines.insert(id, i + 1);
+                    }
+                }
+            }
+            "EDGE_SE2" | "EDGE_SE3:QUAT" => {
+                let measurement = if tag == "EDGE_SE2" {
+                    p.count(tag, &rest, SE2_EDGE)?;
+                    let v = p.nums(&rest[2..], &SE2_EDGE[2..])?;
+                    Measurement::Se2 {
+                        z: Isometry2::new(Vector2::new(v[0], v[1]), v[2]),
+                        information: upper::<3>(&v[3..9]),
+                    }
+                } else {
+                    p.count(tag, &rest, &edge3)?;
+                    let v = p.nums(&rest[2..], &edge3[2..])?;
+                    let q = p.quaternion(&v[3..7])?;
+                    Measurement::Se3 {
+                        z: Isometry3::from_parts(Translation3::new(v[0], v[1], v[2]), q),
+                        information: swap_halves(&upper::<6>(&v[7..28])),
+                    }
+                };
+                let pd = match &measurement {
+                    Measurement::Se2 { information, .. } => {
+                        nalgebra::Cholesky::new(*information).is_some()
+                    }
+                    Measurement::Se3 { information, .. } => {
+                        nalgebra::Cholesky::new(*information).is_some()
+                    }
+                };
+                if !pd {
+                    return Err(
+                        p.err("fields I11..: the information matrix is not positive definite")
+                    );
+                }
+                let from = p.id(rest[0], "from")?;
+                let to = p.id(rest[1], "to")?;
+                if from == to {
+                    return Err(p.err(format!("edge from vertex {from} to itself")));
+                }
+                graph.edges.push(Edge {
+                    from,
+                    to,
+                    measurement,
+                    line: i + 1,
+                });
+            }
+            "FIX" => {
+                if rest.is_empty() {
+                    return Err(p.err("FIX needs at least one vertex id"));
+                }
+                for t in &rest {
+                    graph.fixed.insert(p.id(t, "id")?);
+                }
+            }
+            other => {
+                return Err(p.err(format!(
+                    "unknown tag '{other}' (expected VERTEX_SE2, EDGE_SE2, VERTEX_SE3:QUAT, EDGE_SE3:QUAT or FIX)"
+                )));
+            }
+        }
+    }
+    match dimension {
+        Some((d, _)) => graph.dimension = d,
+        None => {
+            return Err(G2oError {
+                path: path.to_string(),
+                line: 0,
+                message: "no vertices or edges".into(),
+            })
+        }
+    }
+    if let Some(&f) = graph.fixed.iter().find(|f| !graph.vertices.contains_key(f)) {
+        return Err(G2oError {
+            path: path.to_string(),
+            line: 0,
+            message: format!("FIX names vertex {f}, which has no VERTEX line"),
+        });
+    }
+    Ok(graph)
+}
+
+/// Formats a pose graph as g2o text with the vertices in `poses` (all digits needed to read each
+/// number back exactly: Rust's shortest round-trip form, as precise as `%.17g`).
+pub fn format(graph: &PoseGraph, poses: &std::collections::BTreeMap<usize, Pose>) -> String {
+    let mut s = String::with_capacity(64 * (poses.len() + graph.edges.len()));
+    for (id, pose) in poses {
+        let c = pose.coordinates();
+        let tag = match pose {
+            Pose::Se2(_) => "VERTEX_SE2",
+            Pose::Se3(_) => "VERTEX_SE3:QUAT",
+        };
+        let _ = write!(s, "{tag} {id}");
+        for v in c {
+            let _ = write!(s, " {v:?}");
+        }
+        s.push('\n');
+    }
+    for f in &graph.fixed {
+        let _ = writeln!(s, "FIX {f}");
+    }
+    for e in &graph.edges {
+        let (tag, z, info): (_, Vec<f64>, Vec<f64>) = match &e.measurement {
+            Measurement::Se2 { z, information } => (
+                "EDGE_SE2",
+                Pose::Se2(*z).coordinates(),
+                (0..3)
+                    .flat_map(|i| (i..3).map(move |j| (i, j)))
+                    .map(|(i, j)| information[(i, j)])
+                    .collect(),
+            ),
+            Measurement::Se3 { z, information } => {
+                let g = swap_halves(information);
+                (
+                    "EDGE_SE3:QUAT",
+                    Pose::Se3(*z).coordinates(),
+                    (0..6)
+                        .flat_map(|i| (i..6).map(move |j| (i, j)))
+                        .map(|(i, j)| g[(i, j)])
+                        .collect(),
+                )
+            }
+        };
+        let _ = write!(s, "{tag} {} {}", e.from, e.to);
+        for v in z.iter().chain(&info) {
+            let _ = write!(s, " {v:?}");
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Writes the graph with vertices `poses` to `path` through a temporary file renamed into place, so
+/// a failed write never leaves a truncated file.
+pub fn write(
+    path: impl AsRef<Path>,
+    graph: &PoseGraph,
+    poses: &std::collections::BTreeMap<usize, Pose>,
+) -> Result<(), G2oError> {
+    let path = path.as_ref();
+    let err = |e: std::io::Error| G2oError {
+        path: path.display().to_string(),
+        line: 0,
+        message: format!("cannot write: {e}"),
+    };
+    let tmp = path.with_extension(format!(
+        "{}.tmp{}",
+        path.extension().and_then(|e| e.to_str()).unwrap_or("g2o"),
+        std::process::id()
+    ));
+    let mut f = std::fs::File::create(&tmp).map_err(err)?;
+    f.write_all(format(graph, poses).as_bytes()).map_err(err)?;
+    f.sync_all().map_err(err)?;
+    drop(f);
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        err(e)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD2: &str =
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0.1\nEDGE_SE2 0 1 1 0 0.1 10 0 0 10 0 20\n";
+    const GOOD3: &str =
+        "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0.0998 0.995\n\
+        EDGE_SE3:QUAT 0 1 1 0 0 0 0 0.0998 0.995 1 0 0 0 0 0 2 0 0 0 0 3 0 0 0 4 0 0 5 0 6\n";
+
+    fn message(text: &str) -> String {
+        parse(text, "g.g2o").unwrap_err().to_string()
+    }
+
+    #[test]
+    fn reads_both_dimensions() {
+        let g = parse(GOOD2, "a").unwrap();
+        assert_eq!(
+            (g.dimension, g.vertices.len(), g.edges.len()),
+            (Dimension::Two, 2, 1)
+        );
+        let g = parse(GOOD3, "b").unwrap();
+        assert_eq!(g.dimension, Dimension::Three);
+        // g2o's translation information (1, 4, 6 on the diagonal) moves to the lower half.
+        match &g.edges[0].measurement {
+            Measurement::Se3 { information, .. } => {
+                let d: Vec<f64> = (0..6).map(|i| information[(i, i)]).collect();
+                assert_eq!(d, vec![4.0, 5.0, 6.0, 1.0, 2.0, 3.0]);
+            }
+            _ => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn format_then_parse_is_exact() {
+        for text in [GOOD2, GOOD3] {
+            let g = parse(text, "a").unwrap();
+            let back = parse(&format(&g, &g.vertices), "b").unwrap();
+            assert_eq!(back.vertices, g.vertices);
+            assert_eq!(
+                back.edges
+                    .iter()
+                    .map(|e| &e.measurement)
+                    .collect::<Vec<_>>(),
+                g.edges.iter().map(|e| &e.measurement).collect::<Vec<_>>()
+            );
+        }
+    }
+
+    #[test]
+    fn every_fault_names_its_line_and_field() {
+        let cases: &[(&str, &str)] = &[
+            ("VERTEX_SE2 0 0 0\n", "g.g2o:1: VERTEX_SE2 needs 4 fields (id x y theta), found 3: missing field theta"),
+            ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 nan 0 0\n", "g.g2o:2: field x: 'nan' is not finite"),
+            ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", "g.g2o:2: duplicate vertex id 0 (first defined on line 1)"),
+            ("VERTEX_XY 0 1 2\n", "g.g2o:1: unknown tag 'VERTEX_XY'"),
+            ("VERTEX_SE2 -1 0 0 0\n", "g.g2o:1: field id: '-1' is not a non-negative integer id"),
+            ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 -1\n", "g.g2o:2: fields I11..: the information matrix is not positive definite"),
+            ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 0 1 0 0 1 0 0 1 0 1\n", "g.g2o:2: edge from vertex 0 to itself"),
+            ("VERTEX_SE2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n", "g.g2o:2: VERTEX_SE3:QUAT mixes dimensions"),
+            ("VERTEX_SE3:QUAT 1 0 0 0 0 0 0 0\n", "g.g2o:1: fields qx qy qz qw: the quaternion is zero"),
+            ("VERTEX_SE2 0 0 0 0 7\n", "g.g2o:1: VERTEX_SE2 needs 4 fields (id x y theta), found 5: 1 unexpected extra fields"),
+            ("EDGE_SE2 0 1 1 0 0.1 10 0 0 10 0 1e999\n", "g.g2o:1: field I33: '1e999' is not finite"),
+            ("# nothing\n\n", "g.g2o:0: no vertices or edges"),
+            ("VERTEX_SE2 0 0 0 0\nFIX 3\n", "g.g2o:0: FIX names vertex 3, which has no VERTEX line"),
+            ("VERTEX_SE2 0 0 0 0\nFIX\n", "g.g2o:2: FIX needs at least one vertex id"),
+        ];
+        for (text, expected) in cases {
+            let m = message(text);
+            assert!(
+                m.starts_with(expected),
+                "{text:?}\n got  {m}\n want {expected}"
+            );
+        }
+    }
+}

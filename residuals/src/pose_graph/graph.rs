@@ -1,0 +1,278 @@
+//! The pose graph: vertices, edges and the least-squares problem they define.
+
+use super::factors::{sqrt_information, Between2, Between3};
+use dynamap_solver::lie::{se2, se3};
+use dynamap_solver::{Problem, VarId, SE2, SE3};
+use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// Planar (SE(2)) or spatial (SE(3)) graph.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dimension {
+    /// SE(2) poses.
+    Two,
+    /// SE(3) poses.
+    Three,
+}
+
+/// A pose of either dimension.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pose {
+    /// Planar pose.
+    Se2(Isometry2<f64>),
+    /// Spatial pose.
+    Se3(Isometry3<f64>),
+}
+
+impl Pose {
+    /// The identity of a dimension.
+    pub fn identity(d: Dimension) -> Self {
+        match d {
+            Dimension::Two => Pose::Se2(Isometry2::identity()),
+            Dimension::Three => Pose::Se3(Isometry3::identity()),
+        }
+    }
+    /// `self * other`.
+    ///
+    /// # Panics
+    /// If the dimensions differ (the graph never mixes them).
+    pub fn compose(&self, other: &Pose) -> Pose {
+        match (self, other) {
+            (Pose::Se2(a), Pose::Se2(b)) => Pose::Se2(a * b),
+            (Pose::Se3(a), Pose::Se3(b)) => Pose::Se3(a * b),
+            _ => panic!("composing poses of different dimensions"),
+        }
+    }
+    /// The inverse pose.
+    pub fn inverse(&self) -> Pose {
+        match self {
+            Pose::Se2(a) => Pose::Se2(a.inverse()),
+            Pose::Se3(a) => Pose::Se3(a.inverse()),
+        }
+    }
+    /// Stored coordinates: `[x, y, θ]` or `[tx, ty, tz, qx, qy, qz, qw]`.
+    pub fn coordinates(&self) -> Vec<f64> {
+        match self {
+            Pose::Se2(a) => se2::coordinates(a).as_slice().to_vec(),
+            Pose::Se3(a) => {
+                let mut s = vec![0.0; 7];
+                se3::to_slice(a, &mut s);
+                s
+            }
+        }
+    }
+}
+
+/// A relative measurement with its information matrix (in the solver's tangent order).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Measurement {
+    /// SE(2): Ω in `[x, y, θ]` order.
+    Se2 {
+        /// Measured relative pose.
+        z: Isometry2<f64>,
+        /// Information matrix.
+        information: Matrix3<f64>,
+    },
+    /// SE(3): Ω in `[ω; v]` order.
+    Se3 {
+        /// Measured relative pose.
+        z: Isometry3<f64>,
+        /// Information matrix.
+        information: Matrix6<f64>,
+    },
+}
+
+impl Measurement {
+    /// The measured relative pose.
+    pub fn pose(&self) -> Pose {
+        match self {
+            Measurement::Se2 { z, .. } => Pose::Se2(*z),
+            Measurement::Se3 { z, .. } => Pose::Se3(*z),
+        }
+    }
+}
+
+/// An edge `from → to` measuring `X_from⁻¹ X_to`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Edge {
+    /// Vertex i.
+    pub from: usize,
+    /// Vertex j.
+    pub to: usize,
+    /// Z_ij and Ω.
+    pub measurement: Measurement,
+    /// Line of the file it came from (0 when built in code).
+    pub line: usize,
+}
+
+/// A pose graph as read from a file or built in code.
+#[derive(Clone, Debug)]
+pub struct PoseGraph {
+    /// Where it came from, for messages.
+    pub source: String,
+    /// SE(2) or SE(3).
+    pub dimension: Dimension,
+    /// Initial poses by vertex id.
+    pub vertices: BTreeMap<usize, Pose>,
+    /// Line of each vertex in the source.
+    pub vertex_lines: BTreeMap<usize, usize>,
+    /// The edges, in file order.
+    pub edges: Vec<Edge>,
+    /// Vertices held fixed (g2o's FIX).
+    pub fixed: BTreeSet<usize>,
+}
+
+/// A pose graph turned into a solver problem, with the map from vertex ids to variables.
+pub struct PoseGraphProblem {
+    /// The least-squares problem (cost = ½ chi2).
+    pub problem: Problem,
+    /// Vertex ids, in variable order.
+    pub ids: Vec<usize>,
+    /// Variables, parallel to `ids`.
+    pub vars: Vec<VarId>,
+    dimension: Dimension,
+}
+
+impl PoseGraphProblem {
+    /// The current poses of all vertices.
+    pub fn poses(&self) -> BTreeMap<usize, Pose> {
+        self.ids
+            .iter()
+            .zip(&self.vars)
+            .map(|(&id, &v)| {
+                let x = self.problem.value(v);
+                let p = match self.dimension {
+                    Dimension::Two => Pose::Se2(se2::from_coordinates(x)),
+                    Dimension::Three => Pose::Se3(se3::from_slice(x)),
+                };
+                (id, p)
+            })
+            .collect()
+    }
+}
+
+impl PoseGraph {
+    /// An empty graph.
+    pub fn new(dimension: Dimension) -> Self {
+        Self {
+            source: String::from("<memory>"),
+            dimension,
+            vertices: BTreeMap::new(),
+            vertex_lines: BTreeMap::new(),
+            edges: Vec::new(),
+            fixed: BTreeSet::new(),
+        }
+    }
+
+    /// The vertices that fix the gauge: the FIX ones, or else the lowest id.
+    pub fn anchors(&self) -> Vec<usize> {
+        if !self.fixed.is_empty() {
+            return self.fixed.iter().copied().collect();
+        }
+        self.all_ids().into_iter().next().into_iter().collect()
+    }
+
+    /// Every vertex id named by a vertex or an edge, sorted.
+    pub fn all_ids(&self) -> Vec<usize> {
+        let mut ids: BTreeSet<usize> = self.vertices.keys().copied().collect();
+        for e in &self.edges {
+            ids.insert(e.from);
+            ids.insert(e.to);
+        }
+        ids.into_iter().collect()
+    }
+
+    /// Edges naming a vertex that has no pose in `poses`: (edge line, vertex).
+    pub fn missing_in(&self, poses: &BTreeMap<usize, Pose>) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        for e in &self.edges {
+            for v in [e.from, e.to] {
+                if !poses.contains_key(&v) {
+                    out.push((e.line, v));
+                }
+            }
+        }
+        out
+    }
+
+    /// chi2 = Σ eᵀ Ω e over all edges at `poses`.
+    ///
+    /// # Panics
+    /// If a pose an edge needs is missing (check with [`Self::missing_in`]).
+    pub fn chi2(&self, poses: &BTreeMap<usize, Pose>) -> f64 {
+        self.edges
+            .iter()
+            .map(|e| match (&e.measurement, &poses[&e.from], &poses[&e.to]) {
+                (Measurement::Se2 { z, information }, Pose::Se2(a), Pose::Se2(b)) => {
+                    let r = se2::log(&(z.inverse() * a.inverse() * b));
+                    (r.transpose() * information * r)[0]
+                }
+                (Measurement::Se3 { z, information }, Pose::Se3(a), Pose::Se3(b)) => {
+                    let r = se3::log(&(z.inverse() * a.inverse() * b));
+                    (r.transpose() * information * r)[0]
+                }
+                _ => panic!("pose and measurement dimensions differ"),
+            })
+            .sum()
+    }
+
+    /// Builds the least-squares problem from `poses` (one per vertex), anchors held fixed.
+    pub fn build_problem(&self, poses: &BTreeMap<usize, Pose>) -> Result<PoseGraphProblem, String> {
+        if let Some((line, v)) = self.missing_in(poses).first() {
+            return Err(format!(
+                "{}:{line}: the edge refers to vertex {v}, which has no pose \
+                 (no VERTEX line; initialise with odometry or chordal to compute it)",
+                self.source
+            ));
+        }
+        let mut problem = Problem::new();
+        let mut index = BTreeMap::new();
+        let (mut ids, mut vars) = (Vec::new(), Vec::new());
+        for (&id, pose) in poses {
+            let value = pose.coordinates();
+            let var = match pose {
+                Pose::Se2(_) => problem.add_variable(&value, SE2),
+                Pose::Se3(_) => problem.add_variable(&value, SE3),
+            }
+            .map_err(|e| format!("{}: vertex {id}: {e}", self.source))?;
+            index.insert(id, var);
+            ids.push(id);
+            vars.push(var);
+        }
+        for a in self.anchors() {
+            if let Some(&v) = index.get(&a) {
+                problem.set_fixed(v, true).map_err(|e| e.to_string())?;
+            }
+        }
+        for e in &self.edges {
+            let pair = [index[&e.from], index[&e.to]];
+            let added = match &e.measurement {
+                Measurement::Se2 { z, information } => {
+                    let u = sqrt_information(information).ok_or_else(|| {
+                        format!(
+                            "{}:{}: information matrix is not positive definite",
+                            self.source, e.line
+                        )
+                    })?;
+                    problem.add_residual(Between2::new(*z, u), &pair)
+                }
+                Measurement::Se3 { z, information } => {
+                    let u = sqrt_information(information).ok_or_else(|| {
+                        format!(
+                            "{}:{}: information matrix is not positive definite",
+                            self.source, e.line
+                        )
+                    })?;
+                    problem.add_residual(Between3::new(*z, u), &pair)
+                }
+            };
+            added.map_err(|err| format!("{}:{}: {err}", self.source, e.line))?;
+        }
+        Ok(PoseGraphProblem {
+            problem,
+            ids,
+            vars,
+            dimension: self.dimension,
+        })
+    }
+}

@@ -1,0 +1,3 @@
+//! # dynamap-slam
+//!
+//! Dense RGB-D SLAM on the dynamap solver.

@@ -1,0 +1,54 @@
+//! Errors of problem construction and solving.
+
+use thiserror::Error;
+
+/// A problem that cannot be built as asked.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum ProblemError {
+    /// A variable id that this problem never issued.
+    #[error("variable {0} does not exist")]
+    UnknownVariable(usize),
+    /// A value that is not a point of the variable's manifold.
+    #[error("variable {variable}: {reason}")]
+    InvalidValue {
+        /// The variable (or the one being created).
+        variable: usize,
+        /// Why the value was refused.
+        reason: String,
+    },
+    /// A residual given the wrong number of variables.
+    #[error("residual expects {expected} variables, got {got}")]
+    Arity {
+        /// What the residual declares.
+        expected: usize,
+        /// What it was given.
+        got: usize,
+    },
+    /// The same variable passed twice to one residual.
+    #[error("variable {0} appears twice in one residual")]
+    DuplicateVariable(usize),
+}
+
+/// Why a solve could not proceed.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum SolveError {
+    /// A free variable that no residual touches: its value is undetermined.
+    #[error("variable {0} is touched by no residual (fix it or remove it)")]
+    UntouchedVariable(usize),
+    /// The normal equations are rank-deficient at the start point.
+    #[error("{message}")]
+    RankDeficient {
+        /// Dimension of the numerical null space.
+        nullity: usize,
+        /// Variables with the largest share of the null space.
+        variables: Vec<usize>,
+        /// A sentence naming the cause.
+        message: String,
+    },
+    /// The initial cost is not finite.
+    #[error("the cost at the initial point is not finite (residual block {0} is the first non-finite one)")]
+    NonFiniteInitialCost(usize),
+    /// The sparse factorisation could not be set up.
+    #[error("linear solver: {0}")]
+    LinearSolver(String),
+}

@@ -1,0 +1,321 @@
+//! The normal equations `H δ = −g` with `H = JᵀJ` and `g = Jᵀr`, assembled directly in block form.
+//!
+//! Assembly runs in two parallel passes with a fixed reduction order, so the same input gives the
+//! same bits whatever the thread timing:
+//! 1. over residual blocks: evaluate r_k and its Jacobian blocks (kernel-corrected) into buffers
+//!    laid out once per structure;
+//! 2. over block columns of H: each block H_ij = Σ_k J_kiᵀ J_kj and each g_j = Σ_k J_kjᵀ r_k is summed
+//!    over its contributing residuals in residual order, written straight into the values of the
+//!    upper triangle of H in compressed-column form (the layout faer's sparse Cholesky reads).
+
+use crate::error::SolveError;
+use crate::problem::Problem;
+use rayon::prelude::*;
+
+/// A raw pointer that may cross threads; every use writes a range no other task touches.
+#[derive(Clone, Copy)]
+pub(crate) struct SyncPtr(*mut f64);
+unsafe impl Send for SyncPtr {}
+unsafe impl Sync for SyncPtr {}
+impl SyncPtr {
+    pub(crate) fn new(s: &mut [f64]) -> Self {
+        Self(s.as_mut_ptr())
+    }
+    /// # Safety
+    /// The range must lie inside the slice this pointer came from, and no other live reference
+    /// may overlap it.
+    #[allow(clippy::mut_from_ref)]
+    pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [f64] {
+        std::slice::from_raw_parts_mut(self.0.add(start), len)
+    }
+}
+
+/// One block H_ij (i ≤ j) of the upper triangle.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Entry {
+    pub row_block: usize,
+    /// Offset of the block's first row inside each of its columns.
+    pub pos: usize,
+}
+
+/// A residual's share of an entry: J_aᵀ J_b with `m` rows, Jacobians at these buffer offsets.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Contribution {
+    pub ja: usize,
+    pub jb: usize,
+    pub m: usize,
+}
+
+/// A residual's share of a gradient block: J_bᵀ r.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GradientContribution {
+    pub j: usize,
+    pub r: usize,
+    pub m: usize,
+}
+
+/// The sparsity structure of the normal equations and the buffers they are assembled into.
+pub(crate) struct NormalEquations {
+    /// Block (free-variable) index of each variable, `usize::MAX` when fixed.
+    pub block_of_var: Vec<usize>,
+    /// Variable of each block.
+    pub var_of_block: Vec<usize>,
+    /// Scalar offset of each block, with the total at the end.
+    pub block_start: Vec<usize>,
+    pub res_offset: Vec<usize>,
+    pub jac_offset: Vec<usize>,
+    pub col_ptr: Vec<usize>,
+    pub row_idx: Vec<usize>,
+    pub diag_pos: Vec<usize>,
+    pub entry_ptr: Vec<usize>,
+    pub entries: Vec<Entry>,
+    contrib_ptr: Vec<usize>,
+    contribs: Vec<Contribution>,
+    grad_ptr: Vec<usize>,
+    grads: Vec<GradientContribution>,
+    /// Upper triangle of H, compressed columns.
+    pub values: Vec<f64>,
+    /// Gradient Jᵀr.
+    pub gradient: Vec<f64>,
+    pub residuals: Vec<f64>,
+    pub jacobians: Vec<f64>,
+    pub costs: Vec<f64>,
+}
+
+impl NormalEquations {
+    /// Lays out the structure of `problem`'s normal equations.
+    pub fn new(problem: &Problem) -> Result<Self, SolveError> {
+        let nv = problem.variables.len();
+        let mut block_of_var = vec![usize::MAX; nv];
+        let mut var_of_block = Vec::new();
+        let mut block_start = vec![0];
+        for (v, var) in problem.variables.iter().enumerate() {
+            if !var.fixed {
+                block_of_var[v] = var_of_block.len();
+                var_of_block.push(v);
+                block_start.push(block_start.last().unwrap() + var.manifold.tangent_dim());
+            }
+        }
+        let nb = var_of_block.len();
+        let (mut res_offset, mut jac_offset) = (vec![0], vec![0]);
+        // (col block, row block, residual, jac offset row, jac offset col, m)
+        let mut pairs: Vec<(usize, usize, usize, usize, usize, usize)> = Vec::new();
+        let mut grad_list: Vec<(usize, usize, usize, usize, usize)> = Vec::new();
+        let mut touched = vec![false; nb];
+        for (k, block) in problem.blocks.iter().enumerate() {
+            let m = block.residual.dim();
+            let (r0, j0) = (*res_offset.last().unwrap(), *jac_offset.last().unwrap());
+            let mut local = Vec::with_capacity(block.vars.len());
+            let mut off = j0;
+            for (&v, &c) in block.vars.iter().zip(&block.cols) {
+                let b = block_of_var[v];
+                if b != usize::MAX {
+                    local.push((b, off));
+                    touched[b] = true;
+                    grad_list.push((b, k, off, r0, m));
+                }
+                off += m * c;
+            }
+            for &(ba, ja) in &local {
+                for &(bb, jb) in &local {
+                    if ba <= bb {
+                        pairs.push((bb, ba, k, ja, jb, m));
+                    }
+                }
+            }
+            res_offset.push(r0 + m);
+            jac_offset.push(off);
+        }
+        if let Some(b) = touched.iter().position(|t| !t) {
+            return Err(SolveError::UntouchedVariable(var_of_block[b]));
+        }
+        pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
+        grad_list.sort_unstable_by_key(|g| (g.0, g.1));
+
+        let dim = |b: usize| block_start[b + 1] - block_start[b];
+        let mut entry_ptr = vec![0];
+        let mut entries = Vec::new();
+        let mut contrib_ptr = vec![0];
+        let mut contribs = Vec::new();
+        let mut col_ptr = vec![0];
+        let mut row_idx = Vec::new();
+        let mut diag_pos = vec![0; *block_start.last().unwrap()];
+        let mut i = 0;
+        for j in 0..nb {
+            // entries of block column j, sorted by row block
+            let first_entry = entries.len();
+            let mut pos = 0;
+            while i < pairs.len() && pairs[i].0 == j {
+                let row = pairs[i].1;
+                entries.push(Entry {
+                    row_block: row,
+                    pos,
+                });
+                pos += if row == j { 0 } else { dim(row) };
+                while i < pairs.len() && pairs[i].0 == j && pairs[i].1 == row {
+                    let p = pairs[i];
+                    contribs.push(Contribution {
+                        ja: p.3,
+                        jb: p.4,
+                        m: p.5,
+                    });
+                    i += 1;
+                }
+                contrib_ptr.push(contribs.len());
+            }
+            entry_ptr.push(entries.len());
+            let col_entries = &entries[first_entry..];
+            for c in 0..dim(j) {
+                for e in col_entries {
+                    let rows = if e.row_block == j {
+                        c + 1
+                    } else {
+                        dim(e.row_block)
+                    };
+                    let start = block_start[e.row_block];
+                    row_idx.extend(start..start + rows);
+                }
+                diag_pos[block_start[j] + c] = row_idx.len() - 1;
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let mut grad_ptr = vec![0; nb + 1];
+        let mut grads = Vec::with_capacity(grad_list.len());
+        for g in &grad_list {
+            grad_ptr[g.0 + 1] += 1;
+            grads.push(GradientContribution {
+                j: g.2,
+                r: g.3,
+                m: g.4,
+            });
+        }
+        for b in 0..nb {
+            grad_ptr[b + 1] += grad_ptr[b];
+        }
+        let n = *block_start.last().unwrap();
+        Ok(Self {
+            values: vec![0.0; row_idx.len()],
+            gradient: vec![0.0; n],
+            residuals: vec![0.0; *res_offset.last().unwrap()],
+            jacobians: vec![0.0; *jac_offset.last().unwrap()],
+            costs: vec![0.0; problem.blocks.len()],
+            block_of_var,
+            var_of_block,
+            block_start,
+            res_offset,
+            jac_offset,
+            col_ptr,
+            row_idx,
+            diag_pos,
+            entry_ptr,
+            entries,
+            contrib_ptr,
+            contribs,
+            grad_ptr,
+            grads,
+        })
+    }
+
+    /// Scalar size of the system.
+    pub fn dim(&self) -> usize {
+        *self.block_start.last().unwrap()
+    }
+
+    /// Number of blocks (free variables).
+    pub fn num_blocks(&self) -> usize {
+        self.var_of_block.len()
+    }
+
+    /// Evaluates every residual block at `values` in parallel and returns the cost ½Σρ, summed in
+    /// block order. With `jacobians`, also fills the Jacobian buffer (kernel-corrected).
+    pub fn evaluate(&mut self, problem: &Problem, values: &[f64], jacobians: bool) -> f64 {
+        let r = SyncPtr::new(&mut self.residuals);
+        let j = SyncPtr::new(&mut self.jacobians);
+        let (ro, jo) = (&self.res_offset, &self.jac_offset);
+        self.costs
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(k, cost)| {
+                // SAFETY: block k owns residuals[ro[k]..ro[k+1]] and jacobians[jo[k]..jo[k+1]].
+                let rk = unsafe { r.slice(ro[k], ro[k + 1] - ro[k]) };
+                let jk = jacobians.then(|| unsafe { j.slice(jo[k], jo[k + 1] - jo[k]) });
+                *cost = problem.evaluate_block(k, values, rk, jk);
+            });
+        self.costs.iter().sum()
+    }
+
+    /// Index of the first residual block with a non-finite cost.
+    pub fn first_non_finite(&self) -> Option<usize> {
+        self.costs.iter().position(|c| !c.is_finite())
+    }
+
+    /// Forms H and g from the Jacobian and residual buffers filled by [`Self::evaluate`].
+    pub fn assemble(&mut self) {
+        let h = SyncPtr::new(&mut self.values);
+        let g = SyncPtr::new(&mut self.gradient);
+        let this = &*self;
+        (0..this.num_blocks())
+            .into_par_iter()
+            .with_min_len(16)
+            .for_each(|jb| this.assemble_column(jb, h, g));
+    }
+
+    fn assemble_column(&self, jb: usize, h: SyncPtr, g: SyncPtr) {
+        let (jac, res) = (&self.jacobians, &self.residuals);
+        let c0 = self.block_start[jb];
+        let dj = self.block_start[jb + 1] - c0;
+        for e in self.entry_ptr[jb]..self.entry_ptr[jb + 1] {
+            let entry = self.entries[e];
+            let diagonal = entry.row_block == jb;
+            let di = self.block_start[entry.row_block + 1] - self.block_start[entry.row_block];
+            for c in 0..dj {
+                let rows = if diagonal { c + 1 } else { di };
+                // SAFETY: column c0 + c belongs to block column jb only.
+                let col = unsafe { h.slice(self.col_ptr[c0 + c] + entry.pos, rows) };
+                col.fill(0.0);
+                for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
+                    let m = k.m;
+                    let b = &jac[k.jb + c * m..k.jb + (c + 1) * m];
+                    for (r, out) in col.iter_mut().enumerate() {
+                        let a = &jac[k.ja + r * m..k.ja + (r + 1) * m];
+                        *out += dot(a, b);
+                    }
+                }
+            }
+        }
+        // SAFETY: the gradient segment of block jb is written by this task only.
+        let gj = unsafe { g.slice(c0, dj) };
+        gj.fill(0.0);
+        for k in &self.grads[self.grad_ptr[jb]..self.grad_ptr[jb + 1]] {
+            let r = &res[k.r..k.r + k.m];
+            for (c, out) in gj.iter_mut().enumerate() {
+                *out += dot(&jac[k.j + c * k.m..k.j + (c + 1) * k.m], r);
+            }
+        }
+    }
+
+    /// y = H x with H symmetric, stored as its upper triangle.
+    pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for c in 0..self.dim() {
+            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let (r, v) = (self.row_idx[p], self.values[p]);
+                y[r] += v * x[c];
+                if r != c {
+                    y[c] += v * x[r];
+                }
+            }
+        }
+    }
+
+    /// The diagonal of H.
+    pub fn diagonal(&self) -> impl Iterator<Item = f64> + '_ {
+        self.diag_pos.iter().map(|&p| self.values[p])
+    }
+}
+
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
