@@ -118,7 +118,7 @@ pub(crate) fn check_rank(
             let y = eig.eigenvectors.column(e);
             for (b, m) in mass.iter_mut().enumerate() {
                 for i in ne.block_start[b]..ne.block_start[b + 1] {
-                    let u: f64 = (0..k).map(|j| basis[j][i] * y[j]).sum();
+                    let u: f64 = basis.iter().zip(y.iter()).map(|(v, yj)| v[i] * yj).sum();
                     *m += u * u;
                 }
             }
@@ -145,7 +145,8 @@ fn deficiency(
 ) -> SolveError {
     let mut variables: Vec<usize> = blocks.iter().map(|&b| ne.var_of_block[b]).collect();
     let any_fixed = problem.variables.iter().any(|v| v.fixed);
-    let message = if !any_fixed && variables.len() * 2 >= ne.num_blocks() && ne.num_blocks() > 1 {
+    // A null space over every free variable of a problem with nothing fixed is a gauge freedom.
+    let message = if !any_fixed && variables.len() == ne.num_blocks() && ne.num_blocks() > 1 {
         format!(
             "no variable is fixed: the graph has a {nullity}-dimensional gauge freedom \
              (fix one variable, e.g. variable {}, or add a prior)",

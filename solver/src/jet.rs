@@ -72,11 +72,9 @@ impl<const N: usize> Sub for Jet<N> {
 impl<const N: usize> Mul for Jet<N> {
     type Output = Self;
     #[inline]
+    #[allow(clippy::suspicious_arithmetic_impl)] // product rule: d(ab) = a db + b da
     fn mul(self, o: Self) -> Self {
-        let mut v = [0.0; N];
-        for i in 0..N {
-            v[i] = self.re * o.v[i] + o.re * self.v[i];
-        }
+        let v = std::array::from_fn(|i| self.re * o.v[i] + o.re * self.v[i]);
         Self {
             re: self.re * o.re,
             v,
@@ -89,10 +87,7 @@ impl<const N: usize> Div for Jet<N> {
     fn div(self, o: Self) -> Self {
         let inv = 1.0 / o.re;
         let re = self.re * inv;
-        let mut v = [0.0; N];
-        for i in 0..N {
-            v[i] = (self.v[i] - re * o.v[i]) * inv;
-        }
+        let v = std::array::from_fn(|i| (self.v[i] - re * o.v[i]) * inv);
         Self { re, v }
     }
 }
@@ -196,10 +191,7 @@ impl<const N: usize> Real for Jet<N> {
     fn atan2(self, x: Self) -> Self {
         // d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)
         let inv = 1.0 / (x.re * x.re + self.re * self.re);
-        let mut v = [0.0; N];
-        for i in 0..N {
-            v[i] = (x.re * self.v[i] - self.re * x.v[i]) * inv;
-        }
+        let v = std::array::from_fn(|i| (x.re * self.v[i] - self.re * x.v[i]) * inv);
         Self {
             re: self.re.atan2(x.re),
             v,

@@ -47,7 +47,7 @@ enum Kind {
         a: Mat<f64>,
     },
     Sparse {
-        symbolic: SymbolicCholesky<usize>,
+        symbolic: Box<SymbolicCholesky<usize>>,
         l_values: Vec<f64>,
         work: Vec<f64>,
     },
@@ -122,7 +122,7 @@ impl LinearSolver {
         let l_values = vec![0.0; symbolic.len_val()];
         Ok(Self {
             kind: Kind::Sparse {
-                symbolic,
+                symbolic: Box::new(symbolic),
                 l_values,
                 work: vec![0.0; ne.values.len()],
             },

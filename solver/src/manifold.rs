@@ -173,7 +173,7 @@ fn quaternion_from(x: &[f64]) -> UnitQuaternion<f64> {
 
 fn validate_quaternion(x: &[f64], at: usize) -> Result<(), String> {
     let n = x[at..at + 4].iter().map(|v| v * v).sum::<f64>().sqrt();
-    if !(n > 1e-9) {
+    if n.is_nan() || n <= 1e-9 {
         return Err(format!("quaternion has norm {n}, not a rotation"));
     }
     Ok(())

@@ -65,6 +65,7 @@ impl Pose {
 
 /// A relative measurement with its information matrix (in the solver's tangent order).
 #[derive(Clone, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant)] // a graph holds one kind; boxing would cost an allocation per edge
 pub enum Measurement {
     /// SE(2): Ω in `[x, y, θ]` order.
     Se2 {

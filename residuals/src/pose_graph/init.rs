@@ -81,12 +81,12 @@ impl Residual for LinearPair {
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
         let n = self.b.len();
-        for r in 0..n {
+        for (r, out) in residual.iter_mut().enumerate().take(n) {
             let mut s = vars[1].value[r] - self.b[r];
             for c in 0..n {
                 s += self.a[(r, c)] * vars[0].value[c];
             }
-            residual[r] = s;
+            *out = s;
         }
         if let Some(j) = jacobians {
             j.block(0).copy_from_slice(self.a.as_slice());

@@ -1,0 +1,175 @@
+//! The g2o reader on damaged input (never a panic, always file:line and the field), writing through a
+//! temporary file, and the initialisations that fill in missing vertices.
+
+use dynamap::residuals::pose_graph::synthetic::{self, max_pose_error, SyntheticOptions};
+use dynamap::residuals::pose_graph::{g2o, init};
+use dynamap::solver::{Options, Solver};
+use proptest::prelude::*;
+
+fn sample_text() -> String {
+    let s = synthetic::sphere(&SyntheticOptions {
+        rings: 2,
+        per_ring: 4,
+        ..SyntheticOptions::default()
+    });
+    g2o::format(&s.graph, &s.graph.vertices)
+}
+
+fn sample_text_2d() -> String {
+    let s = synthetic::circle(&SyntheticOptions {
+        rings: 2,
+        per_ring: 4,
+        ..SyntheticOptions::default()
+    });
+    g2o::format(&s.graph, &s.graph.vertices)
+}
+
+/// Parses, and if that succeeds builds and solves: none of it may panic, and a parse error names
+/// `f.g2o` and a line within the file.
+fn exercise(text: &str) {
+    match g2o::parse(text, "f.g2o") {
+        Ok(graph) => {
+            for start in [Ok(graph.vertices.clone()), init::odometry(&graph)] {
+                let Ok(start) = start else { continue };
+                if let Ok(mut pg) = graph.build_problem(&start) {
+                    let _ = Solver::new(Options {
+                        max_iterations: 3,
+                        ..Options::default()
+                    })
+                    .solve(&mut pg.problem);
+                }
+            }
+        }
+        Err(e) => {
+            assert_eq!(e.path, "f.g2o");
+            assert!(e.line <= text.lines().count(), "{e}");
+            assert!(e.to_string().starts_with(&format!("f.g2o:{}: ", e.line)));
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    #[test]
+    fn truncated_files_never_panic(cut in 0usize..4000, planar in any::<bool>()) {
+        let text = if planar { sample_text_2d() } else { sample_text() };
+        let cut = cut.min(text.len());
+        exercise(&text[..cut]);
+    }
+
+    #[test]
+    fn corrupted_tokens_never_panic(line in 0usize..64, token in 0usize..40, junk in prop::sample::select(vec![
+        "nan", "NaN", "inf", "-inf", "1e999", "", "x", "-3", "0", "1e-320", "VERTEX_SE2", "FIX", "99999999999999999999999",
+    ])) {
+        let text = sample_text();
+        let mut lines: Vec<Vec<String>> = text.lines().map(|l| l.split_whitespace().map(String::from).collect()).collect();
+        let n = lines.len();
+        let l = &mut lines[line % n];
+        let k = token % l.len();
+        l[k] = junk.to_string();
+        let damaged: String = lines.iter().map(|l| l.join(" ") + "\n").collect();
+        exercise(&damaged);
+    }
+
+    #[test]
+    fn shuffled_and_duplicated_lines_never_panic(picks in prop::collection::vec(0usize..64, 1..40)) {
+        let text = sample_text_2d();
+        let lines: Vec<&str> = text.lines().collect();
+        let damaged: String = picks.iter().map(|&i| lines[i % lines.len()].to_string() + "\n").collect();
+        exercise(&damaged);
+    }
+}
+
+#[test]
+fn missing_vertices_are_named_and_odometry_fills_them() {
+    let s = synthetic::circle(&SyntheticOptions {
+        rings: 3,
+        per_ring: 10,
+        rotation_noise: 0.0,
+        translation_noise: 0.0,
+        ..SyntheticOptions::default()
+    });
+    let text = g2o::format(&s.graph, &s.graph.vertices);
+    // Drop the vertex lines of 5 and 17.
+    let text: String = text
+        .lines()
+        .filter(|l| !(l.starts_with("VERTEX_SE2 5 ") || l.starts_with("VERTEX_SE2 17 ")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let graph = g2o::parse(&text, "holes.g2o").unwrap();
+    let err = graph.build_problem(&graph.vertices).err().unwrap();
+    assert!(
+        err.starts_with("holes.g2o:") && err.contains("refers to vertex 5, which has no pose"),
+        "{err}"
+    );
+    // Exact measurements: the spanning tree reproduces the ground truth, holes included.
+    let start = init::odometry(&graph).unwrap();
+    let (dt, dr) = max_pose_error(&start, &s.truth);
+    assert!(dt < 1e-9 && dr < 1e-9, "{dt} {dr}");
+}
+
+#[test]
+fn chordal_initialisation_recovers_exact_graphs() {
+    for s in [
+        synthetic::sphere(&SyntheticOptions {
+            rings: 6,
+            per_ring: 12,
+            ..SyntheticOptions::default()
+        }),
+        synthetic::circle(&SyntheticOptions {
+            rings: 6,
+            per_ring: 12,
+            ..SyntheticOptions::default()
+        }),
+    ] {
+        let start = init::chordal(&s.graph).unwrap();
+        let (dt, dr) = max_pose_error(&start, &s.truth);
+        assert!(dt < 1e-8 && dr < 1e-8, "{}: {dt} {dr}", s.graph.source);
+    }
+}
+
+#[test]
+fn a_disconnected_vertex_is_reported_by_the_initialisers() {
+    let text = format!("{}EDGE_SE2 100 101 1 0 0 1 0 0 1 0 1\n", sample_text_2d());
+    let graph = g2o::parse(&text, "two.g2o").unwrap();
+    let err = init::odometry(&graph).unwrap_err();
+    assert!(
+        err.contains("vertex 100 is not connected to the anchor vertex 0"),
+        "{err}"
+    );
+    assert!(init::chordal(&graph).is_err());
+}
+
+#[test]
+fn writing_goes_through_a_temporary_file_and_round_trips() {
+    let dir = std::env::temp_dir().join(format!("dynamap-g2o-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("out.g2o");
+    let s = synthetic::sphere(&SyntheticOptions {
+        rings: 3,
+        per_ring: 5,
+        ..SyntheticOptions::default()
+    });
+    g2o::write(&path, &s.graph, &s.truth).unwrap();
+    let back = g2o::read(&path).unwrap();
+    assert_eq!(
+        back.vertices, s.truth,
+        "full precision: every coordinate reads back exactly"
+    );
+    assert_eq!(
+        std::fs::read_dir(&dir).unwrap().count(),
+        1,
+        "no temporary file left behind"
+    );
+    // A directory that does not exist: an error naming the path, nothing written.
+    let bad = dir.join("missing").join("x.g2o");
+    let err = g2o::write(&bad, &s.graph, &s.truth).unwrap_err();
+    assert!(err.to_string().contains("missing/x.g2o"), "{err}");
+    let missing = g2o::read(dir.join("nope.g2o")).unwrap_err();
+    assert!(
+        missing.to_string().contains("nope.g2o:0: cannot read"),
+        "{missing}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
