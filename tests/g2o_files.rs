@@ -6,21 +6,18 @@ use dynamap::residuals::pose_graph::{g2o, init};
 use dynamap::solver::{Options, Solver};
 use proptest::prelude::*;
 
-fn sample_text() -> String {
-    let s = synthetic::sphere(&SyntheticOptions {
+/// A small valid file: a 2-ring sphere graph (3D) or circle graph (2D).
+fn sample(planar: bool) -> String {
+    let o = SyntheticOptions {
         rings: 2,
         per_ring: 4,
         ..SyntheticOptions::default()
-    });
-    g2o::format(&s.graph, &s.graph.vertices)
-}
-
-fn sample_text_2d() -> String {
-    let s = synthetic::circle(&SyntheticOptions {
-        rings: 2,
-        per_ring: 4,
-        ..SyntheticOptions::default()
-    });
+    };
+    let s = if planar {
+        synthetic::circle(&o)
+    } else {
+        synthetic::sphere(&o)
+    };
     g2o::format(&s.graph, &s.graph.vertices)
 }
 
@@ -53,7 +50,7 @@ proptest! {
 
     #[test]
     fn truncated_files_never_panic(cut in 0usize..4000, planar in any::<bool>()) {
-        let text = if planar { sample_text_2d() } else { sample_text() };
+        let text = sample(planar);
         let cut = cut.min(text.len());
         exercise(&text[..cut]);
     }
@@ -62,7 +59,7 @@ proptest! {
     fn corrupted_tokens_never_panic(line in 0usize..64, token in 0usize..40, junk in prop::sample::select(vec![
         "nan", "NaN", "inf", "-inf", "1e999", "", "x", "-3", "0", "1e-320", "VERTEX_SE2", "FIX", "99999999999999999999999",
     ])) {
-        let text = sample_text();
+        let text = sample(false);
         let mut lines: Vec<Vec<String>> = text.lines().map(|l| l.split_whitespace().map(String::from).collect()).collect();
         let n = lines.len();
         let l = &mut lines[line % n];
@@ -74,7 +71,7 @@ proptest! {
 
     #[test]
     fn shuffled_and_duplicated_lines_never_panic(picks in prop::collection::vec(0usize..64, 1..40)) {
-        let text = sample_text_2d();
+        let text = sample(true);
         let lines: Vec<&str> = text.lines().collect();
         let damaged: String = picks.iter().map(|&i| lines[i % lines.len()].to_string() + "\n").collect();
         exercise(&damaged);
@@ -131,7 +128,7 @@ fn chordal_initialisation_recovers_exact_graphs() {
 
 #[test]
 fn a_disconnected_vertex_is_reported_by_the_initialisers() {
-    let text = format!("{}EDGE_SE2 100 101 1 0 0 1 0 0 1 0 1\n", sample_text_2d());
+    let text = format!("{}EDGE_SE2 100 101 1 0 0 1 0 0 1 0 1\n", sample(true));
     let graph = g2o::parse(&text, "two.g2o").unwrap();
     let err = init::odometry(&graph).unwrap_err();
     assert!(
