@@ -1,3 +1,19 @@
 //! # dynamap-slam
 //!
-//! Dense RGB-D SLAM on the dynamap solver.
+//! Dense RGB-D SLAM on the dynamap solver. The sensor side:
+//!
+//! - [`camera`]: the pinhole model, pyramid intrinsics.
+//! - [`image`]: bilateral filter, Gaussian pyramid, vertex and normal maps, intensity and gradients;
+//!   [`preprocess`] ties them into a per-frame pyramid.
+//! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes.
+//! - [`mesh`]: triangle meshes.
+
+#![warn(missing_docs)]
+
+pub mod camera;
+pub mod image;
+pub mod io;
+pub mod mesh;
+pub mod preprocess;
+
+pub use camera::Camera;

@@ -1,0 +1,307 @@
+//! PLY meshes (Turk, *The PLY Polygon File Format*, 1994): written as binary little-endian with
+//! positions, normals, colours and triangles; read back from binary little-endian or ASCII.
+
+use super::{write_atomic, IoError};
+use crate::mesh::Mesh;
+use nalgebra::{Point3, Vector3};
+use std::path::Path;
+
+/// Encodes a mesh as binary little-endian PLY.
+pub fn encode(mesh: &Mesh) -> Vec<u8> {
+    let (has_n, has_c) = (!mesh.normals.is_empty(), !mesh.colors.is_empty());
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment dynamap\nelement vertex {}\n",
+        mesh.vertices.len()
+    );
+    header.push_str("property float x\nproperty float y\nproperty float z\n");
+    if has_n {
+        header.push_str("property float nx\nproperty float ny\nproperty float nz\n");
+    }
+    if has_c {
+        header.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+    }
+    header.push_str(&format!(
+        "element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        mesh.faces.len()
+    ));
+    let mut out = header.into_bytes();
+    out.reserve(mesh.vertices.len() * 27 + mesh.faces.len() * 13);
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        for c in v.coords.iter() {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+        if has_n {
+            for c in mesh.normals[i].iter() {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        if has_c {
+            out.extend_from_slice(&mesh.colors[i]);
+        }
+    }
+    for f in &mesh.faces {
+        out.push(3);
+        for i in f {
+            out.extend_from_slice(&(*i as i32).to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Writes a mesh as binary PLY through a temporary file.
+pub fn write(path: impl AsRef<Path>, mesh: &Mesh) -> Result<(), IoError> {
+    let path = path.as_ref();
+    mesh.validate().map_err(|m| IoError::file(path, m))?;
+    write_atomic(path, &encode(mesh))
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    F32,
+    F64,
+    U8,
+    I32,
+    U32,
+    I16,
+    U16,
+    I8,
+}
+
+impl Kind {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "float" | "float32" => Kind::F32,
+            "double" | "float64" => Kind::F64,
+            "uchar" | "uint8" => Kind::U8,
+            "char" | "int8" => Kind::I8,
+            "int" | "int32" => Kind::I32,
+            "uint" | "uint32" => Kind::U32,
+            "short" | "int16" => Kind::I16,
+            "ushort" | "uint16" => Kind::U16,
+            _ => return None,
+        })
+    }
+    fn size(self) -> usize {
+        match self {
+            Kind::F64 => 8,
+            Kind::F32 | Kind::I32 | Kind::U32 => 4,
+            Kind::I16 | Kind::U16 => 2,
+            Kind::U8 | Kind::I8 => 1,
+        }
+    }
+    fn read(self, b: &[u8]) -> f64 {
+        match self {
+            Kind::F32 => f32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Kind::F64 => f64::from_le_bytes(b[..8].try_into().unwrap()),
+            Kind::I32 => i32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Kind::U32 => u32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Kind::I16 => i16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
+            Kind::U16 => u16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
+            Kind::U8 => b[0] as f64,
+            Kind::I8 => b[0] as i8 as f64,
+        }
+    }
+}
+
+struct Element {
+    name: String,
+    count: usize,
+    /// (name, type) or, for a list, (name, count type, item type)
+    props: Vec<(String, Kind, Option<Kind>)>,
+}
+
+/// Reads a PLY mesh (binary little-endian or ASCII; vertices with optional normals and colours,
+/// triangle faces).
+pub fn read(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
+    let path = path.as_ref();
+    let bytes =
+        std::fs::read(path).map_err(|e| IoError::file(path, format!("cannot read: {e}")))?;
+    decode(&bytes, path)
+}
+
+/// Decodes PLY bytes; `path` names them in errors.
+pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .ok_or_else(|| IoError::file(path, "no 'end_header' line"))?;
+    let header = std::str::from_utf8(&bytes[..end])
+        .map_err(|_| IoError::file(path, "header is not text"))?;
+    let mut body = &bytes[end + 11..];
+    let mut elements: Vec<Element> = Vec::new();
+    let mut ascii = false;
+    for (i, line) in header.lines().enumerate() {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        let err = |m: &str| IoError::line(path, i + 1, m.to_string());
+        match f.first().copied() {
+            Some("ply") | Some("comment") | Some("obj_info") | None => {}
+            Some("format") => match f.get(1).copied() {
+                Some("binary_little_endian") => ascii = false,
+                Some("ascii") => ascii = true,
+                other => return Err(err(&format!("unsupported format {other:?}"))),
+            },
+            Some("element") => {
+                let count = f
+                    .get(2)
+                    .and_then(|c| c.parse().ok())
+                    .ok_or_else(|| err("element needs a name and a count"))?;
+                elements.push(Element {
+                    name: f.get(1).unwrap_or(&"").to_string(),
+                    count,
+                    props: Vec::new(),
+                });
+            }
+            Some("property") => {
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| err("property before any element"))?;
+                if f.get(1) == Some(&"list") {
+                    let (c, t) = (
+                        f.get(2).and_then(|s| Kind::parse(s)),
+                        f.get(3).and_then(|s| Kind::parse(s)),
+                    );
+                    match (c, t, f.get(4)) {
+                        (Some(c), Some(t), Some(n)) => el.props.push((n.to_string(), c, Some(t))),
+                        _ => return Err(err("malformed list property")),
+                    }
+                } else {
+                    match (f.get(1).and_then(|s| Kind::parse(s)), f.get(2)) {
+                        (Some(k), Some(n)) => el.props.push((n.to_string(), k, None)),
+                        _ => return Err(err("malformed property")),
+                    }
+                }
+            }
+            Some(other) => return Err(err(&format!("unknown header keyword '{other}'"))),
+        }
+    }
+    let text = if ascii {
+        Some(std::str::from_utf8(body).map_err(|_| IoError::file(path, "ASCII body is not text"))?)
+    } else {
+        None
+    };
+    let mut tokens = text.map(|t| t.split_whitespace());
+    let mut next = |k: Kind| -> Result<f64, IoError> {
+        match &mut tokens {
+            Some(t) => t
+                .next()
+                .and_then(|s| s.parse::<f64>().ok())
+                .ok_or_else(|| IoError::file(path, "ASCII body ends early or has a non-number")),
+            None => {
+                if body.len() < k.size() {
+                    return Err(IoError::file(path, "binary body ends early"));
+                }
+                let v = k.read(body);
+                body = &body[k.size()..];
+                Ok(v)
+            }
+        }
+    };
+    let mut mesh = Mesh::default();
+    for el in &elements {
+        for _ in 0..el.count {
+            let mut vals: Vec<(usize, f64)> = Vec::with_capacity(el.props.len());
+            let mut face = Vec::new();
+            for (pi, (name, k, list)) in el.props.iter().enumerate() {
+                match list {
+                    Some(t) => {
+                        let n = next(*k)? as usize;
+                        for _ in 0..n {
+                            let v = next(*t)?;
+                            if name == "vertex_indices" || name == "vertex_index" {
+                                face.push(v);
+                            }
+                        }
+                    }
+                    None => vals.push((pi, next(*k)?)),
+                }
+            }
+            let get = |n: &str| {
+                el.props
+                    .iter()
+                    .position(|p| p.0 == n)
+                    .and_then(|i| vals.iter().find(|v| v.0 == i))
+                    .map(|v| v.1)
+            };
+            if el.name == "vertex" {
+                let (x, y, z) = (get("x"), get("y"), get("z"));
+                let (Some(x), Some(y), Some(z)) = (x, y, z) else {
+                    return Err(IoError::file(path, "vertex element lacks x, y or z"));
+                };
+                mesh.vertices
+                    .push(Point3::new(x as f32, y as f32, z as f32));
+                if let (Some(a), Some(b), Some(c)) = (get("nx"), get("ny"), get("nz")) {
+                    mesh.normals
+                        .push(Vector3::new(a as f32, b as f32, c as f32));
+                }
+                if let (Some(r), Some(g), Some(b)) = (get("red"), get("green"), get("blue")) {
+                    mesh.colors.push([r as u8, g as u8, b as u8]);
+                }
+            } else if el.name == "face" {
+                if face.len() < 3 {
+                    return Err(IoError::file(
+                        path,
+                        format!("face {} has {} vertices", mesh.faces.len(), face.len()),
+                    ));
+                }
+                // fan-triangulate polygons
+                for k in 1..face.len() - 1 {
+                    mesh.faces
+                        .push([face[0] as u32, face[k] as u32, face[k + 1] as u32]);
+                }
+            }
+        }
+    }
+    mesh.validate().map_err(|m| IoError::file(path, m))?;
+    Ok(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tetrahedron() -> Mesh {
+        let mut m = Mesh {
+            vertices: vec![
+                Point3::new(0.0, 0.0, 0.0),
+                Point3::new(1.0, 0.0, 0.0),
+                Point3::new(0.0, 1.0, 0.0),
+                Point3::new(0.0, 0.0, 1.0),
+            ],
+            normals: vec![],
+            colors: vec![[255, 0, 0], [0, 255, 0], [0, 0, 255], [7, 8, 9]],
+            faces: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        };
+        m.compute_normals();
+        m
+    }
+
+    #[test]
+    fn binary_round_trip() {
+        let m = tetrahedron();
+        let back = decode(&encode(&m), Path::new("t.ply")).unwrap();
+        assert_eq!(back, m);
+    }
+
+    #[test]
+    fn ascii_and_errors() {
+        let text = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+        let m = decode(text, Path::new("a.ply")).unwrap();
+        assert_eq!((m.vertices.len(), m.faces.len()), (3, 1));
+        let bad = decode(&text[..text.len() - 4], Path::new("a.ply")).unwrap_err();
+        assert!(
+            bad.to_string().starts_with("a.ply: ASCII body ends early"),
+            "{bad}"
+        );
+        let mut broken = encode(&tetrahedron());
+        broken.truncate(broken.len() - 3);
+        assert!(decode(&broken, Path::new("b.ply"))
+            .unwrap_err()
+            .to_string()
+            .contains("binary body ends early"));
+        let out_of_range = b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n3 0 1 2\n";
+        assert!(decode(out_of_range, Path::new("c.ply"))
+            .unwrap_err()
+            .to_string()
+            .contains("face 0"));
+    }
+}

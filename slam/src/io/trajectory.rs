@@ -1,0 +1,125 @@
+//! Trajectories in the TUM format: one pose per line, `timestamp tx ty tz qx qy qz qw`,
+//! camera-to-world (Sturm et al., IROS 2012).
+
+use super::{data_lines, number, read_text, write_atomic, IoError};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Timestamped camera-to-world poses.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trajectory {
+    /// Seconds.
+    pub stamps: Vec<f64>,
+    /// `T_world_camera` per stamp.
+    pub poses: Vec<Isometry3<f64>>,
+}
+
+const FIELDS: [&str; 8] = ["timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw"];
+
+impl Trajectory {
+    /// Number of poses.
+    pub fn len(&self) -> usize {
+        self.stamps.len()
+    }
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.stamps.is_empty()
+    }
+    /// Appends a pose.
+    pub fn push(&mut self, stamp: f64, pose: Isometry3<f64>) {
+        self.stamps.push(stamp);
+        self.poses.push(pose);
+    }
+
+    /// Reads a TUM trajectory file.
+    pub fn read_tum(path: impl AsRef<Path>) -> Result<Self, IoError> {
+        let path = path.as_ref();
+        Self::parse_tum(&read_text(path)?, path)
+    }
+
+    /// Parses TUM text; `path` names it in errors.
+    pub fn parse_tum(text: &str, path: &Path) -> Result<Self, IoError> {
+        let mut t = Trajectory::default();
+        for (line, f) in data_lines(text) {
+            if f.len() != 8 {
+                return Err(IoError::line(
+                    path,
+                    line,
+                    format!(
+                        "expected 8 fields ({}), found {}",
+                        FIELDS.join(" "),
+                        f.len()
+                    ),
+                ));
+            }
+            let v: Vec<f64> = (0..8)
+                .map(|k| number(path, line, &f, k, FIELDS[k]))
+                .collect::<Result<_, _>>()?;
+            let q = Quaternion::new(v[7], v[4], v[5], v[6]);
+            if q.norm() < 1e-9 {
+                return Err(IoError::line(
+                    path,
+                    line,
+                    "fields qx qy qz qw: the quaternion is zero",
+                ));
+            }
+            t.push(
+                v[0],
+                Isometry3::from_parts(
+                    Translation3::new(v[1], v[2], v[3]),
+                    UnitQuaternion::from_quaternion(q),
+                ),
+            );
+        }
+        Ok(t)
+    }
+
+    /// The TUM text of this trajectory (every number at full precision).
+    pub fn format_tum(&self) -> String {
+        let mut s = String::from("# timestamp tx ty tz qx qy qz qw\n");
+        for (stamp, p) in self.stamps.iter().zip(&self.poses) {
+            let (t, q) = (p.translation.vector, p.rotation.quaternion());
+            let _ = writeln!(
+                s,
+                "{stamp:.6} {:?} {:?} {:?} {:?} {:?} {:?} {:?}",
+                t.x, t.y, t.z, q.i, q.j, q.k, q.w
+            );
+        }
+        s
+    }
+
+    /// Writes the trajectory through a temporary file.
+    pub fn write_tum(&self, path: impl AsRef<Path>) -> Result<(), IoError> {
+        write_atomic(path, self.format_tum().as_bytes())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_errors() {
+        let text = "# comment\n1.0 1 2 3 0 0 0 1\n2.5 -1 0.5 2 0.1 0.2 0.3 0.927\n";
+        let t = Trajectory::parse_tum(text, Path::new("t.txt")).unwrap();
+        assert_eq!(t.len(), 2);
+        let back = Trajectory::parse_tum(&t.format_tum(), Path::new("u.txt")).unwrap();
+        assert_eq!(back.stamps, t.stamps);
+        for (a, b) in back.poses.iter().zip(&t.poses) {
+            assert!((a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-15);
+        }
+        let e = Trajectory::parse_tum("1 2 3\n", Path::new("t.txt")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t.txt:1: expected 8 fields (timestamp tx ty tz qx qy qz qw), found 3"
+        );
+        let e = Trajectory::parse_tum("1 2 3 4 0 0 x 1\n", Path::new("t.txt")).unwrap_err();
+        assert_eq!(e.to_string(), "t.txt:1: field qz: 'x' is not a number");
+        let e = Trajectory::parse_tum("\n1 2 3 4 0 0 0 0\n", Path::new("t.txt")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t.txt:2: fields qx qy qz qw: the quaternion is zero"
+        );
+    }
+}
