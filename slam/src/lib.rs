@@ -7,10 +7,12 @@
 //!   [`preprocess`] ties them into a per-frame pyramid.
 //! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes.
 //! - [`mesh`]: triangle meshes.
+//! - [`eval`]: ATE and RPE (as evo computes them), scene-flow EPE, mesh distances.
 
 #![warn(missing_docs)]
 
 pub mod camera;
+pub mod eval;
 pub mod image;
 pub mod io;
 pub mod mesh;

@@ -1,0 +1,259 @@
+//! Gates on the real public data in `../shared/data` (built only with `--features real-data`; run by
+//! `.ci/run`). Each test fails loudly when the data is missing.
+
+use dynamap::slam::eval::{ate, rpe, Alignment, DeltaUnit, MAX_STAMP_DIFFERENCE};
+use dynamap::slam::io::folder::FolderSequence;
+use dynamap::slam::io::iclnuim::IclNuimSequence;
+use dynamap::slam::io::images::{read_color, read_depth};
+use dynamap::slam::io::trajectory::Trajectory;
+use std::path::PathBuf;
+
+fn data(rel: &str) -> PathBuf {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel);
+    assert!(
+        p.exists(),
+        "{} is missing: these gates need ../shared/data",
+        p.display()
+    );
+    p
+}
+
+/// evo 1.38.1 on the TUM fr1/xyz ground truth against RGBD-SLAM's estimates, full precision from
+/// evo's Python API (the same numbers `evo_ape tum GT EST -a` / `-as` and
+/// `evo_rpe tum GT EST -a --delta 1 --delta_unit f [--pose_relation angle_deg]` print rounded):
+/// (estimate, APE SE3 rmse/mean/median/max, APE Sim3 rmse/max, RPE trans rmse/mean/median/max,
+///  RPE deg rmse/mean/median/max, pairs)
+#[allow(clippy::type_complexity)]
+const EVO: [(&str, [f64; 4], [f64; 2], [f64; 4], [f64; 4], usize); 2] = [
+    (
+        "freiburg1_xyz-rgbdslam.txt",
+        [
+            0.013470088849733695,
+            0.012024498709110232,
+            0.011183186775061079,
+            0.03475954589500904,
+        ],
+        [0.013389384904168217, 0.03484614485226119],
+        [
+            0.005764370848928318,
+            0.004815609470203963,
+            0.0041388577993644255,
+            0.020865814532330103,
+        ],
+        [
+            0.3536131610447985,
+            0.3003065811400405,
+            0.2621389996694454,
+            1.6332960623334538,
+        ],
+        785,
+    ),
+    (
+        "freiburg1_xyz-rgbdslam_drift.txt",
+        [
+            0.013470118951368277,
+            0.01202451606220223,
+            0.011183137957357257,
+            0.034759897174092724,
+        ],
+        [0.013389416164851104, 0.034846485997036616],
+        [
+            0.005764378833030764,
+            0.004815612031956734,
+            0.004138810593404495,
+            0.020865165925125582,
+        ],
+        [
+            0.3536135361731567,
+            0.3003084171178446,
+            0.2621392221832407,
+            1.633283747382841,
+        ],
+        785,
+    ),
+];
+
+#[test]
+fn ate_and_rpe_agree_with_evo() {
+    let dir = data("rgbd/tum_trajectories");
+    let gt = Trajectory::read_tum(dir.join("freiburg1_xyz-groundtruth.txt")).unwrap();
+    for (name, ape, sim, rpe_t, rpe_r, pairs) in EVO {
+        let est = Trajectory::read_tum(dir.join(name)).unwrap();
+        let a = ate(&gt, &est, Alignment::Se3, MAX_STAMP_DIFFERENCE).unwrap();
+        assert_eq!(a.pairs.len(), pairs, "{name}");
+        let got = [a.stats.rmse, a.stats.mean, a.stats.median, a.stats.max];
+        for (g, e) in got.iter().zip(ape) {
+            assert!((g - e).abs() < 1e-6, "{name} APE {got:?} vs evo {ape:?}");
+        }
+        let s = ate(&gt, &est, Alignment::Sim3, MAX_STAMP_DIFFERENCE).unwrap();
+        assert!(
+            (s.stats.rmse - sim[0]).abs() < 1e-6 && (s.stats.max - sim[1]).abs() < 1e-6,
+            "{name} Sim3"
+        );
+        let r = rpe(&gt, &est, 1.0, DeltaUnit::Frames, MAX_STAMP_DIFFERENCE).unwrap();
+        let t = [
+            r.translation.rmse,
+            r.translation.mean,
+            r.translation.median,
+            r.translation.max,
+        ];
+        let d = [
+            r.rotation_deg.rmse,
+            r.rotation_deg.mean,
+            r.rotation_deg.median,
+            r.rotation_deg.max,
+        ];
+        for (g, e) in t.iter().zip(rpe_t) {
+            assert!(
+                (g - e).abs() < 1e-6,
+                "{name} RPE translation {t:?} vs evo {rpe_t:?}"
+            );
+        }
+        for (g, e) in d.iter().zip(rpe_r) {
+            assert!(
+                (g - e).abs() < 1e-6,
+                "{name} RPE rotation {d:?} vs evo {rpe_r:?}"
+            );
+        }
+    }
+    // The ground truth against itself: zero.
+    let z = ate(&gt, &gt, Alignment::Se3, MAX_STAMP_DIFFERENCE).unwrap();
+    assert!(z.stats.max < 1e-9);
+}
+
+#[test]
+fn every_loader_reads_the_real_frames() {
+    // ICL-NUIM (negative fy), PNG
+    let icl = IclNuimSequence::open(data("rgbd/iclnuim_lr_kt2_5frames")).unwrap();
+    assert_eq!(icl.len(), 5);
+    for i in 0..5 {
+        let f = icl.load(i).unwrap();
+        assert_eq!((f.depth.width, f.depth.height), (640, 480));
+        assert!(
+            f.depth.data.iter().filter(|&&d| d > 0).count() > 200_000,
+            "frame {i}"
+        );
+    }
+    // A plain folder with an Open3D camera JSON, JPEG colour, millimetre depth
+    let ps = FolderSequence::open(data("rgbd/primesense_5frames"), None).unwrap();
+    assert_eq!(
+        (ps.len(), ps.camera.fx, ps.camera.depth_scale),
+        (5, 525.0, 1000.0)
+    );
+    for i in 0..5 {
+        let f = ps.load(i).unwrap();
+        let valid: Vec<f64> = f
+            .depth
+            .data
+            .iter()
+            .filter(|&&d| d > 0)
+            .map(|&d| d as f64 / 1000.0)
+            .collect();
+        assert!(valid.len() > 100_000);
+        let mean = valid.iter().sum::<f64>() / valid.len() as f64;
+        assert!((0.5..5.0).contains(&mean), "frame {i}: mean depth {mean} m");
+        assert_eq!(f.color.unwrap().width, 640);
+    }
+    // Single TUM frames (fr2, fr3), 16-bit depth with scale 5000
+    for (d, c) in [
+        (
+            "rgbd/tum_fr2_2frames/1_depth.png",
+            "rgbd/tum_fr2_2frames/1.png",
+        ),
+        (
+            "rgbd/tum_fr3_long_office_1frame/TUM_depth.png",
+            "rgbd/tum_fr3_long_office_1frame/TUM_color.png",
+        ),
+    ] {
+        let depth = read_depth(data(d)).unwrap();
+        let color = read_color(data(c)).unwrap();
+        assert_eq!(
+            (depth.width, depth.height, color.width, color.height),
+            (640, 480, 640, 480)
+        );
+        let valid: Vec<f64> = depth
+            .data
+            .iter()
+            .filter(|&&v| v > 0)
+            .map(|&v| v as f64 / 5000.0)
+            .collect();
+        let mean = valid.iter().sum::<f64>() / valid.len() as f64;
+        assert!((0.5..6.0).contains(&mean), "{d}: mean depth {mean} m");
+    }
+    // Wrong kinds of file are errors naming the file, not panics.
+    let e = read_depth(data("rgbd/tum_fr2_2frames/1.png")).unwrap_err();
+    assert!(
+        e.to_string().contains("1.png") && e.to_string().contains("16-bit"),
+        "{e}"
+    );
+}
+
+/// Median |z − D_b| after back-projecting ICL-NUIM frame `a` with `cam` and moving it by `rel` into
+/// frame `b` (nearest pixel), over every other pixel.
+fn reprojection_median(
+    icl: &IclNuimSequence,
+    a: usize,
+    b: usize,
+    cam: &dynamap::slam::Camera,
+    rel: &nalgebra::Isometry3<f64>,
+) -> (f64, usize) {
+    let (fa, fb) = (icl.load(a).unwrap(), icl.load(b).unwrap());
+    let mut residuals = Vec::new();
+    for v in (0..480).step_by(2) {
+        for u in (0..640).step_by(2) {
+            let d = fa.depth.at(u, v);
+            if d == 0 {
+                continue;
+            }
+            let p = rel * cam.back_project(u as f64, v as f64, d as f64 / cam.depth_scale);
+            let Some((ub, vb)) = cam.project_to_pixel(&p) else {
+                continue;
+            };
+            let db = fb.depth.at(ub, vb);
+            if db > 0 {
+                residuals.push((p.z - db as f64 / cam.depth_scale).abs());
+            }
+        }
+    }
+    residuals.sort_by(f64::total_cmp);
+    (
+        residuals
+            .get(residuals.len() / 2)
+            .copied()
+            .unwrap_or(f64::INFINITY),
+        residuals.len(),
+    )
+}
+
+/// Back-projects ICL-NUIM frame 1 with its ground-truth pose, re-projects it into frame 2 and compares
+/// with frame 2's depth, which checks intrinsics (the negative fy), depth scale and pose convention on
+/// data the project did not make.
+///
+/// Measured: 4.2 cm median (1→2) and 3.3 cm (2→1). The issue asked for under 1 cm, which these
+/// ground-truth poses do not allow: the depth is noise-free (millimetre steps), and refining the
+/// relative pose by 0.52° and 2 cm (a least-squares fit, done once in Python) brings the median to
+/// 6.5 mm, so the remaining residual is in the poses, not in the conventions. The test therefore
+/// asserts what separates right from wrong conventions: under 5 cm with ours, over 40 cm with fy's
+/// sign flipped or the poses read as world-to-camera.
+#[test]
+fn iclnuim_frames_reproject_onto_the_same_surface() {
+    let icl = IclNuimSequence::open(data("rgbd/iclnuim_lr_kt2_5frames")).unwrap();
+    let cam = icl.camera;
+    let mut flipped = cam;
+    flipped.fy = -cam.fy;
+    for (a, b) in [(0, 1), (1, 0)] {
+        let rel = icl.poses[b].inverse() * icl.poses[a];
+        let (median, n) = reprojection_median(&icl, a, b, &cam, &rel);
+        assert!(n > 10_000, "{a}->{b}: only {n} overlapping pixels");
+        assert!(median < 0.05, "{a}->{b}: median depth residual {median} m");
+        let (wrong_fy, _) = reprojection_median(&icl, a, b, &flipped, &rel);
+        let inverted = icl.poses[b] * icl.poses[a].inverse();
+        let (wrong_pose, _) = reprojection_median(&icl, a, b, &cam, &inverted);
+        assert!(
+            wrong_fy > 0.4 && wrong_pose > 0.4,
+            "{a}->{b}: wrong conventions give {wrong_fy} and {wrong_pose} m"
+        );
+    }
+}
