@@ -1,0 +1,21 @@
+//! The project's own RGB-D sequences with ground truth, so that tests need no downloads.
+//!
+//! - [`scene`]: primitives (planes, boxes, spheres, cylinders) and triangle meshes (through a
+//!   [`bvh`]), with procedural [`texture`] so the photometric term has gradients;
+//! - [`render`]: a ray caster producing depth, colour and normals at any resolution, and the
+//!   Kinect-like [`noise`] model;
+//! - [`motion`]: camera trajectories, procedural (orbit, shake, fast rotation) or from a TUM file;
+//! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
+//!   per-pixel scene flow and the deformed mesh per frame;
+//! - [`sequence`]: writing everything in the TUM layout.
+//!
+//! Everything is seeded and deterministic.
+
+pub mod bvh;
+pub mod deform;
+pub mod motion;
+pub mod noise;
+pub mod render;
+pub mod scene;
+pub mod sequence;
+pub mod texture;

@@ -1,0 +1,376 @@
+//! Scenes of textured primitives and meshes, and ray intersection with them.
+
+use super::bvh::Bvh;
+use super::texture::Texture;
+use crate::mesh::Mesh;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use std::sync::Arc;
+
+/// A triangle mesh ready for ray casting.
+#[derive(Clone, Debug)]
+pub struct RayMesh {
+    /// The mesh (in the object's frame).
+    pub mesh: Mesh,
+    /// Its hierarchy.
+    pub bvh: Bvh,
+    /// Where each vertex's texture is looked up (the undeformed positions for deforming surfaces).
+    pub texture_coords: Vec<Point3<f64>>,
+}
+
+impl RayMesh {
+    /// Indexes a mesh; texture is looked up at the vertices' own positions.
+    pub fn new(mesh: Mesh) -> Self {
+        let texture_coords = mesh.vertices.iter().map(|p| p.cast()).collect();
+        Self::with_texture_coords(mesh, texture_coords)
+    }
+    /// Indexes a mesh with separate texture-lookup positions (one per vertex).
+    pub fn with_texture_coords(mesh: Mesh, texture_coords: Vec<Point3<f64>>) -> Self {
+        let v: Vec<Point3<f64>> = mesh.vertices.iter().map(|p| p.cast()).collect();
+        Self {
+            bvh: Bvh::new(&v, &mesh.faces),
+            mesh,
+            texture_coords,
+        }
+    }
+}
+
+/// A shape in its own frame.
+#[derive(Clone, Debug)]
+pub enum Shape {
+    /// The rectangle |x| ≤ hx, |y| ≤ hy of the plane z = 0 (seen from both sides).
+    Plane {
+        /// Half-size along x.
+        hx: f64,
+        /// Half-size along y.
+        hy: f64,
+    },
+    /// The box |x| ≤ h.x, |y| ≤ h.y, |z| ≤ h.z.
+    Cuboid {
+        /// Half-sizes.
+        half: Vector3<f64>,
+    },
+    /// The sphere of this radius about the origin.
+    Sphere {
+        /// Radius.
+        radius: f64,
+    },
+    /// The capped cylinder x² + y² ≤ r², |z| ≤ h.
+    Cylinder {
+        /// Radius.
+        radius: f64,
+        /// Half-height.
+        half_height: f64,
+    },
+    /// A triangle mesh.
+    Mesh(Arc<RayMesh>),
+}
+
+/// A shape placed in the world with a texture.
+#[derive(Clone, Debug)]
+pub struct Object {
+    /// The shape.
+    pub shape: Shape,
+    /// Object-to-world pose.
+    pub pose: Isometry3<f64>,
+    /// Its texture (looked up in the object's frame).
+    pub texture: Texture,
+}
+
+/// A ray's nearest hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Distance along the unit ray.
+    pub t: f64,
+    /// World point.
+    pub point: Point3<f64>,
+    /// World unit normal, facing the ray.
+    pub normal: Vector3<f64>,
+    /// Albedo in [0, 1]³.
+    pub albedo: [f64; 3],
+    /// Object index.
+    pub object: usize,
+    /// For meshes: triangle and barycentric weights of its vertices.
+    pub triangle: Option<(usize, [f64; 3])>,
+}
+
+/// A set of objects.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    /// The objects.
+    pub objects: Vec<Object>,
+}
+
+/// Ray–shape intersection in the shape's frame: (t, local normal, triangle).
+#[allow(clippy::type_complexity)]
+fn intersect_local(
+    shape: &Shape,
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(f64, Vector3<f64>, Option<(usize, [f64; 3])>)> {
+    const EPS: f64 = 1e-9;
+    match shape {
+        Shape::Plane { hx, hy } => {
+            if d.z.abs() < 1e-15 {
+                return None;
+            }
+            let t = -o.z / d.z;
+            let p = o + d * t;
+            (t > EPS && t < t_max && p.x.abs() <= *hx && p.y.abs() <= *hy)
+                .then(|| (t, Vector3::z(), None))
+        }
+        Shape::Sphere { radius } => {
+            let b = o.dot(d);
+            let c = o.norm_squared() - radius * radius;
+            let disc = b * b - c;
+            if disc < 0.0 {
+                return None;
+            }
+            let s = disc.sqrt();
+            let t = if -b - s > EPS { -b - s } else { -b + s };
+            (t > EPS && t < t_max).then(|| (t, (o + d * t) / *radius, None))
+        }
+        Shape::Cuboid { half } => {
+            let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+            let (mut n0, mut n1) = (Vector3::zeros(), Vector3::zeros());
+            for a in 0..3 {
+                if d[a].abs() < 1e-15 {
+                    if o[a].abs() > half[a] {
+                        return None;
+                    }
+                    continue;
+                }
+                let (mut near, mut far) = ((-half[a] - o[a]) / d[a], (half[a] - o[a]) / d[a]);
+                let mut sign = -1.0;
+                if near > far {
+                    std::mem::swap(&mut near, &mut far);
+                    sign = 1.0;
+                }
+                if near > t0 {
+                    t0 = near;
+                    n0 = Vector3::ith(a, sign);
+                }
+                if far < t1 {
+                    t1 = far;
+                    n1 = Vector3::ith(a, -sign);
+                }
+            }
+            if t0 > t1 {
+                return None;
+            }
+            if t0 > EPS && t0 < t_max {
+                Some((t0, n0, None))
+            } else if t1 > EPS && t1 < t_max {
+                Some((t1, n1, None))
+            } else {
+                None
+            }
+        }
+        Shape::Cylinder {
+            radius,
+            half_height,
+        } => {
+            let mut best: Option<(f64, Vector3<f64>)> = None;
+            let a = d.x * d.x + d.y * d.y;
+            if a > 1e-15 {
+                let b = o.x * d.x + o.y * d.y;
+                let c = o.x * o.x + o.y * o.y - radius * radius;
+                let disc = b * b - a * c;
+                if disc >= 0.0 {
+                    for t in [(-b - disc.sqrt()) / a, (-b + disc.sqrt()) / a] {
+                        let p = o + d * t;
+                        if t > EPS
+                            && t < t_max
+                            && p.z.abs() <= *half_height
+                            && best.is_none_or(|b| t < b.0)
+                        {
+                            best = Some((t, Vector3::new(p.x, p.y, 0.0) / *radius));
+                        }
+                    }
+                }
+            }
+            if d.z.abs() > 1e-15 {
+                for cap in [-*half_height, *half_height] {
+                    let t = (cap - o.z) / d.z;
+                    let p = o + d * t;
+                    if t > EPS
+                        && t < t_max
+                        && p.x * p.x + p.y * p.y <= radius * radius
+                        && best.is_none_or(|b| t < b.0)
+                    {
+                        best = Some((t, Vector3::new(0.0, 0.0, cap.signum())));
+                    }
+                }
+            }
+            best.map(|(t, n)| (t, n, None))
+        }
+        Shape::Mesh(m) => {
+            let h = m.bvh.intersect(o, d, t_max)?;
+            let f = m.mesh.faces[h.triangle];
+            let [a, b, c] = f.map(|i| m.mesh.vertices[i as usize].coords.cast::<f64>());
+            let n = (b - a).cross(&(c - a)).try_normalize(1e-20)?;
+            Some((h.t, n, Some((h.triangle, [1.0 - h.u - h.v, h.u, h.v]))))
+        }
+    }
+}
+
+impl Scene {
+    /// Adds an object.
+    pub fn add(&mut self, shape: Shape, pose: Isometry3<f64>, texture: Texture) -> usize {
+        self.objects.push(Object {
+            shape,
+            pose,
+            texture,
+        });
+        self.objects.len() - 1
+    }
+
+    /// The nearest hit of the ray from `origin` along the unit `dir` (world frame).
+    pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        for (k, obj) in self.objects.iter().enumerate() {
+            let inv = obj.pose.inverse();
+            let o = (inv * origin).coords;
+            let d = inv.rotation * dir;
+            let t_max = best.map_or(f64::INFINITY, |b| b.t);
+            if let Some((t, n_local, tri)) = intersect_local(&obj.shape, &o, &d, t_max) {
+                let local = Point3::from(o + d * t);
+                let mut normal = obj.pose.rotation * n_local;
+                if normal.dot(dir) > 0.0 {
+                    normal = -normal;
+                }
+                let tex_point = match (&obj.shape, tri) {
+                    (Shape::Mesh(m), Some((ti, w))) => {
+                        let f = m.mesh.faces[ti];
+                        Point3::from(
+                            f.iter()
+                                .zip(w)
+                                .map(|(&i, wi)| m.texture_coords[i as usize].coords * wi)
+                                .sum::<Vector3<f64>>(),
+                        )
+                    }
+                    _ => local,
+                };
+                best = Some(Hit {
+                    t,
+                    point: obj.pose * local,
+                    normal,
+                    albedo: obj.texture.color(&tex_point),
+                    object: k,
+                    triangle: tri,
+                });
+            }
+        }
+        best
+    }
+
+    /// A furnished room around the origin (z up): floor, walls, a table and objects on and around it,
+    /// all textured; `seed` varies textures. About 6 × 5 × 3 m.
+    pub fn room(seed: u64) -> Self {
+        let mut s = Scene::default();
+        let tex = |k: u64, lo: f64, hi: f64| {
+            Texture::random(seed.wrapping_mul(1000).wrapping_add(k), lo, hi)
+        };
+        let at = |x: f64, y: f64, z: f64| Isometry3::translation(x, y, z);
+        let rot = |x: f64, y: f64, z: f64, axis: Vector3<f64>, angle: f64| {
+            Isometry3::from_parts(
+                Translation3::new(x, y, z),
+                UnitQuaternion::from_scaled_axis(axis * angle),
+            )
+        };
+        // floor, ceiling, four walls
+        s.add(
+            Shape::Plane { hx: 3.0, hy: 2.5 },
+            at(0.0, 0.0, 0.0),
+            tex(1, 3.0, 20.0),
+        );
+        s.add(
+            Shape::Plane { hx: 3.0, hy: 2.5 },
+            at(0.0, 0.0, 3.0),
+            tex(2, 2.0, 10.0),
+        );
+        s.add(
+            Shape::Plane { hx: 3.0, hy: 1.5 },
+            rot(0.0, 2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
+            tex(3, 2.0, 15.0),
+        );
+        s.add(
+            Shape::Plane { hx: 3.0, hy: 1.5 },
+            rot(0.0, -2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
+            tex(4, 2.0, 15.0),
+        );
+        s.add(
+            Shape::Plane { hx: 1.5, hy: 2.5 },
+            rot(3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
+            tex(5, 2.0, 15.0),
+        );
+        s.add(
+            Shape::Plane { hx: 1.5, hy: 2.5 },
+            rot(-3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
+            tex(6, 2.0, 15.0),
+        );
+        // table, objects
+        s.add(
+            Shape::Cuboid {
+                half: Vector3::new(0.6, 0.4, 0.03),
+            },
+            at(0.0, 0.0, 0.72),
+            tex(7, 5.0, 30.0),
+        );
+        s.add(
+            Shape::Cuboid {
+                half: Vector3::new(0.05, 0.05, 0.35),
+            },
+            at(0.5, 0.3, 0.35),
+            tex(8, 5.0, 30.0),
+        );
+        s.add(
+            Shape::Cuboid {
+                half: Vector3::new(0.05, 0.05, 0.35),
+            },
+            at(-0.5, -0.3, 0.35),
+            tex(9, 5.0, 30.0),
+        );
+        s.add(
+            Shape::Sphere { radius: 0.15 },
+            at(0.2, 0.1, 0.9),
+            tex(10, 8.0, 40.0),
+        );
+        s.add(
+            Shape::Cylinder {
+                radius: 0.08,
+                half_height: 0.12,
+            },
+            at(-0.25, -0.1, 0.87),
+            tex(11, 8.0, 40.0),
+        );
+        s.add(
+            Shape::Cuboid {
+                half: Vector3::new(0.1, 0.15, 0.08),
+            },
+            rot(-0.1, 0.25, 0.83, Vector3::z(), 0.4),
+            tex(12, 8.0, 40.0),
+        );
+        s.add(
+            Shape::Cuboid {
+                half: Vector3::new(0.4, 0.3, 0.45),
+            },
+            rot(1.8, -1.5, 0.45, Vector3::z(), 0.3),
+            tex(13, 4.0, 25.0),
+        );
+        s.add(
+            Shape::Cylinder {
+                radius: 0.25,
+                half_height: 0.5,
+            },
+            at(-1.8, 1.4, 0.5),
+            tex(14, 4.0, 25.0),
+        );
+        s.add(
+            Shape::Sphere { radius: 0.35 },
+            at(1.5, 1.6, 0.35),
+            tex(15, 4.0, 25.0),
+        );
+        s
+    }
+}

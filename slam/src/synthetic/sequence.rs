@@ -1,0 +1,181 @@
+//! Writing rendered sequences in the TUM RGB-D layout, so every tool that reads TUM reads ours:
+//! `rgb/` and `depth/` PNGs (16-bit depth at the camera's depth scale), `rgb.txt`, `depth.txt`,
+//! `associations.txt`, `groundtruth.txt` (camera-to-world) and `intrinsics.txt`
+//! (`fx fy cx cy depth_scale`). Deforming sequences add `meshes/NNNNNN.ply` (the ground-truth surface
+//! at each frame, world frame) and `flow/NNNNNN.flow` (per-pixel scene flow to the next frame).
+//!
+//! A `.flow` file is the text line `FLOW3D <width> <height>\n` followed by width × height × 3
+//! little-endian f32 (world-frame displacement per pixel, row by row; NaN where unknown).
+
+use super::deform::DeformingScene;
+use super::noise::SensorNoise;
+use super::render::render;
+use super::scene::Scene;
+use crate::camera::Camera;
+use crate::image::Image;
+use crate::io::images::{write_color, write_depth};
+use crate::io::trajectory::Trajectory;
+use crate::io::{ply, write_atomic, IoError};
+use nalgebra::Isometry3;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Encodes a scene-flow image.
+pub fn encode_flow(flow: &Image<[f32; 3]>) -> Vec<u8> {
+    let mut out = format!("FLOW3D {} {}\n", flow.width, flow.height).into_bytes();
+    for px in &flow.data {
+        for c in px {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Reads a scene-flow file written by [`encode_flow`].
+pub fn read_flow(path: impl AsRef<Path>) -> Result<Image<[f32; 3]>, IoError> {
+    let path = path.as_ref();
+    let bytes =
+        std::fs::read(path).map_err(|e| IoError::file(path, format!("cannot read: {e}")))?;
+    let nl = bytes
+        .iter()
+        .position(|&b| b == b'\n')
+        .ok_or_else(|| IoError::file(path, "no header line"))?;
+    let header =
+        std::str::from_utf8(&bytes[..nl]).map_err(|_| IoError::file(path, "header is not text"))?;
+    let f: Vec<&str> = header.split_whitespace().collect();
+    let (w, h) = match f.as_slice() {
+        ["FLOW3D", w, h] => (
+            w.parse::<usize>()
+                .map_err(|_| IoError::line(path, 1, "width is not a number"))?,
+            h.parse::<usize>()
+                .map_err(|_| IoError::line(path, 1, "height is not a number"))?,
+        ),
+        _ => return Err(IoError::line(path, 1, "expected 'FLOW3D width height'")),
+    };
+    let body = &bytes[nl + 1..];
+    if body.len() != w * h * 12 {
+        return Err(IoError::file(
+            path,
+            format!(
+                "expected {} bytes of flow, found {}",
+                w * h * 12,
+                body.len()
+            ),
+        ));
+    }
+    let data = body
+        .chunks_exact(12)
+        .map(|c| [0, 4, 8].map(|o| f32::from_le_bytes(c[o..o + 4].try_into().expect("4 bytes"))))
+        .collect();
+    Ok(Image::from_vec(w, h, data).expect("size checked"))
+}
+
+fn stamp_name(stamp: f64) -> String {
+    format!("{stamp:.6}")
+}
+
+fn write_index(dir: &Path, camera: &Camera, trajectory: &Trajectory) -> Result<(), IoError> {
+    let (mut rgb, mut depth, mut assoc) = (
+        String::from("# color images\n# timestamp filename\n"),
+        String::from("# depth maps\n# timestamp filename\n"),
+        String::new(),
+    );
+    for s in &trajectory.stamps {
+        let n = stamp_name(*s);
+        let _ = writeln!(rgb, "{n} rgb/{n}.png");
+        let _ = writeln!(depth, "{n} depth/{n}.png");
+        let _ = writeln!(assoc, "{n} rgb/{n}.png {n} depth/{n}.png");
+    }
+    write_atomic(dir.join("rgb.txt"), rgb.as_bytes())?;
+    write_atomic(dir.join("depth.txt"), depth.as_bytes())?;
+    write_atomic(dir.join("associations.txt"), assoc.as_bytes())?;
+    trajectory.write_tum(dir.join("groundtruth.txt"))?;
+    let intr = format!(
+        "{:?} {:?} {:?} {:?} {:?}\n",
+        camera.fx, camera.fy, camera.cx, camera.cy, camera.depth_scale
+    );
+    write_atomic(dir.join("intrinsics.txt"), intr.as_bytes())
+}
+
+fn make_dirs(dir: &Path, extra: &[&str]) -> Result<(), IoError> {
+    for d in ["rgb", "depth"].iter().chain(extra) {
+        std::fs::create_dir_all(dir.join(d))
+            .map_err(|e| IoError::file(dir.join(d), format!("cannot create: {e}")))?;
+    }
+    Ok(())
+}
+
+/// Renders `scene` along `trajectory` (poses in the scene's frame given by `to_scene · pose`) and
+/// writes a TUM-layout sequence whose ground truth is `trajectory` exactly. `progress` is called
+/// after each frame.
+pub fn write_rigid(
+    dir: &Path,
+    scene: &Scene,
+    camera: &Camera,
+    trajectory: &Trajectory,
+    to_scene: &Isometry3<f64>,
+    noise: &SensorNoise,
+    mut progress: impl FnMut(usize),
+) -> Result<(), IoError> {
+    make_dirs(dir, &[])?;
+    for (k, (stamp, pose)) in trajectory.stamps.iter().zip(&trajectory.poses).enumerate() {
+        let mut r = render(scene, camera, &(to_scene * pose));
+        let raw = noise.apply(
+            k as u64,
+            &r.depth,
+            &r.cos_incidence,
+            &mut r.color,
+            camera.depth_scale,
+        );
+        let n = stamp_name(*stamp);
+        write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
+        write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)?;
+        progress(k);
+    }
+    write_index(dir, camera, trajectory)
+}
+
+/// Renders a deforming scene seen from `trajectory` and writes a TUM-layout sequence plus the
+/// ground-truth meshes and scene flow.
+pub fn write_deforming(
+    dir: &Path,
+    scene: &DeformingScene,
+    camera: &Camera,
+    trajectory: &Trajectory,
+    noise: &SensorNoise,
+    mut progress: impl FnMut(usize),
+) -> Result<(), IoError> {
+    make_dirs(dir, &["meshes", "flow"])?;
+    for (k, (stamp, pose)) in trajectory.stamps.iter().zip(&trajectory.poses).enumerate() {
+        let (mut r, flow) = scene.render_with_flow(camera, pose, k);
+        let raw = noise.apply(
+            k as u64,
+            &r.depth,
+            &r.cos_incidence,
+            &mut r.color,
+            camera.depth_scale,
+        );
+        let n = stamp_name(*stamp);
+        write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
+        write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)?;
+        ply::write(
+            dir.join("meshes").join(format!("{k:06}.ply")),
+            &scene.mesh_at(k),
+        )?;
+        write_atomic(
+            dir.join("flow").join(format!("{k:06}.flow")),
+            &encode_flow(&flow),
+        )?;
+        progress(k);
+    }
+    write_index(dir, camera, trajectory)
+}
+
+/// A static camera 1.5 m from the deforming surface (world = camera frame), `frames` poses.
+pub fn static_camera(frames: usize, fps: f64) -> Trajectory {
+    let mut t = Trajectory::default();
+    for k in 0..frames {
+        t.push(k as f64 / fps, Isometry3::identity());
+    }
+    t
+}
