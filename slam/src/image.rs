@@ -72,6 +72,30 @@ impl<T: Copy> Image<T> {
         self.data.clear();
         self.data.resize(width * height, value);
     }
+    /// Resizes for a kernel that writes every pixel: memory is reused and, when the size is
+    /// unchanged, not touched.
+    pub fn resize(&mut self, width: usize, height: usize, value: T) {
+        if self.width != width || self.height != height || self.data.len() != width * height {
+            self.reset(width, height, value);
+        }
+    }
+}
+
+/// Runs `f(y, row)` over the rows of a `width`-wide buffer in parallel, a block of rows per task
+/// (a task per row would cost more in scheduling than the rows' work).
+fn par_rows<T: Send>(data: &mut [T], width: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+    if width == 0 {
+        return;
+    }
+    let rows = data.len() / width;
+    let per_task = (rows / (4 * rayon::current_num_threads())).clamp(1, 64);
+    data.par_chunks_mut(width * per_task)
+        .enumerate()
+        .for_each(|(b, block)| {
+            for (k, row) in block.chunks_mut(width).enumerate() {
+                f(b * per_task + k, row);
+            }
+        });
 }
 
 /// Whether a vertex or normal is valid.
@@ -102,63 +126,181 @@ impl Default for BilateralParams {
     }
 }
 
-/// Entries of the range-weight table, covering 3 σ_r.
-const RANGE_TABLE: usize = 256;
+/// e^x for x ≤ 0 in a form the compiler vectorises: x = n ln 2 + f, 2^f by a degree-5 polynomial
+/// (relative error below 5e-6 on [−87, 0]), 2^n through the exponent bits.
+/// Below −87 the result is garbage (but never a trap): callers discard it there.
+#[inline(always)]
+fn exp_neg(x: f32) -> f32 {
+    let t = x * std::f32::consts::LOG2_E;
+    // round to nearest without `floor` (SSE2 has no vector floor): the 1.5·2^23 trick
+    let shifted = t + 12_582_912.0;
+    let n = shifted - 12_582_912.0;
+    let f = t - n; // in [−0.5, 0.5]
+    let p = 1.0
+        + f * (std::f32::consts::LN_2
+            + f * (0.240_226_5 + f * (0.055_504_11 + f * (0.009_618_13 + f * 0.001_333_55))));
+    // the low mantissa bits of `shifted` hold n in two's complement: no float-to-int conversion
+    let ni = (shifted.to_bits() as i32).wrapping_sub(0x4B40_0000);
+    p * f32::from_bits((ni.wrapping_add(127) << 23) as u32)
+}
+
+/// The weight of neighbour depth `d` for centre `c`: `ws · exp(−a (d − c)²)`, zero for a missing
+/// neighbour or one beyond the range cutoff (`(d − c)² ≥ cut2`). Branch-free.
+#[inline(always)]
+fn bilateral_weight(c: f32, d: f32, ws: f32, a: f32, cut2: f32) -> f32 {
+    let diff = d - c;
+    let d2 = diff * diff;
+    let inside = (d > 0.0) & (d2 < cut2);
+    // Beyond the cutoff the exponential may be garbage; the select below discards it.
+    let wt = ws * exp_neg(-a * d2);
+    if inside {
+        wt
+    } else {
+        0.0
+    }
+}
+
+/// `sum += w·d`, `wsum += w` for one tap over a row (all slices of one length).
+#[inline(always)]
+fn taps_generic(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    ws: f32,
+    a: f32,
+    cut2: f32,
+) {
+    let n = center.len();
+    let (sum, wsum, src) = (&mut sum[..n], &mut wsum[..n], &src[..n]);
+    for i in 0..n {
+        let d = src[i];
+        let wt = bilateral_weight(center[i], d, ws, a, cut2);
+        sum[i] += wt * d;
+        wsum[i] += wt;
+    }
+}
+
+/// [`taps_generic`] compiled for AVX2 and FMA (8 lanes, fused polynomial).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn taps_avx2(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    ws: f32,
+    a: f32,
+    cut2: f32,
+) {
+    taps_generic(sum, wsum, center, src, ws, a, cut2)
+}
+
+/// One tap of the bilateral filter over a row, on the widest vector unit the CPU has.
+fn accumulate_taps(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    ws: f32,
+    a: f32,
+    cut2: f32,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has just been checked for the features the function is compiled with.
+            return unsafe { taps_avx2(sum, wsum, center, src, ws, a, cut2) };
+        }
+    }
+    taps_generic(sum, wsum, center, src, ws, a, cut2)
+}
+
+thread_local! {
+    /// Per-thread row accumulators of the bilateral filter (Σ w·D and Σ w).
+    static ROW_SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
 
 /// Edge-preserving smoothing of depth: `D'(u) = 1/W Σ_q N_σs(‖u − q‖) N_σr(|D(u) − D(q)|) D(q)`
 /// over the valid neighbours q (D(q) > 0) within 3 σ_r of D(u); missing depth stays missing and
 /// depth does not bleed across edges deeper than 3 σ_r.
+///
+/// Interior rows run tap by tap over the whole row, branch-free, so the compiler vectorises them;
+/// the border frame of `radius` pixels takes the checked path.
 pub fn bilateral_filter(input: &DepthImage, params: &BilateralParams, out: &mut DepthImage) {
     let (w, h) = (input.width, input.height);
-    out.reset(w, h, 0.0);
-    let r = params.radius as isize;
-    let side = 2 * params.radius + 1;
+    out.resize(w, h, 0.0);
+    let r = params.radius;
+    let side = 2 * r + 1;
+    let inv_2ss = 1.0 / (2.0 * params.sigma_space * params.sigma_space);
     let spatial: Vec<f32> = (0..side * side)
         .map(|i| {
             let (dx, dy) = ((i % side) as f32 - r as f32, (i / side) as f32 - r as f32);
-            (-(dx * dx + dy * dy) / (2.0 * params.sigma_space * params.sigma_space)).exp()
+            (-(dx * dx + dy * dy) * inv_2ss).exp()
         })
         .collect();
-    let cutoff = 3.0 * params.sigma_range;
-    let scale = (RANGE_TABLE - 1) as f32 / cutoff;
-    let range: Vec<f32> = (0..RANGE_TABLE)
-        .map(|i| {
-            let d = i as f32 / scale;
-            (-(d * d) / (2.0 * params.sigma_range * params.sigma_range)).exp()
-        })
-        .collect();
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let y = y as isize;
-        for (x, o) in row.iter_mut().enumerate() {
-            let c = input.data[y as usize * w + x];
-            if c <= 0.0 {
-                continue;
-            }
-            let (mut sum, mut wsum) = (0.0f32, 0.0f32);
-            let x = x as isize;
-            for dy in -r..=r {
-                let yy = y + dy;
-                if yy < 0 || yy >= h as isize {
-                    continue;
-                }
-                let line = &input.data[yy as usize * w..(yy as usize + 1) * w];
-                let srow = &spatial[((dy + r) as usize) * side..];
-                for dx in -r..=r {
-                    let xx = x + dx;
-                    if xx < 0 || xx >= w as isize {
-                        continue;
-                    }
-                    let d = line[xx as usize];
-                    let diff = (d - c).abs();
-                    if d > 0.0 && diff < cutoff {
-                        let wt = srow[(dx + r) as usize] * range[(diff * scale) as usize];
-                        sum += wt * d;
-                        wsum += wt;
-                    }
-                }
-            }
-            *o = sum / wsum;
+    let cut2 = (3.0 * params.sigma_range).powi(2);
+    let a = 1.0 / (2.0 * params.sigma_range * params.sigma_range);
+    let data = &input.data;
+    let tap = |c: f32, d: f32, ws: f32| bilateral_weight(c, d, ws, a, cut2);
+    // The checked path, for pixels within `r` of the border.
+    let slow = |x: usize, y: usize| -> f32 {
+        let c = data[y * w + x];
+        if c <= 0.0 {
+            return 0.0;
         }
+        let (mut sum, mut wsum) = (0.0f32, 0.0f32);
+        for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+            for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                let d = data[yy * w + xx];
+                let wt = tap(c, d, spatial[(yy + r - y) * side + xx + r - x]);
+                sum += wt * d;
+                wsum += wt;
+            }
+        }
+        sum / wsum
+    };
+    par_rows(&mut out.data, w, |y, row| {
+        if y < r || y + r >= h || w <= 2 * r {
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = slow(x, y);
+            }
+            return;
+        }
+        let n = w - 2 * r;
+        ROW_SCRATCH.with(|cell| {
+            let (sum, wsum) = &mut *cell.borrow_mut();
+            sum.clear();
+            sum.resize(n, 0.0);
+            wsum.clear();
+            wsum.resize(n, 0.0);
+            let center = &data[y * w + r..y * w + r + n];
+            for dy in 0..side {
+                let line = &data[(y + dy - r) * w..(y + dy - r + 1) * w];
+                for dx in 0..side {
+                    let ws = spatial[dy * side + dx];
+                    accumulate_taps(
+                        &mut sum[..n],
+                        &mut wsum[..n],
+                        center,
+                        &line[dx..dx + n],
+                        ws,
+                        a,
+                        cut2,
+                    );
+                }
+            }
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = if x < r || x >= r + n {
+                    slow(x, y)
+                } else if center[x - r] > 0.0 {
+                    sum[x - r] / wsum[x - r]
+                } else {
+                    0.0
+                };
+            }
+        });
     });
 }
 
@@ -169,39 +311,130 @@ pub fn downsample_depth(input: &DepthImage, sigma_range: f32, out: &mut DepthIma
     const K: [f32; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
     let (w, h) = (input.width, input.height);
     let (ow, oh) = ((w / 2).max(1), (h / 2).max(1));
-    out.reset(ow, oh, 0.0);
+    out.resize(ow, oh, 0.0);
     let cutoff = 3.0 * sigma_range;
-    out.data
-        .par_chunks_mut(ow)
-        .enumerate()
-        .for_each(|(oy, row)| {
+    let data = &input.data;
+    // The checked path, for outputs whose 5×5 window leaves the image.
+    let slow = |ox: usize, oy: usize| -> f32 {
+        let (cx, cy) = (2 * ox, 2 * oy);
+        let c = data[cy * w + cx];
+        if c <= 0.0 {
+            return 0.0;
+        }
+        let (mut sum, mut wsum) = (0.0f32, 0.0f32);
+        for yy in cy.saturating_sub(2)..(cy + 3).min(h) {
+            for xx in cx.saturating_sub(2)..(cx + 3).min(w) {
+                let d = data[yy * w + xx];
+                let ok = (d > 0.0) & ((d - c).abs() < cutoff);
+                let wt = if ok {
+                    K[yy + 2 - cy] * K[xx + 2 - cx]
+                } else {
+                    0.0
+                };
+                sum += wt * d;
+                wsum += wt;
+            }
+        }
+        sum / wsum
+    };
+    // Interior outputs ox in [1, n], whose windows span input columns 2·ox − 2 .. 2·ox + 2.
+    let n = if w >= 5 { (w - 3) / 2 } else { 0 };
+    par_rows(&mut out.data, ow, |oy, row| {
+        let cy = 2 * oy;
+        if cy < 2 || cy + 2 >= h || n == 0 {
             for (ox, o) in row.iter_mut().enumerate() {
-                let (cx, cy) = (2 * ox, 2 * oy);
-                let c = input.data[cy * w + cx];
-                if c <= 0.0 {
-                    continue;
+                *o = slow(ox, oy);
+            }
+            return;
+        }
+        ROW_SCRATCH.with(|cell| {
+            let (sum, wsum) = &mut *cell.borrow_mut();
+            sum.clear();
+            sum.resize(n, 0.0);
+            wsum.clear();
+            wsum.resize(n, 0.0);
+            // centres at input columns 2, 4, …, 2n
+            let center = &data[cy * w + 2..cy * w + 2 + 2 * n];
+            for (j, ky) in K.iter().enumerate() {
+                let line = &data[(cy + j - 2) * w..(cy + j - 1) * w];
+                for (i, kx) in K.iter().enumerate() {
+                    accumulate_pyramid(
+                        &mut sum[..n],
+                        &mut wsum[..n],
+                        center,
+                        &line[i..i + 2 * n],
+                        ky * kx,
+                        cutoff,
+                    );
                 }
-                let (mut sum, mut wsum) = (0.0f32, 0.0f32);
-                for (j, ky) in K.iter().enumerate() {
-                    let yy = cy as isize + j as isize - 2;
-                    if yy < 0 || yy >= h as isize {
-                        continue;
+            }
+            for (ox, o) in row.iter_mut().enumerate() {
+                *o = if ox >= 1 && ox <= n {
+                    if center[2 * (ox - 1)] > 0.0 {
+                        sum[ox - 1] / wsum[ox - 1]
+                    } else {
+                        0.0
                     }
-                    for (i, kx) in K.iter().enumerate() {
-                        let xx = cx as isize + i as isize - 2;
-                        if xx < 0 || xx >= w as isize {
-                            continue;
-                        }
-                        let d = input.data[yy as usize * w + xx as usize];
-                        if d > 0.0 && (d - c).abs() < cutoff {
-                            sum += ky * kx * d;
-                            wsum += ky * kx;
-                        }
-                    }
-                }
-                *o = sum / wsum;
+                } else {
+                    slow(ox, oy)
+                };
             }
         });
+    });
+}
+
+/// One tap of the depth pyramid's 5×5 over an output row: inputs at even offsets of `src` and
+/// `center`, accumulated where the depth is valid and within `cutoff` of the centre.
+#[inline(always)]
+fn pyramid_generic(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    k: f32,
+    cutoff: f32,
+) {
+    let n = sum.len();
+    let (wsum, center, src) = (&mut wsum[..n], &center[..2 * n], &src[..2 * n]);
+    for i in 0..n {
+        let (d, c) = (src[2 * i], center[2 * i]);
+        let ok = (d > 0.0) & ((d - c).abs() < cutoff);
+        let wt = if ok { k } else { 0.0 };
+        sum[i] += wt * d;
+        wsum[i] += wt;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn pyramid_avx2(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    k: f32,
+    cutoff: f32,
+) {
+    pyramid_generic(sum, wsum, center, src, k, cutoff)
+}
+
+fn accumulate_pyramid(
+    sum: &mut [f32],
+    wsum: &mut [f32],
+    center: &[f32],
+    src: &[f32],
+    k: f32,
+    cutoff: f32,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has just been checked for the features the function is compiled with.
+            return unsafe { pyramid_avx2(sum, wsum, center, src, k, cutoff) };
+        }
+    }
+    pyramid_generic(sum, wsum, center, src, k, cutoff)
 }
 
 /// Halves an intensity image with the 5×5 Gaussian (eq. 2.10), borders clamped.
@@ -209,43 +442,41 @@ pub fn downsample_gray(input: &GrayImage, out: &mut GrayImage) {
     const K: [f32; 5] = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
     let (w, h) = (input.width, input.height);
     let (ow, oh) = ((w / 2).max(1), (h / 2).max(1));
-    out.reset(ow, oh, 0.0);
-    out.data
-        .par_chunks_mut(ow)
-        .enumerate()
-        .for_each(|(oy, row)| {
-            for (ox, o) in row.iter_mut().enumerate() {
-                let mut sum = 0.0;
-                for (j, ky) in K.iter().enumerate() {
-                    let yy = (2 * oy + j).saturating_sub(2).min(h - 1);
-                    for (i, kx) in K.iter().enumerate() {
-                        let xx = (2 * ox + i).saturating_sub(2).min(w - 1);
-                        sum += ky * kx * input.data[yy * w + xx];
-                    }
+    out.resize(ow, oh, 0.0);
+    par_rows(&mut out.data, ow, |oy, row| {
+        for (ox, o) in row.iter_mut().enumerate() {
+            let mut sum = 0.0;
+            for (j, ky) in K.iter().enumerate() {
+                let line = &input.data[(2 * oy + j).saturating_sub(2).min(h - 1) * w..][..w];
+                for (i, kx) in K.iter().enumerate() {
+                    sum += ky * kx * line[(2 * ox + i).saturating_sub(2).min(w - 1)];
                 }
-                *o = sum;
             }
-        });
+            *o = sum;
+        }
+    });
 }
 
 /// Back-projects every valid depth (eq. 2.2): `V(u) = D(u) K⁻¹ [u, 1]ᵀ`; NaN where depth is missing
 /// or outside the camera's range.
 pub fn vertex_map(depth: &DepthImage, camera: &Camera, out: &mut VertexMap) {
     let w = depth.width;
-    out.reset(w, depth.height, INVALID);
-    let (fx, fy, cx, cy) = (
-        camera.fx as f32,
-        camera.fy as f32,
-        camera.cx as f32,
-        camera.cy as f32,
-    );
+    out.resize(w, depth.height, INVALID);
+    let (ifx, ify) = (1.0 / camera.fx as f32, 1.0 / camera.fy as f32);
+    let (cx, cy) = (camera.cx as f32, camera.cy as f32);
     let (lo, hi) = (camera.depth_min as f32, camera.depth_max as f32);
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let z = depth.data[y * w + x];
-            if z >= lo && z <= hi {
-                *o = [(x as f32 - cx) / fx * z, (y as f32 - cy) / fy * z, z];
-            }
+    par_rows(&mut out.data, w, |y, row| {
+        let ry = (y as f32 - cy) * ify;
+        for (x, (o, &z)) in row
+            .iter_mut()
+            .zip(&depth.data[y * w..(y + 1) * w])
+            .enumerate()
+        {
+            *o = if z >= lo && z <= hi {
+                [(x as f32 - cx) * ifx * z, ry * z, z]
+            } else {
+                INVALID
+            };
         }
     });
 }
@@ -255,20 +486,22 @@ pub fn vertex_map(depth: &DepthImage, camera: &Camera, out: &mut VertexMap) {
 /// NaN where a neighbour is missing.
 pub fn normal_map(vertices: &VertexMap, camera: &Camera, out: &mut NormalMap) {
     let (w, h) = (vertices.width, vertices.height);
-    out.reset(w, h, INVALID);
+    out.resize(w, h, INVALID);
     // x × y = +z (away from the camera) for a right-handed image; flip to face the camera.
     let sign = -camera.handedness() as f32;
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        if y + 1 >= h {
+    par_rows(&mut out.data, w, |y, row| {
+        if y + 1 >= h || w < 2 {
+            row.fill(INVALID);
             return;
         }
-        for (x, o) in row.iter_mut().enumerate().take(w.saturating_sub(1)) {
-            let p = vertices.data[y * w + x];
-            let px = vertices.data[y * w + x + 1];
-            let py = vertices.data[(y + 1) * w + x];
-            if !(valid(&p) && valid(&px) && valid(&py)) {
-                continue;
-            }
+        let (line, below) = (
+            &vertices.data[y * w..(y + 1) * w],
+            &vertices.data[(y + 1) * w..(y + 2) * w],
+        );
+        for x in 0..w - 1 {
+            let (p, px, py) = (line[x], line[x + 1], below[x]);
+            // Branch-free: a missing neighbour is NaN and makes the normal NaN (invalid); so does a
+            // degenerate cross product (0 · ∞).
             let a = [px[0] - p[0], px[1] - p[1], px[2] - p[2]];
             let b = [py[0] - p[0], py[1] - p[1], py[2] - p[2]];
             let n = [
@@ -276,23 +509,27 @@ pub fn normal_map(vertices: &VertexMap, camera: &Camera, out: &mut NormalMap) {
                 a[2] * b[0] - a[0] * b[2],
                 a[0] * b[1] - a[1] * b[0],
             ];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if len > 0.0 {
-                let s = sign / len;
-                *o = [n[0] * s, n[1] * s, n[2] * s];
-            }
+            let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+            let s = if len2 > 0.0 {
+                sign / len2.sqrt()
+            } else {
+                f32::NAN
+            };
+            row[x] = [n[0] * s, n[1] * s, n[2] * s];
         }
+        row[w - 1] = INVALID;
     });
 }
 
 /// Intensity I = (0.299 R + 0.587 G + 0.114 B) / 255 (ITU-R BT.601 luma).
 pub fn intensity(color: &ColorImage, out: &mut GrayImage) {
     let w = color.width;
-    out.reset(w, color.height, 0.0);
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let [r, g, b] = color.data[y * w + x];
-            *o = (0.299 * r as f32 + 0.587 * g as f32 + 0.114 * b as f32) / 255.0;
+    out.resize(w, color.height, 0.0);
+    par_rows(&mut out.data, w, |y, row| {
+        for (o, &[r, g, b]) in row.iter_mut().zip(&color.data[y * w..(y + 1) * w]) {
+            *o = (0.299 / 255.0) * r as f32
+                + (0.587 / 255.0) * g as f32
+                + (0.114 / 255.0) * b as f32;
         }
     });
 }
@@ -300,22 +537,31 @@ pub fn intensity(color: &ColorImage, out: &mut GrayImage) {
 /// Intensity gradients by central differences, ∂I/∂u ≈ (I(u+1) − I(u−1))/2; zero on the border.
 pub fn gradients(gray: &GrayImage, gx: &mut GrayImage, gy: &mut GrayImage) {
     let (w, h) = (gray.width, gray.height);
-    gx.reset(w, h, 0.0);
-    gy.reset(w, h, 0.0);
-    gx.data
-        .par_chunks_mut(w)
-        .zip(gy.data.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (rx, ry))| {
-            if y == 0 || y + 1 >= h {
-                return;
-            }
-            for x in 1..w.saturating_sub(1) {
-                let i = y * w + x;
-                rx[x] = 0.5 * (gray.data[i + 1] - gray.data[i - 1]);
-                ry[x] = 0.5 * (gray.data[i + w] - gray.data[i - w]);
-            }
-        });
+    gx.resize(w, h, 0.0);
+    gy.resize(w, h, 0.0);
+    par_rows(&mut gx.data, w, |y, rx| {
+        rx.fill(0.0);
+        if y == 0 || y + 1 >= h || w < 3 {
+            return;
+        }
+        let line = &gray.data[y * w..(y + 1) * w];
+        for (x, o) in rx.iter_mut().enumerate().take(w - 1).skip(1) {
+            *o = 0.5 * (line[x + 1] - line[x - 1]);
+        }
+    });
+    par_rows(&mut gy.data, w, |y, ry| {
+        ry.fill(0.0);
+        if y == 0 || y + 1 >= h || w < 3 {
+            return;
+        }
+        let (above, below) = (
+            &gray.data[(y - 1) * w..y * w],
+            &gray.data[(y + 1) * w..(y + 2) * w],
+        );
+        for x in 1..w - 1 {
+            ry[x] = 0.5 * (below[x] - above[x]);
+        }
+    });
 }
 
 #[cfg(test)]
@@ -368,6 +614,15 @@ mod tests {
                 f.at(39, y),
                 f.at(40, y)
             );
+        }
+    }
+
+    #[test]
+    fn fast_exponential_is_accurate() {
+        for i in 0..2000 {
+            let x = -(i as f32) * 0.02;
+            let (a, b) = (exp_neg(x), x.exp());
+            assert!((a - b).abs() <= 5e-6 * b + 1e-30, "{x}: {a} vs {b}");
         }
     }
 

@@ -1,0 +1,132 @@
+//! Trajectory evaluation as evo computes it.
+//!
+//! ```text
+//! cargo run --release --example evaluate -- ate GT.txt EST.txt [--align se3|sim3|none]
+//! cargo run --release --example evaluate -- rpe GT.txt EST.txt [--delta 1 --delta-unit frames|seconds|meters]
+//! ```
+//! Prints the statistics and, last, one JSON line (rmse, mean, median, max, pairs).
+
+use anyhow::Result;
+use clap::{Parser, Subcommand, ValueEnum};
+use dynamap::slam::eval::{ate, rpe, Alignment, DeltaUnit, MAX_STAMP_DIFFERENCE};
+use dynamap::slam::io::trajectory::Trajectory;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Align {
+    Se3,
+    Sim3,
+    None,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Unit {
+    Frames,
+    Seconds,
+    Meters,
+}
+
+#[derive(Subcommand, Debug)]
+enum Metric {
+    /// Absolute trajectory error (translation, metres) after alignment.
+    Ate {
+        /// Ground truth (TUM format).
+        gt: PathBuf,
+        /// Estimate (TUM format).
+        est: PathBuf,
+        /// Alignment of the estimate onto the ground truth.
+        #[arg(long, value_enum, default_value = "se3")]
+        align: Align,
+        /// Largest stamp difference for associating poses, seconds.
+        #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
+        max_difference: f64,
+    },
+    /// Relative pose error over intervals of --delta.
+    Rpe {
+        /// Ground truth (TUM format).
+        gt: PathBuf,
+        /// Estimate (TUM format).
+        est: PathBuf,
+        /// Interval length.
+        #[arg(long, default_value_t = 1.0)]
+        delta: f64,
+        /// What --delta counts.
+        #[arg(long, value_enum, default_value = "frames")]
+        delta_unit: Unit,
+        /// Largest stamp difference for associating poses, seconds.
+        #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
+        max_difference: f64,
+    },
+}
+
+/// Evaluate a trajectory against ground truth.
+#[derive(Parser, Debug)]
+#[command(about)]
+struct Args {
+    #[command(subcommand)]
+    metric: Metric,
+}
+
+fn main() -> Result<()> {
+    match Args::parse().metric {
+        Metric::Ate {
+            gt,
+            est,
+            align,
+            max_difference,
+        } => {
+            let (g, e) = (Trajectory::read_tum(&gt)?, Trajectory::read_tum(&est)?);
+            let a = match align {
+                Align::Se3 => Alignment::Se3,
+                Align::Sim3 => Alignment::Sim3,
+                Align::None => Alignment::None,
+            };
+            let r = ate(&g, &e, a, max_difference).map_err(anyhow::Error::msg)?;
+            let s = r.stats;
+            println!(
+                "ATE (translation, m) over {} pose pairs, alignment {align:?} (scale {:.6})",
+                r.pairs.len(),
+                r.alignment.scale
+            );
+            println!(
+                "  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}  min {:.6}  std {:.6}",
+                s.rmse, s.mean, s.median, s.max, s.min, s.std
+            );
+            println!(
+                "{}",
+                serde_json::json!({"metric": "ate", "rmse": s.rmse, "mean": s.mean, "median": s.median, "max": s.max, "pairs": r.pairs.len()})
+            );
+        }
+        Metric::Rpe {
+            gt,
+            est,
+            delta,
+            delta_unit,
+            max_difference,
+        } => {
+            let (g, e) = (Trajectory::read_tum(&gt)?, Trajectory::read_tum(&est)?);
+            let u = match delta_unit {
+                Unit::Frames => DeltaUnit::Frames,
+                Unit::Seconds => DeltaUnit::Seconds,
+                Unit::Meters => DeltaUnit::Meters,
+            };
+            let r = rpe(&g, &e, delta, u, max_difference).map_err(anyhow::Error::msg)?;
+            let (t, d) = (r.translation, r.rotation_deg);
+            println!("RPE over {} intervals of {delta} {delta_unit:?}", t.count);
+            println!(
+                "  translation (m):  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                t.rmse, t.mean, t.median, t.max
+            );
+            println!(
+                "  rotation (deg):   rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                d.rmse, d.mean, d.median, d.max
+            );
+            println!(
+                "{}",
+                serde_json::json!({"metric": "rpe", "rmse": t.rmse, "mean": t.mean, "median": t.median, "max": t.max, "pairs": t.count,
+                    "rotation_deg": {"rmse": d.rmse, "mean": d.mean, "median": d.median, "max": d.max}})
+            );
+        }
+    }
+    Ok(())
+}
