@@ -91,6 +91,9 @@ enum Kind {
         /// The surface.
         #[arg(long, value_enum, default_value = "plane")]
         surface: SurfaceArg,
+        /// Deform this mesh (PLY, in metres, centred near its origin) instead of a built-in surface.
+        #[arg(long)]
+        mesh: Option<PathBuf>,
     },
 }
 
@@ -177,6 +180,7 @@ fn main() -> Result<()> {
             common,
             motion: m,
             surface,
+            mesh,
         } => {
             let cam = camera(common)?;
             let field = match m {
@@ -189,7 +193,18 @@ fn main() -> Result<()> {
                 SurfaceArg::Cylinder => SurfaceKind::Cylinder,
                 SurfaceArg::Sphere => SurfaceKind::Sphere,
             };
-            let scene = DeformingScene::new(deform::surface(kind, 60), field, common.seed);
+            let canonical = match mesh {
+                Some(path) => {
+                    let mut m = dynamap::slam::io::ply::read(path)?;
+                    if m.faces.is_empty() {
+                        bail!("{}: the mesh has no faces", path.display());
+                    }
+                    m.compute_normals();
+                    m
+                }
+                None => deform::surface(kind, 60),
+            };
+            let scene = DeformingScene::new(canonical, field, common.seed);
             let traj = sequence::static_camera(common.frames, common.fps);
             let noise = SensorNoise {
                 enabled: !common.no_noise,
