@@ -15,6 +15,8 @@
 //! - [`Solver`]: Gauss-Newton, Levenberg-Marquardt and Powell's dogleg over normal equations
 //!   assembled in block form in parallel, solved by dense Cholesky or faer's sparse Cholesky with a
 //!   symbolic factorisation reused across iterations and solves.
+//! - [`dense`]: the dense path for one variable with many scalar terms (trackers), reduced
+//!   straight into 6×6 normal equations.
 //! - [`lie`]: SO(2), SE(2), SO(3), SE(3) exponentials, logarithms, adjoints and Jacobians.
 //!
 //! See `Problem`'s example for a complete solve.
@@ -22,6 +24,7 @@
 #![warn(missing_docs)]
 
 mod autodiff;
+pub mod dense;
 mod diagnose;
 mod error;
 mod jet;
