@@ -7,6 +7,7 @@
 //!   [`preprocess`] ties them into a per-frame pyramid.
 //! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes.
 //! - [`mesh`]: triangle meshes.
+//! - [`tsdf`]: the voxel-hashed TSDF map: integration, raycasting, marching cubes.
 //! - [`synthetic`]: the project's own rendered RGB-D sequences (rigid and deforming) with ground truth.
 //! - [`eval`]: ATE and RPE (as evo computes them), scene-flow EPE, mesh distances.
 
@@ -19,5 +20,6 @@ pub mod io;
 pub mod mesh;
 pub mod preprocess;
 pub mod synthetic;
+pub mod tsdf;
 
 pub use camera::Camera;

@@ -1,0 +1,170 @@
+//! Fusing a depth frame (thesis eq. 3.23-3.25): allocate the blocks the truncation band crosses,
+//! then update every voxel of the blocks in view with the projective signed distance.
+
+use super::{local_index, Block, TsdfError, TsdfVolume, BLOCK};
+use crate::camera::Camera;
+use crate::image::{valid, ColorImage, DepthImage, NormalMap};
+use nalgebra::{Isometry3, Vector3};
+use rayon::prelude::*;
+
+/// What one integration did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct IntegrateStats {
+    /// Blocks allocated by this frame.
+    pub new_blocks: usize,
+    /// Blocks updated (in view).
+    pub updated_blocks: usize,
+}
+
+impl TsdfVolume {
+    /// The block coordinates the truncation band [d − μ, d + μ] of each valid pixel's ray crosses
+    /// (every `step`-th pixel), sorted and deduplicated.
+    fn touched_blocks(&self, depth: &DepthImage, camera: &Camera, pose: &Isometry3<f64>, step: usize) -> Vec<[i32; 3]> {
+        let mu = self.params.truncation();
+        let block_size = self.params.voxel_size * BLOCK as f32;
+        let origin = pose.translation.vector.cast::<f32>();
+        let rot = pose.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let (w, h) = (depth.width, depth.height);
+        let max_depth = self.params.max_depth;
+        let mut coords: Vec<[i32; 3]> = (0..h)
+            .into_par_iter()
+            .step_by(step)
+            .flat_map_iter(|y| {
+                let mut out = Vec::new();
+                for x in (0..w).step_by(step) {
+                    let d = depth.data[y * w + x];
+                    if d <= 0.0 || d > max_depth {
+                        continue;
+                    }
+                    let ray = rot * camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>();
+                    let len = ray.norm();
+                    let dir = ray / len;
+                    // distance along the ray of the surface point, and the band around it
+                    let t_surface = d * len;
+                    let (t0, t1) = (t_surface - mu, t_surface + mu);
+                    let n = ((t1 - t0) / (0.5 * block_size)).ceil() as usize + 1;
+                    let mut last = [i32::MIN; 3];
+                    for k in 0..=n {
+                        let t = t0 + (t1 - t0) * k as f32 / n as f32;
+                        let p = origin + dir * t;
+                        let b = [
+                            (p.x / block_size).floor() as i32,
+                            (p.y / block_size).floor() as i32,
+                            (p.z / block_size).floor() as i32,
+                        ];
+                        if b != last {
+                            out.push(b);
+                            last = b;
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        coords.par_sort_unstable();
+        coords.dedup();
+        coords
+    }
+
+    /// Fuses a frame: `depth` in metres (0 where missing) seen by `camera` at `pose`
+    /// (camera-to-world), with its camera-frame `normals` (for the viewing-angle weight) and optional
+    /// colour. The projective signed distance `sdf = D(u) − z` of each voxel in view is truncated to
+    /// μ, weighted by the cosine between the pixel's ray and normal (at least 0.1), and averaged with
+    /// the stored value; weights are capped at W_max. Colour is fused with the same weights.
+    pub fn integrate(
+        &mut self,
+        depth: &DepthImage,
+        normals: &NormalMap,
+        color: Option<&ColorImage>,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+    ) -> Result<IntegrateStats, TsdfError> {
+        let touched = self.touched_blocks(depth, camera, pose, 2);
+        let missing: Vec<[i32; 3]> = touched.iter().filter(|c| !self.index.contains_key(*c)).copied().collect();
+        if self.blocks.len() + missing.len() > self.params.max_blocks {
+            return Err(TsdfError::BudgetExceeded { needed: self.blocks.len() + missing.len(), max: self.params.max_blocks });
+        }
+        for c in &missing {
+            self.index.insert(*c, self.blocks.len() as u32);
+            self.blocks.push(Block::new(*c));
+        }
+        let params = self.params;
+        let mu = params.truncation();
+        let inv = pose.inverse();
+        let rot = inv.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let trans = inv.translation.vector.cast::<f32>();
+        let (fx, fy, cx, cy) = (camera.fx as f32, camera.fy as f32, camera.cx as f32, camera.cy as f32);
+        let (w, h) = (depth.width as i32, depth.height as i32);
+        let block_size = params.voxel_size * BLOCK as f32;
+        let half_diag = block_size * 0.5 * 3f32.sqrt();
+        let updated = std::sync::atomic::AtomicUsize::new(0);
+        self.blocks.par_iter_mut().for_each(|blk| {
+            // Frustum test on the block's bounding sphere.
+            let centre = Vector3::new(blk.coord[0] as f32 + 0.5, blk.coord[1] as f32 + 0.5, blk.coord[2] as f32 + 0.5) * block_size
+                - Vector3::repeat(0.5 * params.voxel_size);
+            let pc = rot * centre + trans;
+            if pc.z + half_diag <= 0.0 || pc.z - half_diag > params.max_depth + mu {
+                return;
+            }
+            if pc.z > half_diag {
+                let (u, v) = (fx * pc.x / pc.z + cx, fy * pc.y / pc.z + cy);
+                let margin = (half_diag / pc.z) * fx.abs().max(fy.abs());
+                if u < -margin || v < -margin || u > w as f32 + margin || v > h as f32 + margin {
+                    return;
+                }
+            }
+            let mut any = false;
+            let base = [blk.coord[0] * BLOCK, blk.coord[1] * BLOCK, blk.coord[2] * BLOCK];
+            for z in 0..BLOCK {
+                for y in 0..BLOCK {
+                    for x in 0..BLOCK {
+                        let p = Vector3::new((base[0] + x) as f32, (base[1] + y) as f32, (base[2] + z) as f32) * params.voxel_size;
+                        let q = rot * p + trans;
+                        if q.z <= 0.0 {
+                            continue;
+                        }
+                        let u = (fx * q.x / q.z + cx).round() as i32;
+                        let v = (fy * q.y / q.z + cy).round() as i32;
+                        if u < 0 || v < 0 || u >= w || v >= h {
+                            continue;
+                        }
+                        let pix = (v * w + u) as usize;
+                        let d = depth.data[pix];
+                        if d <= 0.0 || d > params.max_depth {
+                            continue;
+                        }
+                        let sdf = d - q.z;
+                        if sdf < -mu {
+                            continue;
+                        }
+                        let n = normals.data[pix];
+                        let cos = if valid(&n) {
+                            let ray = Vector3::new(q.x, q.y, q.z).normalize();
+                            (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
+                        } else {
+                            0.1
+                        };
+                        let i = local_index(x, y, z);
+                        let tsdf = (sdf / mu).min(1.0);
+                        let (w0, t0) = (blk.weight[i], blk.tsdf[i]);
+                        let wn = w0 + cos;
+                        blk.tsdf[i] = (t0 * w0 + tsdf * cos) / wn;
+                        if let Some(c) = color {
+                            let col = c.data[pix];
+                            let old = blk.color[i];
+                            for k in 0..3 {
+                                blk.color[i][k] = ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn).round() as u8;
+                            }
+                        }
+                        blk.weight[i] = wn.min(params.max_weight);
+                        any = true;
+                    }
+                }
+            }
+            if any {
+                updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }
+        });
+        Ok(IntegrateStats { new_blocks: missing.len(), updated_blocks: updated.into_inner() })
+    }
+}

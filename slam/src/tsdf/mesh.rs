@@ -1,0 +1,127 @@
+//! Marching cubes over the allocated blocks (Lorensen & Cline 1987, with the case tables of Paul
+//! Bourke's listing as shipped by the `marching-cubes` crate). Cubes straddling block borders read the
+//! neighbouring blocks, and vertices are shared through a key per lattice edge, so the mesh is
+//! watertight across blocks.
+
+use super::{local_index, TsdfVolume, BLOCK};
+use crate::mesh::Mesh;
+use marching_cubes::tables::{EDGE_TABLE, TRI_TABLE};
+use nalgebra::Point3;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+
+/// Corner offsets in Bourke's numbering.
+const CORNERS: [[i32; 3]; 8] = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]];
+/// The corner pair of each edge in Bourke's numbering.
+const EDGES: [[usize; 2]; 12] = [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]];
+
+/// A lattice edge: its lower global voxel corner and axis (0, 1, 2).
+type EdgeKey = ([i32; 3], u8);
+
+struct Corner {
+    tsdf: f32,
+    color: [u8; 3],
+}
+
+impl TsdfVolume {
+    fn corner(&self, g: [i32; 3]) -> Option<Corner> {
+        let (b, l) = super::split(g);
+        let blk = self.block(&b)?;
+        let i = local_index(l[0], l[1], l[2]);
+        (blk.weight[i] > 0.0).then(|| Corner { tsdf: blk.tsdf[i], color: blk.color[i] })
+    }
+
+    /// The zero level set of the TSDF as a coloured triangle mesh (world frame, normals from the
+    /// faces), watertight across blocks. Cubes with an unobserved corner, or with a sign change
+    /// between two corners both at the truncation limit (|tsdf| ≥ 1, a band edge, not a surface), are
+    /// skipped.
+    pub fn extract_mesh(&self) -> Mesh {
+        // Per block, in parallel: triangles as three edge keys, plus each edge's vertex.
+        type Out = (Vec<[EdgeKey; 3]>, Vec<(EdgeKey, Point3<f32>, [u8; 3])>);
+        let parts: Vec<Out> = self
+            .blocks
+            .par_iter()
+            .map(|blk| {
+                let mut tris = Vec::new();
+                let mut verts = Vec::new();
+                let base = [blk.coord[0] * BLOCK, blk.coord[1] * BLOCK, blk.coord[2] * BLOCK];
+                for z in 0..BLOCK {
+                    for y in 0..BLOCK {
+                        'cube: for x in 0..BLOCK {
+                            let g = [base[0] + x, base[1] + y, base[2] + z];
+                            let mut c: [Option<Corner>; 8] = Default::default();
+                            let mut index = 0usize;
+                            for (k, off) in CORNERS.iter().enumerate() {
+                                let cg = [g[0] + off[0], g[1] + off[1], g[2] + off[2]];
+                                let Some(corner) = self.corner(cg) else { continue 'cube };
+                                if corner.tsdf < 0.0 {
+                                    index |= 1 << k;
+                                }
+                                c[k] = Some(corner);
+                            }
+                            let mask = EDGE_TABLE[index] as u16;
+                            if mask == 0 {
+                                continue;
+                            }
+                            let mut keys = [([0; 3], 0u8); 12];
+                            for (e, [a, b]) in EDGES.iter().enumerate() {
+                                if mask & (1 << e) == 0 {
+                                    continue;
+                                }
+                                let (ca, cb) = (c[*a].as_ref().unwrap(), c[*b].as_ref().unwrap());
+                                if ca.tsdf.abs() >= 1.0 && cb.tsdf.abs() >= 1.0 {
+                                    continue 'cube;
+                                }
+                                let (oa, ob) = (CORNERS[*a], CORNERS[*b]);
+                                let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
+                                let lower = if oa[axis as usize] < ob[axis as usize] { oa } else { ob };
+                                let key = ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
+                                let t = ca.tsdf / (ca.tsdf - cb.tsdf);
+                                let pa = self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
+                                let pb = self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
+                                let p = pa + (pb - pa) * t;
+                                let mut col = [0u8; 3];
+                                for k in 0..3 {
+                                    col[k] = (ca.color[k] as f32 + (cb.color[k] as f32 - ca.color[k] as f32) * t).round() as u8;
+                                }
+                                keys[e] = key;
+                                verts.push((key, p, col));
+                            }
+                            let row = &TRI_TABLE[index];
+                            for tri in row.chunks(3) {
+                                if tri[0] < 0 {
+                                    break;
+                                }
+                                // Bourke's winding faces the "below iso" side; ours faces outward
+                                // (towards positive distance), so reverse it.
+                                tris.push([keys[tri[0] as usize], keys[tri[2] as usize], keys[tri[1] as usize]]);
+                            }
+                        }
+                    }
+                }
+                (tris, verts)
+            })
+            .collect();
+        let mut mesh = Mesh::default();
+        let mut index: FxHashMap<EdgeKey, u32> = FxHashMap::default();
+        for (_, verts) in &parts {
+            for (key, p, col) in verts {
+                index.entry(*key).or_insert_with(|| {
+                    mesh.vertices.push(*p);
+                    mesh.colors.push(*col);
+                    (mesh.vertices.len() - 1) as u32
+                });
+            }
+        }
+        for (tris, _) in &parts {
+            for t in tris {
+                let f = t.map(|k| index[&k]);
+                if f[0] != f[1] && f[1] != f[2] && f[0] != f[2] {
+                    mesh.faces.push(f);
+                }
+            }
+        }
+        mesh.compute_normals();
+        mesh
+    }
+}

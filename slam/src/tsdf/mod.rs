@@ -1,0 +1,200 @@
+//! The map: a voxel-hashed truncated signed distance field (Curless & Levoy 1996; Newcombe et al.,
+//! KinectFusion, 2011; Nießner et al., *Real-time 3D reconstruction at scale using voxel hashing*,
+//! 2013; thesis sec. 2.8 and 3.3).
+//!
+//! Space is cut into blocks of 8³ voxels, allocated only where a depth ray's truncation band passes
+//! and kept in a hash map keyed by block coordinate, so memory follows the observed surface. Each
+//! voxel holds a truncated signed distance in [−1, 1] (units of the truncation μ), a weight and a
+//! colour. [`TsdfVolume::integrate`] fuses a depth frame, [`TsdfVolume::raycast`] renders the model
+//! from any pose, and [`TsdfVolume::extract_mesh`] runs marching cubes.
+
+mod integrate;
+mod mesh;
+mod raycast;
+
+pub use integrate::IntegrateStats;
+pub use raycast::RaycastMaps;
+
+use nalgebra::{Point3, Vector3};
+use rustc_hash::FxHashMap;
+use thiserror::Error;
+
+/// Voxels along a block edge.
+pub const BLOCK: i32 = 8;
+/// Voxels in a block.
+pub const BLOCK_VOXELS: usize = 512;
+
+/// Settings of the volume.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TsdfParams {
+    /// Voxel edge, metres (default 1 cm).
+    pub voxel_size: f32,
+    /// Truncation μ in voxels (default 4).
+    pub truncation_voxels: f32,
+    /// Weight cap W_max (default 64): the model follows a changed scene after about this many frames.
+    pub max_weight: f32,
+    /// Most blocks that may be allocated (default 150 000, about 0.8 GiB).
+    pub max_blocks: usize,
+    /// Depths beyond this are not fused, metres (default 4).
+    pub max_depth: f32,
+}
+
+impl Default for TsdfParams {
+    fn default() -> Self {
+        Self { voxel_size: 0.01, truncation_voxels: 4.0, max_weight: 64.0, max_blocks: 150_000, max_depth: 4.0 }
+    }
+}
+
+impl TsdfParams {
+    /// The truncation distance μ in metres.
+    pub fn truncation(&self) -> f32 {
+        self.voxel_size * self.truncation_voxels
+    }
+}
+
+/// A block of 8³ voxels.
+#[derive(Clone, Debug)]
+pub struct Block {
+    /// Block coordinate (voxel coordinate / 8).
+    pub coord: [i32; 3],
+    /// Truncated signed distance per voxel, in units of μ (1 where unobserved).
+    pub tsdf: Box<[f32; BLOCK_VOXELS]>,
+    /// Fusion weight per voxel (0 where unobserved).
+    pub weight: Box<[f32; BLOCK_VOXELS]>,
+    /// Fused colour per voxel.
+    pub color: Box<[[u8; 3]; BLOCK_VOXELS]>,
+}
+
+impl Block {
+    fn new(coord: [i32; 3]) -> Self {
+        Self {
+            coord,
+            tsdf: Box::new([1.0; BLOCK_VOXELS]),
+            weight: Box::new([0.0; BLOCK_VOXELS]),
+            color: Box::new([[0; 3]; BLOCK_VOXELS]),
+        }
+    }
+}
+
+/// Index of local voxel (x, y, z) in a block.
+#[inline]
+pub fn local_index(x: i32, y: i32, z: i32) -> usize {
+    (x + BLOCK * (y + BLOCK * z)) as usize
+}
+
+/// Errors of the map.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum TsdfError {
+    /// Allocation would exceed the block budget.
+    #[error("the TSDF block budget is exhausted: {needed} blocks needed, {max} allowed (raise max_blocks or the voxel size)")]
+    BudgetExceeded {
+        /// Blocks the frame needs in all.
+        needed: usize,
+        /// The budget.
+        max: usize,
+    },
+}
+
+/// The voxel-hashed TSDF.
+#[derive(Clone, Debug)]
+pub struct TsdfVolume {
+    /// Its settings.
+    pub params: TsdfParams,
+    pub(crate) blocks: Vec<Block>,
+    pub(crate) index: FxHashMap<[i32; 3], u32>,
+}
+
+/// Splits a global voxel coordinate into (block coordinate, local coordinate).
+#[inline]
+pub fn split(g: [i32; 3]) -> ([i32; 3], [i32; 3]) {
+    let b = g.map(|v| v.div_euclid(BLOCK));
+    let l = [g[0] - b[0] * BLOCK, g[1] - b[1] * BLOCK, g[2] - b[2] * BLOCK];
+    (b, l)
+}
+
+impl TsdfVolume {
+    /// An empty volume.
+    pub fn new(params: TsdfParams) -> Self {
+        Self { params, blocks: Vec::new(), index: FxHashMap::default() }
+    }
+
+    /// Number of allocated blocks.
+    pub fn num_blocks(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Bytes held by voxel data.
+    pub fn memory_bytes(&self) -> usize {
+        self.blocks.len() * (BLOCK_VOXELS * (4 + 4 + 3) + std::mem::size_of::<Block>())
+    }
+
+    /// The allocated blocks.
+    pub fn blocks(&self) -> &[Block] {
+        &self.blocks
+    }
+
+    /// The block at a block coordinate.
+    #[inline]
+    pub fn block(&self, coord: &[i32; 3]) -> Option<&Block> {
+        self.index.get(coord).map(|&i| &self.blocks[i as usize])
+    }
+
+    /// (tsdf, weight) of a global voxel, `None` where unallocated.
+    #[inline]
+    pub fn voxel(&self, g: [i32; 3]) -> Option<(f32, f32)> {
+        let (b, l) = split(g);
+        let blk = self.block(&b)?;
+        let i = local_index(l[0], l[1], l[2]);
+        Some((blk.tsdf[i], blk.weight[i]))
+    }
+
+    /// World position of a global voxel's centre.
+    #[inline]
+    pub fn voxel_center(&self, g: [i32; 3]) -> Point3<f32> {
+        Point3::new(g[0] as f32, g[1] as f32, g[2] as f32) * self.params.voxel_size
+    }
+
+    /// Trilinear interpolation of the TSDF (in metres) at a world point, `None` where any of the 8
+    /// surrounding voxels is unobserved (thesis sec. 2.6).
+    pub fn sdf(&self, p: &Point3<f32>) -> Option<f32> {
+        self.trilinear(p).map(|(v, _)| v * self.params.truncation())
+    }
+
+    /// Trilinear TSDF (units of μ) and interpolated colour at a world point.
+    pub(crate) fn trilinear(&self, p: &Point3<f32>) -> Option<(f32, [f32; 3])> {
+        let s = p.coords / self.params.voxel_size;
+        let base = s.map(|v| v.floor());
+        let f: Vector3<f32> = s - base;
+        let g0 = [base.x as i32, base.y as i32, base.z as i32];
+        let (b, l) = split(g0);
+        let fast = l.iter().all(|&v| v < BLOCK - 1);
+        let fast_block = if fast { self.block(&b) } else { None };
+        let mut value = 0.0;
+        let mut color = [0.0f32; 3];
+        for c in 0..8 {
+            let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            let w = (if dx == 1 { f.x } else { 1.0 - f.x }) * (if dy == 1 { f.y } else { 1.0 - f.y }) * (if dz == 1 { f.z } else { 1.0 - f.z });
+            let (t, wt, col) = match fast_block {
+                Some(blk) => {
+                    let i = local_index(l[0] + dx, l[1] + dy, l[2] + dz);
+                    (blk.tsdf[i], blk.weight[i], blk.color[i])
+                }
+                None => {
+                    let g = [g0[0] + dx, g0[1] + dy, g0[2] + dz];
+                    let (bb, ll) = split(g);
+                    let blk = self.block(&bb)?;
+                    let i = local_index(ll[0], ll[1], ll[2]);
+                    (blk.tsdf[i], blk.weight[i], blk.color[i])
+                }
+            };
+            if wt <= 0.0 {
+                return None;
+            }
+            value += w * t;
+            for k in 0..3 {
+                color[k] += w * col[k] as f32;
+            }
+        }
+        Some((value, color))
+    }
+}
