@@ -14,7 +14,11 @@ const RADIUS: f64 = 0.3;
 
 fn sphere_scene() -> Scene {
     let mut s = Scene::default();
-    s.add(Shape::Sphere { radius: RADIUS }, Isometry3::identity(), Texture::random(5, 5.0, 20.0));
+    s.add(
+        Shape::Sphere { radius: RADIUS },
+        Isometry3::identity(),
+        Texture::random(5, 5.0, 20.0),
+    );
     s
 }
 
@@ -29,32 +33,50 @@ fn views() -> Vec<Isometry3<f64>> {
             v.push(look_at(&eye, &Point3::origin(), &Vector3::z()));
         }
     }
-    v.push(look_at(&Point3::new(0.0, 0.0, 1.2), &Point3::origin(), &Vector3::y()));
-    v.push(look_at(&Point3::new(0.0, 0.0, -1.2), &Point3::origin(), &Vector3::y()));
+    v.push(look_at(
+        &Point3::new(0.0, 0.0, 1.2),
+        &Point3::origin(),
+        &Vector3::y(),
+    ));
+    v.push(look_at(
+        &Point3::new(0.0, 0.0, -1.2),
+        &Point3::origin(),
+        &Vector3::y(),
+    ));
     v
 }
 
 fn fuse(scene: &Scene, poses: &[Isometry3<f64>], params: TsdfParams) -> TsdfVolume {
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
     let mut vol = TsdfVolume::new(params);
-    let (mut v, mut n) = (Image::filled(0, 0, [0.0f32; 3]), Image::filled(0, 0, [0.0f32; 3]));
+    let (mut v, mut n) = (
+        Image::filled(0, 0, [0.0f32; 3]),
+        Image::filled(0, 0, [0.0f32; 3]),
+    );
     for pose in poses {
         let r = render(scene, &cam, pose);
         vertex_map(&r.depth, &cam, &mut v);
         normal_map(&v, &cam, &mut n);
-        vol.integrate(&r.depth, &n, Some(&r.color), &cam, pose).unwrap();
+        vol.integrate(&r.depth, &n, Some(&r.color), &cam, pose)
+            .unwrap();
     }
     vol
 }
 
 #[test]
 fn a_fused_sphere_has_its_zero_crossing_at_the_true_radius() {
-    let params = TsdfParams { voxel_size: 0.01, ..TsdfParams::default() };
+    let params = TsdfParams {
+        voxel_size: 0.01,
+        ..TsdfParams::default()
+    };
     let vol = fuse(&sphere_scene(), &views(), params);
     // Along 200 directions, find where the interpolated distance crosses zero.
     let mut worst: f64 = 0.0;
     for k in 0..200 {
-        let (a, b) = (k as f64 * 2.399963, (1.0 - 2.0 * (k as f64 + 0.5) / 200.0).acos());
+        let (a, b) = (
+            k as f64 * 2.399963,
+            (1.0 - 2.0 * (k as f64 + 0.5) / 200.0).acos(),
+        );
         let dir = Vector3::new(b.sin() * a.cos(), b.sin() * a.sin(), b.cos()).cast::<f32>();
         let mut prev: Option<(f32, f32)> = None;
         let mut r = 0.2f32;
@@ -74,12 +96,22 @@ fn a_fused_sphere_has_its_zero_crossing_at_the_true_radius() {
         let f = found.unwrap_or_else(|| panic!("no zero crossing along direction {k}")) as f64;
         worst = worst.max((f - RADIUS).abs());
     }
-    assert!(worst < 0.5 * params.voxel_size as f64, "zero crossing up to {worst} m from the radius");
+    assert!(
+        worst < 0.5 * params.voxel_size as f64,
+        "zero crossing up to {worst} m from the radius"
+    );
 }
 
 #[test]
 fn marching_cubes_of_a_sphere_is_watertight_with_the_right_area() {
-    let vol = fuse(&sphere_scene(), &views(), TsdfParams { voxel_size: 0.01, ..TsdfParams::default() });
+    let vol = fuse(
+        &sphere_scene(),
+        &views(),
+        TsdfParams {
+            voxel_size: 0.01,
+            ..TsdfParams::default()
+        },
+    );
     let mesh = vol.extract_mesh();
     assert!(mesh.faces.len() > 5000);
     // Watertight: every edge is shared by exactly two triangles, in opposite directions.
@@ -104,18 +136,33 @@ fn marching_cubes_of_a_sphere_is_watertight_with_the_right_area() {
     let truth = 4.0 * std::f64::consts::PI * RADIUS * RADIUS;
     assert!((area / truth - 1.0).abs() < 0.02, "area {area} vs {truth}");
     // Faces point outwards.
-    let outward = mesh.faces.iter().filter(|f| {
-        let [a, b, c] = f.map(|i| mesh.vertices[i as usize].coords);
-        (b - a).cross(&(c - a)).dot(&a) > 0.0
-    }).count();
+    let outward = mesh
+        .faces
+        .iter()
+        .filter(|f| {
+            let [a, b, c] = f.map(|i| mesh.vertices[i as usize].coords);
+            (b - a).cross(&(c - a)).dot(&a) > 0.0
+        })
+        .count();
     assert!(outward as f64 > 0.99 * mesh.faces.len() as f64);
 }
 
 #[test]
 fn raycasting_the_model_reproduces_the_rendered_depth() {
-    let vol = fuse(&sphere_scene(), &views(), TsdfParams { voxel_size: 0.01, ..TsdfParams::default() });
+    let vol = fuse(
+        &sphere_scene(),
+        &views(),
+        TsdfParams {
+            voxel_size: 0.01,
+            ..TsdfParams::default()
+        },
+    );
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let pose = look_at(&Point3::new(0.9, 0.5, 0.5), &Point3::origin(), &Vector3::z());
+    let pose = look_at(
+        &Point3::new(0.9, 0.5, 0.5),
+        &Point3::origin(),
+        &Vector3::z(),
+    );
     let truth = render(&sphere_scene(), &cam, &pose);
     let mut maps = RaycastMaps::new();
     vol.raycast(&cam, &pose, &mut maps);
@@ -127,15 +174,29 @@ fn raycasting_the_model_reproduces_the_rendered_depth() {
         }
     }
     let hit = truth.depth.data.iter().filter(|d| **d > 0.0).count();
-    assert!(errors.len() as f64 > 0.95 * hit as f64, "{} of {hit} pixels hit the model", errors.len());
+    assert!(
+        errors.len() as f64 > 0.95 * hit as f64,
+        "{} of {hit} pixels hit the model",
+        errors.len()
+    );
     errors.sort_by(f32::total_cmp);
-    assert!(errors[errors.len() / 2] < 0.002, "median depth error {}", errors[errors.len() / 2]);
-    let ok = maps.normals.data.iter().zip(&truth.normals.data).filter(|(m, t)| m[0].is_finite() && t[0].is_finite()).all(|(m, t)| {
-        // model normals are world-frame; truth normals camera-frame
-        let mw = Vector3::new(m[0], m[1], m[2]).cast::<f64>();
-        let tw = pose.rotation * Vector3::new(t[0], t[1], t[2]).cast::<f64>();
-        mw.dot(&tw) > 0.9
-    });
+    assert!(
+        errors[errors.len() / 2] < 0.002,
+        "median depth error {}",
+        errors[errors.len() / 2]
+    );
+    let ok = maps
+        .normals
+        .data
+        .iter()
+        .zip(&truth.normals.data)
+        .filter(|(m, t)| m[0].is_finite() && t[0].is_finite())
+        .all(|(m, t)| {
+            // model normals are world-frame; truth normals camera-frame
+            let mw = Vector3::new(m[0], m[1], m[2]).cast::<f64>();
+            let tw = pose.rotation * Vector3::new(t[0], t[1], t[2]).cast::<f64>();
+            mw.dot(&tw) > 0.9
+        });
     assert!(ok, "model normals disagree with the rendered ones");
 }
 
@@ -146,28 +207,55 @@ fn memory_follows_the_surface_area() {
     let mut counts = Vec::new();
     for (r, scale) in [(0.15, 0.5), (0.3, 1.0)] {
         let mut s = Scene::default();
-        s.add(Shape::Sphere { radius: r }, Isometry3::identity(), Texture::random(1, 5.0, 20.0));
+        s.add(
+            Shape::Sphere { radius: r },
+            Isometry3::identity(),
+            Texture::random(1, 5.0, 20.0),
+        );
         let poses: Vec<Isometry3<f64>> = views()
             .into_iter()
             .map(|p| Isometry3::from_parts((p.translation.vector * scale).into(), p.rotation))
             .collect();
-        let vol = fuse(&s, &poses, TsdfParams { voxel_size: 0.01, ..TsdfParams::default() });
+        let vol = fuse(
+            &s,
+            &poses,
+            TsdfParams {
+                voxel_size: 0.01,
+                ..TsdfParams::default()
+            },
+        );
         counts.push(vol.num_blocks() as f64);
-        assert_eq!(vol.memory_bytes(), vol.num_blocks() * (512 * 11 + std::mem::size_of::<dynamap::slam::tsdf::Block>()));
+        assert_eq!(
+            vol.memory_bytes(),
+            vol.num_blocks() * (512 * 11 + std::mem::size_of::<dynamap::slam::tsdf::Block>())
+        );
     }
     let ratio = counts[1] / counts[0];
-    assert!((2.8..5.0).contains(&ratio), "blocks {counts:?}: ratio {ratio} for 4x the area");
+    assert!(
+        (2.8..5.0).contains(&ratio),
+        "blocks {counts:?}: ratio {ratio} for 4x the area"
+    );
 }
 
 #[test]
 fn the_block_budget_is_a_clear_error() {
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let pose = look_at(&Point3::new(1.2, 0.0, 0.0), &Point3::origin(), &Vector3::z());
+    let pose = look_at(
+        &Point3::new(1.2, 0.0, 0.0),
+        &Point3::origin(),
+        &Vector3::z(),
+    );
     let r = render(&sphere_scene(), &cam, &pose);
-    let (mut v, mut n) = (Image::filled(0, 0, [0.0f32; 3]), Image::filled(0, 0, [0.0f32; 3]));
+    let (mut v, mut n) = (
+        Image::filled(0, 0, [0.0f32; 3]),
+        Image::filled(0, 0, [0.0f32; 3]),
+    );
     vertex_map(&r.depth, &cam, &mut v);
     normal_map(&v, &cam, &mut n);
-    let mut vol = TsdfVolume::new(TsdfParams { max_blocks: 10, ..TsdfParams::default() });
+    let mut vol = TsdfVolume::new(TsdfParams {
+        max_blocks: 10,
+        ..TsdfParams::default()
+    });
     let e = vol.integrate(&r.depth, &n, None, &cam, &pose).unwrap_err();
     assert!(e.to_string().contains("budget is exhausted"), "{e}");
     assert_eq!(vol.num_blocks(), 0, "nothing half-allocated");

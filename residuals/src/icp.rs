@@ -13,7 +13,12 @@ use nalgebra::{Isometry3, Point3, Vector3};
 /// Point-to-plane: `r = nᵀ (T p − q)` for a source point p (camera frame) and a target point q with
 /// normal n (world frame). Returns r and ∂r/∂δ = `[(p × Rᵀn)ᵀ, (Rᵀn)ᵀ]`.
 #[inline]
-pub fn point_to_plane(t: &Isometry3<f64>, p: &Vector3<f64>, q: &Vector3<f64>, n: &Vector3<f64>) -> (f64, [f64; 6]) {
+pub fn point_to_plane(
+    t: &Isometry3<f64>,
+    p: &Vector3<f64>,
+    q: &Vector3<f64>,
+    n: &Vector3<f64>,
+) -> (f64, [f64; 6]) {
     let pw = t * Point3::from(*p);
     let r = n.dot(&(pw.coords - q));
     let nc = t.rotation.inverse() * n;
@@ -39,8 +44,18 @@ impl Residual for PointToPlane {
     fn arity(&self) -> Option<usize> {
         Some(1)
     }
-    fn evaluate(&self, vars: &[Var<'_>], residual: &mut [f64], jacobians: Option<&mut Jacobians<'_>>) {
-        let (r, j) = point_to_plane(&se3::from_slice(vars[0].value), &self.source, &self.target, &self.normal);
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
+        let (r, j) = point_to_plane(
+            &se3::from_slice(vars[0].value),
+            &self.source,
+            &self.target,
+            &self.normal,
+        );
         residual[0] = r;
         if let Some(jac) = jacobians {
             jac.block(0).copy_from_slice(&j);
@@ -88,7 +103,11 @@ pub fn photometric(
     let (u, v) = (k.fx * x.x * iz + k.cx, k.fy * x.y * iz + k.cy);
     let (value, [gu, gv]) = field.sample(u, v)?;
     // ∇I · ∂π/∂x
-    let a = Vector3::new(gu * k.fx * iz, gv * k.fy * iz, -(gu * k.fx * x.x + gv * k.fy * x.y) * iz * iz);
+    let a = Vector3::new(
+        gu * k.fx * iz,
+        gv * k.fy * iz,
+        -(gu * k.fx * x.x + gv * k.fy * x.y) * iz * iz,
+    );
     // ∂x/∂δ = R_rel [−[p]×, I] with R_rel = R_ref⁻¹ R; aᵀ R_rel [−[p]×, I] = [(p × b)ᵀ, bᵀ], b = R_relᵀ a
     let b = (t_ref_inv.rotation * t.rotation).inverse() * a;
     let w = p.cross(&b);
@@ -116,9 +135,21 @@ impl Residual for Photometric<'_> {
     fn arity(&self) -> Option<usize> {
         Some(1)
     }
-    fn evaluate(&self, vars: &[Var<'_>], residual: &mut [f64], jacobians: Option<&mut Jacobians<'_>>) {
+    fn evaluate(
+        &self,
+        vars: &[Var<'_>],
+        residual: &mut [f64],
+        jacobians: Option<&mut Jacobians<'_>>,
+    ) {
         let t = se3::from_slice(vars[0].value);
-        match photometric(&t, &self.t_ref_inv, &self.intrinsics, self.field, &self.point, self.intensity) {
+        match photometric(
+            &t,
+            &self.t_ref_inv,
+            &self.intrinsics,
+            self.field,
+            &self.point,
+            self.intensity,
+        ) {
             Some((r, j)) => {
                 residual[0] = r;
                 if let Some(jac) = jacobians {
@@ -146,12 +177,25 @@ mod tests {
     struct Waves;
     impl IntensityField for Waves {
         fn sample(&self, u: f64, v: f64) -> Option<(f64, [f64; 2])> {
-            Some(((0.05 * u).sin() + (0.07 * v).cos() + 0.001 * u * v, [0.05 * (0.05 * u).cos() + 0.001 * v, -0.07 * (0.07 * v).sin() + 0.001 * u]))
+            Some((
+                (0.05 * u).sin() + (0.07 * v).cos() + 0.001 * u * v,
+                [
+                    0.05 * (0.05 * u).cos() + 0.001 * v,
+                    -0.07 * (0.07 * v).sin() + 0.001 * u,
+                ],
+            ))
         }
     }
 
     fn pose(a: &[f64]) -> Isometry3<f64> {
-        se3::exp(&Vector6::new(a[0] * 0.3, a[1] * 0.3, a[2] * 0.3, a[3] * 0.2, a[4] * 0.2, a[5] * 0.2))
+        se3::exp(&Vector6::new(
+            a[0] * 0.3,
+            a[1] * 0.3,
+            a[2] * 0.3,
+            a[3] * 0.2,
+            a[4] * 0.2,
+            a[5] * 0.2,
+        ))
     }
 
     proptest! {

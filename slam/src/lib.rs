@@ -7,6 +7,7 @@
 //!   [`preprocess`] ties them into a per-frame pyramid.
 //! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes.
 //! - [`mesh`]: triangle meshes.
+//! - [`rigid`]: frame-to-model tracking and the rigid SLAM pipeline.
 //! - [`tsdf`]: the voxel-hashed TSDF map: integration, raycasting, marching cubes.
 //! - [`synthetic`]: the project's own rendered RGB-D sequences (rigid and deforming) with ground truth.
 //! - [`eval`]: ATE and RPE (as evo computes them), scene-flow EPE, mesh distances.
@@ -19,6 +20,7 @@ pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod preprocess;
+pub mod rigid;
 pub mod synthetic;
 pub mod tsdf;
 

@@ -17,16 +17,26 @@ const CHUNK: usize = 2048;
 
 /// Many scalar terms of one variable with tangent dimension N.
 pub trait DenseTerms<const N: usize>: Sync {
+    /// What the terms need of the current point, computed once per linearisation (a pose's rotation
+    /// matrix, say).
+    type Point: Sync;
     /// Number of terms.
     fn len(&self) -> usize;
     /// True when there are no terms.
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// Evaluates term `i` at `x` (ambient coordinates), calling `emit(r, J, group)` for each residual
-    /// row it contributes (none when the term is rejected); `group` selects the robust kernel and
-    /// weight in [`DenseOptions::groups`].
-    fn evaluate<E: FnMut(f64, &[f64; N], usize)>(&self, i: usize, x: &[f64], emit: &mut E);
+    /// Prepares the point `x` (ambient coordinates) for evaluation.
+    fn prepare(&self, x: &[f64]) -> Self::Point;
+    /// Evaluates term `i` at the prepared point, calling `emit(r, J, group)` for each residual row it
+    /// contributes (none when the term is rejected); `group` selects the robust kernel and weight in
+    /// [`DenseOptions::groups`].
+    fn evaluate<E: FnMut(f64, &[f64; N], usize)>(
+        &self,
+        i: usize,
+        point: &Self::Point,
+        emit: &mut E,
+    );
 }
 
 /// A term group's weight and kernel.
@@ -40,7 +50,10 @@ pub struct Group<'a> {
 
 impl std::fmt::Debug for Group<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Group").field("weight", &self.weight).field("kernel", &self.kernel).finish()
+        f.debug_struct("Group")
+            .field("weight", &self.weight)
+            .field("kernel", &self.kernel)
+            .finish()
     }
 }
 
@@ -68,30 +81,52 @@ pub struct Reduced<const N: usize> {
     pub cost: f64,
     /// Number of residual rows.
     pub rows: usize,
+    /// Rows per group (the first [`MAX_GROUPS`] groups).
+    pub group_rows: [usize; MAX_GROUPS],
 }
+
+/// Groups whose rows are counted separately in [`Reduced::group_rows`].
+pub const MAX_GROUPS: usize = 4;
 
 impl<const N: usize> Reduced<N> {
     fn zero() -> Self {
-        Self { h: SMatrix::zeros(), g: SVector::zeros(), cost: 0.0, rows: 0 }
+        Self {
+            h: SMatrix::zeros(),
+            g: SVector::zeros(),
+            cost: 0.0,
+            rows: 0,
+            group_rows: [0; MAX_GROUPS],
+        }
     }
     fn add(&mut self, o: &Self) {
         self.h += o.h;
         self.g += o.g;
         self.cost += o.cost;
         self.rows += o.rows;
+        for (a, b) in self.group_rows.iter_mut().zip(o.group_rows) {
+            *a += b;
+        }
     }
 }
 
 /// Linearises all terms at `x`: `H = Σ w JJᵀ`, `g = Σ w r J` (upper triangle accumulated, then
 /// mirrored), in parallel with a fixed reduction order.
-pub fn reduce<const N: usize, T: DenseTerms<N>>(terms: &T, x: &[f64], groups: &[Group<'_>], partials: &mut Vec<Reduced<N>>) -> Reduced<N> {
+pub fn reduce<const N: usize, T: DenseTerms<N>>(
+    terms: &T,
+    x: &[f64],
+    groups: &[Group<'_>],
+    partials: &mut Vec<Reduced<N>>,
+) -> Reduced<N> {
     let chunks = terms.len().div_ceil(CHUNK);
+    let point = terms.prepare(x);
+    let x = &point;
     partials.clear();
     partials.resize(chunks, Reduced::zero());
     partials.par_iter_mut().enumerate().for_each(|(c, acc)| {
         let mut h = [[0.0f64; N]; N];
         let mut g = [0.0f64; N];
         let (mut cost, mut rows) = (0.0, 0usize);
+        let mut group_rows = [0usize; MAX_GROUPS];
         let end = ((c + 1) * CHUNK).min(terms.len());
         for i in c * CHUNK..end {
             terms.evaluate(i, x, &mut |r: f64, j: &[f64; N], group: usize| {
@@ -107,6 +142,9 @@ pub fn reduce<const N: usize, T: DenseTerms<N>>(terms: &T, x: &[f64], groups: &[
                 let w = w * gr.weight;
                 cost += 0.5 * gr.weight * rho;
                 rows += 1;
+                if group < MAX_GROUPS {
+                    group_rows[group] += 1;
+                }
                 for a in 0..N {
                     let wa = w * j[a];
                     g[a] += wa * r;
@@ -123,7 +161,13 @@ pub fn reduce<const N: usize, T: DenseTerms<N>>(terms: &T, x: &[f64], groups: &[
                 hm[(b, a)] = h[a][b];
             }
         }
-        *acc = Reduced { h: hm, g: SVector::from(g), cost, rows };
+        *acc = Reduced {
+            h: hm,
+            g: SVector::from(g),
+            cost,
+            rows,
+            group_rows,
+        };
     });
     let mut total = Reduced::zero();
     for p in partials.iter() {
@@ -174,8 +218,17 @@ pub fn solve<const N: usize, T: DenseTerms<N>>(
     options: &DenseOptions<'_>,
     ws: &mut DenseWorkspace<N>,
 ) -> DenseSummary<N> {
-    assert_eq!(manifold.tangent_dim(), N, "the manifold's tangent dimension must be N");
-    let mut summary = DenseSummary { iterations: 0, stop: DenseStop::MaxIterations, last: Reduced::zero(), initial_cost: 0.0 };
+    assert_eq!(
+        manifold.tangent_dim(),
+        N,
+        "the manifold's tangent dimension must be N"
+    );
+    let mut summary = DenseSummary {
+        iterations: 0,
+        stop: DenseStop::MaxIterations,
+        last: Reduced::zero(),
+        initial_cost: 0.0,
+    };
     ws.next.resize(x.len(), 0.0);
     for it in 0..options.max_iterations {
         let red = reduce(terms, x, &options.groups, &mut ws.partials);
@@ -226,11 +279,19 @@ mod tests {
         points: Vec<(Vector3<f64>, Vector3<f64>, f64)>, // (source point, plane normal, plane offset)
     }
     impl DenseTerms<6> for Planes {
+        type Point = Isometry3<f64>;
         fn len(&self) -> usize {
             self.points.len()
         }
-        fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(&self, i: usize, x: &[f64], emit: &mut E) {
-            let t = se3::from_slice(x);
+        fn prepare(&self, x: &[f64]) -> Isometry3<f64> {
+            se3::from_slice(x)
+        }
+        fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(
+            &self,
+            i: usize,
+            t: &Isometry3<f64>,
+            emit: &mut E,
+        ) {
             let (p, n, d) = self.points[i];
             let q = t * Point3::from(p);
             let r = n.dot(&q.coords) - d;
@@ -243,7 +304,12 @@ mod tests {
     #[test]
     fn dense_gauss_newton_recovers_a_pose_from_planes() {
         let truth = se3::exp(&Vector6::new(0.2, -0.1, 0.3, 0.5, -0.4, 0.2));
-        let normals = [Vector3::x(), Vector3::y(), Vector3::z(), Vector3::new(1.0, 1.0, 1.0).normalize()];
+        let normals = [
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::z(),
+            Vector3::new(1.0, 1.0, 1.0).normalize(),
+        ];
         let mut points = Vec::new();
         for k in 0..2000 {
             let f = k as f64;
@@ -256,26 +322,52 @@ mod tests {
         let terms = Planes { points };
         let mut x = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
         let huber = Huber(0.5);
-        let options = DenseOptions { groups: vec![Group { weight: 1.0, kernel: Some(&huber) }], max_iterations: 20, step_tolerance: 1e-12, damping: 0.0 };
-        let summary = solve(&terms, &SE3, &mut x, &options, &mut DenseWorkspace::default());
+        let options = DenseOptions {
+            groups: vec![Group {
+                weight: 1.0,
+                kernel: Some(&huber),
+            }],
+            max_iterations: 20,
+            step_tolerance: 1e-12,
+            damping: 0.0,
+        };
+        let summary = solve(
+            &terms,
+            &SE3,
+            &mut x,
+            &options,
+            &mut DenseWorkspace::default(),
+        );
         assert_eq!(summary.stop, DenseStop::Converged);
         let err = se3::log(&(truth.inverse() * se3::from_slice(&x))).norm();
         assert!(err < 1e-10, "pose error {err}");
-        let _: Isometry3<f64> = truth;
     }
 
     #[test]
     fn the_reduction_does_not_depend_on_the_thread_count() {
         let terms = Planes {
-            points: (0..10_000).map(|k| {
-                let f = k as f64;
-                (Vector3::new(f.sin(), f.cos(), (f * 0.3).sin()), Vector3::new(0.3, 0.4, (f * 0.1).cos()).normalize(), f.sin() * 0.1)
-            }).collect(),
+            points: (0..10_000)
+                .map(|k| {
+                    let f = k as f64;
+                    (
+                        Vector3::new(f.sin(), f.cos(), (f * 0.3).sin()),
+                        Vector3::new(0.3, 0.4, (f * 0.1).cos()).normalize(),
+                        f.sin() * 0.1,
+                    )
+                })
+                .collect(),
         };
         let x = [0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1.0];
-        let groups = [Group { weight: 1.0, kernel: None }];
+        let groups = [Group {
+            weight: 1.0,
+            kernel: None,
+        }];
         let a = reduce(&terms, &x, &groups, &mut Vec::new());
-        let b = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| reduce(&terms, &x, &groups, &mut Vec::new()));
+        let b = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| reduce(&terms, &x, &groups, &mut Vec::new()));
         assert_eq!(a, b);
     }
 }

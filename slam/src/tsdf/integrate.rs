@@ -19,11 +19,21 @@ pub struct IntegrateStats {
 impl TsdfVolume {
     /// The block coordinates the truncation band [d − μ, d + μ] of each valid pixel's ray crosses
     /// (every `step`-th pixel), sorted and deduplicated.
-    fn touched_blocks(&self, depth: &DepthImage, camera: &Camera, pose: &Isometry3<f64>, step: usize) -> Vec<[i32; 3]> {
+    fn touched_blocks(
+        &self,
+        depth: &DepthImage,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        step: usize,
+    ) -> Vec<[i32; 3]> {
         let mu = self.params.truncation();
         let block_size = self.params.voxel_size * BLOCK as f32;
         let origin = pose.translation.vector.cast::<f32>();
-        let rot = pose.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let rot = pose
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .cast::<f32>();
         let (w, h) = (depth.width, depth.height);
         let max_depth = self.params.max_depth;
         let mut coords: Vec<[i32; 3]> = (0..h)
@@ -36,7 +46,11 @@ impl TsdfVolume {
                     if d <= 0.0 || d > max_depth {
                         continue;
                     }
-                    let ray = rot * camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>();
+                    let ray = rot
+                        * camera
+                            .back_project(x as f64, y as f64, 1.0)
+                            .coords
+                            .cast::<f32>();
                     let len = ray.norm();
                     let dir = ray / len;
                     // distance along the ray of the surface point, and the band around it
@@ -80,9 +94,16 @@ impl TsdfVolume {
         pose: &Isometry3<f64>,
     ) -> Result<IntegrateStats, TsdfError> {
         let touched = self.touched_blocks(depth, camera, pose, 2);
-        let missing: Vec<[i32; 3]> = touched.iter().filter(|c| !self.index.contains_key(*c)).copied().collect();
+        let missing: Vec<[i32; 3]> = touched
+            .iter()
+            .filter(|c| !self.index.contains_key(*c))
+            .copied()
+            .collect();
         if self.blocks.len() + missing.len() > self.params.max_blocks {
-            return Err(TsdfError::BudgetExceeded { needed: self.blocks.len() + missing.len(), max: self.params.max_blocks });
+            return Err(TsdfError::BudgetExceeded {
+                needed: self.blocks.len() + missing.len(),
+                max: self.params.max_blocks,
+            });
         }
         for c in &missing {
             self.index.insert(*c, self.blocks.len() as u32);
@@ -93,14 +114,23 @@ impl TsdfVolume {
         let inv = pose.inverse();
         let rot = inv.rotation.to_rotation_matrix().into_inner().cast::<f32>();
         let trans = inv.translation.vector.cast::<f32>();
-        let (fx, fy, cx, cy) = (camera.fx as f32, camera.fy as f32, camera.cx as f32, camera.cy as f32);
+        let (fx, fy, cx, cy) = (
+            camera.fx as f32,
+            camera.fy as f32,
+            camera.cx as f32,
+            camera.cy as f32,
+        );
         let (w, h) = (depth.width as i32, depth.height as i32);
         let block_size = params.voxel_size * BLOCK as f32;
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         self.blocks.par_iter_mut().for_each(|blk| {
             // Frustum test on the block's bounding sphere.
-            let centre = Vector3::new(blk.coord[0] as f32 + 0.5, blk.coord[1] as f32 + 0.5, blk.coord[2] as f32 + 0.5) * block_size
+            let centre = Vector3::new(
+                blk.coord[0] as f32 + 0.5,
+                blk.coord[1] as f32 + 0.5,
+                blk.coord[2] as f32 + 0.5,
+            ) * block_size
                 - Vector3::repeat(0.5 * params.voxel_size);
             let pc = rot * centre + trans;
             if pc.z + half_diag <= 0.0 || pc.z - half_diag > params.max_depth + mu {
@@ -114,11 +144,19 @@ impl TsdfVolume {
                 }
             }
             let mut any = false;
-            let base = [blk.coord[0] * BLOCK, blk.coord[1] * BLOCK, blk.coord[2] * BLOCK];
+            let base = [
+                blk.coord[0] * BLOCK,
+                blk.coord[1] * BLOCK,
+                blk.coord[2] * BLOCK,
+            ];
             for z in 0..BLOCK {
                 for y in 0..BLOCK {
                     for x in 0..BLOCK {
-                        let p = Vector3::new((base[0] + x) as f32, (base[1] + y) as f32, (base[2] + z) as f32) * params.voxel_size;
+                        let p = Vector3::new(
+                            (base[0] + x) as f32,
+                            (base[1] + y) as f32,
+                            (base[2] + z) as f32,
+                        ) * params.voxel_size;
                         let q = rot * p + trans;
                         if q.z <= 0.0 {
                             continue;
@@ -153,7 +191,8 @@ impl TsdfVolume {
                             let col = c.data[pix];
                             let old = blk.color[i];
                             for k in 0..3 {
-                                blk.color[i][k] = ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn).round() as u8;
+                                blk.color[i][k] =
+                                    ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn).round() as u8;
                             }
                         }
                         blk.weight[i] = wn.min(params.max_weight);
@@ -165,6 +204,9 @@ impl TsdfVolume {
                 updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             }
         });
-        Ok(IntegrateStats { new_blocks: missing.len(), updated_blocks: updated.into_inner() })
+        Ok(IntegrateStats {
+            new_blocks: missing.len(),
+            updated_blocks: updated.into_inner(),
+        })
     }
 }

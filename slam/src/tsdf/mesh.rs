@@ -11,9 +11,31 @@ use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 /// Corner offsets in Bourke's numbering.
-const CORNERS: [[i32; 3]; 8] = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]];
+const CORNERS: [[i32; 3]; 8] = [
+    [0, 0, 0],
+    [1, 0, 0],
+    [1, 1, 0],
+    [0, 1, 0],
+    [0, 0, 1],
+    [1, 0, 1],
+    [1, 1, 1],
+    [0, 1, 1],
+];
 /// The corner pair of each edge in Bourke's numbering.
-const EDGES: [[usize; 2]; 12] = [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]];
+const EDGES: [[usize; 2]; 12] = [
+    [0, 1],
+    [1, 2],
+    [2, 3],
+    [3, 0],
+    [4, 5],
+    [5, 6],
+    [6, 7],
+    [7, 4],
+    [0, 4],
+    [1, 5],
+    [2, 6],
+    [3, 7],
+];
 
 /// A lattice edge: its lower global voxel corner and axis (0, 1, 2).
 type EdgeKey = ([i32; 3], u8);
@@ -28,7 +50,10 @@ impl TsdfVolume {
         let (b, l) = super::split(g);
         let blk = self.block(&b)?;
         let i = local_index(l[0], l[1], l[2]);
-        (blk.weight[i] > 0.0).then(|| Corner { tsdf: blk.tsdf[i], color: blk.color[i] })
+        (blk.weight[i] > 0.0).then(|| Corner {
+            tsdf: blk.tsdf[i],
+            color: blk.color[i],
+        })
     }
 
     /// The zero level set of the TSDF as a coloured triangle mesh (world frame, normals from the
@@ -44,7 +69,11 @@ impl TsdfVolume {
             .map(|blk| {
                 let mut tris = Vec::new();
                 let mut verts = Vec::new();
-                let base = [blk.coord[0] * BLOCK, blk.coord[1] * BLOCK, blk.coord[2] * BLOCK];
+                let base = [
+                    blk.coord[0] * BLOCK,
+                    blk.coord[1] * BLOCK,
+                    blk.coord[2] * BLOCK,
+                ];
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
                         'cube: for x in 0..BLOCK {
@@ -53,7 +82,9 @@ impl TsdfVolume {
                             let mut index = 0usize;
                             for (k, off) in CORNERS.iter().enumerate() {
                                 let cg = [g[0] + off[0], g[1] + off[1], g[2] + off[2]];
-                                let Some(corner) = self.corner(cg) else { continue 'cube };
+                                let Some(corner) = self.corner(cg) else {
+                                    continue 'cube;
+                                };
                                 if corner.tsdf < 0.0 {
                                     index |= 1 << k;
                                 }
@@ -74,15 +105,24 @@ impl TsdfVolume {
                                 }
                                 let (oa, ob) = (CORNERS[*a], CORNERS[*b]);
                                 let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
-                                let lower = if oa[axis as usize] < ob[axis as usize] { oa } else { ob };
-                                let key = ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
+                                let lower = if oa[axis as usize] < ob[axis as usize] {
+                                    oa
+                                } else {
+                                    ob
+                                };
+                                let key =
+                                    ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
                                 let t = ca.tsdf / (ca.tsdf - cb.tsdf);
-                                let pa = self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
-                                let pb = self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
+                                let pa =
+                                    self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
+                                let pb =
+                                    self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
                                 let p = pa + (pb - pa) * t;
                                 let mut col = [0u8; 3];
                                 for k in 0..3 {
-                                    col[k] = (ca.color[k] as f32 + (cb.color[k] as f32 - ca.color[k] as f32) * t).round() as u8;
+                                    col[k] = (ca.color[k] as f32
+                                        + (cb.color[k] as f32 - ca.color[k] as f32) * t)
+                                        .round() as u8;
                                 }
                                 keys[e] = key;
                                 verts.push((key, p, col));
@@ -94,7 +134,11 @@ impl TsdfVolume {
                                 }
                                 // Bourke's winding faces the "below iso" side; ours faces outward
                                 // (towards positive distance), so reverse it.
-                                tris.push([keys[tri[0] as usize], keys[tri[2] as usize], keys[tri[1] as usize]]);
+                                tris.push([
+                                    keys[tri[0] as usize],
+                                    keys[tri[2] as usize],
+                                    keys[tri[1] as usize],
+                                ]);
                             }
                         }
                     }

@@ -41,7 +41,13 @@ pub struct TsdfParams {
 
 impl Default for TsdfParams {
     fn default() -> Self {
-        Self { voxel_size: 0.01, truncation_voxels: 4.0, max_weight: 64.0, max_blocks: 150_000, max_depth: 4.0 }
+        Self {
+            voxel_size: 0.01,
+            truncation_voxels: 4.0,
+            max_weight: 64.0,
+            max_blocks: 150_000,
+            max_depth: 4.0,
+        }
     }
 }
 
@@ -108,14 +114,22 @@ pub struct TsdfVolume {
 #[inline]
 pub fn split(g: [i32; 3]) -> ([i32; 3], [i32; 3]) {
     let b = g.map(|v| v.div_euclid(BLOCK));
-    let l = [g[0] - b[0] * BLOCK, g[1] - b[1] * BLOCK, g[2] - b[2] * BLOCK];
+    let l = [
+        g[0] - b[0] * BLOCK,
+        g[1] - b[1] * BLOCK,
+        g[2] - b[2] * BLOCK,
+    ];
     (b, l)
 }
 
 impl TsdfVolume {
     /// An empty volume.
     pub fn new(params: TsdfParams) -> Self {
-        Self { params, blocks: Vec::new(), index: FxHashMap::default() }
+        Self {
+            params,
+            blocks: Vec::new(),
+            index: FxHashMap::default(),
+        }
     }
 
     /// Number of allocated blocks.
@@ -173,7 +187,9 @@ impl TsdfVolume {
         let mut color = [0.0f32; 3];
         for c in 0..8 {
             let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-            let w = (if dx == 1 { f.x } else { 1.0 - f.x }) * (if dy == 1 { f.y } else { 1.0 - f.y }) * (if dz == 1 { f.z } else { 1.0 - f.z });
+            let w = (if dx == 1 { f.x } else { 1.0 - f.x })
+                * (if dy == 1 { f.y } else { 1.0 - f.y })
+                * (if dz == 1 { f.z } else { 1.0 - f.z });
             let (t, wt, col) = match fast_block {
                 Some(blk) => {
                     let i = local_index(l[0] + dx, l[1] + dy, l[2] + dz);

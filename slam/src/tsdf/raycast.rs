@@ -26,7 +26,12 @@ pub struct RaycastMaps {
 impl RaycastMaps {
     /// Empty maps (sized on first use).
     pub fn new() -> Self {
-        Self { vertices: Image::filled(0, 0, INVALID), normals: Image::filled(0, 0, INVALID), depth: Image::new(0, 0), colors: Image::filled(0, 0, [0; 3]) }
+        Self {
+            vertices: Image::filled(0, 0, INVALID),
+            normals: Image::filled(0, 0, INVALID),
+            depth: Image::new(0, 0),
+            colors: Image::filled(0, 0, [0; 3]),
+        }
     }
 }
 
@@ -50,7 +55,14 @@ impl TsdfVolume {
         match self.block(&b) {
             Some(blk) => {
                 let i = super::local_index(l[0], l[1], l[2]);
-                (if blk.weight[i] > 0.0 { Some(blk.tsdf[i]) } else { None }, true)
+                (
+                    if blk.weight[i] > 0.0 {
+                        Some(blk.tsdf[i])
+                    } else {
+                        None
+                    },
+                    true,
+                )
             }
             None => (None, false),
         }
@@ -71,7 +83,13 @@ impl TsdfVolume {
     }
 
     /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`.
-    pub fn cast_ray(&self, origin: &Point3<f32>, dir: &Vector3<f32>, t_min: f32, t_max: f32) -> Option<RayHit> {
+    pub fn cast_ray(
+        &self,
+        origin: &Point3<f32>,
+        dir: &Vector3<f32>,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<RayHit> {
         let vs = self.params.voxel_size;
         let mu = self.params.truncation();
         let block_len = vs * BLOCK as f32;
@@ -101,7 +119,10 @@ impl TsdfVolume {
                     let ts = tp + (t - tp) * fa / (fa - fb);
                     let hit = origin + dir * ts;
                     let n = self.gradient(&hit)?;
-                    let color = self.trilinear(&hit).map(|(_, c)| c.map(|v| v.round().clamp(0.0, 255.0) as u8)).unwrap_or([0; 3]);
+                    let color = self
+                        .trilinear(&hit)
+                        .map(|(_, c)| c.map(|v| v.round().clamp(0.0, 255.0) as u8))
+                        .unwrap_or([0; 3]);
                     return Some((hit, n, color, ts));
                 }
                 if fp < 0.0 && f > 0.0 {
@@ -123,7 +144,11 @@ impl TsdfVolume {
         out.depth.resize(w, h, 0.0);
         out.colors.resize(w, h, [0; 3]);
         let origin = Point3::from(pose.translation.vector.cast::<f32>());
-        let rot = pose.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let rot = pose
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .cast::<f32>();
         let (t_min, t_max) = (camera.depth_min as f32, self.params.max_depth * 1.5);
         let rows: Vec<(usize, Vec<Option<RayHit>>, Vec<f32>)> = (0..h)
             .into_par_iter()
@@ -131,7 +156,10 @@ impl TsdfVolume {
                 let mut hits = Vec::with_capacity(w);
                 let mut zs = Vec::with_capacity(w);
                 for x in 0..w {
-                    let rc = camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>();
+                    let rc = camera
+                        .back_project(x as f64, y as f64, 1.0)
+                        .coords
+                        .cast::<f32>();
                     let len = rc.norm();
                     let dir = rot * (rc / len);
                     let hit = self.cast_ray(&origin, &dir, t_min * len, t_max * len);

@@ -1,0 +1,376 @@
+//! Frame-to-model tracking (thesis sec. 3.2): projective data association against the model raycast
+//! at the previous pose, rejection by distance (10 cm) and normal angle (20°), point-to-plane plus
+//! λ·photometric residuals (eq. 3.1, 3.2, 3.14) under Huber kernels, coarse to fine over the pyramid,
+//! solved by the solver's dense 6-DoF path with exact SE(3) updates.
+
+use crate::camera::Camera;
+use crate::image::{
+    downsample_gray, gradients, intensity, valid, GrayImage, Image, NormalMap, VertexMap, INVALID,
+};
+use crate::preprocess::Level;
+use crate::tsdf::RaycastMaps;
+use dynamap_residuals::icp::{photometric, point_to_plane, IntensityField, Intrinsics};
+use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group};
+use dynamap_solver::lie::se3;
+use dynamap_solver::robust::Huber;
+use dynamap_solver::SE3;
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// Tracking settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerParams {
+    /// Gauss-Newton iterations per level, finest level first (default 4, 5, 10).
+    pub iterations: Vec<usize>,
+    /// Association rejected beyond this distance, metres (default 0.1).
+    pub max_distance: f64,
+    /// Association rejected beyond this normal angle, degrees (default 20).
+    pub max_normal_angle_deg: f64,
+    /// Weight λ of the photometric term (default 0.1; 0 disables it).
+    pub lambda_photometric: f64,
+    /// Huber threshold of the point-to-plane residual, metres (default 0.01).
+    pub huber_geometric: f64,
+    /// Huber threshold of the photometric residual, intensity units (default 0.1).
+    pub huber_photometric: f64,
+    /// A frame fails when fewer than this fraction of its valid finest-level pixels are inliers
+    /// (default 0.2).
+    pub min_inlier_fraction: f64,
+    /// A frame fails when it moves farther than this from the last pose, metres (default 0.3).
+    pub max_translation: f64,
+    /// … or turns more than this, degrees (default 30).
+    pub max_rotation_deg: f64,
+}
+
+impl Default for TrackerParams {
+    fn default() -> Self {
+        Self {
+            iterations: vec![4, 5, 10],
+            max_distance: 0.1,
+            max_normal_angle_deg: 20.0,
+            lambda_photometric: 0.1,
+            huber_geometric: 0.01,
+            huber_photometric: 0.1,
+            min_inlier_fraction: 0.2,
+            max_translation: 0.3,
+            max_rotation_deg: 30.0,
+        }
+    }
+}
+
+/// One level of the model as seen from the reference pose.
+#[derive(Clone, Debug)]
+pub struct ModelLevel {
+    /// Intrinsics of the level.
+    pub camera: Camera,
+    /// Surface points, world frame.
+    pub vertices: VertexMap,
+    /// Normals, world frame.
+    pub normals: NormalMap,
+    /// Intensity of the fused colour.
+    pub intensity: GrayImage,
+    /// ∂I/∂u.
+    pub gradient_x: GrayImage,
+    /// ∂I/∂v.
+    pub gradient_y: GrayImage,
+}
+
+/// The model raycast at the reference pose, as a pyramid (finest first).
+#[derive(Clone, Debug)]
+pub struct ModelPyramid {
+    /// Levels, finest first.
+    pub levels: Vec<ModelLevel>,
+    /// The pose the model was raycast from.
+    pub pose: Isometry3<f64>,
+}
+
+impl ModelPyramid {
+    /// An empty pyramid for `levels` levels of `camera`.
+    pub fn new(camera: &Camera, levels: usize) -> Self {
+        let levels = (0..levels)
+            .map(|l| ModelLevel {
+                camera: camera.level(l),
+                vertices: Image::filled(0, 0, INVALID),
+                normals: Image::filled(0, 0, INVALID),
+                intensity: Image::new(0, 0),
+                gradient_x: Image::new(0, 0),
+                gradient_y: Image::new(0, 0),
+            })
+            .collect();
+        Self {
+            levels,
+            pose: Isometry3::identity(),
+        }
+    }
+
+    /// Fills the pyramid from a full-resolution raycast: coarser vertex and normal maps take every
+    /// second pixel; intensities are Gaussian-downsampled.
+    pub fn update(&mut self, maps: &RaycastMaps, pose: &Isometry3<f64>) {
+        self.pose = *pose;
+        for l in 0..self.levels.len() {
+            let (lower, upper) = self.levels.split_at_mut(l);
+            let level = &mut upper[0];
+            if l == 0 {
+                level
+                    .vertices
+                    .resize(maps.vertices.width, maps.vertices.height, INVALID);
+                level.vertices.data.copy_from_slice(&maps.vertices.data);
+                level
+                    .normals
+                    .resize(maps.normals.width, maps.normals.height, INVALID);
+                level.normals.data.copy_from_slice(&maps.normals.data);
+                intensity(&maps.colors, &mut level.intensity);
+            } else {
+                let prev = &lower[l - 1];
+                let (w, h) = (level.camera.width, level.camera.height);
+                level.vertices.resize(w, h, INVALID);
+                level.normals.resize(w, h, INVALID);
+                for y in 0..h {
+                    for x in 0..w {
+                        let src = (2 * y).min(prev.vertices.height - 1) * prev.vertices.width
+                            + (2 * x).min(prev.vertices.width - 1);
+                        level.vertices.data[y * w + x] = prev.vertices.data[src];
+                        level.normals.data[y * w + x] = prev.normals.data[src];
+                    }
+                }
+                downsample_gray(&prev.intensity, &mut level.intensity);
+            }
+            gradients(
+                &level.intensity,
+                &mut level.gradient_x,
+                &mut level.gradient_y,
+            );
+        }
+    }
+}
+
+/// Bilinear sampling of a model level's intensity and gradients; invalid where the surface is missing.
+struct ModelIntensity<'a> {
+    level: &'a ModelLevel,
+}
+
+impl IntensityField for ModelIntensity<'_> {
+    fn sample(&self, u: f64, v: f64) -> Option<(f64, [f64; 2])> {
+        let l = self.level;
+        let (w, h) = (l.intensity.width, l.intensity.height);
+        if u < 1.0 || v < 1.0 || u >= (w - 2) as f64 || v >= (h - 2) as f64 {
+            return None;
+        }
+        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+        let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            if !valid(&l.vertices.data[(y0 + dy) * w + x0 + dx]) {
+                return None;
+            }
+        }
+        let bil = |img: &GrayImage| -> f64 {
+            let i = y0 * w + x0;
+            let d = &img.data;
+            ((d[i] * (1.0 - fx) + d[i + 1] * fx) * (1.0 - fy)
+                + (d[i + w] * (1.0 - fx) + d[i + w + 1] * fx) * fy) as f64
+        };
+        Some((bil(&l.intensity), [bil(&l.gradient_x), bil(&l.gradient_y)]))
+    }
+}
+
+/// The terms of one pyramid level: every live pixel, associated projectively.
+struct IcpTerms<'a> {
+    live: &'a Level,
+    model: &'a ModelLevel,
+    field: ModelIntensity<'a>,
+    t_ref_inv: Isometry3<f64>,
+    intrinsics: Intrinsics,
+    max_distance: f64,
+    min_cos: f64,
+    photometric: bool,
+}
+
+impl DenseTerms<6> for IcpTerms<'_> {
+    type Point = Isometry3<f64>;
+    fn len(&self) -> usize {
+        self.live.vertices.data.len()
+    }
+    fn prepare(&self, x: &[f64]) -> Isometry3<f64> {
+        se3::from_slice(x)
+    }
+    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(
+        &self,
+        i: usize,
+        t: &Isometry3<f64>,
+        emit: &mut E,
+    ) {
+        let v = self.live.vertices.data[i];
+        let n = self.live.normals.data[i];
+        if !valid(&v) || !valid(&n) {
+            return;
+        }
+        let p = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+        let pw = t * Point3::from(p);
+        let pr = self.t_ref_inv * pw;
+        let cam = &self.model.camera;
+        let Some((u, vv)) = cam.project_to_pixel(&pr) else {
+            return;
+        };
+        let j = vv * cam.width + u;
+        let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
+        if !valid(&m) || !valid(&nm) {
+            return;
+        }
+        let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
+        let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
+        if (pw.coords - q).norm() > self.max_distance {
+            return;
+        }
+        let nl = t.rotation * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+        if nl.dot(&nq) < self.min_cos {
+            return;
+        }
+        let (r, jac) = point_to_plane(t, &p, &q, &nq);
+        emit(r, &jac, 0);
+        if self.photometric {
+            let live_i = self.live.intensity.data[i] as f64;
+            if let Some((r, jac)) = photometric(
+                t,
+                &self.t_ref_inv,
+                &self.intrinsics,
+                &self.field,
+                &p,
+                live_i,
+            ) {
+                emit(r, &jac, 1);
+            }
+        }
+    }
+}
+
+/// The result of tracking one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackOutcome {
+    /// The estimated camera-to-world pose (the start pose on failure).
+    pub pose: Isometry3<f64>,
+    /// Why the frame was rejected, if it was.
+    pub failure: Option<String>,
+    /// Inlier point-to-plane associations at the finest level.
+    pub inliers: usize,
+    /// Valid live pixels at the finest level.
+    pub valid_pixels: usize,
+}
+
+/// The frame-to-model tracker; keeps its buffers between frames.
+#[derive(Debug, Default)]
+pub struct Tracker {
+    /// Its settings.
+    pub params: TrackerParams,
+    ws: DenseWorkspace<6>,
+}
+
+impl Tracker {
+    /// A tracker with these settings.
+    pub fn new(params: TrackerParams) -> Self {
+        Self {
+            params,
+            ws: DenseWorkspace::default(),
+        }
+    }
+
+    /// Registers the live pyramid against the model, starting from `start` (camera-to-world).
+    pub fn track(
+        &mut self,
+        live: &[Level],
+        model: &ModelPyramid,
+        start: &Isometry3<f64>,
+    ) -> TrackOutcome {
+        let p = &self.params;
+        let mut x = [0.0; 7];
+        se3::to_slice(start, &mut x);
+        let huber_g = Huber(p.huber_geometric);
+        let huber_p = Huber(p.huber_photometric);
+        let groups = vec![
+            Group {
+                weight: 1.0,
+                kernel: Some(&huber_g),
+            },
+            Group {
+                weight: p.lambda_photometric,
+                kernel: Some(&huber_p),
+            },
+        ];
+        let t_ref_inv = model.pose.inverse();
+        let levels = live.len().min(model.levels.len());
+        let valid_pixels = live[0]
+            .vertices
+            .data
+            .iter()
+            .zip(&live[0].normals.data)
+            .filter(|(v, n)| valid(v) && valid(n))
+            .count();
+        let mut inliers = 0;
+        let mut stop = DenseStop::NoTerms;
+        for l in (0..levels).rev() {
+            let iterations = p.iterations.get(l).copied().unwrap_or(0);
+            if iterations == 0 {
+                continue;
+            }
+            let ml = &model.levels[l];
+            let has_color = live[l].intensity.data.len() == live[l].vertices.data.len()
+                && ml.intensity.data.len() == ml.vertices.data.len();
+            let terms = IcpTerms {
+                live: &live[l],
+                model: ml,
+                field: ModelIntensity { level: ml },
+                t_ref_inv,
+                intrinsics: Intrinsics {
+                    fx: ml.camera.fx,
+                    fy: ml.camera.fy,
+                    cx: ml.camera.cx,
+                    cy: ml.camera.cy,
+                },
+                max_distance: p.max_distance,
+                min_cos: p.max_normal_angle_deg.to_radians().cos(),
+                photometric: has_color && p.lambda_photometric > 0.0,
+            };
+            let options = DenseOptions {
+                groups: groups.clone(),
+                max_iterations: iterations,
+                step_tolerance: 1e-6,
+                damping: 0.0,
+            };
+            let summary = solve(&terms, &SE3, &mut x, &options, &mut self.ws);
+            stop = summary.stop;
+            if l == 0 {
+                // point-to-plane associations of the last linearisation
+                inliers = summary.last.group_rows[0];
+            }
+            if matches!(stop, DenseStop::Singular | DenseStop::NoTerms) {
+                break;
+            }
+        }
+        let pose = se3::from_slice(&x);
+        let motion = start.inverse() * pose;
+        let failure = if matches!(stop, DenseStop::NoTerms) {
+            Some("no associations (blank or unusable depth)".to_string())
+        } else if matches!(stop, DenseStop::Singular) {
+            Some("singular system (degenerate geometry)".to_string())
+        } else if (inliers as f64) < p.min_inlier_fraction * valid_pixels.max(1) as f64 {
+            Some(format!(
+                "too few inliers: {inliers} of {valid_pixels} valid pixels"
+            ))
+        } else if motion.translation.vector.norm() > p.max_translation
+            || motion.rotation.angle().to_degrees() > p.max_rotation_deg
+        {
+            Some(format!(
+                "implausible motion: {:.3} m, {:.1}°",
+                motion.translation.vector.norm(),
+                motion.rotation.angle().to_degrees()
+            ))
+        } else if !x.iter().all(|v| v.is_finite()) {
+            Some("non-finite pose".to_string())
+        } else {
+            None
+        };
+        TrackOutcome {
+            pose: if failure.is_some() { *start } else { pose },
+            failure,
+            inliers,
+            valid_pixels,
+        }
+    }
+}
