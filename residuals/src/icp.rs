@@ -8,20 +8,40 @@
 
 use dynamap_solver::lie::se3;
 use dynamap_solver::{Jacobians, Residual, Var};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+/// A rigid motion with its rotation as a matrix (and its transpose), for per-pixel use: applying it
+/// costs 9 multiply-adds instead of a quaternion rotation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigidMotion {
+    /// Rotation.
+    pub r: Matrix3<f64>,
+    /// Rᵀ.
+    pub rt: Matrix3<f64>,
+    /// Translation.
+    pub t: Vector3<f64>,
+}
+
+impl RigidMotion {
+    /// From an isometry.
+    pub fn new(iso: &Isometry3<f64>) -> Self {
+        let r = iso.rotation.to_rotation_matrix().into_inner();
+        Self { r, rt: r.transpose(), t: iso.translation.vector }
+    }
+    /// R p + t.
+    #[inline]
+    pub fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.r * p + self.t
+    }
+}
 
 /// Point-to-plane: `r = nᵀ (T p − q)` for a source point p (camera frame) and a target point q with
 /// normal n (world frame). Returns r and ∂r/∂δ = `[(p × Rᵀn)ᵀ, (Rᵀn)ᵀ]`.
 #[inline]
-pub fn point_to_plane(
-    t: &Isometry3<f64>,
-    p: &Vector3<f64>,
-    q: &Vector3<f64>,
-    n: &Vector3<f64>,
-) -> (f64, [f64; 6]) {
-    let pw = t * Point3::from(*p);
-    let r = n.dot(&(pw.coords - q));
-    let nc = t.rotation.inverse() * n;
+pub fn point_to_plane(t: &RigidMotion, p: &Vector3<f64>, q: &Vector3<f64>, n: &Vector3<f64>) -> (f64, [f64; 6]) {
+    let pw = t.apply(p);
+    let r = n.dot(&(pw - q));
+    let nc = t.rt * n;
     let w = p.cross(&nc);
     (r, [w.x, w.y, w.z, nc.x, nc.y, nc.z])
 }
@@ -51,7 +71,7 @@ impl Residual for PointToPlane {
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
         let (r, j) = point_to_plane(
-            &se3::from_slice(vars[0].value),
+            &RigidMotion::new(&se3::from_slice(vars[0].value)),
             &self.source,
             &self.target,
             &self.normal,
@@ -88,14 +108,14 @@ pub struct Intrinsics {
 /// camera or outside its valid image.
 #[inline]
 pub fn photometric(
-    t: &Isometry3<f64>,
-    t_ref_inv: &Isometry3<f64>,
+    t: &RigidMotion,
+    t_ref_inv: &RigidMotion,
     k: &Intrinsics,
     field: &dyn IntensityField,
     p: &Vector3<f64>,
     intensity: f64,
 ) -> Option<(f64, [f64; 6])> {
-    let x = t_ref_inv * (t * Point3::from(*p));
+    let x = t_ref_inv.apply(&t.apply(p));
     if x.z <= 1e-6 {
         return None;
     }
@@ -109,7 +129,7 @@ pub fn photometric(
         -(gu * k.fx * x.x + gv * k.fy * x.y) * iz * iz,
     );
     // ∂x/∂δ = R_rel [−[p]×, I] with R_rel = R_ref⁻¹ R; aᵀ R_rel [−[p]×, I] = [(p × b)ᵀ, bᵀ], b = R_relᵀ a
-    let b = (t_ref_inv.rotation * t.rotation).inverse() * a;
+    let b = t.rt * (t_ref_inv.rt * a);
     let w = p.cross(&b);
     Some((value - intensity, [w.x, w.y, w.z, b.x, b.y, b.z]))
 }
@@ -141,10 +161,10 @@ impl Residual for Photometric<'_> {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
-        let t = se3::from_slice(vars[0].value);
+        let t = RigidMotion::new(&se3::from_slice(vars[0].value));
         match photometric(
             &t,
-            &self.t_ref_inv,
+            &RigidMotion::new(&self.t_ref_inv),
             &self.intrinsics,
             self.field,
             &self.point,

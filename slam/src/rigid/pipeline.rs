@@ -158,8 +158,8 @@ impl RigidSlam {
             times.integrate = t.elapsed().as_secs_f64();
             if failure.is_none() {
                 let t = Instant::now();
-                self.volume
-                    .raycast(&self.camera, &self.pose, &mut self.raycast);
+                let hint = &self.pre.levels[0].depth;
+                self.volume.raycast_with_hint(&self.camera, &self.pose, Some(hint), &mut self.raycast);
                 self.model.update(&self.raycast, &self.pose);
                 self.has_model = true;
                 times.raycast = t.elapsed().as_secs_f64();

@@ -9,7 +9,7 @@ use crate::image::{
 };
 use crate::preprocess::Level;
 use crate::tsdf::RaycastMaps;
-use dynamap_residuals::icp::{photometric, point_to_plane, IntensityField, Intrinsics};
+use dynamap_residuals::icp::{photometric, point_to_plane, IntensityField, Intrinsics, RigidMotion};
 use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
@@ -176,7 +176,7 @@ struct IcpTerms<'a> {
     live: &'a Level,
     model: &'a ModelLevel,
     field: ModelIntensity<'a>,
-    t_ref_inv: Isometry3<f64>,
+    t_ref_inv: RigidMotion,
     intrinsics: Intrinsics,
     max_distance: f64,
     min_cos: f64,
@@ -184,17 +184,17 @@ struct IcpTerms<'a> {
 }
 
 impl DenseTerms<6> for IcpTerms<'_> {
-    type Point = Isometry3<f64>;
+    type Point = RigidMotion;
     fn len(&self) -> usize {
         self.live.vertices.data.len()
     }
-    fn prepare(&self, x: &[f64]) -> Isometry3<f64> {
-        se3::from_slice(x)
+    fn prepare(&self, x: &[f64]) -> RigidMotion {
+        RigidMotion::new(&se3::from_slice(x))
     }
     fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(
         &self,
         i: usize,
-        t: &Isometry3<f64>,
+        t: &RigidMotion,
         emit: &mut E,
     ) {
         let v = self.live.vertices.data[i];
@@ -203,8 +203,8 @@ impl DenseTerms<6> for IcpTerms<'_> {
             return;
         }
         let p = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
-        let pw = t * Point3::from(p);
-        let pr = self.t_ref_inv * pw;
+        let pw = t.apply(&p);
+        let pr = Point3::from(self.t_ref_inv.apply(&pw));
         let cam = &self.model.camera;
         let Some((u, vv)) = cam.project_to_pixel(&pr) else {
             return;
@@ -216,10 +216,10 @@ impl DenseTerms<6> for IcpTerms<'_> {
         }
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
-        if (pw.coords - q).norm() > self.max_distance {
+        if (pw - q).norm_squared() > self.max_distance * self.max_distance {
             return;
         }
-        let nl = t.rotation * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+        let nl = t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
         if nl.dot(&nq) < self.min_cos {
             return;
         }
@@ -293,7 +293,7 @@ impl Tracker {
                 kernel: Some(&huber_p),
             },
         ];
-        let t_ref_inv = model.pose.inverse();
+        let t_ref_inv = RigidMotion::new(&model.pose.inverse());
         let levels = live.len().min(model.levels.len());
         let valid_pixels = live[0]
             .vertices

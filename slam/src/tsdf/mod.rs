@@ -110,6 +110,20 @@ pub struct TsdfVolume {
     pub(crate) index: FxHashMap<[i32; 3], u32>,
 }
 
+/// ⌊x⌋ as an integer without a libm call (x86-64's baseline has no vector or scalar floor
+/// instruction, and `f32::floor` becomes a function call in the hot loops).
+#[inline(always)]
+pub(crate) fn floor_i32(x: f32) -> i32 {
+    let t = x as i32;
+    t - ((x < t as f32) as i32)
+}
+
+/// The nearest integer (halves rounded up).
+#[inline(always)]
+pub(crate) fn round_i32(x: f32) -> i32 {
+    floor_i32(x + 0.5)
+}
+
 /// Splits a global voxel coordinate into (block coordinate, local coordinate).
 #[inline]
 pub fn split(g: [i32; 3]) -> ([i32; 3], [i32; 3]) {
@@ -176,41 +190,47 @@ impl TsdfVolume {
 
     /// Trilinear TSDF (units of μ) and interpolated colour at a world point.
     pub(crate) fn trilinear(&self, p: &Point3<f32>) -> Option<(f32, [f32; 3])> {
+        self.trilinear_gradient(p).map(|(v, _, c)| (v, c))
+    }
+
+    /// Trilinear TSDF (units of μ), its gradient (per voxel) and colour at a world point, from the 8
+    /// surrounding voxels; `None` where one is unobserved.
+    pub(crate) fn trilinear_gradient(&self, p: &Point3<f32>) -> Option<(f32, Vector3<f32>, [f32; 3])> {
         let s = p.coords / self.params.voxel_size;
-        let base = s.map(|v| v.floor());
-        let f: Vector3<f32> = s - base;
-        let g0 = [base.x as i32, base.y as i32, base.z as i32];
+        let g0 = [floor_i32(s.x), floor_i32(s.y), floor_i32(s.z)];
+        let f = Vector3::new(s.x - g0[0] as f32, s.y - g0[1] as f32, s.z - g0[2] as f32);
         let (b, l) = split(g0);
         let fast = l.iter().all(|&v| v < BLOCK - 1);
-        let fast_block = if fast { self.block(&b) } else { None };
-        let mut value = 0.0;
+        let fast_block = if fast { Some(self.block(&b)?) } else { None };
+        let mut v = [0.0f32; 8];
         let mut color = [0.0f32; 3];
-        for c in 0..8 {
-            let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-            let w = (if dx == 1 { f.x } else { 1.0 - f.x })
-                * (if dy == 1 { f.y } else { 1.0 - f.y })
-                * (if dz == 1 { f.z } else { 1.0 - f.z });
-            let (t, wt, col) = match fast_block {
-                Some(blk) => {
-                    let i = local_index(l[0] + dx, l[1] + dy, l[2] + dz);
-                    (blk.tsdf[i], blk.weight[i], blk.color[i])
-                }
+        for (c, value) in v.iter_mut().enumerate() {
+            let (dx, dy, dz) = ((c & 1) as i32, ((c >> 1) & 1) as i32, ((c >> 2) & 1) as i32);
+            let (blk, i) = match fast_block {
+                Some(blk) => (blk, local_index(l[0] + dx, l[1] + dy, l[2] + dz)),
                 None => {
-                    let g = [g0[0] + dx, g0[1] + dy, g0[2] + dz];
-                    let (bb, ll) = split(g);
-                    let blk = self.block(&bb)?;
-                    let i = local_index(ll[0], ll[1], ll[2]);
-                    (blk.tsdf[i], blk.weight[i], blk.color[i])
+                    let (bb, ll) = split([g0[0] + dx, g0[1] + dy, g0[2] + dz]);
+                    (self.block(&bb)?, local_index(ll[0], ll[1], ll[2]))
                 }
             };
-            if wt <= 0.0 {
+            if blk.weight[i] <= 0.0 {
                 return None;
             }
-            value += w * t;
+            *value = blk.tsdf[i];
+            let w = (if dx == 1 { f.x } else { 1.0 - f.x }) * (if dy == 1 { f.y } else { 1.0 - f.y }) * (if dz == 1 { f.z } else { 1.0 - f.z });
             for k in 0..3 {
-                color[k] += w * col[k] as f32;
+                color[k] += w * blk.color[i][k] as f32;
             }
         }
-        Some((value, color))
+        // v[c] with c = dx + 2 dy + 4 dz; interpolate along x, then y, then z
+        let lx = |a: f32, b: f32| a + (b - a) * f.x;
+        let (x00, x10, x01, x11) = (lx(v[0], v[1]), lx(v[2], v[3]), lx(v[4], v[5]), lx(v[6], v[7]));
+        let (y0, y1) = (x00 + (x10 - x00) * f.y, x01 + (x11 - x01) * f.y);
+        let value = y0 + (y1 - y0) * f.z;
+        let gz = y1 - y0;
+        let gy = (x10 - x00) * (1.0 - f.z) + (x11 - x01) * f.z;
+        let dxs = |a: f32, b: f32| b - a;
+        let gx = (dxs(v[0], v[1]) * (1.0 - f.y) + dxs(v[2], v[3]) * f.y) * (1.0 - f.z) + (dxs(v[4], v[5]) * (1.0 - f.y) + dxs(v[6], v[7]) * f.y) * f.z;
+        Some((value, Vector3::new(gx, gy, gz), color))
     }
 }

@@ -3,7 +3,7 @@
 //! interpolation of trilinear samples (Parker et al. 1998; KinectFusion's raycaster). Normals are the
 //! normalised TSDF gradient (central differences of trilinear samples).
 
-use super::{split, TsdfVolume, BLOCK};
+use super::{round_i32, split, TsdfVolume, BLOCK};
 use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -44,15 +44,25 @@ impl Default for RaycastMaps {
 /// A hit of one ray: world point, normal, colour and depth along the ray.
 type RayHit = (Point3<f32>, Vector3<f32>, [u8; 3], f32);
 
+/// The last block a ray looked up, so consecutive samples in one block cost no hash lookup.
+struct BlockCache<'a> {
+    coord: [i32; 3],
+    block: Option<&'a super::Block>,
+}
+
 impl TsdfVolume {
-    /// The TSDF sample (units of μ) nearest to `p`, or `None` if its block is unallocated (the
-    /// `bool` says whether the block exists).
+    /// The TSDF sample (units of μ) nearest to `p`, or `None` if unobserved (the `bool` says whether
+    /// its block exists).
     #[inline]
-    fn nearest(&self, p: &Point3<f32>) -> (Option<f32>, bool) {
+    fn nearest<'a>(&'a self, p: &Point3<f32>, cache: &mut BlockCache<'a>) -> (Option<f32>, bool) {
         let s = p.coords / self.params.voxel_size;
-        let g = [s.x.round() as i32, s.y.round() as i32, s.z.round() as i32];
+        let g = [round_i32(s.x), round_i32(s.y), round_i32(s.z)];
         let (b, l) = split(g);
-        match self.block(&b) {
+        if b != cache.coord {
+            cache.coord = b;
+            cache.block = self.block(&b);
+        }
+        match cache.block {
             Some(blk) => {
                 let i = super::local_index(l[0], l[1], l[2]);
                 (
@@ -68,20 +78,6 @@ impl TsdfVolume {
         }
     }
 
-    /// The normalised TSDF gradient at `p`.
-    fn gradient(&self, p: &Point3<f32>) -> Option<Vector3<f32>> {
-        let h = self.params.voxel_size;
-        let mut g = Vector3::zeros();
-        for a in 0..3 {
-            let mut e = Vector3::zeros();
-            e[a] = h;
-            let (f1, _) = self.trilinear(&(p + e))?;
-            let (f0, _) = self.trilinear(&(p - e))?;
-            g[a] = f1 - f0;
-        }
-        g.try_normalize(1e-12)
-    }
-
     /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`.
     pub fn cast_ray(
         &self,
@@ -95,9 +91,10 @@ impl TsdfVolume {
         let block_len = vs * BLOCK as f32;
         let mut t = t_min;
         let mut prev: Option<(f32, f32)> = None; // (t, tsdf) of the last observed sample
+        let mut cache = BlockCache { coord: [i32::MIN; 3], block: None };
         while t < t_max {
             let p = origin + dir * t;
-            let (value, allocated) = self.nearest(&p);
+            let (value, allocated) = self.nearest(&p, &mut cache);
             if !allocated {
                 prev = None;
                 t += block_len * 0.9;
@@ -110,19 +107,26 @@ impl TsdfVolume {
             };
             if let Some((tp, fp)) = prev {
                 if fp > 0.0 && f <= 0.0 {
-                    // refine with trilinear samples at both ends
-                    let (a, b) = (self.trilinear(&(origin + dir * tp)), self.trilinear(&p));
-                    let (fa, fb) = match (a, b) {
-                        (Some((fa, _)), Some((fb, _))) if fa > 0.0 && fb <= 0.0 => (fa, fb),
-                        _ => (fp, f),
-                    };
-                    let ts = tp + (t - tp) * fa / (fa - fb);
-                    let hit = origin + dir * ts;
-                    let n = self.gradient(&hit)?;
-                    let color = self
-                        .trilinear(&hit)
-                        .map(|(_, c)| c.map(|v| v.round().clamp(0.0, 255.0) as u8))
-                        .unwrap_or([0; 3]);
+                    // linear zero crossing between the two samples, then the field's value, gradient
+                    // (the normal) and colour there by trilinear interpolation
+                                        let mut ts = tp + (t - tp) * fp / (fp - f);
+                    let mut hit = origin + dir * ts;
+                    let (mut value, mut grad, mut color) = self.trilinear_gradient(&hit)?;
+                    // one Newton step on the interpolated field along the ray
+                    let slope = grad.dot(dir) / vs;
+                    if slope.abs() > 1e-6 {
+                        let tn = ts - value / slope;
+                        if (tn - ts).abs() < vs {
+                            if let Some(better) = self.trilinear_gradient(&(origin + dir * tn)) {
+                                ts = tn;
+                                hit = origin + dir * ts;
+                                (value, grad, color) = better;
+                            }
+                        }
+                    }
+                    let _ = value;
+                    let n = grad.try_normalize(1e-12)?;
+                    let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
                     return Some((hit, n, color, ts));
                 }
                 if fp < 0.0 && f > 0.0 {
@@ -138,55 +142,61 @@ impl TsdfVolume {
 
     /// Renders the model seen by `camera` at `pose` (camera-to-world) into `out`.
     pub fn raycast(&self, camera: &Camera, pose: &Isometry3<f64>, out: &mut RaycastMaps) {
+        self.raycast_with_hint(camera, pose, None, out)
+    }
+
+    /// [`Self::raycast`], starting each ray near a depth it is expected to hit (`hint`: z-depth per
+    /// pixel, e.g. the frame just fused; 0 = unknown). A ray that finds no surface within ±3μ of its
+    /// hint marches the whole range, so the hint changes speed, not the result.
+    pub fn raycast_with_hint(&self, camera: &Camera, pose: &Isometry3<f64>, hint: Option<&DepthImage>, out: &mut RaycastMaps) {
         let (w, h) = (camera.width, camera.height);
         out.vertices.resize(w, h, INVALID);
         out.normals.resize(w, h, INVALID);
         out.depth.resize(w, h, 0.0);
         out.colors.resize(w, h, [0; 3]);
         let origin = Point3::from(pose.translation.vector.cast::<f32>());
-        let rot = pose
-            .rotation
-            .to_rotation_matrix()
-            .into_inner()
-            .cast::<f32>();
-        let (t_min, t_max) = (camera.depth_min as f32, self.params.max_depth * 1.5);
-        let rows: Vec<(usize, Vec<Option<RayHit>>, Vec<f32>)> = (0..h)
-            .into_par_iter()
-            .map(|y| {
-                let mut hits = Vec::with_capacity(w);
-                let mut zs = Vec::with_capacity(w);
+        let rot = pose.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        // Nothing beyond max_depth was fused: rays stop a truncation band past it.
+        let (t_min, t_max) = (camera.depth_min as f32, self.params.max_depth + 2.0 * self.params.truncation());
+        let band = 3.0 * self.params.truncation();
+        let hint = hint.filter(|d| d.width == w && d.height == h);
+        out.vertices
+            .data
+            .par_chunks_mut(w)
+            .zip(out.normals.data.par_chunks_mut(w))
+            .zip(out.depth.data.par_chunks_mut(w))
+            .zip(out.colors.data.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (((vr, nr), dr), cr))| {
                 for x in 0..w {
-                    let rc = camera
-                        .back_project(x as f64, y as f64, 1.0)
-                        .coords
-                        .cast::<f32>();
+                    let rc = camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>();
                     let len = rc.norm();
                     let dir = rot * (rc / len);
-                    let hit = self.cast_ray(&origin, &dir, t_min * len, t_max * len);
-                    zs.push(hit.map_or(0.0, |hh| hh.3 / len));
-                    hits.push(hit);
-                }
-                (y, hits, zs)
-            })
-            .collect();
-        for (y, hits, zs) in rows {
-            for (x, (hit, z)) in hits.into_iter().zip(zs).enumerate() {
-                let i = y * w + x;
-                match hit {
-                    Some((p, n, c, _)) => {
-                        out.vertices.data[i] = [p.x, p.y, p.z];
-                        out.normals.data[i] = [n.x, n.y, n.z];
-                        out.depth.data[i] = z;
-                        out.colors.data[i] = c;
+                    let z = hint.map_or(0.0, |d| d.data[y * w + x]);
+                    let mut hit = None;
+                    if z > t_max + band {
+                        // the hint says the surface is beyond the fused range
+                    } else if z > 0.0 {
+                        hit = self.cast_ray(&origin, &dir, (z - band).max(t_min) * len, (z + band) * len);
                     }
-                    None => {
-                        out.vertices.data[i] = INVALID;
-                        out.normals.data[i] = INVALID;
-                        out.depth.data[i] = 0.0;
-                        out.colors.data[i] = [0; 3];
+                    if hit.is_none() && z <= t_max + band {
+                        hit = self.cast_ray(&origin, &dir, t_min * len, t_max * len);
+                    }
+                    match hit {
+                        Some((p, n, c, t)) => {
+                            vr[x] = [p.x, p.y, p.z];
+                            nr[x] = [n.x, n.y, n.z];
+                            dr[x] = t / len;
+                            cr[x] = c;
+                        }
+                        None => {
+                            vr[x] = INVALID;
+                            nr[x] = INVALID;
+                            dr[x] = 0.0;
+                            cr[x] = [0; 3];
+                        }
                     }
                 }
-            }
-        }
+            });
     }
 }
