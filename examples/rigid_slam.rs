@@ -119,7 +119,8 @@ fn params(args: &Args) -> Result<SlamParams> {
     if let Some(v) = args.max_angle.or(file.max_angle) {
         p.tracker.max_normal_angle_deg = v;
     }
-    if !(p.tsdf.voxel_size > 0.0) || !(p.tsdf.truncation_voxels >= 1.0) {
+    let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
+    if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {
         bail!("voxel_size must be positive and truncation at least 1 voxel");
     }
     Ok(p)

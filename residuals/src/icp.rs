@@ -26,7 +26,11 @@ impl RigidMotion {
     /// From an isometry.
     pub fn new(iso: &Isometry3<f64>) -> Self {
         let r = iso.rotation.to_rotation_matrix().into_inner();
-        Self { r, rt: r.transpose(), t: iso.translation.vector }
+        Self {
+            r,
+            rt: r.transpose(),
+            t: iso.translation.vector,
+        }
     }
     /// R p + t.
     #[inline]
@@ -38,7 +42,12 @@ impl RigidMotion {
 /// Point-to-plane: `r = nᵀ (T p − q)` for a source point p (camera frame) and a target point q with
 /// normal n (world frame). Returns r and ∂r/∂δ = `[(p × Rᵀn)ᵀ, (Rᵀn)ᵀ]`.
 #[inline]
-pub fn point_to_plane(t: &RigidMotion, p: &Vector3<f64>, q: &Vector3<f64>, n: &Vector3<f64>) -> (f64, [f64; 6]) {
+pub fn point_to_plane(
+    t: &RigidMotion,
+    p: &Vector3<f64>,
+    q: &Vector3<f64>,
+    n: &Vector3<f64>,
+) -> (f64, [f64; 6]) {
     let pw = t.apply(p);
     let r = n.dot(&(pw - q));
     let nc = t.rt * n;

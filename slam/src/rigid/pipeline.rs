@@ -159,7 +159,12 @@ impl RigidSlam {
             if failure.is_none() {
                 let t = Instant::now();
                 let hint = &self.pre.levels[0].depth;
-                self.volume.raycast_with_hint(&self.camera, &self.pose, Some(hint), &mut self.raycast);
+                self.volume.raycast_with_hint(
+                    &self.camera,
+                    &self.pose,
+                    Some(hint),
+                    &mut self.raycast,
+                );
                 self.model.update(&self.raycast, &self.pose);
                 self.has_model = true;
                 times.raycast = t.elapsed().as_secs_f64();

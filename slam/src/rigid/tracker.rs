@@ -9,7 +9,9 @@ use crate::image::{
 };
 use crate::preprocess::Level;
 use crate::tsdf::RaycastMaps;
-use dynamap_residuals::icp::{photometric, point_to_plane, IntensityField, Intrinsics, RigidMotion};
+use dynamap_residuals::icp::{
+    photometric, point_to_plane, IntensityField, Intrinsics, RigidMotion,
+};
 use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
@@ -191,12 +193,7 @@ impl DenseTerms<6> for IcpTerms<'_> {
     fn prepare(&self, x: &[f64]) -> RigidMotion {
         RigidMotion::new(&se3::from_slice(x))
     }
-    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(
-        &self,
-        i: usize,
-        t: &RigidMotion,
-        emit: &mut E,
-    ) {
+    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(&self, i: usize, t: &RigidMotion, emit: &mut E) {
         let v = self.live.vertices.data[i];
         let n = self.live.normals.data[i];
         if !valid(&v) || !valid(&n) {

@@ -7,6 +7,9 @@ use crate::image::{valid, ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 
+/// The sensor model's axial noise at 1 m, the reference of the distance weight.
+const SIGMA_1M: f32 = 0.0012 + 0.0019 * 0.6 * 0.6;
+
 /// What one integration did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct IntegrateStats {
@@ -83,8 +86,10 @@ impl TsdfVolume {
     /// Fuses a frame: `depth` in metres (0 where missing) seen by `camera` at `pose`
     /// (camera-to-world), with its camera-frame `normals` (for the viewing-angle weight) and optional
     /// colour. The projective signed distance `sdf = D(u) − z` of each voxel in view is truncated to
-    /// μ, weighted by the cosine between the pixel's ray and normal (at least 0.1), and averaged with
-    /// the stored value; weights are capped at W_max. Colour is fused with the same weights.
+    /// μ and averaged with the stored value under the weight `cos θ · (σ(1 m)/σ(z))²`: the cosine
+    /// between the pixel's ray and normal (at least 0.1) times the inverse axial noise variance of the
+    /// sensor model (σ(z) = 0.0012 + 0.0019 (z − 0.4)², Nguyen et al. 2012), so near, frontal views
+    /// dominate. Weights are capped at W_max. Colour is fused with the same weights.
     pub fn integrate(
         &mut self,
         depth: &DepthImage,
@@ -182,6 +187,8 @@ impl TsdfVolume {
                         } else {
                             0.1
                         };
+                        let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
+                        let cos = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
                         let i = local_index(x, y, z);
                         let tsdf = (sdf / mu).min(1.0);
                         let (w0, t0) = (blk.weight[i], blk.tsdf[i]);

@@ -118,12 +118,11 @@ impl TsdfVolume {
                                 let pb =
                                     self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
                                 let p = pa + (pb - pa) * t;
-                                let mut col = [0u8; 3];
-                                for k in 0..3 {
-                                    col[k] = (ca.color[k] as f32
+                                let col: [u8; 3] = std::array::from_fn(|k| {
+                                    (ca.color[k] as f32
                                         + (cb.color[k] as f32 - ca.color[k] as f32) * t)
-                                        .round() as u8;
-                                }
+                                        .round() as u8
+                                });
                                 keys[e] = key;
                                 verts.push((key, p, col));
                             }

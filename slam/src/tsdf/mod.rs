@@ -195,7 +195,10 @@ impl TsdfVolume {
 
     /// Trilinear TSDF (units of μ), its gradient (per voxel) and colour at a world point, from the 8
     /// surrounding voxels; `None` where one is unobserved.
-    pub(crate) fn trilinear_gradient(&self, p: &Point3<f32>) -> Option<(f32, Vector3<f32>, [f32; 3])> {
+    pub(crate) fn trilinear_gradient(
+        &self,
+        p: &Point3<f32>,
+    ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
         let s = p.coords / self.params.voxel_size;
         let g0 = [floor_i32(s.x), floor_i32(s.y), floor_i32(s.z)];
         let f = Vector3::new(s.x - g0[0] as f32, s.y - g0[1] as f32, s.z - g0[2] as f32);
@@ -217,20 +220,28 @@ impl TsdfVolume {
                 return None;
             }
             *value = blk.tsdf[i];
-            let w = (if dx == 1 { f.x } else { 1.0 - f.x }) * (if dy == 1 { f.y } else { 1.0 - f.y }) * (if dz == 1 { f.z } else { 1.0 - f.z });
-            for k in 0..3 {
-                color[k] += w * blk.color[i][k] as f32;
+            let w = (if dx == 1 { f.x } else { 1.0 - f.x })
+                * (if dy == 1 { f.y } else { 1.0 - f.y })
+                * (if dz == 1 { f.z } else { 1.0 - f.z });
+            for (c, v) in color.iter_mut().zip(blk.color[i]) {
+                *c += w * v as f32;
             }
         }
         // v[c] with c = dx + 2 dy + 4 dz; interpolate along x, then y, then z
         let lx = |a: f32, b: f32| a + (b - a) * f.x;
-        let (x00, x10, x01, x11) = (lx(v[0], v[1]), lx(v[2], v[3]), lx(v[4], v[5]), lx(v[6], v[7]));
+        let (x00, x10, x01, x11) = (
+            lx(v[0], v[1]),
+            lx(v[2], v[3]),
+            lx(v[4], v[5]),
+            lx(v[6], v[7]),
+        );
         let (y0, y1) = (x00 + (x10 - x00) * f.y, x01 + (x11 - x01) * f.y);
         let value = y0 + (y1 - y0) * f.z;
         let gz = y1 - y0;
         let gy = (x10 - x00) * (1.0 - f.z) + (x11 - x01) * f.z;
         let dxs = |a: f32, b: f32| b - a;
-        let gx = (dxs(v[0], v[1]) * (1.0 - f.y) + dxs(v[2], v[3]) * f.y) * (1.0 - f.z) + (dxs(v[4], v[5]) * (1.0 - f.y) + dxs(v[6], v[7]) * f.y) * f.z;
+        let gx = (dxs(v[0], v[1]) * (1.0 - f.y) + dxs(v[2], v[3]) * f.y) * (1.0 - f.z)
+            + (dxs(v[4], v[5]) * (1.0 - f.y) + dxs(v[6], v[7]) * f.y) * f.z;
         Some((value, Vector3::new(gx, gy, gz), color))
     }
 }

@@ -91,7 +91,10 @@ impl TsdfVolume {
         let block_len = vs * BLOCK as f32;
         let mut t = t_min;
         let mut prev: Option<(f32, f32)> = None; // (t, tsdf) of the last observed sample
-        let mut cache = BlockCache { coord: [i32::MIN; 3], block: None };
+        let mut cache = BlockCache {
+            coord: [i32::MIN; 3],
+            block: None,
+        };
         while t < t_max {
             let p = origin + dir * t;
             let (value, allocated) = self.nearest(&p, &mut cache);
@@ -109,9 +112,9 @@ impl TsdfVolume {
                 if fp > 0.0 && f <= 0.0 {
                     // linear zero crossing between the two samples, then the field's value, gradient
                     // (the normal) and colour there by trilinear interpolation
-                                        let mut ts = tp + (t - tp) * fp / (fp - f);
+                    let mut ts = tp + (t - tp) * fp / (fp - f);
                     let mut hit = origin + dir * ts;
-                    let (mut value, mut grad, mut color) = self.trilinear_gradient(&hit)?;
+                    let (value, mut grad, mut color) = self.trilinear_gradient(&hit)?;
                     // one Newton step on the interpolated field along the ray
                     let slope = grad.dot(dir) / vs;
                     if slope.abs() > 1e-6 {
@@ -120,11 +123,10 @@ impl TsdfVolume {
                             if let Some(better) = self.trilinear_gradient(&(origin + dir * tn)) {
                                 ts = tn;
                                 hit = origin + dir * ts;
-                                (value, grad, color) = better;
+                                (_, grad, color) = better;
                             }
                         }
                     }
-                    let _ = value;
                     let n = grad.try_normalize(1e-12)?;
                     let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
                     return Some((hit, n, color, ts));
@@ -148,16 +150,29 @@ impl TsdfVolume {
     /// [`Self::raycast`], starting each ray near a depth it is expected to hit (`hint`: z-depth per
     /// pixel, e.g. the frame just fused; 0 = unknown). A ray that finds no surface within ±3μ of its
     /// hint marches the whole range, so the hint changes speed, not the result.
-    pub fn raycast_with_hint(&self, camera: &Camera, pose: &Isometry3<f64>, hint: Option<&DepthImage>, out: &mut RaycastMaps) {
+    pub fn raycast_with_hint(
+        &self,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        hint: Option<&DepthImage>,
+        out: &mut RaycastMaps,
+    ) {
         let (w, h) = (camera.width, camera.height);
         out.vertices.resize(w, h, INVALID);
         out.normals.resize(w, h, INVALID);
         out.depth.resize(w, h, 0.0);
         out.colors.resize(w, h, [0; 3]);
         let origin = Point3::from(pose.translation.vector.cast::<f32>());
-        let rot = pose.rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let rot = pose
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .cast::<f32>();
         // Nothing beyond max_depth was fused: rays stop a truncation band past it.
-        let (t_min, t_max) = (camera.depth_min as f32, self.params.max_depth + 2.0 * self.params.truncation());
+        let (t_min, t_max) = (
+            camera.depth_min as f32,
+            self.params.max_depth + 2.0 * self.params.truncation(),
+        );
         let band = 3.0 * self.params.truncation();
         let hint = hint.filter(|d| d.width == w && d.height == h);
         out.vertices
@@ -169,7 +184,10 @@ impl TsdfVolume {
             .enumerate()
             .for_each(|(y, (((vr, nr), dr), cr))| {
                 for x in 0..w {
-                    let rc = camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>();
+                    let rc = camera
+                        .back_project(x as f64, y as f64, 1.0)
+                        .coords
+                        .cast::<f32>();
                     let len = rc.norm();
                     let dir = rot * (rc / len);
                     let z = hint.map_or(0.0, |d| d.data[y * w + x]);
@@ -177,7 +195,12 @@ impl TsdfVolume {
                     if z > t_max + band {
                         // the hint says the surface is beyond the fused range
                     } else if z > 0.0 {
-                        hit = self.cast_ray(&origin, &dir, (z - band).max(t_min) * len, (z + band) * len);
+                        hit = self.cast_ray(
+                            &origin,
+                            &dir,
+                            (z - band).max(t_min) * len,
+                            (z + band) * len,
+                        );
                     }
                     if hit.is_none() && z <= t_max + band {
                         hit = self.cast_ray(&origin, &dir, t_min * len, t_max * len);
