@@ -15,8 +15,11 @@ use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
 use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::io::tum::TumSequence;
+use dynamap::slam::io::folder::FolderSequence;
+use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
+use dynamap::slam::io::IoError;
 use dynamap::slam::rigid::{RigidSlam, SlamParams, StageTimes};
+use dynamap::slam::tsdf::RaycastMaps;
 use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
@@ -36,6 +39,9 @@ struct Args {
     /// Where to write the fused mesh (binary PLY).
     #[arg(long)]
     mesh: Option<PathBuf>,
+    /// Where to write a PNG of the fused model raycast from the last pose (shaded by its normals).
+    #[arg(long)]
+    render: Option<PathBuf>,
     /// Parameters from a TOML file (keys as the flags below, with underscores).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -78,6 +84,54 @@ struct Args {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+}
+
+/// A TUM-layout folder (rgb.txt, depth.txt) or a plain folder of numbered colour/depth frames.
+enum Source {
+    Tum(TumSequence),
+    Folder(FolderSequence, Camera),
+}
+
+impl Source {
+    fn open(dir: &std::path::Path) -> Result<Self> {
+        if dir.join("rgb.txt").exists() {
+            Ok(Source::Tum(TumSequence::open(dir)?))
+        } else {
+            let f = FolderSequence::open(dir, None)?;
+            let c = f.camera;
+            Ok(Source::Folder(f, c))
+        }
+    }
+    fn len(&self) -> usize {
+        match self {
+            Source::Tum(t) => t.len(),
+            Source::Folder(f, _) => f.len(),
+        }
+    }
+    fn load(&self, i: usize) -> Result<RgbdFrame, IoError> {
+        match self {
+            Source::Tum(t) => t.load(i),
+            Source::Folder(f, _) => f.load(i),
+        }
+    }
+    fn camera_mut(&mut self) -> &mut Camera {
+        match self {
+            Source::Tum(t) => &mut t.camera,
+            Source::Folder(_, c) => c,
+        }
+    }
+    fn groundtruth(&self) -> Option<&Trajectory> {
+        match self {
+            Source::Tum(t) => t.groundtruth.as_ref(),
+            Source::Folder(..) => None,
+        }
+    }
+    fn first_stamp(&self) -> f64 {
+        match self {
+            Source::Tum(t) => t.frames[0].timestamp,
+            Source::Folder(..) => 0.0,
+        }
+    }
 }
 
 /// The TOML form of the parameters.
@@ -151,9 +205,9 @@ fn main() -> Result<()> {
         Some(d) => (d.clone(), false),
         None => (default_sequence()?, true),
     };
-    let mut seq = TumSequence::open(&dir)?;
+    let mut seq = Source::open(&dir)?;
     if !dir.join("intrinsics.txt").exists() {
-        let c = &mut seq.camera;
+        let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
         c.fy = args.fy.unwrap_or(c.fy);
         c.cx = args.cx.unwrap_or(c.cx);
@@ -161,17 +215,18 @@ fn main() -> Result<()> {
         c.depth_scale = args.depth_scale.unwrap_or(c.depth_scale);
     }
     let n = args.max_frames.unwrap_or(seq.len()).min(seq.len());
-    let start_pose = seq.groundtruth.as_ref().and_then(|g| {
+    let camera = *seq.camera_mut();
+    let start_pose = seq.groundtruth().and_then(|g| {
         // start at the ground truth pose of the first frame when there is one (for comparable ATE
         // plots; ATE aligns anyway)
-        let t0 = seq.frames[0].timestamp;
+        let t0 = seq.first_stamp();
         g.stamps
             .iter()
             .position(|s| (s - t0).abs() < MAX_STAMP_DIFFERENCE)
             .map(|i| g.poses[i])
     });
     let mut slam = RigidSlam::new(
-        seq.camera,
+        camera,
         params,
         start_pose.unwrap_or_else(Isometry3::identity),
     );
@@ -225,9 +280,30 @@ fn main() -> Result<()> {
     if let Some(m) = &args.mesh {
         ply::write(m, &slam.volume().extract_mesh())?;
     }
+    if let Some(png) = &args.render {
+        let mut maps = RaycastMaps::new();
+        slam.volume().raycast(&camera, &slam.pose(), &mut maps);
+        let light = nalgebra::Vector3::new(0.3f32, -0.5, -1.0).normalize();
+        let rot = slam.pose().rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let data = maps
+            .normals
+            .data
+            .iter()
+            .map(|n| {
+                if !n[0].is_finite() {
+                    return [0, 0, 0];
+                }
+                // shade in the camera frame: a light from behind the viewer's left shoulder
+                let nc = rot.transpose() * nalgebra::Vector3::new(n[0], n[1], n[2]);
+                let v = (40.0 + 215.0 * nc.dot(&light).max(0.0)) as u8;
+                [v, v, v]
+            })
+            .collect();
+        let img = dynamap::slam::image::Image::from_vec(camera.width, camera.height, data).expect("size");
+        dynamap::slam::io::images::write_color(png, &img)?;
+    }
     let ate_rmse = seq
-        .groundtruth
-        .as_ref()
+        .groundtruth()
         .and_then(|gt| ate(gt, &trajectory, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok())
         .map(|a| a.stats.rmse);
     let k = |t: f64| 1e3 * t / n.max(1) as f64;
