@@ -29,6 +29,9 @@ pub struct TrackerParams {
     pub max_normal_angle_deg: f64,
     /// Weight λ of the photometric term (default 0.1; 0 disables it).
     pub lambda_photometric: f64,
+    /// Use every `finest_stride`-th pixel (each way) of the finest level (default 2: a quarter of
+    /// the pixels, as fine as level 1's spacing but with full-resolution depth).
+    pub finest_stride: usize,
     /// Huber threshold of the point-to-plane residual, metres (default 0.01).
     pub huber_geometric: f64,
     /// Huber threshold of the photometric residual, intensity units (default 0.1).
@@ -49,6 +52,7 @@ impl Default for TrackerParams {
             max_distance: 0.1,
             max_normal_angle_deg: 20.0,
             lambda_photometric: 0.1,
+            finest_stride: 2,
             huber_geometric: 0.01,
             huber_photometric: 0.1,
             min_inlier_fraction: 0.2,
@@ -183,17 +187,21 @@ struct IcpTerms<'a> {
     max_distance: f64,
     min_cos: f64,
     photometric: bool,
+    /// Pixel stride each way, and the strided grid's width and height.
+    stride: usize,
+    grid: (usize, usize),
 }
 
 impl DenseTerms<6> for IcpTerms<'_> {
     type Point = RigidMotion;
     fn len(&self) -> usize {
-        self.live.vertices.data.len()
+        self.grid.0 * self.grid.1
     }
     fn prepare(&self, x: &[f64]) -> RigidMotion {
         RigidMotion::new(&se3::from_slice(x))
     }
     fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(&self, i: usize, t: &RigidMotion, emit: &mut E) {
+        let i = (i / self.grid.0) * self.stride * self.live.vertices.width + (i % self.grid.0) * self.stride;
         let v = self.live.vertices.data[i];
         let n = self.live.normals.data[i];
         if !valid(&v) || !valid(&n) {
@@ -292,12 +300,16 @@ impl Tracker {
         ];
         let t_ref_inv = RigidMotion::new(&model.pose.inverse());
         let levels = live.len().min(model.levels.len());
+        // valid pixels on the finest level's strided grid, against which inliers are counted
+        let stride = p.finest_stride.max(1);
+        let w0 = live[0].vertices.width;
         let valid_pixels = live[0]
             .vertices
             .data
             .iter()
             .zip(&live[0].normals.data)
-            .filter(|(v, n)| valid(v) && valid(n))
+            .enumerate()
+            .filter(|(i, (v, n))| (i % w0) % stride == 0 && (i / w0) % stride == 0 && valid(v) && valid(n))
             .count();
         let mut inliers = 0;
         let mut stop = DenseStop::NoTerms;
@@ -323,6 +335,11 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
+                stride: if l == 0 { p.finest_stride.max(1) } else { 1 },
+                grid: {
+                    let s = if l == 0 { p.finest_stride.max(1) } else { 1 };
+                    (live[l].vertices.width.div_ceil(s), live[l].vertices.height.div_ceil(s))
+                },
             };
             let options = DenseOptions {
                 groups: groups.clone(),

@@ -1,7 +1,7 @@
 //! Fusing a depth frame (thesis eq. 3.23-3.25): allocate the blocks the truncation band crosses,
 //! then update every voxel of the blocks in view with the projective signed distance.
 
-use super::{local_index, Block, TsdfError, TsdfVolume, BLOCK};
+use super::{local_index, round_i32, Block, TsdfError, TsdfVolume, BLOCK};
 use crate::camera::Camera;
 use crate::image::{valid, ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
@@ -98,22 +98,44 @@ impl TsdfVolume {
         camera: &Camera,
         pose: &Isometry3<f64>,
     ) -> Result<IntegrateStats, TsdfError> {
-        let touched = self.touched_blocks(depth, camera, pose, 2);
-        let missing: Vec<[i32; 3]> = touched
-            .iter()
-            .filter(|c| !self.index.contains_key(*c))
-            .copied()
-            .collect();
+        let touched = self.touched_blocks(depth, camera, pose, 4);
+        let missing: Vec<[i32; 3]> = touched.iter().filter(|c| !self.index.contains_key(*c)).copied().collect();
         if self.blocks.len() + missing.len() > self.params.max_blocks {
-            return Err(TsdfError::BudgetExceeded {
-                needed: self.blocks.len() + missing.len(),
-                max: self.params.max_blocks,
-            });
+            return Err(TsdfError::BudgetExceeded { needed: self.blocks.len() + missing.len(), max: self.params.max_blocks });
         }
         for c in &missing {
             self.index.insert(*c, self.blocks.len() as u32);
             self.blocks.push(Block::new(*c));
         }
+        // Only the blocks the band crosses are updated: the surface and the free space just in front
+        // of it (voxel hashing's "visible set"; far free space keeps its last value).
+        self.active.clear();
+        self.active.resize(self.blocks.len(), false);
+        for c in &touched {
+            self.active[self.index[c] as usize] = true;
+        }
+        // Per-pixel fusion weight: cos θ (≥ 0.1) · (σ(1 m)/σ(z))², computed once per pixel.
+        let (w, h) = (depth.width, depth.height);
+        self.pixel_weight.resize(w * h, 0.0);
+        self.pixel_weight.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let i = y * w + x;
+                let d = depth.data[i];
+                if d <= 0.0 {
+                    *o = 0.0;
+                    continue;
+                }
+                let n = normals.data[i];
+                let cos = if valid(&n) {
+                    let ray = camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>().normalize();
+                    (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
+                } else {
+                    0.1
+                };
+                let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
+                *o = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
+            }
+        });
         let params = self.params;
         let mu = params.truncation();
         let inv = pose.inverse();
@@ -125,11 +147,15 @@ impl TsdfVolume {
             camera.cx as f32,
             camera.cy as f32,
         );
-        let (w, h) = (depth.width as i32, depth.height as i32);
+        let (w, h) = (w as i32, h as i32);
         let block_size = params.voxel_size * BLOCK as f32;
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
-        self.blocks.par_iter_mut().for_each(|blk| {
+        let (active, pixel_weight) = (&self.active, &self.pixel_weight);
+        self.blocks.par_iter_mut().enumerate().for_each(|(bi, blk)| {
+            if !active[bi] {
+                return;
+            }
             // Frustum test on the block's bounding sphere.
             let centre = Vector3::new(
                 blk.coord[0] as f32 + 0.5,
@@ -154,20 +180,20 @@ impl TsdfVolume {
                 blk.coord[1] * BLOCK,
                 blk.coord[2] * BLOCK,
             ];
+            // voxel (x, y, z) of the block in the camera frame: q0 + x c0 + y c1 + z c2
+            let q0 = rot * (Vector3::new(base[0] as f32, base[1] as f32, base[2] as f32) * params.voxel_size) + trans;
+            let (c0, c1, c2) = (rot.column(0) * params.voxel_size, rot.column(1) * params.voxel_size, rot.column(2) * params.voxel_size);
             for z in 0..BLOCK {
                 for y in 0..BLOCK {
+                    let qyz = q0 + c1 * y as f32 + c2 * z as f32;
                     for x in 0..BLOCK {
-                        let p = Vector3::new(
-                            (base[0] + x) as f32,
-                            (base[1] + y) as f32,
-                            (base[2] + z) as f32,
-                        ) * params.voxel_size;
-                        let q = rot * p + trans;
+                        let q = qyz + c0 * x as f32;
                         if q.z <= 0.0 {
                             continue;
                         }
-                        let u = (fx * q.x / q.z + cx).round() as i32;
-                        let v = (fy * q.y / q.z + cy).round() as i32;
+                        let iz = 1.0 / q.z;
+                        let u = round_i32(fx * q.x * iz + cx);
+                        let v = round_i32(fy * q.y * iz + cy);
                         if u < 0 || v < 0 || u >= w || v >= h {
                             continue;
                         }
@@ -180,15 +206,7 @@ impl TsdfVolume {
                         if sdf < -mu {
                             continue;
                         }
-                        let n = normals.data[pix];
-                        let cos = if valid(&n) {
-                            let ray = Vector3::new(q.x, q.y, q.z).normalize();
-                            (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
-                        } else {
-                            0.1
-                        };
-                        let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
-                        let cos = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
+                        let cos = pixel_weight[pix];
                         let i = local_index(x, y, z);
                         let tsdf = (sdf / mu).min(1.0);
                         let (w0, t0) = (blk.weight[i], blk.tsdf[i]);
@@ -199,7 +217,7 @@ impl TsdfVolume {
                             let old = blk.color[i];
                             for k in 0..3 {
                                 blk.color[i][k] =
-                                    ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn).round() as u8;
+                                    ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn + 0.5) as u8;
                             }
                         }
                         blk.weight[i] = wn.min(params.max_weight);

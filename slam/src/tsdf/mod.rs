@@ -108,6 +108,10 @@ pub struct TsdfVolume {
     pub params: TsdfParams,
     pub(crate) blocks: Vec<Block>,
     pub(crate) index: FxHashMap<[i32; 3], u32>,
+    /// Scratch: blocks the current frame updates.
+    pub(crate) active: Vec<bool>,
+    /// Scratch: the current frame's per-pixel fusion weight.
+    pub(crate) pixel_weight: Vec<f32>,
 }
 
 /// ⌊x⌋ as an integer without a libm call (x86-64's baseline has no vector or scalar floor
@@ -143,6 +147,8 @@ impl TsdfVolume {
             params,
             blocks: Vec::new(),
             index: FxHashMap::default(),
+            active: Vec::new(),
+            pixel_weight: Vec::new(),
         }
     }
 
