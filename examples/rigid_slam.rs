@@ -13,14 +13,14 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
+use dynamap::slam::io::folder::FolderSequence;
 use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::io::folder::FolderSequence;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
 use dynamap::slam::rigid::{RigidSlam, SlamParams, StageTimes};
-use dynamap::slam::tsdf::RaycastMaps;
 use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
+use dynamap::slam::tsdf::RaycastMaps;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
 use serde::Deserialize;
@@ -284,7 +284,12 @@ fn main() -> Result<()> {
         let mut maps = RaycastMaps::new();
         slam.volume().raycast(&camera, &slam.pose(), &mut maps);
         let light = nalgebra::Vector3::new(0.3f32, -0.5, -1.0).normalize();
-        let rot = slam.pose().rotation.to_rotation_matrix().into_inner().cast::<f32>();
+        let rot = slam
+            .pose()
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .cast::<f32>();
         let data = maps
             .normals
             .data
@@ -299,7 +304,8 @@ fn main() -> Result<()> {
                 [v, v, v]
             })
             .collect();
-        let img = dynamap::slam::image::Image::from_vec(camera.width, camera.height, data).expect("size");
+        let img =
+            dynamap::slam::image::Image::from_vec(camera.width, camera.height, data).expect("size");
         dynamap::slam::io::images::write_color(png, &img)?;
     }
     let ate_rmse = seq

@@ -40,7 +40,8 @@ fn run(
             raw = Image::new(cam.width, cam.height);
         }
         let report = slam.process(&raw, Some(&r.color));
-        if report.failure.is_some() {
+        if let Some(why) = &report.failure {
+            eprintln!("frame {k}: {why}");
             failed.push(k);
         }
         est.push(gt.stamps[k], report.pose);

@@ -66,11 +66,13 @@ impl Camera {
     #[inline]
     pub fn project_to_pixel(&self, p: &Point3<f64>) -> Option<(usize, usize)> {
         let (u, v) = self.project(p)?;
-        let (ur, vr) = (u.round(), v.round());
-        if ur < 0.0 || vr < 0.0 || ur >= self.width as f64 || vr >= self.height as f64 {
+        // round half up; truncation equals floor once negatives are excluded (and no libm call)
+        let (u, v) = (u + 0.5, v + 0.5);
+        if u.is_nan() || v.is_nan() || u < 0.0 || v < 0.0 {
             return None;
         }
-        Some((ur as usize, vr as usize))
+        let (ur, vr) = (u as usize, v as usize);
+        (ur < self.width && vr < self.height).then_some((ur, vr))
     }
 
     /// Back-projects pixel (u, v) at depth z (metres along the optical axis) to the camera frame

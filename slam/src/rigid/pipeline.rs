@@ -11,7 +11,7 @@ use nalgebra::Isometry3;
 use std::time::Instant;
 
 /// Settings of the whole pipeline.
-#[derive(Clone, Debug, PartialEq, Default)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SlamParams {
     /// Front end.
     pub preprocess: PreprocessParams,
@@ -19,6 +19,21 @@ pub struct SlamParams {
     pub tracker: TrackerParams,
     /// Map.
     pub tsdf: TsdfParams,
+    /// The sensor pyramid level the model is raycast at for tracking (0: full resolution; default 1,
+    /// a quarter of the rays: the finest tracking level then associates against a half-resolution
+    /// model, as its pixels are strided by 2 anyway).
+    pub raycast_level: usize,
+}
+
+impl Default for SlamParams {
+    fn default() -> Self {
+        Self {
+            preprocess: PreprocessParams::default(),
+            tracker: TrackerParams::default(),
+            tsdf: TsdfParams::default(),
+            raycast_level: 1,
+        }
+    }
 }
 
 /// Seconds spent in each stage of a frame.
@@ -78,7 +93,18 @@ impl RigidSlam {
             tracker: Tracker::new(params.tracker.clone()),
             volume: TsdfVolume::new(params.tsdf),
             raycast: RaycastMaps::new(),
-            model: ModelPyramid::new(&camera, params.preprocess.levels.max(1)),
+            model: ModelPyramid::new(
+                &camera,
+                params
+                    .preprocess
+                    .levels
+                    .max(1)
+                    .saturating_sub(params.raycast_level)
+                    .max(1),
+                params
+                    .raycast_level
+                    .min(params.preprocess.levels.max(1) - 1),
+            ),
             params,
             camera,
             pose: initial_pose,
@@ -158,9 +184,10 @@ impl RigidSlam {
             times.integrate = t.elapsed().as_secs_f64();
             if failure.is_none() {
                 let t = Instant::now();
-                let hint = &self.pre.levels[0].depth;
+                let r = self.model.offset;
+                let hint = &self.pre.levels[r].depth;
                 self.volume.raycast_with_hint(
-                    &self.camera,
+                    &self.camera.level(r),
                     &self.pose,
                     Some(hint),
                     &mut self.raycast,

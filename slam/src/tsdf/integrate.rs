@@ -99,9 +99,16 @@ impl TsdfVolume {
         pose: &Isometry3<f64>,
     ) -> Result<IntegrateStats, TsdfError> {
         let touched = self.touched_blocks(depth, camera, pose, 4);
-        let missing: Vec<[i32; 3]> = touched.iter().filter(|c| !self.index.contains_key(*c)).copied().collect();
+        let missing: Vec<[i32; 3]> = touched
+            .iter()
+            .filter(|c| !self.index.contains_key(*c))
+            .copied()
+            .collect();
         if self.blocks.len() + missing.len() > self.params.max_blocks {
-            return Err(TsdfError::BudgetExceeded { needed: self.blocks.len() + missing.len(), max: self.params.max_blocks });
+            return Err(TsdfError::BudgetExceeded {
+                needed: self.blocks.len() + missing.len(),
+                max: self.params.max_blocks,
+            });
         }
         for c in &missing {
             self.index.insert(*c, self.blocks.len() as u32);
@@ -117,25 +124,32 @@ impl TsdfVolume {
         // Per-pixel fusion weight: cos θ (≥ 0.1) · (σ(1 m)/σ(z))², computed once per pixel.
         let (w, h) = (depth.width, depth.height);
         self.pixel_weight.resize(w * h, 0.0);
-        self.pixel_weight.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                let i = y * w + x;
-                let d = depth.data[i];
-                if d <= 0.0 {
-                    *o = 0.0;
-                    continue;
+        self.pixel_weight
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for (x, o) in row.iter_mut().enumerate() {
+                    let i = y * w + x;
+                    let d = depth.data[i];
+                    if d <= 0.0 {
+                        *o = 0.0;
+                        continue;
+                    }
+                    let n = normals.data[i];
+                    let cos = if valid(&n) {
+                        let ray = camera
+                            .back_project(x as f64, y as f64, 1.0)
+                            .coords
+                            .cast::<f32>()
+                            .normalize();
+                        (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
+                    } else {
+                        0.1
+                    };
+                    let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
+                    *o = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
                 }
-                let n = normals.data[i];
-                let cos = if valid(&n) {
-                    let ray = camera.back_project(x as f64, y as f64, 1.0).coords.cast::<f32>().normalize();
-                    (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
-                } else {
-                    0.1
-                };
-                let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
-                *o = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
-            }
-        });
+            });
         let params = self.params;
         let mu = params.truncation();
         let inv = pose.inverse();
@@ -152,83 +166,95 @@ impl TsdfVolume {
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let (active, pixel_weight) = (&self.active, &self.pixel_weight);
-        self.blocks.par_iter_mut().enumerate().for_each(|(bi, blk)| {
-            if !active[bi] {
-                return;
-            }
-            // Frustum test on the block's bounding sphere.
-            let centre = Vector3::new(
-                blk.coord[0] as f32 + 0.5,
-                blk.coord[1] as f32 + 0.5,
-                blk.coord[2] as f32 + 0.5,
-            ) * block_size
-                - Vector3::repeat(0.5 * params.voxel_size);
-            let pc = rot * centre + trans;
-            if pc.z + half_diag <= 0.0 || pc.z - half_diag > params.max_depth + mu {
-                return;
-            }
-            if pc.z > half_diag {
-                let (u, v) = (fx * pc.x / pc.z + cx, fy * pc.y / pc.z + cy);
-                let margin = (half_diag / pc.z) * fx.abs().max(fy.abs());
-                if u < -margin || v < -margin || u > w as f32 + margin || v > h as f32 + margin {
+        self.blocks
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(bi, blk)| {
+                if !active[bi] {
                     return;
                 }
-            }
-            let mut any = false;
-            let base = [
-                blk.coord[0] * BLOCK,
-                blk.coord[1] * BLOCK,
-                blk.coord[2] * BLOCK,
-            ];
-            // voxel (x, y, z) of the block in the camera frame: q0 + x c0 + y c1 + z c2
-            let q0 = rot * (Vector3::new(base[0] as f32, base[1] as f32, base[2] as f32) * params.voxel_size) + trans;
-            let (c0, c1, c2) = (rot.column(0) * params.voxel_size, rot.column(1) * params.voxel_size, rot.column(2) * params.voxel_size);
-            for z in 0..BLOCK {
-                for y in 0..BLOCK {
-                    let qyz = q0 + c1 * y as f32 + c2 * z as f32;
-                    for x in 0..BLOCK {
-                        let q = qyz + c0 * x as f32;
-                        if q.z <= 0.0 {
-                            continue;
-                        }
-                        let iz = 1.0 / q.z;
-                        let u = round_i32(fx * q.x * iz + cx);
-                        let v = round_i32(fy * q.y * iz + cy);
-                        if u < 0 || v < 0 || u >= w || v >= h {
-                            continue;
-                        }
-                        let pix = (v * w + u) as usize;
-                        let d = depth.data[pix];
-                        if d <= 0.0 || d > params.max_depth {
-                            continue;
-                        }
-                        let sdf = d - q.z;
-                        if sdf < -mu {
-                            continue;
-                        }
-                        let cos = pixel_weight[pix];
-                        let i = local_index(x, y, z);
-                        let tsdf = (sdf / mu).min(1.0);
-                        let (w0, t0) = (blk.weight[i], blk.tsdf[i]);
-                        let wn = w0 + cos;
-                        blk.tsdf[i] = (t0 * w0 + tsdf * cos) / wn;
-                        if let Some(c) = color {
-                            let col = c.data[pix];
-                            let old = blk.color[i];
-                            for k in 0..3 {
-                                blk.color[i][k] =
-                                    ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn + 0.5) as u8;
-                            }
-                        }
-                        blk.weight[i] = wn.min(params.max_weight);
-                        any = true;
+                // Frustum test on the block's bounding sphere.
+                let centre = Vector3::new(
+                    blk.coord[0] as f32 + 0.5,
+                    blk.coord[1] as f32 + 0.5,
+                    blk.coord[2] as f32 + 0.5,
+                ) * block_size
+                    - Vector3::repeat(0.5 * params.voxel_size);
+                let pc = rot * centre + trans;
+                if pc.z + half_diag <= 0.0 || pc.z - half_diag > params.max_depth + mu {
+                    return;
+                }
+                if pc.z > half_diag {
+                    let (u, v) = (fx * pc.x / pc.z + cx, fy * pc.y / pc.z + cy);
+                    let margin = (half_diag / pc.z) * fx.abs().max(fy.abs());
+                    if u < -margin || v < -margin || u > w as f32 + margin || v > h as f32 + margin
+                    {
+                        return;
                     }
                 }
-            }
-            if any {
-                updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            }
-        });
+                let mut any = false;
+                let base = [
+                    blk.coord[0] * BLOCK,
+                    blk.coord[1] * BLOCK,
+                    blk.coord[2] * BLOCK,
+                ];
+                // voxel (x, y, z) of the block in the camera frame: q0 + x c0 + y c1 + z c2
+                let q0 = rot
+                    * (Vector3::new(base[0] as f32, base[1] as f32, base[2] as f32)
+                        * params.voxel_size)
+                    + trans;
+                let (c0, c1, c2) = (
+                    rot.column(0) * params.voxel_size,
+                    rot.column(1) * params.voxel_size,
+                    rot.column(2) * params.voxel_size,
+                );
+                for z in 0..BLOCK {
+                    for y in 0..BLOCK {
+                        let qyz = q0 + c1 * y as f32 + c2 * z as f32;
+                        for x in 0..BLOCK {
+                            let q = qyz + c0 * x as f32;
+                            if q.z <= 0.0 {
+                                continue;
+                            }
+                            let iz = 1.0 / q.z;
+                            let u = round_i32(fx * q.x * iz + cx);
+                            let v = round_i32(fy * q.y * iz + cy);
+                            if u < 0 || v < 0 || u >= w || v >= h {
+                                continue;
+                            }
+                            let pix = (v * w + u) as usize;
+                            let d = depth.data[pix];
+                            if d <= 0.0 || d > params.max_depth {
+                                continue;
+                            }
+                            let sdf = d - q.z;
+                            if sdf < -mu {
+                                continue;
+                            }
+                            let cos = pixel_weight[pix];
+                            let i = local_index(x, y, z);
+                            let tsdf = (sdf / mu).min(1.0);
+                            let (w0, t0) = (blk.weight[i], blk.tsdf[i]);
+                            let wn = w0 + cos;
+                            blk.tsdf[i] = (t0 * w0 + tsdf * cos) / wn;
+                            if let Some(c) = color {
+                                let col = c.data[pix];
+                                let old = blk.color[i];
+                                for k in 0..3 {
+                                    blk.color[i][k] =
+                                        ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn + 0.5)
+                                            as u8;
+                                }
+                            }
+                            blk.weight[i] = wn.min(params.max_weight);
+                            any = true;
+                        }
+                    }
+                }
+                if any {
+                    updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            });
         Ok(IntegrateStats {
             new_blocks: missing.len(),
             updated_blocks: updated.into_inner(),
