@@ -129,16 +129,11 @@ impl FolderSequence {
 
     /// Loads frame `i`.
     pub fn load(&self, i: usize) -> Result<RgbdFrame, IoError> {
-        let (d, c) = self.frames.get(i).ok_or_else(|| {
-            IoError::file(
-                &self.root,
-                format!("frame {i} does not exist ({} frames)", self.frames.len()),
-            )
-        })?;
-        let frame_err = |e: IoError| IoError {
-            message: format!("frame {i}: {}", e.message),
-            ..e
-        };
+        let (d, c) = self
+            .frames
+            .get(i)
+            .ok_or_else(|| IoError::no_frame(&self.root, i, self.frames.len()))?;
+        let frame_err = |e: IoError| e.in_frame(i);
         Ok(RgbdFrame {
             index: i,
             timestamp: i as f64 / 30.0,

@@ -83,15 +83,9 @@ impl IclNuimSequence {
     /// Loads frame `i` (0-based; files are numbered from 1).
     pub fn load(&self, i: usize) -> Result<RgbdFrame, IoError> {
         if i >= self.poses.len() {
-            return Err(IoError::file(
-                &self.root,
-                format!("frame {i} does not exist ({} frames)", self.poses.len()),
-            ));
+            return Err(IoError::no_frame(&self.root, i, self.poses.len()));
         }
-        let frame_err = |e: IoError| IoError {
-            message: format!("frame {i}: {}", e.message),
-            ..e
-        };
+        let frame_err = |e: IoError| e.in_frame(i);
         let depth = read_depth(self.root.join("depth").join(format!("{}.png", i + 1)))
             .map_err(frame_err)?;
         let color = read_color(self.root.join("color").join(format!("{}.png", i + 1)))

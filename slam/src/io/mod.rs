@@ -34,6 +34,17 @@ impl IoError {
             message: message.into(),
         }
     }
+    /// The same error, its message prefixed with the frame it concerns.
+    pub fn in_frame(self, frame: usize) -> Self {
+        Self {
+            message: format!("frame {frame}: {}", self.message),
+            ..self
+        }
+    }
+    /// The error for asking a sequence of `len` frames (at `root`) for frame `frame`.
+    pub fn no_frame(root: impl AsRef<Path>, frame: usize, len: usize) -> Self {
+        Self::file(root, format!("frame {frame} does not exist ({len} frames)"))
+    }
     /// An error at a line.
     pub fn line(path: impl AsRef<Path>, line: usize, message: impl Into<String>) -> Self {
         Self {

@@ -209,16 +209,11 @@ impl TumSequence {
 
     /// Loads frame `i`; an unreadable or mis-sized image is an error naming the frame and file.
     pub fn load(&self, i: usize) -> Result<RgbdFrame, IoError> {
-        let f = self.frames.get(i).ok_or_else(|| {
-            IoError::file(
-                &self.root,
-                format!("frame {i} does not exist ({} frames)", self.frames.len()),
-            )
-        })?;
-        let frame_err = |e: IoError| IoError {
-            message: format!("frame {i}: {}", e.message),
-            ..e
-        };
+        let f = self
+            .frames
+            .get(i)
+            .ok_or_else(|| IoError::no_frame(&self.root, i, self.frames.len()))?;
+        let frame_err = |e: IoError| e.in_frame(i);
         let depth = read_depth(&f.depth).map_err(frame_err)?;
         let color = read_color(&f.rgb).map_err(frame_err)?;
         for (what, w, h, path) in [

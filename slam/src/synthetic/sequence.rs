@@ -9,7 +9,7 @@
 
 use super::deform::DeformingScene;
 use super::noise::SensorNoise;
-use super::render::render;
+use super::render::{render, Rendering};
 use super::scene::Scene;
 use crate::camera::Camera;
 use crate::image::Image;
@@ -74,6 +74,27 @@ fn stamp_name(stamp: f64) -> String {
     format!("{stamp:.6}")
 }
 
+/// Applies the sensor model to a rendering and writes its depth and colour PNGs, named by stamp.
+fn write_sensor_frame(
+    dir: &Path,
+    stamp: f64,
+    k: usize,
+    r: &mut Rendering,
+    noise: &SensorNoise,
+    camera: &Camera,
+) -> Result<(), IoError> {
+    let raw = noise.apply(
+        k as u64,
+        &r.depth,
+        &r.cos_incidence,
+        &mut r.color,
+        camera.depth_scale,
+    );
+    let n = stamp_name(stamp);
+    write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
+    write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)
+}
+
 fn write_index(dir: &Path, camera: &Camera, trajectory: &Trajectory) -> Result<(), IoError> {
     let (mut rgb, mut depth, mut assoc) = (
         String::from("# color images\n# timestamp filename\n"),
@@ -120,16 +141,7 @@ pub fn write_rigid(
     make_dirs(dir, &[])?;
     for (k, (stamp, pose)) in trajectory.stamps.iter().zip(&trajectory.poses).enumerate() {
         let mut r = render(scene, camera, &(to_scene * pose));
-        let raw = noise.apply(
-            k as u64,
-            &r.depth,
-            &r.cos_incidence,
-            &mut r.color,
-            camera.depth_scale,
-        );
-        let n = stamp_name(*stamp);
-        write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
-        write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)?;
+        write_sensor_frame(dir, *stamp, k, &mut r, noise, camera)?;
         progress(k);
     }
     write_index(dir, camera, trajectory)
@@ -148,16 +160,7 @@ pub fn write_deforming(
     make_dirs(dir, &["meshes", "flow"])?;
     for (k, (stamp, pose)) in trajectory.stamps.iter().zip(&trajectory.poses).enumerate() {
         let (mut r, flow) = scene.render_with_flow(camera, pose, k);
-        let raw = noise.apply(
-            k as u64,
-            &r.depth,
-            &r.cos_incidence,
-            &mut r.color,
-            camera.depth_scale,
-        );
-        let n = stamp_name(*stamp);
-        write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
-        write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)?;
+        write_sensor_frame(dir, *stamp, k, &mut r, noise, camera)?;
         ply::write(
             dir.join("meshes").join(format!("{k:06}.ply")),
             &scene.mesh_at(k),
