@@ -181,40 +181,31 @@ fn taps_generic(
     }
 }
 
-/// [`taps_generic`] compiled for AVX2 and FMA (8 lanes, fused polynomial).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn taps_avx2(
-    sum: &mut [f32],
-    wsum: &mut [f32],
-    center: &[f32],
-    src: &[f32],
-    ws: f32,
-    a: f32,
-    cut2: f32,
-) {
-    taps_generic(sum, wsum, center, src, ws, a, cut2)
+/// Defines `fn $name(args)` running `$generic(args)`, compiled a second time for AVX2 and FMA (8
+/// lanes, fused multiply-adds) and dispatched to that copy when the CPU has them.
+macro_rules! avx2_dispatch {
+    ($(#[$meta:meta])* fn $name:ident => $generic:ident($($arg:ident: $ty:ty),* $(,)?)) => {
+        $(#[$meta])*
+        fn $name($($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx2,fma")]
+                unsafe fn wide($($arg: $ty),*) {
+                    $generic($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                    // SAFETY: the CPU has just been checked for the features `wide` is compiled with.
+                    return unsafe { wide($($arg),*) };
+                }
+            }
+            $generic($($arg),*)
+        }
+    };
 }
 
-/// One tap of the bilateral filter over a row, on the widest vector unit the CPU has.
-fn accumulate_taps(
-    sum: &mut [f32],
-    wsum: &mut [f32],
-    center: &[f32],
-    src: &[f32],
-    ws: f32,
-    a: f32,
-    cut2: f32,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU has just been checked for the features the function is compiled with.
-            return unsafe { taps_avx2(sum, wsum, center, src, ws, a, cut2) };
-        }
-    }
-    taps_generic(sum, wsum, center, src, ws, a, cut2)
+avx2_dispatch! {
+    /// One tap of the bilateral filter over a row, on the widest vector unit the CPU has.
+    fn accumulate_taps => taps_generic(sum: &mut [f32], wsum: &mut [f32], center: &[f32], src: &[f32], ws: f32, a: f32, cut2: f32)
 }
 
 thread_local! {
@@ -405,36 +396,9 @@ fn pyramid_generic(
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn pyramid_avx2(
-    sum: &mut [f32],
-    wsum: &mut [f32],
-    center: &[f32],
-    src: &[f32],
-    k: f32,
-    cutoff: f32,
-) {
-    pyramid_generic(sum, wsum, center, src, k, cutoff)
-}
-
-fn accumulate_pyramid(
-    sum: &mut [f32],
-    wsum: &mut [f32],
-    center: &[f32],
-    src: &[f32],
-    k: f32,
-    cutoff: f32,
-) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU has just been checked for the features the function is compiled with.
-            return unsafe { pyramid_avx2(sum, wsum, center, src, k, cutoff) };
-        }
-    }
-    pyramid_generic(sum, wsum, center, src, k, cutoff)
+avx2_dispatch! {
+    /// One tap of the depth pyramid over an output row, on the widest vector unit the CPU has.
+    fn accumulate_pyramid => pyramid_generic(sum: &mut [f32], wsum: &mut [f32], center: &[f32], src: &[f32], k: f32, cutoff: f32)
 }
 
 /// Halves an intensity image with the 5×5 Gaussian (eq. 2.10), borders clamped.
