@@ -105,20 +105,33 @@ struct Args {
     kind: Kind,
 }
 
-fn camera(c: &Common) -> Result<Camera> {
-    if c.width < 8 || c.height < 8 {
-        bail!("--width and --height must be at least 8");
+impl Common {
+    /// The TUM default intrinsics scaled to the requested size.
+    fn camera(&self) -> Result<Camera> {
+        if self.width < 8 || self.height < 8 {
+            bail!("--width and --height must be at least 8");
+        }
+        let s = self.width as f64 / 640.0;
+        Ok(Camera::new(
+            525.0 * s,
+            525.0 * s,
+            (self.width as f64 - 1.0) / 2.0,
+            (self.height as f64 - 1.0) / 2.0,
+            self.width,
+            self.height,
+        ))
     }
-    // The TUM default intrinsics scaled to the requested size.
-    let s = c.width as f64 / 640.0;
-    Ok(Camera::new(
-        525.0 * s,
-        525.0 * s,
-        (c.width as f64 - 1.0) / 2.0,
-        (c.height as f64 - 1.0) / 2.0,
-        c.width,
-        c.height,
-    ))
+
+    /// Creates the output folder and returns the sensor model the flags ask for.
+    fn prepare(&self) -> Result<SensorNoise> {
+        std::fs::create_dir_all(&self.out)
+            .with_context(|| format!("creating {}", self.out.display()))?;
+        Ok(SensorNoise {
+            enabled: !self.no_noise,
+            seed: self.seed,
+            ..SensorNoise::default()
+        })
+    }
 }
 
 fn main() -> Result<()> {
@@ -136,7 +149,7 @@ fn main() -> Result<()> {
             trajectory,
             motion: m,
         } => {
-            let cam = camera(common)?;
+            let cam = common.camera()?;
             let (traj, to_room) = match trajectory {
                 Some(path) => {
                     let gt = Trajectory::read_tum(path)?;
@@ -158,13 +171,7 @@ fn main() -> Result<()> {
                     )
                 }
             };
-            let noise = SensorNoise {
-                enabled: !common.no_noise,
-                seed: common.seed,
-                ..SensorNoise::default()
-            };
-            std::fs::create_dir_all(&common.out)
-                .with_context(|| format!("creating {}", common.out.display()))?;
+            let noise = common.prepare()?;
             sequence::write_rigid(
                 &common.out,
                 &Scene::room(common.seed),
@@ -182,7 +189,7 @@ fn main() -> Result<()> {
             surface,
             mesh,
         } => {
-            let cam = camera(common)?;
+            let cam = common.camera()?;
             let field = match m {
                 DeformMotion::Bend => Field::Bend,
                 DeformMotion::Twist => Field::Twist,
@@ -206,13 +213,7 @@ fn main() -> Result<()> {
             };
             let scene = DeformingScene::new(canonical, field, common.seed);
             let traj = sequence::static_camera(common.frames, common.fps);
-            let noise = SensorNoise {
-                enabled: !common.no_noise,
-                seed: common.seed,
-                ..SensorNoise::default()
-            };
-            std::fs::create_dir_all(&common.out)
-                .with_context(|| format!("creating {}", common.out.display()))?;
+            let noise = common.prepare()?;
             sequence::write_deforming(
                 &common.out,
                 &scene,

@@ -1,9 +1,9 @@
 //! The TSDF map on rendered scenes with known geometry.
 
 use dynamap::slam::camera::Camera;
-use dynamap::slam::image::{normal_map, vertex_map, Image};
+use dynamap::slam::image::{normal_map, vertex_map, Image, NormalMap};
 use dynamap::slam::synthetic::motion::look_at;
-use dynamap::slam::synthetic::render::render;
+use dynamap::slam::synthetic::render::{render, Rendering};
 use dynamap::slam::synthetic::scene::{Scene, Shape};
 use dynamap::slam::synthetic::texture::Texture;
 use dynamap::slam::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
@@ -46,17 +46,27 @@ fn views() -> Vec<Isometry3<f64>> {
     v
 }
 
-fn fuse(scene: &Scene, poses: &[Isometry3<f64>], params: TsdfParams) -> TsdfVolume {
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let mut vol = TsdfVolume::new(params);
+/// A rendering and the normals computed from its depth, as the pipeline would fuse them.
+fn render_with_normals(
+    scene: &Scene,
+    cam: &Camera,
+    pose: &Isometry3<f64>,
+) -> (Rendering, NormalMap) {
+    let r = render(scene, cam, pose);
     let (mut v, mut n) = (
         Image::filled(0, 0, [0.0f32; 3]),
         Image::filled(0, 0, [0.0f32; 3]),
     );
+    vertex_map(&r.depth, cam, &mut v);
+    normal_map(&v, cam, &mut n);
+    (r, n)
+}
+
+fn fuse(scene: &Scene, poses: &[Isometry3<f64>], params: TsdfParams) -> TsdfVolume {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let mut vol = TsdfVolume::new(params);
     for pose in poses {
-        let r = render(scene, &cam, pose);
-        vertex_map(&r.depth, &cam, &mut v);
-        normal_map(&v, &cam, &mut n);
+        let (r, n) = render_with_normals(scene, &cam, pose);
         vol.integrate(&r.depth, &n, Some(&r.color), &cam, pose)
             .unwrap();
     }
@@ -245,13 +255,7 @@ fn the_block_budget_is_a_clear_error() {
         &Point3::origin(),
         &Vector3::z(),
     );
-    let r = render(&sphere_scene(), &cam, &pose);
-    let (mut v, mut n) = (
-        Image::filled(0, 0, [0.0f32; 3]),
-        Image::filled(0, 0, [0.0f32; 3]),
-    );
-    vertex_map(&r.depth, &cam, &mut v);
-    normal_map(&v, &cam, &mut n);
+    let (r, n) = render_with_normals(&sphere_scene(), &cam, &pose);
     let mut vol = TsdfVolume::new(TsdfParams {
         max_blocks: 10,
         ..TsdfParams::default()

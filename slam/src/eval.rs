@@ -257,7 +257,6 @@ fn delta_pairs(
         DeltaUnit::Frames => {
             let d = delta.max(1.0) as usize;
             (0..gt.len().saturating_sub(d))
-                .step_by(1)
                 .map(|i| (i, i + d))
                 .collect()
         }

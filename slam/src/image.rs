@@ -213,6 +213,19 @@ thread_local! {
     static ROW_SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
+/// Runs `f(Σ w·D, Σ w)` with this thread's row accumulators, zeroed and `n` long (no allocation
+/// once a thread has seen a row that long).
+fn with_row_scratch<R>(n: usize, f: impl FnOnce(&mut [f32], &mut [f32]) -> R) -> R {
+    ROW_SCRATCH.with(|cell| {
+        let (sum, wsum) = &mut *cell.borrow_mut();
+        sum.clear();
+        sum.resize(n, 0.0);
+        wsum.clear();
+        wsum.resize(n, 0.0);
+        f(sum, wsum)
+    })
+}
+
 /// Edge-preserving smoothing of depth: `D'(u) = 1/W Σ_q N_σs(‖u − q‖) N_σr(|D(u) − D(q)|) D(q)`
 /// over the valid neighbours q (D(q) > 0) within 3 σ_r of D(u); missing depth stays missing and
 /// depth does not bleed across edges deeper than 3 σ_r.
@@ -260,12 +273,7 @@ pub fn bilateral_filter(input: &DepthImage, params: &BilateralParams, out: &mut 
             return;
         }
         let n = w - 2 * r;
-        ROW_SCRATCH.with(|cell| {
-            let (sum, wsum) = &mut *cell.borrow_mut();
-            sum.clear();
-            sum.resize(n, 0.0);
-            wsum.clear();
-            wsum.resize(n, 0.0);
+        with_row_scratch(n, |sum, wsum| {
             let center = &data[y * w + r..y * w + r + n];
             for dy in 0..side {
                 let line = &data[(y + dy - r) * w..(y + dy - r + 1) * w];
@@ -338,12 +346,7 @@ pub fn downsample_depth(input: &DepthImage, sigma_range: f32, out: &mut DepthIma
             }
             return;
         }
-        ROW_SCRATCH.with(|cell| {
-            let (sum, wsum) = &mut *cell.borrow_mut();
-            sum.clear();
-            sum.resize(n, 0.0);
-            wsum.clear();
-            wsum.resize(n, 0.0);
+        with_row_scratch(n, |sum, wsum| {
             // centres at input columns 2, 4, …, 2n
             let center = &data[cy * w + 2..cy * w + 2 + 2 * n];
             for (j, ky) in K.iter().enumerate() {

@@ -61,7 +61,7 @@ impl std::fmt::Debug for Group<'_> {
 #[derive(Clone, Debug)]
 pub struct DenseOptions<'a> {
     /// Per-group weights and kernels (group 0 must exist).
-    pub groups: Vec<Group<'a>>,
+    pub groups: &'a [Group<'a>],
     /// Iterations at most.
     pub max_iterations: usize,
     /// Stop when ‖δ‖ falls below this.
@@ -231,7 +231,7 @@ pub fn solve<const N: usize, T: DenseTerms<N>>(
     };
     ws.next.resize(x.len(), 0.0);
     for it in 0..options.max_iterations {
-        let red = reduce(terms, x, &options.groups, &mut ws.partials);
+        let red = reduce(terms, x, options.groups, &mut ws.partials);
         if it == 0 {
             summary.initial_cost = red.cost;
         }
@@ -323,7 +323,7 @@ mod tests {
         let mut x = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
         let huber = Huber(0.5);
         let options = DenseOptions {
-            groups: vec![Group {
+            groups: &[Group {
                 weight: 1.0,
                 kernel: Some(&huber),
             }],

@@ -295,7 +295,7 @@ impl Tracker {
         se3::to_slice(start, &mut x);
         let huber_g = Huber(p.huber_geometric);
         let huber_p = Huber(p.huber_photometric);
-        let groups = vec![
+        let groups = [
             Group {
                 weight: 1.0,
                 kernel: Some(&huber_g),
@@ -354,7 +354,7 @@ impl Tracker {
                 },
             };
             let options = DenseOptions {
-                groups: groups.clone(),
+                groups: &groups,
                 max_iterations: iterations,
                 step_tolerance: 1e-6,
                 damping: 0.0,
