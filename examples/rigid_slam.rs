@@ -242,36 +242,52 @@ fn main() -> Result<()> {
     let mut totals = StageTimes::default();
     let (mut failures, mut read_seconds) = (0usize, 0.0);
     let start = Instant::now();
-    for i in 0..n {
-        let t_read = Instant::now();
-        let frame = match seq.load(i) {
-            Ok(f) => f,
-            Err(e) => {
-                failures += 1;
-                bar.println(format!("skipped: {e}"));
-                bar.inc(1);
-                continue;
+    // A reader thread decodes the next frames while this one is processed (as a sensor driver
+    // would deliver them); "read" is the time spent waiting for a frame.
+    let (sender, frames) = std::sync::mpsc::sync_channel(2);
+    std::thread::scope(|scope| {
+        let seq = &seq;
+        scope.spawn(move || {
+            for i in 0..n {
+                if sender.send((i, seq.load(i))).is_err() {
+                    break;
+                }
             }
-        };
-        read_seconds += t_read.elapsed().as_secs_f64();
-        let report = slam.process(&frame.depth, frame.color.as_ref());
-        totals.add(&report.times);
-        if let Some(why) = &report.failure {
-            failures += 1;
-            bar.println(format!(
-                "frame {i} ({:.6}): not fused: {why}",
-                frame.timestamp
-            ));
+        });
+        loop {
+            let t_read = Instant::now();
+            let Ok((i, loaded)) = frames.recv() else {
+                break;
+            };
+            read_seconds += t_read.elapsed().as_secs_f64();
+            let frame = match loaded {
+                Ok(f) => f,
+                Err(e) => {
+                    failures += 1;
+                    bar.println(format!("skipped: {e}"));
+                    bar.inc(1);
+                    continue;
+                }
+            };
+            let report = slam.process(&frame.depth, frame.color.as_ref());
+            totals.add(&report.times);
+            if let Some(why) = &report.failure {
+                failures += 1;
+                bar.println(format!(
+                    "frame {i} ({:.6}): not fused: {why}",
+                    frame.timestamp
+                ));
+            }
+            trajectory.push(frame.timestamp, report.pose);
+            bar.inc(1);
+            if i % 10 == 9 {
+                bar.set_message(format!(
+                    "{:.1} fps",
+                    (i + 1) as f64 / start.elapsed().as_secs_f64()
+                ));
+            }
         }
-        trajectory.push(frame.timestamp, report.pose);
-        bar.inc(1);
-        if i % 10 == 9 {
-            bar.set_message(format!(
-                "{:.1} fps",
-                (i + 1) as f64 / start.elapsed().as_secs_f64()
-            ));
-        }
-    }
+    });
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(out) = &args.output {

@@ -111,34 +111,76 @@ pub struct Intrinsics {
     pub cy: f64,
 }
 
+/// A point in the reference camera's frame, `x = T_ref⁻¹ T p`, with its projection
+/// `(u, v) = (fx x/z + cx, fy y/z + cy)` (eq. 2.1) and `1/z`: computed once per pixel and shared by
+/// data association and [`photometric_at`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Projected {
+    /// The point, reference camera frame.
+    pub x: Vector3<f64>,
+    /// 1 / x.z.
+    pub iz: f64,
+    /// Column, pixels.
+    pub u: f64,
+    /// Row, pixels.
+    pub v: f64,
+}
+
+impl Projected {
+    /// Projects `x` (reference camera frame); `None` behind or at the camera.
+    #[inline]
+    pub fn new(x: Vector3<f64>, k: &Intrinsics) -> Option<Self> {
+        if x.z <= 1e-6 {
+            return None;
+        }
+        let iz = 1.0 / x.z;
+        Some(Self {
+            x,
+            iz,
+            u: k.fx * x.x * iz + k.cx,
+            v: k.fy * x.y * iz + k.cy,
+        })
+    }
+}
+
 /// Photometric: `r = I_ref(π(T_ref⁻¹ T p)) − i` for a live point p (camera frame) of intensity i,
 /// against a reference image taken at `T_ref` (thesis eq. 3.14). Returns r and
 /// ∂r/∂δ = ∇I · ∂π/∂x · R_ref⁻¹ R [−[p]×, I], or `None` when p projects behind the reference
 /// camera or outside its valid image.
 #[inline]
-pub fn photometric(
+pub fn photometric<F: IntensityField + ?Sized>(
     t: &RigidMotion,
     t_ref_inv: &RigidMotion,
     k: &Intrinsics,
-    field: &dyn IntensityField,
+    field: &F,
     p: &Vector3<f64>,
     intensity: f64,
 ) -> Option<(f64, [f64; 6])> {
-    let x = t_ref_inv.apply(&t.apply(p));
-    if x.z <= 1e-6 {
-        return None;
-    }
-    let iz = 1.0 / x.z;
-    let (u, v) = (k.fx * x.x * iz + k.cx, k.fy * x.y * iz + k.cy);
-    let (value, [gu, gv]) = field.sample(u, v)?;
+    let x = Projected::new(t_ref_inv.apply(&t.apply(p)), k)?;
+    photometric_at(&x, &(t.rt * t_ref_inv.rt), k, field, p, intensity)
+}
+
+/// [`photometric`] from the already projected point `x` and `R_relᵀ = Rᵀ R_ref` (the transpose of
+/// the live-to-reference rotation), for callers that project once per pixel.
+#[inline]
+pub fn photometric_at<F: IntensityField + ?Sized>(
+    x: &Projected,
+    rel_rt: &Matrix3<f64>,
+    k: &Intrinsics,
+    field: &F,
+    p: &Vector3<f64>,
+    intensity: f64,
+) -> Option<(f64, [f64; 6])> {
+    let (value, [gu, gv]) = field.sample(x.u, x.v)?;
+    let iz = x.iz;
     // ∇I · ∂π/∂x
     let a = Vector3::new(
         gu * k.fx * iz,
         gv * k.fy * iz,
-        -(gu * k.fx * x.x + gv * k.fy * x.y) * iz * iz,
+        -(gu * k.fx * x.x.x + gv * k.fy * x.x.y) * iz * iz,
     );
     // ∂x/∂δ = R_rel [−[p]×, I] with R_rel = R_ref⁻¹ R; aᵀ R_rel [−[p]×, I] = [(p × b)ᵀ, bᵀ], b = R_relᵀ a
-    let b = t.rt * (t_ref_inv.rt * a);
+    let b = rel_rt * a;
     let w = p.cross(&b);
     Some((value - intensity, [w.x, w.y, w.z, b.x, b.y, b.z]))
 }

@@ -10,13 +10,13 @@ use crate::image::{
 use crate::preprocess::Level;
 use crate::tsdf::RaycastMaps;
 use dynamap_residuals::icp::{
-    photometric, point_to_plane, IntensityField, Intrinsics, RigidMotion,
+    photometric_at, point_to_plane, IntensityField, Intrinsics, Projected, RigidMotion,
 };
 use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
 use dynamap_solver::SE3;
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Vector3};
 
 /// Tracking settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -77,6 +77,10 @@ pub struct ModelLevel {
     pub gradient_x: GrayImage,
     /// ∂I/∂v.
     pub gradient_y: GrayImage,
+    /// Intensity, ∂I/∂u, ∂I/∂v packed per pixel for bilinear sampling (one cache line per two
+    /// taps); the intensity is NaN where the model has no surface, so a sample touching such a pixel
+    /// is NaN.
+    pub samples: Image<[f32; 4]>,
 }
 
 /// The model raycast at the reference pose, as a pyramid (finest first).
@@ -103,6 +107,7 @@ impl ModelPyramid {
                 intensity: Image::new(0, 0),
                 gradient_x: Image::new(0, 0),
                 gradient_y: Image::new(0, 0),
+                samples: Image::filled(0, 0, [0.0; 4]),
             })
             .collect();
         Self {
@@ -149,6 +154,16 @@ impl ModelPyramid {
                 &mut level.gradient_x,
                 &mut level.gradient_y,
             );
+            let (w, h) = (level.intensity.width, level.intensity.height);
+            level.samples.resize(w, h, [0.0; 4]);
+            for (k, o) in level.samples.data.iter_mut().enumerate() {
+                let i = if valid(&level.vertices.data[k]) {
+                    level.intensity.data[k]
+                } else {
+                    f32::NAN
+                };
+                *o = [i, level.gradient_x.data[k], level.gradient_y.data[k], 0.0];
+            }
         }
     }
 }
@@ -159,28 +174,48 @@ struct ModelIntensity<'a> {
 }
 
 impl IntensityField for ModelIntensity<'_> {
+    #[inline]
     fn sample(&self, u: f64, v: f64) -> Option<(f64, [f64; 2])> {
-        let l = self.level;
-        let (w, h) = (l.intensity.width, l.intensity.height);
-        if u < 1.0 || v < 1.0 || u >= (w - 2) as f64 || v >= (h - 2) as f64 {
+        let img = &self.level.samples;
+        let (w, h) = (img.width, img.height);
+        if !(u >= 1.0 && v >= 1.0 && u < (w - 2) as f64 && v < (h - 2) as f64) {
             return None;
         }
         // u, v ≥ 1 here, so truncation is the floor
         let (x0, y0) = (u as usize, v as usize);
         let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            if !valid(&l.vertices.data[(y0 + dy) * w + x0 + dx]) {
-                return None;
-            }
+        let i = y0 * w + x0;
+        let (a, b, c, d) = (
+            img.data[i],
+            img.data[i + 1],
+            img.data[i + w],
+            img.data[i + w + 1],
+        );
+        let (wa, wb, wc, wd) = (
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        );
+        let mut out = [0.0f32; 3];
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = a[k] * wa + b[k] * wb + c[k] * wc + d[k] * wd;
         }
-        let bil = |img: &GrayImage| -> f64 {
-            let i = y0 * w + x0;
-            let d = &img.data;
-            ((d[i] * (1.0 - fx) + d[i + 1] * fx) * (1.0 - fy)
-                + (d[i + w] * (1.0 - fx) + d[i + w + 1] * fx) * fy) as f64
-        };
-        Some((bil(&l.intensity), [bil(&l.gradient_x), bil(&l.gradient_y)]))
+        if !out[0].is_finite() {
+            return None;
+        }
+        Some((out[0] as f64, [out[1] as f64, out[2] as f64]))
     }
+}
+
+/// The live-to-world and live-to-reference motions at the current estimate.
+struct Linearisation {
+    /// T, camera-to-world.
+    t: RigidMotion,
+    /// T_ref⁻¹ T, live camera to reference camera.
+    rel: RigidMotion,
+    /// (R_ref⁻¹ R)ᵀ.
+    rel_rt: Matrix3<f64>,
 }
 
 /// The terms of one pyramid level: every live pixel, associated projectively.
@@ -199,14 +234,30 @@ struct IcpTerms<'a> {
 }
 
 impl DenseTerms<6> for IcpTerms<'_> {
-    type Point = RigidMotion;
+    type Point = Linearisation;
     fn len(&self) -> usize {
         self.grid.0 * self.grid.1
     }
-    fn prepare(&self, x: &[f64]) -> RigidMotion {
-        RigidMotion::new(&se3::from_slice(x))
+    fn prepare(&self, x: &[f64]) -> Linearisation {
+        let t = RigidMotion::new(&se3::from_slice(x));
+        let rel_r = self.t_ref_inv.r * t.r;
+        Linearisation {
+            t,
+            rel: RigidMotion {
+                r: rel_r,
+                rt: rel_r.transpose(),
+                t: self.t_ref_inv.r * t.t + self.t_ref_inv.t,
+            },
+            rel_rt: rel_r.transpose(),
+        }
     }
-    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(&self, i: usize, t: &RigidMotion, emit: &mut E) {
+    #[inline]
+    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(
+        &self,
+        i: usize,
+        lin: &Linearisation,
+        emit: &mut E,
+    ) {
         let i = (i / self.grid.0) * self.stride * self.live.vertices.width
             + (i % self.grid.0) * self.stride;
         let v = self.live.vertices.data[i];
@@ -215,20 +266,24 @@ impl DenseTerms<6> for IcpTerms<'_> {
             return;
         }
         let p = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
-        let pw = t.apply(&p);
-        let pr = Point3::from(self.t_ref_inv.apply(&pw));
-        let cam = &self.model.camera;
-        let Some((u, vv)) = cam.project_to_pixel(&pr) else {
+        // the live point in the reference camera, projected once for association and photometry
+        let Some(x) = Projected::new(lin.rel.apply(&p), &self.intrinsics) else {
             return;
         };
-        let j = vv * cam.width + u;
+        let cam = &self.model.camera;
+        let (ur, vr) = (x.u + 0.5, x.v + 0.5);
+        if !(ur >= 0.0 && vr >= 0.0 && ur < cam.width as f64 && vr < cam.height as f64) {
+            return;
+        }
+        let j = vr as usize * cam.width + ur as usize;
         let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         if !valid(&m) || !valid(&nm) {
             return;
         }
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
-        if (pw - q).norm_squared() > self.max_distance * self.max_distance {
+        let t = &lin.t;
+        if (t.apply(&p) - q).norm_squared() > self.max_distance * self.max_distance {
             return;
         }
         let nl = t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
@@ -239,14 +294,9 @@ impl DenseTerms<6> for IcpTerms<'_> {
         emit(r, &jac, 0);
         if self.photometric {
             let live_i = self.live.intensity.data[i] as f64;
-            if let Some((r, jac)) = photometric(
-                t,
-                &self.t_ref_inv,
-                &self.intrinsics,
-                &self.field,
-                &p,
-                live_i,
-            ) {
+            if let Some((r, jac)) =
+                photometric_at(&x, &lin.rel_rt, &self.intrinsics, &self.field, &p, live_i)
+            {
                 emit(r, &jac, 1);
             }
         }
@@ -260,9 +310,9 @@ pub struct TrackOutcome {
     pub pose: Isometry3<f64>,
     /// Why the frame was rejected, if it was.
     pub failure: Option<String>,
-    /// Inlier point-to-plane associations at the finest level.
+    /// Inlier point-to-plane associations at the finest level that ran.
     pub inliers: usize,
-    /// Valid live pixels at the finest level.
+    /// Valid live pixels at the finest level that ran (on its strided grid).
     pub valid_pixels: usize,
 }
 
@@ -307,17 +357,22 @@ impl Tracker {
         ];
         let t_ref_inv = RigidMotion::new(&model.pose.inverse());
         let levels = live.len();
-        // valid pixels on the finest level's strided grid, against which inliers are counted
-        let stride = p.finest_stride.max(1);
-        let w0 = live[0].vertices.width;
-        let valid_pixels = live[0]
+        // the finest level that runs, and its valid pixels on its (strided) grid, against which
+        // inliers are counted
+        let finest = (0..levels)
+            .find(|&l| p.iterations.get(l).copied().unwrap_or(0) > 0)
+            .unwrap_or(0);
+        let stride_of = |l: usize| if l == 0 { p.finest_stride.max(1) } else { 1 };
+        let stride = stride_of(finest);
+        let wf = live[finest].vertices.width;
+        let valid_pixels = live[finest]
             .vertices
             .data
             .iter()
-            .zip(&live[0].normals.data)
+            .zip(&live[finest].normals.data)
             .enumerate()
             .filter(|(i, (v, n))| {
-                (i % w0) % stride == 0 && (i / w0) % stride == 0 && valid(v) && valid(n)
+                (i % wf) % stride == 0 && (i / wf) % stride == 0 && valid(v) && valid(n)
             })
             .count();
         let mut inliers = 0;
@@ -344,9 +399,9 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
-                stride: if l == 0 { p.finest_stride.max(1) } else { 1 },
+                stride: stride_of(l),
                 grid: {
-                    let s = if l == 0 { p.finest_stride.max(1) } else { 1 };
+                    let s = stride_of(l);
                     (
                         live[l].vertices.width.div_ceil(s),
                         live[l].vertices.height.div_ceil(s),
@@ -361,7 +416,7 @@ impl Tracker {
             };
             let summary = solve(&terms, &SE3, &mut x, &options, &mut self.ws);
             stop = summary.stop;
-            if l == 0 {
+            if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
             }

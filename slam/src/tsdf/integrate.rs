@@ -211,42 +211,48 @@ impl TsdfVolume {
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
                         let qyz = q0 + c1 * y as f32 + c2 * z as f32;
-                        for x in 0..BLOCK {
+                        // the row's 8 projections first, branch-free so that they vectorise; a
+                        // voxel behind the camera or outside the image gets pixel −1
+                        let mut pixels = [-1i32; BLOCK as usize];
+                        let mut depths = [0.0f32; BLOCK as usize];
+                        for (x, (pix, qz)) in pixels.iter_mut().zip(&mut depths).enumerate() {
                             let q = qyz + c0 * x as f32;
-                            if q.z <= 0.0 {
-                                continue;
-                            }
                             let iz = 1.0 / q.z;
                             let u = round_i32(fx * q.x * iz + cx);
                             let v = round_i32(fy * q.y * iz + cy);
-                            if u < 0 || v < 0 || u >= w || v >= h {
+                            let inside = q.z > 0.0 && u >= 0 && v >= 0 && u < w && v < h;
+                            *pix = if inside { v * w + u } else { -1 };
+                            *qz = q.z;
+                        }
+                        for x in 0..BLOCK {
+                            let (pix, qz) = (pixels[x as usize], depths[x as usize]);
+                            if pix < 0 {
                                 continue;
                             }
-                            let pix = (v * w + u) as usize;
+                            let pix = pix as usize;
                             let d = depth.data[pix];
                             if d <= 0.0 || d > params.max_depth {
                                 continue;
                             }
-                            let sdf = d - q.z;
+                            let sdf = d - qz;
                             if sdf < -mu {
                                 continue;
                             }
                             let cos = pixel_weight[pix];
                             let i = local_index(x, y, z);
                             let tsdf = (sdf / mu).min(1.0);
-                            let (w0, t0) = (blk.weight[i], blk.tsdf[i]);
-                            let wn = w0 + cos;
-                            blk.tsdf[i] = (t0 * w0 + tsdf * cos) / wn;
+                            let vox = &mut blk.voxels[i];
+                            let w0 = vox.weight;
+                            let inv = 1.0 / (w0 + cos);
+                            let (a, b) = (w0 * inv, cos * inv);
+                            vox.tsdf = vox.tsdf * a + tsdf * b;
+                            vox.weight = (w0 + cos).min(params.max_weight);
                             if let Some(c) = color {
-                                let col = c.data[pix];
-                                let old = blk.color[i];
+                                let (col, old) = (c.data[pix], &mut blk.color[i]);
                                 for k in 0..3 {
-                                    blk.color[i][k] =
-                                        ((old[k] as f32 * w0 + col[k] as f32 * cos) / wn + 0.5)
-                                            as u8;
+                                    old[k] = (old[k] as f32 * a + col[k] as f32 * b + 0.5) as u8;
                                 }
                             }
-                            blk.weight[i] = wn.min(params.max_weight);
                             any = true;
                         }
                     }

@@ -50,8 +50,8 @@ impl TsdfVolume {
         let (b, l) = super::split(g);
         let blk = self.block(&b)?;
         let i = local_index(l[0], l[1], l[2]);
-        (blk.weight[i] > 0.0).then(|| Corner {
-            tsdf: blk.tsdf[i],
+        (blk.voxels[i].weight > 0.0).then(|| Corner {
+            tsdf: blk.voxels[i].tsdf,
             color: blk.color[i],
         })
     }

@@ -58,16 +58,23 @@ impl TsdfParams {
     }
 }
 
-/// A block of 8³ voxels.
+/// One voxel's fused distance and weight (thesis eq. 3.24-3.25).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Voxel {
+    /// Truncated signed distance, in units of μ (1 where unobserved).
+    pub tsdf: f32,
+    /// Fusion weight (0 where unobserved).
+    pub weight: f32,
+}
+
+/// A block of 8³ voxels (voxel hashing's unit of allocation).
 #[derive(Clone, Debug)]
 pub struct Block {
     /// Block coordinate (voxel coordinate / 8).
     pub coord: [i32; 3],
-    /// Truncated signed distance per voxel, in units of μ (1 where unobserved).
-    pub tsdf: Box<[f32; BLOCK_VOXELS]>,
-    /// Fusion weight per voxel (0 where unobserved).
-    pub weight: Box<[f32; BLOCK_VOXELS]>,
-    /// Fused colour per voxel.
+    /// Distance and weight per voxel, interleaved so that reading a voxel touches one cache line.
+    pub voxels: Box<[Voxel; BLOCK_VOXELS]>,
+    /// Fused colour per voxel (apart: only surface hits and meshes read it).
     pub color: Box<[[u8; 3]; BLOCK_VOXELS]>,
 }
 
@@ -75,8 +82,12 @@ impl Block {
     fn new(coord: [i32; 3]) -> Self {
         Self {
             coord,
-            tsdf: Box::new([1.0; BLOCK_VOXELS]),
-            weight: Box::new([0.0; BLOCK_VOXELS]),
+            voxels: Box::new(
+                [Voxel {
+                    tsdf: 1.0,
+                    weight: 0.0,
+                }; BLOCK_VOXELS],
+            ),
             color: Box::new([[0; 3]; BLOCK_VOXELS]),
         }
     }
@@ -179,7 +190,7 @@ impl TsdfVolume {
         let (b, l) = split(g);
         let blk = self.block(&b)?;
         let i = local_index(l[0], l[1], l[2]);
-        Some((blk.tsdf[i], blk.weight[i]))
+        Some((blk.voxels[i].tsdf, blk.voxels[i].weight))
     }
 
     /// World position of a global voxel's centre.
@@ -205,27 +216,58 @@ impl TsdfVolume {
         &self,
         p: &Point3<f32>,
     ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
+        self.trilinear_gradient_near(p, None)
+    }
+
+    /// [`Self::trilinear_gradient`], given a block the caller already holds (e.g. the one a ray is
+    /// marching through), so that each distinct block of the 8 corners is looked up at most once and
+    /// a known one not at all.
+    pub(crate) fn trilinear_gradient_near<'a>(
+        &'a self,
+        p: &Point3<f32>,
+        known: Option<&'a Block>,
+    ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
         let s = p.coords / self.params.voxel_size;
         let g0 = [floor_i32(s.x), floor_i32(s.y), floor_i32(s.z)];
         let f = Vector3::new(s.x - g0[0] as f32, s.y - g0[1] as f32, s.z - g0[2] as f32);
         let (b, l) = split(g0);
-        let fast = l.iter().all(|&v| v < BLOCK - 1);
-        let fast_block = if fast { Some(self.block(&b)?) } else { None };
+        // the corners' blocks: b + (ex, ey, ez), where e is 1 only on an axis whose corner crosses
+        // the block's upper face
+        let cross = [l[0] == BLOCK - 1, l[1] == BLOCK - 1, l[2] == BLOCK - 1];
+        let mut blocks: [Option<&Block>; 8] = [None; 8];
+        let lookup = |e: usize| -> Option<&'a Block> {
+            let c = [
+                b[0] + (e & 1) as i32,
+                b[1] + ((e >> 1) & 1) as i32,
+                b[2] + ((e >> 2) & 1) as i32,
+            ];
+            match known {
+                Some(k) if k.coord == c => Some(k),
+                _ => self.block(&c),
+            }
+        };
         let mut v = [0.0f32; 8];
         let mut color = [0.0f32; 3];
         for (c, value) in v.iter_mut().enumerate() {
-            let (dx, dy, dz) = ((c & 1) as i32, ((c >> 1) & 1) as i32, ((c >> 2) & 1) as i32);
-            let (blk, i) = match fast_block {
-                Some(blk) => (blk, local_index(l[0] + dx, l[1] + dy, l[2] + dz)),
+            let (dx, dy, dz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            let e = (dx & cross[0] as usize)
+                | ((dy & cross[1] as usize) << 1)
+                | ((dz & cross[2] as usize) << 2);
+            let blk = match blocks[e] {
+                Some(blk) => blk,
                 None => {
-                    let (bb, ll) = split([g0[0] + dx, g0[1] + dy, g0[2] + dz]);
-                    (self.block(&bb)?, local_index(ll[0], ll[1], ll[2]))
+                    let blk = lookup(e)?;
+                    blocks[e] = Some(blk);
+                    blk
                 }
             };
-            if blk.weight[i] <= 0.0 {
+            let wrap = |l: i32, d: usize| (l + d as i32) & (BLOCK - 1);
+            let i = local_index(wrap(l[0], dx), wrap(l[1], dy), wrap(l[2], dz));
+            let vox = blk.voxels[i];
+            if vox.weight <= 0.0 {
                 return None;
             }
-            *value = blk.tsdf[i];
+            *value = vox.tsdf;
             let w = (if dx == 1 { f.x } else { 1.0 - f.x })
                 * (if dy == 1 { f.y } else { 1.0 - f.y })
                 * (if dz == 1 { f.z } else { 1.0 - f.z });

@@ -66,8 +66,8 @@ impl TsdfVolume {
             Some(blk) => {
                 let i = super::local_index(l[0], l[1], l[2]);
                 (
-                    if blk.weight[i] > 0.0 {
-                        Some(blk.tsdf[i])
+                    if blk.voxels[i].weight > 0.0 {
+                        Some(blk.voxels[i].tsdf)
                     } else {
                         None
                     },
@@ -113,20 +113,18 @@ impl TsdfVolume {
                     // linear zero crossing between the two samples, then the field's value, gradient
                     // (the normal) and colour there by trilinear interpolation
                     let mut ts = tp + (t - tp) * fp / (fp - f);
-                    let mut hit = origin + dir * ts;
-                    let (value, mut grad, mut color) = self.trilinear_gradient(&hit)?;
-                    // one Newton step on the interpolated field along the ray
+                    let (value, grad, color) =
+                        self.trilinear_gradient_near(&(origin + dir * ts), cache.block)?;
+                    // one Newton step on the interpolated field along the ray; the normal and colour
+                    // stay those sampled at the linear estimate, under a voxel away
                     let slope = grad.dot(dir) / vs;
                     if slope.abs() > 1e-6 {
                         let tn = ts - value / slope;
                         if (tn - ts).abs() < vs {
-                            if let Some(better) = self.trilinear_gradient(&(origin + dir * tn)) {
-                                ts = tn;
-                                hit = origin + dir * ts;
-                                (_, grad, color) = better;
-                            }
+                            ts = tn;
                         }
                     }
+                    let hit = origin + dir * ts;
                     let n = grad.try_normalize(1e-12)?;
                     let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
                     return Some((hit, n, color, ts));
@@ -148,8 +146,9 @@ impl TsdfVolume {
     }
 
     /// [`Self::raycast`], starting each ray near a depth it is expected to hit (`hint`: z-depth per
-    /// pixel, e.g. the frame just fused; 0 = unknown). A ray that finds no surface within ±3μ of its
-    /// hint marches the whole range, so the hint changes speed, not the result.
+    /// pixel, e.g. the frame just fused; 0 = unknown, where the previous pixel's hit is used). A ray
+    /// that finds no surface within [z − μ − 2 voxels, z + 3μ] of its hint marches the whole range,
+    /// so the hint changes speed, not the surface found (but for one nearer than the hint's band).
     pub fn raycast_with_hint(
         &self,
         camera: &Camera,
@@ -174,6 +173,9 @@ impl TsdfVolume {
             self.params.max_depth + 2.0 * self.params.truncation(),
         );
         let band = 3.0 * self.params.truncation();
+        // the hinted surface lies within the sensor noise of the hint: start just outside its
+        // truncation band, where the stored distance lets the march take long steps at once
+        let lead = self.params.truncation() + 2.0 * self.params.voxel_size;
         let hint = hint.filter(|d| d.width == w && d.height == h);
         out.vertices
             .data
@@ -190,7 +192,12 @@ impl TsdfVolume {
                         .cast::<f32>();
                     let len = rc.norm();
                     let dir = rot * (rc / len);
-                    let z = hint.map_or(0.0, |d| d.data[y * w + x]);
+                    // where the hint has a hole, the surface the previous pixel of the row hit is
+                    // the best guess
+                    let z = match hint.map_or(0.0, |d| d.data[y * w + x]) {
+                        z if z > 0.0 || x == 0 || hint.is_none() => z,
+                        _ => dr[x - 1],
+                    };
                     let mut hit = None;
                     if z > t_max + band {
                         // the hint says the surface is beyond the fused range
@@ -198,7 +205,7 @@ impl TsdfVolume {
                         hit = self.cast_ray(
                             &origin,
                             &dir,
-                            (z - band).max(t_min) * len,
+                            (z - lead).max(t_min) * len,
                             (z + band) * len,
                         );
                     }
