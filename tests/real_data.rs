@@ -282,28 +282,15 @@ fn iclnuim_frames_reproject_onto_the_same_surface() {
 fn register_against(icl: &IclNuimSequence, a: usize, b: usize) -> nalgebra::Isometry3<f64> {
     use dynamap::slam::preprocess::{PreprocessParams, Preprocessor};
     use dynamap::slam::rigid::tracker::{ModelPyramid, Tracker, TrackerParams};
-    use dynamap::slam::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
+    use dynamap::slam::tsdf::RaycastMaps;
     let cam = icl.camera;
-    let mut pre = Preprocessor::new(cam, PreprocessParams::default());
-    let mut vol = TsdfVolume::new(TsdfParams {
-        max_depth: 6.0,
-        ..TsdfParams::default()
-    });
-    let fb = icl.load(b).unwrap();
-    let levels = pre.process(&fb.depth, fb.color.as_ref());
-    vol.integrate(
-        &levels[0].depth,
-        &levels[0].normals,
-        fb.color.as_ref(),
-        &cam,
-        &icl.poses[b],
-    )
-    .unwrap();
+    let vol = fuse_iclnuim_at_ground_truth(icl, &[b]);
     let mut maps = RaycastMaps::new();
     vol.raycast(&cam, &icl.poses[b], &mut maps);
     let mut model = ModelPyramid::new(&cam, 3, 0);
     model.update(&maps, &icl.poses[b]);
     let fa = icl.load(a).unwrap();
+    let mut pre = Preprocessor::new(cam, PreprocessParams::default());
     let live = pre.process(&fa.depth, fa.color.as_ref());
     let mut tracker = Tracker::new(TrackerParams {
         iterations: vec![20, 20, 20],
@@ -407,31 +394,43 @@ fn primesense_frames_track_like_open3d() {
     }
 }
 
-/// The 5 ICL-NUIM frames fused at their ground-truth poses: each frame's depth against the model
-/// raycast at its pose.
-#[test]
-fn iclnuim_frames_fuse_at_their_ground_truth_poses() {
+/// ICL-NUIM frames `which` preprocessed and fused at their ground-truth poses (depth up to 6 m).
+fn fuse_iclnuim_at_ground_truth(
+    icl: &IclNuimSequence,
+    which: &[usize],
+) -> dynamap::slam::tsdf::TsdfVolume {
     use dynamap::slam::preprocess::{PreprocessParams, Preprocessor};
-    use dynamap::slam::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
-    let icl = IclNuimSequence::open(data("rgbd/iclnuim_lr_kt2_5frames")).unwrap();
-    let cam = icl.camera;
-    let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+    use dynamap::slam::tsdf::{TsdfParams, TsdfVolume};
+    let mut pre = Preprocessor::new(icl.camera, PreprocessParams::default());
     let mut vol = TsdfVolume::new(TsdfParams {
         max_depth: 6.0,
         ..TsdfParams::default()
     });
-    let frames: Vec<_> = (0..icl.len()).map(|i| icl.load(i).unwrap()).collect();
-    for (f, pose) in frames.iter().zip(&icl.poses) {
+    for &i in which {
+        let f = icl.load(i).unwrap();
         let levels = pre.process(&f.depth, f.color.as_ref());
         vol.integrate(
             &levels[0].depth,
             &levels[0].normals,
             f.color.as_ref(),
-            &cam,
-            pose,
+            &icl.camera,
+            &icl.poses[i],
         )
         .unwrap();
     }
+    vol
+}
+
+/// The 5 ICL-NUIM frames fused at their ground-truth poses: each frame's depth against the model
+/// raycast at its pose.
+#[test]
+fn iclnuim_frames_fuse_at_their_ground_truth_poses() {
+    use dynamap::slam::tsdf::RaycastMaps;
+    let icl = IclNuimSequence::open(data("rgbd/iclnuim_lr_kt2_5frames")).unwrap();
+    let cam = icl.camera;
+    let all: Vec<usize> = (0..icl.len()).collect();
+    let vol = fuse_iclnuim_at_ground_truth(&icl, &all);
+    let frames: Vec<_> = all.iter().map(|&i| icl.load(i).unwrap()).collect();
     let mut maps = RaycastMaps::new();
     for (i, (f, pose)) in frames.iter().zip(&icl.poses).enumerate() {
         vol.raycast(&cam, pose, &mut maps);

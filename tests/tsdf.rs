@@ -62,9 +62,18 @@ fn render_with_normals(
     (r, n)
 }
 
-fn fuse(scene: &Scene, poses: &[Isometry3<f64>], params: TsdfParams) -> TsdfVolume {
+/// The volume of these tests: 1 cm voxels, the other settings default.
+fn params() -> TsdfParams {
+    TsdfParams {
+        voxel_size: 0.01,
+        ..TsdfParams::default()
+    }
+}
+
+/// `scene` rendered from `poses` at 320×240 and fused into a volume with [`params`].
+fn fuse(scene: &Scene, poses: &[Isometry3<f64>]) -> TsdfVolume {
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let mut vol = TsdfVolume::new(params);
+    let mut vol = TsdfVolume::new(params());
     for pose in poses {
         let (r, n) = render_with_normals(scene, &cam, pose);
         vol.integrate(&r.depth, &n, Some(&r.color), &cam, pose)
@@ -75,11 +84,7 @@ fn fuse(scene: &Scene, poses: &[Isometry3<f64>], params: TsdfParams) -> TsdfVolu
 
 #[test]
 fn a_fused_sphere_has_its_zero_crossing_at_the_true_radius() {
-    let params = TsdfParams {
-        voxel_size: 0.01,
-        ..TsdfParams::default()
-    };
-    let vol = fuse(&sphere_scene(), &views(), params);
+    let vol = fuse(&sphere_scene(), &views());
     // Along 200 directions, find where the interpolated distance crosses zero.
     let mut worst: f64 = 0.0;
     for k in 0..200 {
@@ -107,41 +112,30 @@ fn a_fused_sphere_has_its_zero_crossing_at_the_true_radius() {
         worst = worst.max((f - RADIUS).abs());
     }
     assert!(
-        worst < 0.5 * params.voxel_size as f64,
+        worst < 0.5 * params().voxel_size as f64,
         "zero crossing up to {worst} m from the radius"
     );
 }
 
 #[test]
 fn marching_cubes_of_a_sphere_is_watertight_with_the_right_area() {
-    let vol = fuse(
-        &sphere_scene(),
-        &views(),
-        TsdfParams {
-            voxel_size: 0.01,
-            ..TsdfParams::default()
-        },
-    );
+    let vol = fuse(&sphere_scene(), &views());
     let mesh = vol.extract_mesh();
     assert!(mesh.faces.len() > 5000);
     // Watertight: every edge is shared by exactly two triangles, in opposite directions.
-    let mut edges: HashMap<(u32, u32), i32> = HashMap::new();
+    // per undirected edge: (triangles using it, uses a→b minus uses b→a with a < b)
+    let mut edges: HashMap<(u32, u32), (usize, i32)> = HashMap::new();
     for f in &mesh.faces {
         for k in 0..3 {
             let (a, b) = (f[k], f[(k + 1) % 3]);
-            *edges.entry((a.min(b), a.max(b))).or_insert(0) += if a < b { 1 } else { -1 };
+            let e = edges.entry((a.min(b), a.max(b))).or_insert((0, 0));
+            e.0 += 1;
+            e.1 += if a < b { 1 } else { -1 };
         }
     }
-    let mut counts: HashMap<(u32, u32), usize> = HashMap::new();
-    for f in &mesh.faces {
-        for k in 0..3 {
-            let (a, b) = (f[k], f[(k + 1) % 3]);
-            *counts.entry((a.min(b), a.max(b))).or_insert(0) += 1;
-        }
-    }
-    let open = counts.values().filter(|&&c| c != 2).count();
+    let open = edges.values().filter(|e| e.0 != 2).count();
     assert_eq!(open, 0, "{open} edges not shared by exactly two triangles");
-    assert!(edges.values().all(|&v| v == 0), "inconsistent orientation");
+    assert!(edges.values().all(|e| e.1 == 0), "inconsistent orientation");
     let area = mesh.area();
     let truth = 4.0 * std::f64::consts::PI * RADIUS * RADIUS;
     assert!((area / truth - 1.0).abs() < 0.02, "area {area} vs {truth}");
@@ -159,14 +153,7 @@ fn marching_cubes_of_a_sphere_is_watertight_with_the_right_area() {
 
 #[test]
 fn raycasting_the_model_reproduces_the_rendered_depth() {
-    let vol = fuse(
-        &sphere_scene(),
-        &views(),
-        TsdfParams {
-            voxel_size: 0.01,
-            ..TsdfParams::default()
-        },
-    );
+    let vol = fuse(&sphere_scene(), &views());
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
     let pose = look_at(
         &Point3::new(0.9, 0.5, 0.5),
@@ -226,14 +213,7 @@ fn memory_follows_the_surface_area() {
             .into_iter()
             .map(|p| Isometry3::from_parts((p.translation.vector * scale).into(), p.rotation))
             .collect();
-        let vol = fuse(
-            &s,
-            &poses,
-            TsdfParams {
-                voxel_size: 0.01,
-                ..TsdfParams::default()
-            },
-        );
+        let vol = fuse(&s, &poses);
         counts.push(vol.num_blocks() as f64);
         assert_eq!(
             vol.memory_bytes(),

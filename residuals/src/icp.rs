@@ -79,16 +79,13 @@ impl Residual for PointToPlane {
         residual: &mut [f64],
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
-        let (r, j) = point_to_plane(
+        let term = point_to_plane(
             &RigidMotion::new(&se3::from_slice(vars[0].value)),
             &self.source,
             &self.target,
             &self.normal,
         );
-        residual[0] = r;
-        if let Some(jac) = jacobians {
-            jac.block(0).copy_from_slice(&j);
-        }
+        write_scalar(Some(term), residual, jacobians);
     }
 }
 
@@ -213,27 +210,29 @@ impl Residual for Photometric<'_> {
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
         let t = RigidMotion::new(&se3::from_slice(vars[0].value));
-        match photometric(
+        let term = photometric(
             &t,
             &RigidMotion::new(&self.t_ref_inv),
             &self.intrinsics,
             self.field,
             &self.point,
             self.intensity,
-        ) {
-            Some((r, j)) => {
-                residual[0] = r;
-                if let Some(jac) = jacobians {
-                    jac.block(0).copy_from_slice(&j);
-                }
-            }
-            None => {
-                residual[0] = f64::NAN;
-                if let Some(jac) = jacobians {
-                    jac.block(0).fill(0.0);
-                }
-            }
-        }
+        );
+        write_scalar(term, residual, jacobians);
+    }
+}
+
+/// Writes a scalar term on one SE(3) variable into a [`Residual`]'s outputs: NaN and a zero
+/// Jacobian where the term is undefined (`None`).
+fn write_scalar(
+    term: Option<(f64, [f64; 6])>,
+    residual: &mut [f64],
+    jacobians: Option<&mut Jacobians<'_>>,
+) {
+    let (r, j) = term.unwrap_or((f64::NAN, [0.0; 6]));
+    residual[0] = r;
+    if let Some(jac) = jacobians {
+        jac.block(0).copy_from_slice(&j);
     }
 }
 

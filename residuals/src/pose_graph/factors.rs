@@ -229,8 +229,12 @@ mod tests {
             let u = sqrt_information(&spd::<6>(&a[18..24])).unwrap();
             let (si, sj) = (slice3(&xi), slice3(&xj));
             let vars = [Var { value: &si, manifold: &SE3 as &dyn Manifold }, Var { value: &sj, manifold: &SE3 }];
+            // Log is discontinuous where the error rotation reaches π, and central differences lose
+            // their accuracy just before it (a case at 179.993° missed 1e-6 by 2×).
+            prop_assume!((z.inverse() * xi.inverse() * xj).rotation.angle() < 3.0);
             let between = check_jacobians(&Between3::new(z, u), &vars);
             prop_assert!(between.passes(1e-6), "{between:?}");
+            prop_assume!((z.inverse() * xi).rotation.angle() < 3.0);
             let prior = check_jacobians(&Prior3::new(z, u), &vars[..1]);
             prop_assert!(prior.passes(1e-6), "{prior:?}");
         }

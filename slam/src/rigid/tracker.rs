@@ -16,7 +16,7 @@ use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWor
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
 use dynamap_solver::SE3;
-use nalgebra::{Isometry3, Matrix3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
 /// Tracking settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -214,8 +214,6 @@ struct Linearisation {
     t: RigidMotion,
     /// T_ref⁻¹ T, live camera to reference camera.
     rel: RigidMotion,
-    /// (R_ref⁻¹ R)ᵀ.
-    rel_rt: Matrix3<f64>,
 }
 
 /// The terms of one pyramid level: every live pixel, associated projectively.
@@ -228,15 +226,54 @@ struct IcpTerms<'a> {
     max_distance: f64,
     min_cos: f64,
     photometric: bool,
-    /// Pixel stride each way, and the strided grid's width and height.
+    /// The live pixels taken.
+    grid: Grid,
+}
+
+/// The points of a live level taken on every `stride`-th pixel each way: the grid's size, and the
+/// pixel of grid point `k`.
+#[derive(Clone, Copy, Debug)]
+struct Grid {
+    width: usize,
+    height: usize,
     stride: usize,
-    grid: (usize, usize),
+    image_width: usize,
+}
+
+impl Grid {
+    fn new(live: &Level, stride: usize) -> Self {
+        Self {
+            width: live.vertices.width.div_ceil(stride),
+            height: live.vertices.height.div_ceil(stride),
+            stride,
+            image_width: live.vertices.width,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.width * self.height
+    }
+
+    #[inline]
+    fn pixel(&self, k: usize) -> usize {
+        (k / self.width) * self.stride * self.image_width + (k % self.width) * self.stride
+    }
+
+    /// Grid points of `live` whose vertex and normal are valid.
+    fn valid_points(&self, live: &Level) -> usize {
+        (0..self.len())
+            .filter(|&k| {
+                let i = self.pixel(k);
+                valid(&live.vertices.data[i]) && valid(&live.normals.data[i])
+            })
+            .count()
+    }
 }
 
 impl DenseTerms<6> for IcpTerms<'_> {
     type Point = Linearisation;
     fn len(&self) -> usize {
-        self.grid.0 * self.grid.1
+        self.grid.len()
     }
     fn prepare(&self, x: &[f64]) -> Linearisation {
         let t = RigidMotion::new(&se3::from_slice(x));
@@ -248,7 +285,6 @@ impl DenseTerms<6> for IcpTerms<'_> {
                 rt: rel_r.transpose(),
                 t: self.t_ref_inv.r * t.t + self.t_ref_inv.t,
             },
-            rel_rt: rel_r.transpose(),
         }
     }
     #[inline]
@@ -258,8 +294,7 @@ impl DenseTerms<6> for IcpTerms<'_> {
         lin: &Linearisation,
         emit: &mut E,
     ) {
-        let i = (i / self.grid.0) * self.stride * self.live.vertices.width
-            + (i % self.grid.0) * self.stride;
+        let i = self.grid.pixel(i);
         let v = self.live.vertices.data[i];
         let n = self.live.normals.data[i];
         if !valid(&v) || !valid(&n) {
@@ -295,7 +330,7 @@ impl DenseTerms<6> for IcpTerms<'_> {
         if self.photometric {
             let live_i = self.live.intensity.data[i] as f64;
             if let Some((r, jac)) =
-                photometric_at(&x, &lin.rel_rt, &self.intrinsics, &self.field, &p, live_i)
+                photometric_at(&x, &lin.rel.rt, &self.intrinsics, &self.field, &p, live_i)
             {
                 emit(r, &jac, 1);
             }
@@ -363,18 +398,7 @@ impl Tracker {
             .find(|&l| p.iterations.get(l).copied().unwrap_or(0) > 0)
             .unwrap_or(0);
         let stride_of = |l: usize| if l == 0 { p.finest_stride.max(1) } else { 1 };
-        let stride = stride_of(finest);
-        let wf = live[finest].vertices.width;
-        let valid_pixels = live[finest]
-            .vertices
-            .data
-            .iter()
-            .zip(&live[finest].normals.data)
-            .enumerate()
-            .filter(|(i, (v, n))| {
-                (i % wf) % stride == 0 && (i / wf) % stride == 0 && valid(v) && valid(n)
-            })
-            .count();
+        let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let mut inliers = 0;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
@@ -399,14 +423,7 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
-                stride: stride_of(l),
-                grid: {
-                    let s = stride_of(l);
-                    (
-                        live[l].vertices.width.div_ceil(s),
-                        live[l].vertices.height.div_ceil(s),
-                    )
-                },
+                grid: Grid::new(&live[l], stride_of(l)),
             };
             let options = DenseOptions {
                 groups: &groups,
