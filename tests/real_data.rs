@@ -386,6 +386,10 @@ fn primesense_frames_track_like_open3d() {
             .clamp(-1.0, 1.0)
             .acos()
             .to_degrees();
+        eprintln!(
+            "PrimeSense frames {i}->{}: {dt:.4} m, {dr:.3}° from Open3D",
+            i + 1
+        );
         assert!(
             dt < 0.005 && dr < 0.3,
             "frames {i}->{}: {dt:.4} m, {dr:.3}° from Open3D",
