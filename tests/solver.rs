@@ -531,3 +531,58 @@ fn a_pose_from_point_pairs_with_outliers_on_se3_with_tukey() {
         "plain least squares should be pulled away by the outliers"
     );
 }
+
+/// r = x − c on a scalar variable.
+struct Offset(f64);
+impl Residual for Offset {
+    fn dim(&self) -> usize {
+        1
+    }
+    fn evaluate(&self, vars: &[Var<'_>], r: &mut [f64], jac: Option<&mut Jacobians<'_>>) {
+        r[0] = vars[0].value[0] - self.0;
+        if let Some(j) = jac {
+            j.block(0)[0] = 1.0;
+        }
+    }
+}
+
+#[test]
+fn replaced_residuals_keep_the_structure_and_move_the_optimum() {
+    let mut problem = Problem::new();
+    let x = problem.add_variable(&[0.0], Euclidean::<1>).unwrap();
+    let a = problem.add_residual(Offset(1.0), &[x]).unwrap();
+    let b = problem.add_residual(Offset(3.0), &[x]).unwrap();
+    let mut solver = Solver::new(Options {
+        algorithm: Algorithm::GaussNewton,
+        ..Options::default()
+    });
+    let s = solver.solve(&mut problem).unwrap();
+    assert!(
+        (problem.value(x)[0] - 2.0).abs() < 1e-9,
+        "{} {:?}",
+        problem.value(x)[0],
+        s.termination
+    );
+    problem.replace_residual(a, Box::new(Offset(5.0))).unwrap();
+    problem.replace_residual(b, Box::new(Offset(7.0))).unwrap();
+    solver.solve(&mut problem).unwrap();
+    assert!((problem.value(x)[0] - 6.0).abs() < 1e-9);
+    // a replacement must fit the block
+    let wide = AutoDiff::<_, 2, 1>::new(TwoRows);
+    assert!(problem.replace_residual(a, Box::new(wide)).is_err());
+    assert!(problem
+        .replace_residual(dynamap::solver::ResidualId(9), Box::new(Offset(0.0)))
+        .is_err());
+}
+
+/// Two rows on one scalar, to be refused as a replacement for a one-row block.
+struct TwoRows;
+impl CostFunctor for TwoRows {
+    fn parameter_sizes(&self) -> &[usize] {
+        &[1]
+    }
+    fn evaluate<T: Real>(&self, p: &[&[T]], r: &mut [T]) {
+        r[0] = p[0][0];
+        r[1] = p[0][0];
+    }
+}

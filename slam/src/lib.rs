@@ -8,6 +8,7 @@
 //! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes.
 //! - [`mesh`]: triangle meshes.
 //! - [`rigid`]: frame-to-model tracking and the rigid SLAM pipeline.
+//! - [`nonrigid`]: the deformation graph, dual-quaternion warp and warp-field optimiser.
 //! - [`tsdf`]: the voxel-hashed TSDF map: integration, raycasting, marching cubes.
 //! - [`synthetic`]: the project's own rendered RGB-D sequences (rigid and deforming) with ground truth.
 //! - [`eval`]: ATE and RPE (as evo computes them), scene-flow EPE, mesh distances.
@@ -19,6 +20,7 @@ pub mod eval;
 pub mod image;
 pub mod io;
 pub mod mesh;
+pub mod nonrigid;
 pub mod preprocess;
 pub mod rigid;
 pub mod synthetic;

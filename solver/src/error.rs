@@ -27,6 +27,19 @@ pub enum ProblemError {
     /// The same variable passed twice to one residual.
     #[error("variable {0} appears twice in one residual")]
     DuplicateVariable(usize),
+    /// A residual block id that this problem never issued.
+    #[error("residual block {0} does not exist")]
+    UnknownResidual(usize),
+    /// A replacement residual whose row count differs from the block it replaces.
+    #[error("residual block {block} has {expected} rows; its replacement has {got}")]
+    Dimension {
+        /// The block being replaced.
+        block: usize,
+        /// Rows of the block.
+        expected: usize,
+        /// Rows of the replacement.
+        got: usize,
+    },
 }
 
 /// Why a solve could not proceed.

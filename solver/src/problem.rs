@@ -225,6 +225,38 @@ impl Problem {
         Ok(ResidualId(self.blocks.len() - 1))
     }
 
+    /// Replaces block `r`'s residual with another of the same size over the same variables (new
+    /// data, same structure: the next ICP correspondences, a new regulariser weight). The sparsity
+    /// of the normal equations is unchanged, so a [`crate::Solver`] keeps its symbolic
+    /// factorisation and buffers for this problem.
+    pub fn replace_residual(
+        &mut self,
+        r: ResidualId,
+        residual: Box<dyn Residual>,
+    ) -> Result<(), ProblemError> {
+        let block = self
+            .blocks
+            .get_mut(r.0)
+            .ok_or(ProblemError::UnknownResidual(r.0))?;
+        if residual.dim() != block.residual.dim() {
+            return Err(ProblemError::Dimension {
+                block: r.0,
+                expected: block.residual.dim(),
+                got: residual.dim(),
+            });
+        }
+        if let Some(expected) = residual.arity() {
+            if expected != block.vars.len() {
+                return Err(ProblemError::Arity {
+                    expected,
+                    got: block.vars.len(),
+                });
+            }
+        }
+        block.residual = residual;
+        Ok(())
+    }
+
     /// The variables of a residual block.
     pub fn residual_variables(&self, r: ResidualId) -> Vec<VarId> {
         self.blocks[r.0].vars.iter().map(|&v| VarId(v)).collect()

@@ -5,6 +5,7 @@
 pub mod folder;
 pub mod iclnuim;
 pub mod images;
+pub mod meshes;
 pub mod ply;
 pub mod trajectory;
 pub mod tum;

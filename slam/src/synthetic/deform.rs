@@ -38,21 +38,24 @@ pub enum SurfaceKind {
     Sphere,
 }
 
+/// Two triangles per cell of a `(cols + 1) × (rows + 1)` vertex grid stored row by row,
+/// counter-clockwise when columns run along +x and rows along +y.
+pub(crate) fn grid(m: &mut Mesh, cols: usize, rows: usize) {
+    let stride = cols as u32 + 1;
+    for j in 0..rows as u32 {
+        for i in 0..cols as u32 {
+            let a = j * stride + i;
+            let (b, c, d) = (a + 1, a + stride, a + stride + 1);
+            m.faces.push([a, b, d]);
+            m.faces.push([a, d, c]);
+        }
+    }
+}
+
 /// Tessellates a built-in surface (counter-clockwise seen from outside / from +z).
 pub fn surface(kind: SurfaceKind, resolution: usize) -> Mesh {
     let n = resolution.max(2);
     let mut m = Mesh::default();
-    let grid = |m: &mut Mesh, cols: usize, rows: usize| {
-        let stride = cols + 1;
-        for j in 0..rows as u32 {
-            for i in 0..cols as u32 {
-                let a = j * stride as u32 + i;
-                let (b, c, d) = (a + 1, a + stride as u32, a + stride as u32 + 1);
-                m.faces.push([a, b, d]);
-                m.faces.push([a, d, c]);
-            }
-        }
-    };
     match kind {
         SurfaceKind::Plane => {
             for j in 0..=n {

@@ -7,6 +7,7 @@
 //! - [`motion`]: camera trajectories, procedural (orbit, shake, fast rotation) or from a TUM file;
 //! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
 //!   per-pixel scene flow and the deformed mesh per frame;
+//! - [`plate`]: the thesis' flat 21 × 13 grid and its five target deformations (Table 4.1);
 //! - [`sequence`]: writing everything in the TUM layout.
 //!
 //! Everything is seeded and deterministic.
@@ -15,6 +16,7 @@ pub mod bvh;
 pub mod deform;
 pub mod motion;
 pub mod noise;
+pub mod plate;
 pub mod render;
 pub mod scene;
 pub mod sequence;

@@ -1,0 +1,278 @@
+//! The deformation graph (thesis 2.4, 4.3; Sumner et al. 2007; DynamicFusion): nodes sampled over the
+//! canonical surface, each with a position, a radius of influence and a rigid motion stored as a unit
+//! dual quaternion; edges to each node's K nearest nodes; every surface point bound to its K = 4
+//! nearest nodes and warped by dual-quaternion blending (eq. 2.23, 4.2-4.3).
+
+use dynamap_residuals::deform::{
+    blend, dual_quaternion, transform_point, transform_vector, MAX_NEIGHBOURS,
+};
+use kiddo::{ImmutableKdTree, KdTree, SquaredEuclidean};
+use nalgebra::{DualQuaternion, Isometry3, Vector3};
+use rayon::prelude::*;
+use std::num::NonZero;
+
+/// Graph settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GraphParams {
+    /// Least distance between nodes, metres (default 0.025).
+    pub spacing: f64,
+    /// Radius r of a node's influence, in units of the spacing (default 1.0): weights
+    /// `exp(−|v − g|² / (2 r²))`.
+    pub radius_factor: f64,
+    /// Nodes each surface point is bound to (default 4, at most [`MAX_NEIGHBOURS`]).
+    pub neighbours: usize,
+    /// Regularisation edges per node: its nearest other nodes (default 4).
+    pub edges: usize,
+}
+
+impl Default for GraphParams {
+    fn default() -> Self {
+        Self {
+            spacing: 0.025,
+            radius_factor: 1.0,
+            neighbours: MAX_NEIGHBOURS,
+            edges: 4,
+        }
+    }
+}
+
+/// One node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    /// Position g, canonical frame.
+    pub position: Vector3<f64>,
+    /// Radius of influence.
+    pub radius: f64,
+    /// Its rigid motion (canonical to live) as a unit dual quaternion.
+    pub motion: DualQuaternion<f64>,
+}
+
+/// A surface point's nodes and normalised blending weights.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Binding {
+    /// Node indices (the first `count` are used).
+    pub nodes: [u32; MAX_NEIGHBOURS],
+    /// Normalised weights.
+    pub weights: [f64; MAX_NEIGHBOURS],
+    /// Nodes used.
+    pub count: usize,
+}
+
+/// Why a graph cannot be built.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum GraphError {
+    /// No finite surface point to sample nodes from.
+    #[error("no surface points to sample deformation nodes from")]
+    Empty,
+    /// A spacing that is not a positive finite length.
+    #[error("node spacing must be positive and finite, got {0}")]
+    Spacing(f64),
+}
+
+/// The deformation graph.
+#[derive(Clone, Debug)]
+pub struct DeformationGraph {
+    /// Settings.
+    pub params: GraphParams,
+    /// Nodes, in the order they were added.
+    pub nodes: Vec<Node>,
+    /// Each node's regularisation neighbours (nearest first).
+    pub edges: Vec<Vec<u32>>,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl DeformationGraph {
+    /// Samples nodes over `points` (canonical surface) by radius: scanning the points in order, a
+    /// point becomes a node when no node lies within the spacing. Every point then has a node within
+    /// the spacing, and no two nodes are closer than it. Motions start at the identity.
+    pub fn sample(points: &[Vector3<f64>], params: GraphParams) -> Result<Self, GraphError> {
+        if !(params.spacing > 0.0 && params.spacing.is_finite()) {
+            return Err(GraphError::Spacing(params.spacing));
+        }
+        let mut graph = Self {
+            params,
+            nodes: Vec::new(),
+            edges: Vec::new(),
+            tree: ImmutableKdTree::new_from_slice(&[]),
+        };
+        graph.add_nodes(points, |_| DualQuaternion::identity());
+        if graph.nodes.is_empty() {
+            return Err(GraphError::Empty);
+        }
+        graph.rebuild();
+        Ok(graph)
+    }
+
+    /// Adds nodes where `points` (canonical) lie farther than the spacing from every node: new
+    /// surface. A new node takes the current warp at its position (the blend of its nearest existing
+    /// nodes), as DynamicFusion does. Returns the number of nodes added.
+    pub fn extend(&mut self, points: &[Vector3<f64>]) -> usize {
+        let before = self.nodes.len();
+        let old = self.clone();
+        self.add_nodes(points, |g| {
+            let b = old.bind(g);
+            let nodes: Vec<_> = b.nodes[..b.count]
+                .iter()
+                .map(|&k| old.nodes[k as usize].motion)
+                .collect();
+            normalised(&blend(&nodes, &b.weights[..b.count]).0)
+        });
+        if self.nodes.len() > before {
+            self.rebuild();
+        }
+        self.nodes.len() - before
+    }
+
+    /// The greedy radius sampling shared by [`Self::sample`] and [`Self::extend`].
+    fn add_nodes(
+        &mut self,
+        points: &[Vector3<f64>],
+        motion_at: impl Fn(&Vector3<f64>) -> DualQuaternion<f64> + Sync,
+    ) {
+        let r2 = self.params.spacing * self.params.spacing;
+        let mut tree: KdTree<f64, 3> = KdTree::with_capacity(self.nodes.len() + 64);
+        for (k, n) in self.nodes.iter().enumerate() {
+            tree.add(&n.position.into(), k as u64);
+        }
+        let mut added = Vec::new();
+        for p in points.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
+            let q: [f64; 3] = (*p).into();
+            if self.nodes.len() + added.len() > 0
+                && tree.nearest_one::<SquaredEuclidean>(&q).distance < r2
+            {
+                continue;
+            }
+            tree.add(&q, (self.nodes.len() + added.len()) as u64);
+            added.push(*p);
+        }
+        let radius = self.params.spacing * self.params.radius_factor;
+        let motions: Vec<_> = added.par_iter().map(&motion_at).collect();
+        self.nodes
+            .extend(added.iter().zip(motions).map(|(p, motion)| Node {
+                position: *p,
+                radius,
+                motion,
+            }));
+    }
+
+    /// Rebuilds the node tree and the edges after nodes were added.
+    fn rebuild(&mut self) {
+        let positions: Vec<[f64; 3]> = self.nodes.iter().map(|n| n.position.into()).collect();
+        self.tree = ImmutableKdTree::new_from_slice(&positions);
+        let k = (self.params.edges + 1).min(self.nodes.len());
+        self.edges = positions
+            .par_iter()
+            .enumerate()
+            .map(|(i, q)| match NonZero::new(k) {
+                Some(k) => self
+                    .tree
+                    .nearest_n::<SquaredEuclidean>(q, k)
+                    .iter()
+                    .map(|n| n.item as u32)
+                    .filter(|&j| j as usize != i)
+                    .take(self.params.edges)
+                    .collect(),
+                None => Vec::new(),
+            })
+            .collect();
+    }
+
+    /// Binds a canonical point to its K nearest nodes with weights `exp(−|v − g_k|² / (2 r_k²))`,
+    /// normalised (the exponents are shifted by their largest before exponentiating, which the
+    /// normalisation cancels, so a point far from every node still gets finite weights).
+    pub fn bind(&self, p: &Vector3<f64>) -> Binding {
+        let k = self
+            .params
+            .neighbours
+            .clamp(1, MAX_NEIGHBOURS)
+            .min(self.nodes.len());
+        let mut b = Binding {
+            nodes: [0; MAX_NEIGHBOURS],
+            weights: [0.0; MAX_NEIGHBOURS],
+            count: 0,
+        };
+        let Some(k) = NonZero::new(k) else {
+            return b;
+        };
+        let found = self.tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
+        let mut exponents = [0.0; MAX_NEIGHBOURS];
+        for (i, n) in found.iter().enumerate() {
+            let r = self.nodes[n.item as usize].radius;
+            b.nodes[i] = n.item as u32;
+            exponents[i] = -n.distance / (2.0 * r * r);
+        }
+        b.count = found.len();
+        let top = exponents[..b.count]
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut sum = 0.0;
+        for (w, e) in b.weights.iter_mut().zip(&exponents[..b.count]) {
+            *w = (e - top).exp();
+            sum += *w;
+        }
+        for w in &mut b.weights[..b.count] {
+            *w /= sum;
+        }
+        b
+    }
+
+    /// [`Self::bind`] for many points, in parallel.
+    pub fn bind_all(&self, points: &[Vector3<f64>]) -> Vec<Binding> {
+        points.par_iter().map(|p| self.bind(p)).collect()
+    }
+
+    /// The blended (unnormalised) dual quaternion of a binding.
+    pub fn blend(&self, b: &Binding) -> DualQuaternion<f64> {
+        let mut nodes = [DualQuaternion::identity(); MAX_NEIGHBOURS];
+        for (o, &k) in nodes.iter_mut().zip(&b.nodes[..b.count]) {
+            *o = self.nodes[k as usize].motion;
+        }
+        blend(&nodes[..b.count], &b.weights[..b.count]).0
+    }
+
+    /// Warps a point and its normal by its binding.
+    pub fn warp(
+        &self,
+        b: &Binding,
+        p: &Vector3<f64>,
+        n: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        let q = self.blend(b);
+        (transform_point(&q, p), transform_vector(&q, n))
+    }
+
+    /// Warps many points and normals, in parallel, into `out_points` and `out_normals`.
+    pub fn warp_all(
+        &self,
+        bindings: &[Binding],
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        out_points: &mut Vec<Vector3<f64>>,
+        out_normals: &mut Vec<Vector3<f64>>,
+    ) {
+        out_points.resize(points.len(), Vector3::zeros());
+        out_normals.resize(points.len(), Vector3::zeros());
+        out_points
+            .par_iter_mut()
+            .zip(out_normals.par_iter_mut())
+            .enumerate()
+            .for_each(|(i, (op, on))| {
+                (*op, *on) = self.warp(&bindings[i], &points[i], &normals[i]);
+            });
+    }
+
+    /// Applies a rigid motion after the warp: every node's motion becomes `T A_k`. Blending is
+    /// linear in the nodes, so the warp becomes exactly `T ∘ W`.
+    pub fn premultiply(&mut self, t: &Isometry3<f64>) {
+        let q = dual_quaternion(t);
+        for n in &mut self.nodes {
+            n.motion = q * n.motion;
+        }
+    }
+}
+
+/// A dual quaternion scaled to a unit real part, with the dual part made orthogonal to it.
+fn normalised(b: &DualQuaternion<f64>) -> DualQuaternion<f64> {
+    dual_quaternion(&dynamap_residuals::deform::rigid_motion(b))
+}

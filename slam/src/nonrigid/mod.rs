@@ -1,0 +1,22 @@
+//! Non-rigid registration (thesis ch. 4, after DynamicFusion and embedded deformation):
+//!
+//! - [`graph`]: the deformation graph: nodes sampled over the canonical surface, K-nearest-node
+//!   binding through a KD-tree, dual-quaternion blending of points and normals, growth where new
+//!   surface appears.
+//! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
+//!   as-rigid-as-possible regularisation under a decreasing weight, on the solver's sparse path.
+//! - [`surface`]: one whole surface registered onto another (meshes, clouds).
+
+pub mod graph;
+pub mod register;
+pub mod surface;
+
+pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
+pub use register::{
+    principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
+    RegisterSummary, Target, WarpOptimiser,
+};
+pub use surface::{
+    bounding_diagonal, clean_surface_settings, mesh_points, register_surfaces, SurfaceError,
+    SurfaceRegistration,
+};

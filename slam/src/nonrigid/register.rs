@@ -1,0 +1,677 @@
+//! The warp-field optimiser (thesis 4.4): the node motions of a [`DeformationGraph`] that carry a
+//! canonical surface onto a target, minimising
+//!
+//! ```text
+//! E = Σ_points ρ_Tukey(nᵀ(W(v) − q)) + w_pt Σ_points ρ_Tukey(|W(v) − q|) + λ Σ_edges φ_ij |A_i g_j − A_j g_j|²
+//! ```
+//!
+//! (eq. 4.4-4.7), with correspondences (q, n) re-found between rounds (closest point or projective)
+//! and rejected by distance and normal angle. Coarse to fine: a rigid point-to-plane pre-alignment
+//! (the solver's dense 6-DoF path), then stages of decreasing λ, each a few association rounds of
+//! Levenberg-Marquardt through the solver's sparse path: 6×6 node blocks, faer's Cholesky, and one
+//! symbolic factorisation for as long as the graph and the bound points stay the same (rounds,
+//! stages and further calls: the residuals are replaced in place, the structure never changes).
+
+use super::graph::{Binding, DeformationGraph};
+use crate::camera::Camera;
+use crate::image::{valid, NormalMap, VertexMap};
+use dynamap_residuals::deform::{
+    as_rigid_as_possible, dual_quaternion, rigid_motion, AsRigidAsPossible, WarpedPointToPlane,
+    WarpedPointToPoint, MAX_NEIGHBOURS,
+};
+use dynamap_residuals::icp::{point_to_plane, RigidMotion};
+use dynamap_solver::dense::{self, DenseOptions, DenseTerms, DenseWorkspace, Group};
+use dynamap_solver::lie::se3;
+use dynamap_solver::robust::{Huber, Tukey};
+use dynamap_solver::{
+    Options, Problem, ProblemError, ResidualId, RobustKernel, SolveError, Solver, VarId, SE3,
+};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Isometry3, Point3, Vector3};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Why an optimisation failed.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum RegisterError {
+    /// The problem could not be built (a node motion that is not a rigid motion, say).
+    #[error("warp-field problem: {0}")]
+    Problem(#[from] ProblemError),
+    /// The solver refused it.
+    #[error("warp-field solve: {0}")]
+    Solve(#[from] SolveError),
+}
+
+/// Where warped points find their partners.
+pub trait Target: Sync {
+    /// The target point and unit normal associated with the warped point `p` (before rejection).
+    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)>;
+}
+
+/// A point cloud with normals (a mesh's vertices), associated by closest point through a KD-tree.
+pub struct CloudTarget {
+    points: Vec<Vector3<f64>>,
+    normals: Vec<Vector3<f64>>,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl CloudTarget {
+    /// A target from points and their unit normals (non-finite points are left out).
+    pub fn new(points: &[Vector3<f64>], normals: &[Vector3<f64>]) -> Self {
+        let (points, normals): (Vec<_>, Vec<_>) = points
+            .iter()
+            .zip(normals)
+            .filter(|(p, n)| p.iter().chain(n.iter()).all(|v| v.is_finite()))
+            .map(|(p, n)| (*p, *n))
+            .unzip();
+        let coords: Vec<[f64; 3]> = points.iter().map(|p| (*p).into()).collect();
+        Self {
+            tree: ImmutableKdTree::new_from_slice(&coords),
+            points,
+            normals,
+        }
+    }
+}
+
+impl Target for CloudTarget {
+    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        if self.points.is_empty() {
+            return None;
+        }
+        let k = self.tree.nearest_one::<SquaredEuclidean>(&(*p).into()).item as usize;
+        Some((self.points[k], self.normals[k]))
+    }
+}
+
+/// A live depth frame's vertex and normal maps (camera frame), associated projectively.
+pub struct DepthTarget<'a> {
+    /// Intrinsics of the maps.
+    pub camera: &'a Camera,
+    /// Vertices.
+    pub vertices: &'a VertexMap,
+    /// Normals.
+    pub normals: &'a NormalMap,
+}
+
+impl Target for DepthTarget<'_> {
+    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let (x, y) = self.camera.project_to_pixel(&Point3::from(*p))?;
+        let i = y * self.vertices.width + x;
+        let (v, n) = (self.vertices.data[i], self.normals.data[i]);
+        if !valid(&v) || !valid(&n) {
+            return None;
+        }
+        Some((
+            Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64),
+            Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64),
+        ))
+    }
+}
+
+/// Optimiser settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegisterParams {
+    /// Gauss-Newton iterations of the rigid pre-alignment (0: none; default 30).
+    pub rigid_iterations: usize,
+    /// Correspondences of the rigid pre-alignment farther than this are rejected, metres (default
+    /// 0.5: it has to bridge the whole initial misalignment).
+    pub rigid_max_distance: f64,
+    /// Regulariser weights λ, one stage each, largest first (default 100, 10, 1, 0.1).
+    pub schedule: Vec<f64>,
+    /// Association rounds per stage (default 4).
+    pub rounds: usize,
+    /// Levenberg-Marquardt iterations per round (default 4).
+    pub iterations: usize,
+    /// Correspondences farther than this are rejected, metres (default 0.1).
+    pub max_distance: f64,
+    /// … or with normals further apart than this, degrees (default 45).
+    pub max_normal_angle_deg: f64,
+    /// Tukey's c of the data terms, metres (default 0.05).
+    pub tukey: f64,
+    /// Weight of the point-to-point term beside point-to-plane (default 0.1; 0 leaves it out).
+    pub point_weight: f64,
+}
+
+impl Default for RegisterParams {
+    fn default() -> Self {
+        Self {
+            rigid_iterations: 30,
+            rigid_max_distance: 0.5,
+            schedule: vec![100.0, 10.0, 1.0, 0.1],
+            rounds: 4,
+            iterations: 4,
+            max_distance: 0.1,
+            max_normal_angle_deg: 45.0,
+            tukey: 0.05,
+            point_weight: 0.1,
+        }
+    }
+}
+
+/// What one optimisation did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegisterSummary {
+    /// Levenberg-Marquardt iterations over all rounds.
+    pub iterations: usize,
+    /// Data cost Σ ½ρ at the end.
+    pub data_cost: f64,
+    /// Regulariser cost ½ λ Σ φ |r|² at the end (last stage's λ).
+    pub regulariser_cost: f64,
+    /// Points with a correspondence at the last association.
+    pub matched: usize,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+/// The problem kept between calls: node variables, one data block (and one point block) per
+/// bound point, one regulariser block per directed edge.
+struct Cached {
+    problem: Problem,
+    nodes: Vec<VarId>,
+    planes: Vec<ResidualId>,
+    points: Vec<ResidualId>,
+    edges: Vec<(u32, u32, ResidualId)>,
+    bindings: Vec<Binding>,
+    graph_edges: Vec<Vec<u32>>,
+    /// Tukey's c and the point-to-point weight the blocks' kernels were made with.
+    kernels: (f64, f64),
+}
+
+/// The warp-field optimiser; keeps its problem and symbolic factorisation between calls.
+pub struct WarpOptimiser {
+    /// Settings.
+    pub params: RegisterParams,
+    solver: Solver,
+    cached: Option<Cached>,
+    rigid_ws: DenseWorkspace<6>,
+    warped: Vec<Vector3<f64>>,
+    warped_normals: Vec<Vector3<f64>>,
+    matches: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
+}
+
+impl WarpOptimiser {
+    /// An optimiser with these settings.
+    pub fn new(params: RegisterParams) -> Self {
+        let options = Options {
+            max_iterations: params.iterations,
+            check_rank: false,
+            ..Options::default()
+        };
+        Self {
+            params,
+            solver: Solver::new(options),
+            cached: None,
+            rigid_ws: DenseWorkspace::default(),
+            warped: Vec::new(),
+            warped_normals: Vec::new(),
+            matches: Vec::new(),
+        }
+    }
+
+    /// Moves `graph`'s nodes so the canonical `points` (with `normals`, bound by `bindings`) land on
+    /// `target`.
+    pub fn optimise(
+        &mut self,
+        graph: &mut DeformationGraph,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bindings: &[Binding],
+        target: &dyn Target,
+    ) -> Result<RegisterSummary, RegisterError> {
+        self.optimise_from(
+            graph,
+            points,
+            normals,
+            bindings,
+            target,
+            &[Isometry3::identity()],
+        )
+    }
+
+    /// [`Self::optimise`] with the rigid pre-alignment started from each of `guesses` (see
+    /// [`principal_axes_guesses`] for whole shapes far apart); the best is kept.
+    pub fn optimise_from(
+        &mut self,
+        graph: &mut DeformationGraph,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bindings: &[Binding],
+        target: &dyn Target,
+        guesses: &[Isometry3<f64>],
+    ) -> Result<RegisterSummary, RegisterError> {
+        let start = Instant::now();
+        if self.params.rigid_iterations > 0 {
+            self.prealign(graph, points, normals, bindings, target, guesses);
+        }
+        self.prepare(graph, points, bindings)?;
+        let mut iterations = 0;
+        let mut lambda = 0.0;
+        for stage in 0..self.params.schedule.len() {
+            lambda = self.params.schedule[stage];
+            self.set_regulariser(graph, lambda)?;
+            for _ in 0..self.params.rounds {
+                self.associate(graph, points, normals, bindings, target);
+                self.set_data(points, bindings)?;
+                let cached = self.cached.as_mut().expect("prepared above");
+                let summary = self.solver.solve(&mut cached.problem)?;
+                iterations += summary.num_iterations();
+                for (node, var) in graph.nodes.iter_mut().zip(&cached.nodes) {
+                    node.motion = dual_quaternion(&se3::from_slice(cached.problem.value(*var)));
+                }
+            }
+        }
+        self.associate(graph, points, normals, bindings, target);
+        let (data_cost, matched) = self.data_cost();
+        Ok(RegisterSummary {
+            iterations,
+            data_cost,
+            regulariser_cost: regulariser_cost(graph, lambda),
+            matched,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// Warps the points by the current field and finds each one's partner, rejecting by distance
+    /// and normal angle.
+    fn associate(
+        &mut self,
+        graph: &DeformationGraph,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bindings: &[Binding],
+        target: &dyn Target,
+    ) {
+        graph.warp_all(
+            bindings,
+            points,
+            normals,
+            &mut self.warped,
+            &mut self.warped_normals,
+        );
+        let (d2, min_cos) = (
+            self.params.max_distance * self.params.max_distance,
+            self.params.max_normal_angle_deg.to_radians().cos(),
+        );
+        self.matches.resize(points.len(), None);
+        self.matches
+            .par_iter_mut()
+            .zip(self.warped.par_iter().zip(self.warped_normals.par_iter()))
+            .for_each(|(m, (p, n))| {
+                *m = target
+                    .associate(p)
+                    .filter(|(q, nq)| (q - p).norm_squared() <= d2 && nq.dot(n) >= min_cos);
+            });
+    }
+
+    /// Σ ½ρ of the data terms at the current association, and the number matched.
+    fn data_cost(&self) -> (f64, usize) {
+        let plane = Tukey(self.params.tukey);
+        let point = Tukey(self.params.tukey);
+        let mut cost = 0.0;
+        let mut matched = 0;
+        for (p, m) in self.warped.iter().zip(&self.matches) {
+            if let Some((q, n)) = m {
+                matched += 1;
+                let d = p - q;
+                cost += 0.5 * plane.evaluate(n.dot(&d).powi(2))[0];
+                if self.params.point_weight > 0.0 {
+                    cost += 0.5 * self.params.point_weight * point.evaluate(d.norm_squared())[0];
+                }
+            }
+        }
+        (cost, matched)
+    }
+
+    /// Rigid ICP (point-to-plane and point-to-point) of the warped points onto the target from each
+    /// of `guesses`; the motion that leaves the points closest to the target (mean distance to their
+    /// closest partner, capped at the gate) is applied to every node.
+    fn prealign(
+        &mut self,
+        graph: &mut DeformationGraph,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bindings: &[Binding],
+        target: &dyn Target,
+        guesses: &[Isometry3<f64>],
+    ) {
+        graph.warp_all(
+            bindings,
+            points,
+            normals,
+            &mut self.warped,
+            &mut self.warped_normals,
+        );
+        let terms = RigidTerms {
+            points: &self.warped,
+            normals: &self.warped_normals,
+            target,
+            max_distance: self.params.rigid_max_distance,
+            min_cos: self.params.max_normal_angle_deg.to_radians().cos(),
+        };
+        let huber = Huber(self.params.tukey);
+        let group = Group {
+            weight: 1.0,
+            kernel: Some(&huber),
+        };
+        let groups = [group, group];
+        let mut best: Option<(f64, Isometry3<f64>)> = None;
+        for guess in guesses {
+            let mut x = [0.0; 7];
+            se3::to_slice(guess, &mut x);
+            let summary = dense::solve(
+                &terms,
+                &SE3,
+                &mut x,
+                &DenseOptions {
+                    groups: &groups,
+                    max_iterations: self.params.rigid_iterations,
+                    step_tolerance: 1e-9,
+                    damping: 0.0,
+                },
+                &mut self.rigid_ws,
+            );
+            if matches!(
+                summary.stop,
+                dense::DenseStop::Singular | dense::DenseStop::NoTerms
+            ) || !x.iter().all(|v| v.is_finite())
+            {
+                continue;
+            }
+            let t = se3::from_slice(&x);
+            let score = terms.spread(&t);
+            if best.is_none_or(|(b, _)| score < b) {
+                best = Some((score, t));
+            }
+        }
+        if let Some((_, t)) = best {
+            graph.premultiply(&t);
+        }
+    }
+
+    /// Builds the problem for this graph and these bindings, or keeps the last one when they are
+    /// the same (so the solver keeps its symbolic factorisation).
+    fn prepare(
+        &mut self,
+        graph: &DeformationGraph,
+        points: &[Vector3<f64>],
+        bindings: &[Binding],
+    ) -> Result<(), RegisterError> {
+        let same = self.cached.as_ref().is_some_and(|c| {
+            c.nodes.len() == graph.nodes.len()
+                && c.bindings == bindings
+                && c.graph_edges == graph.edges
+                && c.kernels == (self.params.tukey, self.params.point_weight)
+        });
+        if !same {
+            self.cached = Some(build(graph, points, bindings, &self.params)?);
+        }
+        let cached = self.cached.as_mut().expect("built above");
+        let mut x = [0.0; 7];
+        for (node, var) in graph.nodes.iter().zip(&cached.nodes) {
+            se3::to_slice(&rigid_motion(&node.motion), &mut x);
+            cached.problem.set_value(*var, &x)?;
+        }
+        Ok(())
+    }
+
+    /// Sets the regulariser weight λ on every edge block.
+    fn set_regulariser(
+        &mut self,
+        graph: &DeformationGraph,
+        lambda: f64,
+    ) -> Result<(), RegisterError> {
+        let cached = self.cached.as_mut().expect("prepared");
+        for &(i, j, id) in &cached.edges {
+            cached.problem.replace_residual(
+                id,
+                Box::new(AsRigidAsPossible {
+                    position: graph.nodes[j as usize].position,
+                    scale: (lambda * edge_weight(graph, i, j)).sqrt(),
+                }),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Writes the current correspondences into the data blocks (scale 0 where a point has none).
+    fn set_data(
+        &mut self,
+        points: &[Vector3<f64>],
+        bindings: &[Binding],
+    ) -> Result<(), RegisterError> {
+        let cached = self.cached.as_mut().expect("prepared");
+        let point_scale = self.params.point_weight.sqrt();
+        for (k, m) in self.matches.iter().enumerate() {
+            let (target, normal, on) = match m {
+                Some((q, n)) => (*q, *n, 1.0),
+                None => (points[k], Vector3::z(), 0.0),
+            };
+            cached.problem.replace_residual(
+                cached.planes[k],
+                Box::new(WarpedPointToPlane {
+                    point: points[k],
+                    weights: bindings[k].weights,
+                    target,
+                    normal,
+                    scale: on,
+                }),
+            )?;
+            if let Some(&id) = cached.points.get(k) {
+                cached.problem.replace_residual(
+                    id,
+                    Box::new(WarpedPointToPoint {
+                        point: points[k],
+                        weights: bindings[k].weights,
+                        target,
+                        scale: on * point_scale,
+                    }),
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// φ_ij of eq. 4.7: `exp(−|g_i − g_j|² / (2 max(r_i, r_j)²))`, nearer neighbours held more rigidly.
+fn edge_weight(graph: &DeformationGraph, i: u32, j: u32) -> f64 {
+    let (a, b) = (&graph.nodes[i as usize], &graph.nodes[j as usize]);
+    let r = a.radius.max(b.radius);
+    (-(a.position - b.position).norm_squared() / (2.0 * r * r)).exp()
+}
+
+/// ½ λ Σ φ_ij |A_i g_j − A_j g_j|² over the directed edges.
+pub fn regulariser_cost(graph: &DeformationGraph, lambda: f64) -> f64 {
+    let motions: Vec<Isometry3<f64>> = graph
+        .nodes
+        .iter()
+        .map(|n| rigid_motion(&n.motion))
+        .collect();
+    let mut cost = 0.0;
+    for (i, edges) in graph.edges.iter().enumerate() {
+        for &j in edges {
+            let (r, _, _) = as_rigid_as_possible(
+                &motions[i],
+                &motions[j as usize],
+                &graph.nodes[j as usize].position,
+            );
+            cost += 0.5 * lambda * edge_weight(graph, i as u32, j) * r.norm_squared();
+        }
+    }
+    cost
+}
+
+/// A fresh problem: node variables and placeholder blocks, the structure that stays fixed.
+fn build(
+    graph: &DeformationGraph,
+    points: &[Vector3<f64>],
+    bindings: &[Binding],
+    params: &RegisterParams,
+) -> Result<Cached, RegisterError> {
+    let with_points = params.point_weight > 0.0;
+    let mut problem = Problem::new();
+    let mut x = [0.0; 7];
+    let mut nodes = Vec::with_capacity(graph.nodes.len());
+    for node in &graph.nodes {
+        se3::to_slice(&rigid_motion(&node.motion), &mut x);
+        nodes.push(problem.add_variable(&x, SE3)?);
+    }
+    let mut planes = Vec::with_capacity(points.len());
+    let mut point_ids = Vec::new();
+    let mut vars = Vec::with_capacity(MAX_NEIGHBOURS);
+    for (p, b) in points.iter().zip(bindings) {
+        vars.clear();
+        vars.extend(b.nodes[..b.count].iter().map(|&k| nodes[k as usize]));
+        let plane = WarpedPointToPlane {
+            point: *p,
+            weights: b.weights,
+            target: *p,
+            normal: Vector3::z(),
+            scale: 0.0,
+        };
+        planes.push(problem.add_robust_residual(plane, Tukey(params.tukey), &vars)?);
+        if with_points {
+            let point = WarpedPointToPoint {
+                point: *p,
+                weights: b.weights,
+                target: *p,
+                scale: 0.0,
+            };
+            // scaled by √w, so the kernel's c is too: both terms give up at the same distance
+            let c = params.tukey * params.point_weight.sqrt();
+            point_ids.push(problem.add_robust_residual(point, Tukey(c), &vars)?);
+        }
+    }
+    let mut edges = Vec::new();
+    for (i, js) in graph.edges.iter().enumerate() {
+        for &j in js {
+            let r = AsRigidAsPossible {
+                position: graph.nodes[j as usize].position,
+                scale: 0.0,
+            };
+            edges.push((
+                i as u32,
+                j,
+                problem.add_residual(r, &[nodes[i], nodes[j as usize]])?,
+            ));
+        }
+    }
+    Ok(Cached {
+        problem,
+        nodes,
+        planes,
+        points: point_ids,
+        edges,
+        bindings: bindings.to_vec(),
+        graph_edges: graph.edges.clone(),
+        kernels: (params.tukey, params.point_weight),
+    })
+}
+
+/// Starting motions for registering one whole shape onto another: the identity, and the four
+/// proper rotations that put the source's principal axes (eigenvectors of its covariance) onto the
+/// target's, each moving centroid onto centroid.
+pub fn principal_axes_guesses(
+    source: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+) -> Vec<Isometry3<f64>> {
+    let frame = |pts: &[Vector3<f64>]| {
+        let n = pts.len().max(1) as f64;
+        let c = pts.iter().sum::<Vector3<f64>>() / n;
+        let cov = pts
+            .iter()
+            .map(|p| (p - c) * (p - c).transpose())
+            .sum::<nalgebra::Matrix3<f64>>()
+            / n;
+        let eig = cov.symmetric_eigen();
+        // columns by decreasing variance, made right-handed
+        let mut order = [0, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let mut axes = nalgebra::Matrix3::from_columns(
+            &order.map(|k| eig.eigenvectors.column(k).into_owned()),
+        );
+        if axes.determinant() < 0.0 {
+            axes.column_mut(2).neg_mut();
+        }
+        (c, axes)
+    };
+    let mut out = vec![Isometry3::identity()];
+    if source.len() < 3 || target.len() < 3 {
+        return out;
+    }
+    let ((cs, a), (ct, b)) = (frame(source), frame(target));
+    for flip in [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ] {
+        let r = b * nalgebra::Matrix3::from_diagonal(&Vector3::from(flip)) * a.transpose();
+        // a product of orthonormal matrices: orthonormal already
+        let rot = nalgebra::UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(r),
+        );
+        let t = ct - rot * cs;
+        out.push(Isometry3::from_parts(t.into(), rot));
+    }
+    out
+}
+
+/// Rigid point-to-plane terms of the pre-alignment: warped points against their closest target.
+struct RigidTerms<'a> {
+    points: &'a [Vector3<f64>],
+    normals: &'a [Vector3<f64>],
+    target: &'a dyn Target,
+    max_distance: f64,
+    min_cos: f64,
+}
+
+impl RigidTerms<'_> {
+    /// Mean distance of the moved points to their partners, each capped at the gate: how well a
+    /// rigid motion fits, comparable between starting guesses.
+    fn spread(&self, t: &Isometry3<f64>) -> f64 {
+        let gate = self.max_distance;
+        let sum: f64 = self
+            .points
+            .par_iter()
+            .map(|p| {
+                let moved = t * Point3::from(*p);
+                self.target
+                    .associate(&moved.coords)
+                    .map_or(gate, |(q, _)| (q - moved.coords).norm().min(gate))
+            })
+            .sum();
+        sum / self.points.len().max(1) as f64
+    }
+}
+
+impl DenseTerms<6> for RigidTerms<'_> {
+    type Point = RigidMotion;
+    fn len(&self) -> usize {
+        self.points.len()
+    }
+    fn prepare(&self, x: &[f64]) -> RigidMotion {
+        RigidMotion::new(&se3::from_slice(x))
+    }
+    fn evaluate<E: FnMut(f64, &[f64; 6], usize)>(&self, i: usize, t: &RigidMotion, emit: &mut E) {
+        let p = &self.points[i];
+        let moved = t.apply(p);
+        let Some((q, n)) = self.target.associate(&moved) else {
+            return;
+        };
+        if (q - moved).norm_squared() > self.max_distance * self.max_distance
+            || n.dot(&(t.r * self.normals[i])) < self.min_cos
+        {
+            return;
+        }
+        let (r, j) = point_to_plane(t, p, &q, &n);
+        emit(r, &j, 0);
+        // point-to-point rows: r = T p − q, ∂r/∂δ = R [−[p]×, I]; they hold the in-plane motion a
+        // flat surface leaves free
+        let d = moved - q;
+        for (row, axis) in t.r.row_iter().enumerate() {
+            let a = axis.transpose();
+            let w = p.cross(&a);
+            emit(d[row], &[w.x, w.y, w.z, a.x, a.y, a.z], 1);
+        }
+    }
+}
