@@ -23,7 +23,7 @@ fn grid_registrations_are_ten_times_below_the_thesis() {
             .zip(&tp)
             .map(|(a, b)| (a - b).norm())
             .fold(0.0, f64::max);
-        let reg = register_surfaces((&sp, &sn), (&tp, &tn), graph, params.clone()).unwrap();
+        let reg = register_surfaces((&sp, &sn), (&tp, &tn), graph, params.clone(), true).unwrap();
         let after = reg
             .points
             .iter()

@@ -229,7 +229,7 @@ impl WarpOptimiser {
     }
 
     /// [`Self::optimise`] with the rigid pre-alignment started from each of `guesses` (see
-    /// [`principal_axes_guesses`] for whole shapes far apart); the best is kept.
+    /// [`principal_axes_guesses`] for whole shapes far apart); the closest fit is kept.
     pub fn optimise_from(
         &mut self,
         graph: &mut DeformationGraph,

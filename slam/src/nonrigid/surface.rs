@@ -80,17 +80,25 @@ pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     )
 }
 
-/// Registers `source` (points with normals) onto `target`, whole shape onto whole shape.
+/// Registers `source` (points with normals) onto `target`, whole shape onto whole shape. The rigid
+/// pre-alignment starts from where the source is or, with `principal_axes`, also from the four
+/// principal-axes alignments ([`principal_axes_guesses`]), keeping the closest fit: for shapes far
+/// apart, but a nearly symmetric shape turned over can fit closer than the right way up (the
+/// camel poses do), so it is a choice.
 pub fn register_surfaces(
     source: (&[Vector3<f64>], &[Vector3<f64>]),
     target: (&[Vector3<f64>], &[Vector3<f64>]),
     graph: GraphParams,
     params: RegisterParams,
+    principal_axes: bool,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let (sp, sn) = source;
     let mut graph = DeformationGraph::sample(sp, graph)?;
     let bindings = graph.bind_all(sp);
-    let guesses = principal_axes_guesses(sp, target.0);
+    let mut guesses = principal_axes_guesses(sp, target.0);
+    if !principal_axes {
+        guesses.truncate(1);
+    }
     let mut optimiser = WarpOptimiser::new(params);
     let summary = optimiser.optimise_from(
         &mut graph,
