@@ -305,17 +305,17 @@ impl WarpOptimiser {
 
     /// Σ ½ρ of the data terms at the current association, and the number matched.
     fn data_cost(&self) -> (f64, usize) {
-        let plane = Tukey(self.params.tukey);
-        let point = Tukey(self.params.tukey);
+        // the point term's block is √w-scaled under Tukey(c√w), whose cost is w ρ_c(d²)
+        let kernel = Tukey(self.params.tukey);
         let mut cost = 0.0;
         let mut matched = 0;
         for (p, m) in self.warped.iter().zip(&self.matches) {
             if let Some((q, n)) = m {
                 matched += 1;
                 let d = p - q;
-                cost += 0.5 * plane.evaluate(n.dot(&d).powi(2))[0];
+                cost += 0.5 * kernel.evaluate(n.dot(&d).powi(2))[0];
                 if self.params.point_weight > 0.0 {
-                    cost += 0.5 * self.params.point_weight * point.evaluate(d.norm_squared())[0];
+                    cost += 0.5 * self.params.point_weight * kernel.evaluate(d.norm_squared())[0];
                 }
             }
         }
@@ -673,5 +673,116 @@ impl DenseTerms<6> for RigidTerms<'_> {
             let w = p.cross(&a);
             emit(d[row], &[w.x, w.y, w.z, a.x, a.y, a.z], 1);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Image;
+
+    /// A depth frame of the plane z = 1 facing the camera.
+    fn wall(camera: &Camera) -> (VertexMap, NormalMap) {
+        let mut vertices = Image::filled(camera.width, camera.height, [0.0f32; 3]);
+        for y in 0..camera.height {
+            for x in 0..camera.width {
+                let p = camera.back_project(x as f64, y as f64, 1.0);
+                vertices.data[y * camera.width + x] = [p.x as f32, p.y as f32, p.z as f32];
+            }
+        }
+        let normals = Image::filled(camera.width, camera.height, [0.0, 0.0, -1.0f32]);
+        (vertices, normals)
+    }
+
+    #[test]
+    fn depth_targets_associate_through_the_pixel_a_point_projects_to() {
+        let camera = Camera::new(100.0, 100.0, 31.5, 23.5, 64, 48);
+        let (mut vertices, normals) = wall(&camera);
+        let target = DepthTarget {
+            camera: &camera,
+            vertices: &vertices,
+            normals: &normals,
+        };
+        let p = Vector3::new(0.05, -0.02, 1.03);
+        let (q, n) = target.associate(&p).unwrap();
+        // the wall's point on the same ray (to a pixel), facing the camera
+        assert!((q.z - 1.0).abs() < 1e-6 && (q.x / q.z - p.x / p.z).abs() < 0.006);
+        assert_eq!(n, Vector3::new(0.0, 0.0, -1.0));
+        assert!(
+            target.associate(&Vector3::new(5.0, 0.0, 1.0)).is_none(),
+            "outside the image"
+        );
+        assert!(
+            target.associate(&Vector3::new(0.0, 0.0, -1.0)).is_none(),
+            "behind the camera"
+        );
+        let (x, y) = camera.project_to_pixel(&Point3::from(p)).unwrap();
+        vertices.data[y * camera.width + x] = [f32::NAN; 3];
+        let target = DepthTarget {
+            camera: &camera,
+            vertices: &vertices,
+            normals: &normals,
+        };
+        assert!(target.associate(&p).is_none(), "a hole in the depth");
+    }
+
+    #[test]
+    fn a_bent_plate_registers_onto_its_depth_frame() {
+        // a gentle bend of the thesis' grid seen by a camera 1.5 m away: projective association,
+        // default settings
+        use crate::synthetic::plate::flat_grid;
+        let camera = Camera::new(300.0, 300.0, 159.5, 119.5, 320, 240);
+        let grid = flat_grid();
+        let to_camera = |p: &Point3<f64>| Vector3::new(p.x, p.y, 1.5 - p.z);
+        let source: Vec<Vector3<f64>> =
+            grid.vertices.iter().map(|p| to_camera(&p.cast())).collect();
+        let normals = vec![Vector3::new(0.0, 0.0, -1.0); source.len()];
+        // the bent plate's depth, rendered per pixel by intersecting its rows: z(x) of the bend
+        let k = 0.6;
+        let mut vertices = Image::filled(camera.width, camera.height, [f32::NAN; 3]);
+        let mut vnormals = Image::filled(camera.width, camera.height, [f32::NAN; 3]);
+        for s in 0..=4000 {
+            for t in 0..=400 {
+                let (x, y) = (-0.5 + s as f64 / 4000.0, -0.3 + 0.6 * t as f64 / 400.0);
+                let bent = Point3::new((k * x).sin() / k, y, (1.0 - (k * x).cos()) / k);
+                let c = to_camera(&bent);
+                if let Some((u, v)) = camera.project_to_pixel(&Point3::from(c)) {
+                    let i = v * camera.width + u;
+                    vertices.data[i] = [c.x as f32, c.y as f32, c.z as f32];
+                    let n = Vector3::new(-(k * x).sin(), 0.0, -(k * x).cos());
+                    vnormals.data[i] = [n.x as f32, n.y as f32, n.z as f32];
+                }
+            }
+        }
+        let target = DepthTarget {
+            camera: &camera,
+            vertices: &vertices,
+            normals: &vnormals,
+        };
+        let mut graph = DeformationGraph::sample(
+            &source,
+            crate::nonrigid::GraphParams {
+                spacing: 0.1,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let bindings = graph.bind_all(&source);
+        let mut optimiser = WarpOptimiser::new(RegisterParams::default());
+        let summary = optimiser
+            .optimise(&mut graph, &source, &normals, &bindings, &target)
+            .unwrap();
+        // every warped vertex lies on the bent surface: its depth matches the depth map there
+        let mut worst: f64 = 0.0;
+        for (p, b) in source.iter().zip(&bindings) {
+            let (w, _) = graph.warp(b, p, &Vector3::z());
+            if let Some((q, n)) = target.associate(&w) {
+                worst = worst.max(n.dot(&(w - q)).abs());
+            }
+        }
+        // one depth map leaves the plate free to slide along itself (here the last three columns and
+        // two rows slide off the surface), so only the distance to the surface is asked
+        assert!(summary.matched > source.len() * 2 / 3, "{summary:?}");
+        assert!(worst < 2e-3, "worst point-to-plane distance {worst}");
     }
 }
