@@ -40,6 +40,18 @@ pub enum RegisterError {
     /// The solver refused it.
     #[error("warp-field solve: {0}")]
     Solve(#[from] SolveError),
+    /// Points, normals and bindings that do not belong together.
+    #[error("{points} points, {normals} normals and {bindings} bindings (to {nodes} nodes) do not match")]
+    Mismatch {
+        /// Points given.
+        points: usize,
+        /// Normals given.
+        normals: usize,
+        /// Bindings given.
+        bindings: usize,
+        /// Nodes in the graph.
+        nodes: usize,
+    },
 }
 
 /// Where warped points find their partners.
@@ -193,7 +205,6 @@ impl WarpOptimiser {
     /// An optimiser with these settings.
     pub fn new(params: RegisterParams) -> Self {
         let options = Options {
-            max_iterations: params.iterations,
             check_rank: false,
             ..Options::default()
         };
@@ -209,7 +220,7 @@ impl WarpOptimiser {
     }
 
     /// Moves `graph`'s nodes so the canonical `points` (with `normals`, bound by `bindings`) land on
-    /// `target`.
+    /// `target`. Inputs that do not belong together are an error, not a panic.
     pub fn optimise(
         &mut self,
         graph: &mut DeformationGraph,
@@ -240,6 +251,21 @@ impl WarpOptimiser {
         guesses: &[Isometry3<f64>],
     ) -> Result<RegisterSummary, RegisterError> {
         let start = Instant::now();
+        let nodes = graph.nodes.len();
+        if points.len() != normals.len()
+            || points.len() != bindings.len()
+            || bindings.iter().any(|b| {
+                b.count > MAX_NEIGHBOURS || b.nodes[..b.count].iter().any(|&k| k as usize >= nodes)
+            })
+        {
+            return Err(RegisterError::Mismatch {
+                points: points.len(),
+                normals: normals.len(),
+                bindings: bindings.len(),
+                nodes,
+            });
+        }
+        self.solver.options.max_iterations = self.params.iterations;
         if self.params.rigid_iterations > 0 {
             self.prealign(graph, points, normals, bindings, target, guesses);
         }
@@ -724,6 +750,25 @@ mod tests {
             normals: &normals,
         };
         assert!(target.associate(&p).is_none(), "a hole in the depth");
+    }
+
+    #[test]
+    fn mismatched_inputs_are_errors() {
+        let points = vec![Vector3::zeros(), Vector3::x()];
+        let normals = vec![Vector3::z(); 2];
+        let mut graph = DeformationGraph::sample(&points, Default::default()).unwrap();
+        let mut bindings = graph.bind_all(&points);
+        let target = CloudTarget::new(&points, &normals);
+        let mut optimiser = WarpOptimiser::new(RegisterParams::default());
+        let short = &normals[..1];
+        assert!(matches!(
+            optimiser.optimise(&mut graph, &points, short, &bindings, &target),
+            Err(RegisterError::Mismatch { normals: 1, .. })
+        ));
+        bindings[1].nodes[0] = 99;
+        assert!(optimiser
+            .optimise(&mut graph, &points, &normals, &bindings, &target)
+            .is_err());
     }
 
     #[test]
