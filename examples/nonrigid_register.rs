@@ -16,6 +16,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use dynamap::slam::eval::Stats;
 use dynamap::slam::io::{meshes::read_mesh, ply};
 use dynamap::slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_surfaces,
@@ -130,14 +131,6 @@ fn map_error(
     )
 }
 
-/// Max, mean and standard deviation.
-fn stats(d: &[f64]) -> (f64, f64, f64) {
-    let n = d.len().max(1) as f64;
-    let mean = d.iter().sum::<f64>() / n;
-    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
-    (d.iter().copied().fold(0.0, f64::max), mean, var.sqrt())
-}
-
 /// The thesis' experiment: prints one row per deformation.
 fn grid_experiment() -> Result<()> {
     let source = plate::flat_grid();
@@ -158,16 +151,16 @@ fn grid_experiment() -> Result<()> {
             .zip(&tp)
             .map(|(a, b)| (a - b).norm())
             .collect();
-        let (b, a) = (stats(&before), stats(&after));
+        let (b, a) = (Stats::of(&before), Stats::of(&after));
         println!(
             "{:<11} {:>9.2e} {:>9.2e} {:>9.2e} | {:>9.2e} {:>9.2e} {:>9.2e} | {:>5} {:>5} {:>7.3}",
             def.name(),
-            b.0,
-            b.1,
-            b.2,
-            a.0,
-            a.1,
-            a.2,
+            b.max,
+            b.mean,
+            b.std,
+            a.max,
+            a.mean,
+            a.std,
             reg.graph.nodes.len(),
             reg.summary.iterations,
             reg.summary.seconds

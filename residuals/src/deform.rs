@@ -10,6 +10,7 @@
 //! rational function of `b` (differentiated in closed form by [`transform_point_jacobian`]), and
 //! `∂(q_k ⊗ e(δ))/∂δ` at δ = 0 is [`right_perturbation`].
 
+use crate::write_scaled;
 use dynamap_solver::lie::se3;
 use dynamap_solver::{Jacobians, Residual, Var};
 use nalgebra::{
@@ -134,6 +135,21 @@ pub fn right_perturbation(q: &DualQuaternion<f64>) -> NodeJacobian {
     j
 }
 
+/// `∂r/∂δ_k = s_k w_k (∂r/∂b) ∂q_k/∂δ_k` for every node, from `g = ∂r/∂b` (R×8), written
+/// column-major into `jac[k]`.
+fn chain_to_nodes<const R: usize, J: AsMut<[f64]>>(
+    nodes: &[DualQuaternion<f64>],
+    weights: &[f64],
+    signs: &[f64],
+    g: &SMatrix<f64, R, 8>,
+    jac: &mut [J],
+) {
+    for (k, node) in nodes.iter().enumerate() {
+        let jk = g * right_perturbation(node) * (signs[k] * weights[k]);
+        jac[k].as_mut().copy_from_slice(jk.as_slice());
+    }
+}
+
 /// Point-to-plane under the warp (thesis eq. 4.4): `r = nᵀ(W(v) − q)` for a canonical point v bound
 /// to `nodes` with normalised `weights`, against a target point q with unit normal n. Writes
 /// `∂r/∂δ_k` into `jac[k]` and returns r.
@@ -147,11 +163,7 @@ pub fn warped_point_to_plane(
 ) -> f64 {
     let (b, signs) = blend(nodes, weights);
     let (p, dp) = transform_point_jacobian(&b, v);
-    let g = n.transpose() * dp;
-    for (k, node) in nodes.iter().enumerate() {
-        let jk = g * right_perturbation(node) * (signs[k] * weights[k]);
-        jac[k].copy_from_slice(jk.as_slice());
-    }
+    chain_to_nodes(nodes, weights, &signs, &(n.transpose() * dp), jac);
     n.dot(&(p - q))
 }
 
@@ -166,10 +178,7 @@ pub fn warped_point_to_point(
 ) -> Vector3<f64> {
     let (b, signs) = blend(nodes, weights);
     let (p, dp) = transform_point_jacobian(&b, v);
-    for (k, node) in nodes.iter().enumerate() {
-        let jk = dp * right_perturbation(node) * (signs[k] * weights[k]);
-        jac[k].copy_from_slice(jk.as_slice());
-    }
+    chain_to_nodes(nodes, weights, &signs, &dp, jac);
     p - q
 }
 
@@ -207,27 +216,6 @@ pub struct WarpedPointToPlane {
     pub normal: Vector3<f64>,
     /// Multiplies residual and Jacobian.
     pub scale: f64,
-}
-
-/// Writes `scale · r` and `scale · J_b` (one column-major block per variable) into a [`Residual`]'s
-/// outputs.
-fn write_scaled<const M: usize>(
-    scale: f64,
-    r: &[f64],
-    blocks: &[[f64; M]],
-    residual: &mut [f64],
-    jacobians: Option<&mut Jacobians<'_>>,
-) {
-    for (o, x) in residual.iter_mut().zip(r) {
-        *o = scale * x;
-    }
-    if let Some(j) = jacobians {
-        for (b, jb) in blocks.iter().enumerate() {
-            for (o, x) in j.block(b).iter_mut().zip(jb) {
-                *o = scale * x;
-            }
-        }
-    }
 }
 
 /// The dual quaternions of the node variables of a residual (at most [`MAX_NEIGHBOURS`]).

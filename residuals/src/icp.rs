@@ -230,10 +230,7 @@ fn write_scalar(
     jacobians: Option<&mut Jacobians<'_>>,
 ) {
     let (r, j) = term.unwrap_or((f64::NAN, [0.0; 6]));
-    residual[0] = r;
-    if let Some(jac) = jacobians {
-        jac.block(0).copy_from_slice(&j);
-    }
+    crate::write_scaled(1.0, &[r], &[j], residual, jacobians);
 }
 
 #[cfg(test)]

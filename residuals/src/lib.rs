@@ -14,3 +14,26 @@
 pub mod deform;
 pub mod icp;
 pub mod pose_graph;
+
+use dynamap_solver::Jacobians;
+
+/// Writes `scale · r` and `scale · J_b` (one column-major block per variable) into a
+/// [`Residual`](dynamap_solver::Residual)'s outputs.
+pub(crate) fn write_scaled<const M: usize>(
+    scale: f64,
+    r: &[f64],
+    blocks: &[[f64; M]],
+    residual: &mut [f64],
+    jacobians: Option<&mut Jacobians<'_>>,
+) {
+    for (o, x) in residual.iter_mut().zip(r) {
+        *o = scale * x;
+    }
+    if let Some(j) = jacobians {
+        for (b, jb) in blocks.iter().enumerate() {
+            for (o, x) in j.block(b).iter_mut().zip(jb) {
+                *o = scale * x;
+            }
+        }
+    }
+}

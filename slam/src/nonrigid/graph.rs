@@ -4,7 +4,7 @@
 //! nearest nodes and warped by dual-quaternion blending (eq. 2.23, 4.2-4.3).
 
 use dynamap_residuals::deform::{
-    blend, dual_quaternion, transform_point, transform_vector, MAX_NEIGHBOURS,
+    blend, dual_quaternion, rigid_motion, transform_point, transform_vector, MAX_NEIGHBOURS,
 };
 use kiddo::{ImmutableKdTree, KdTree, SquaredEuclidean};
 use nalgebra::{DualQuaternion, Isometry3, Vector3};
@@ -95,7 +95,11 @@ impl DeformationGraph {
             edges: Vec::new(),
             tree: ImmutableKdTree::new_from_slice(&[]),
         };
-        graph.add_nodes(points, |_| DualQuaternion::identity());
+        let positions = graph.new_positions(points);
+        graph.push_nodes(
+            &positions,
+            vec![DualQuaternion::identity(); positions.len()],
+        );
         if graph.nodes.is_empty() {
             return Err(GraphError::Empty);
         }
@@ -107,28 +111,22 @@ impl DeformationGraph {
     /// surface. A new node takes the current warp at its position (the blend of its nearest existing
     /// nodes), as DynamicFusion does. Returns the number of nodes added.
     pub fn extend(&mut self, points: &[Vector3<f64>]) -> usize {
-        let before = self.nodes.len();
-        let old = self.clone();
-        self.add_nodes(points, |g| {
-            let b = old.bind(g);
-            let nodes: Vec<_> = b.nodes[..b.count]
-                .iter()
-                .map(|&k| old.nodes[k as usize].motion)
-                .collect();
-            normalised(&blend(&nodes, &b.weights[..b.count]).0)
-        });
-        if self.nodes.len() > before {
-            self.rebuild();
+        let positions = self.new_positions(points);
+        if positions.is_empty() {
+            return 0;
         }
-        self.nodes.len() - before
+        let motions = positions
+            .par_iter()
+            .map(|g| normalised(&self.blend(&self.bind(g))))
+            .collect();
+        self.push_nodes(&positions, motions);
+        self.rebuild();
+        positions.len()
     }
 
-    /// The greedy radius sampling shared by [`Self::sample`] and [`Self::extend`].
-    fn add_nodes(
-        &mut self,
-        points: &[Vector3<f64>],
-        motion_at: impl Fn(&Vector3<f64>) -> DualQuaternion<f64> + Sync,
-    ) {
+    /// The greedy radius sampling shared by [`Self::sample`] and [`Self::extend`]: the points,
+    /// in order, that lie at least the spacing from every node and every point taken before them.
+    fn new_positions(&self, points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         let r2 = self.params.spacing * self.params.spacing;
         let mut tree: KdTree<f64, 3> = KdTree::with_capacity(self.nodes.len() + 64);
         for (k, n) in self.nodes.iter().enumerate() {
@@ -145,10 +143,14 @@ impl DeformationGraph {
             tree.add(&q, (self.nodes.len() + added.len()) as u64);
             added.push(*p);
         }
+        added
+    }
+
+    /// Appends nodes at `positions` with `motions` and the configured radius.
+    fn push_nodes(&mut self, positions: &[Vector3<f64>], motions: Vec<DualQuaternion<f64>>) {
         let radius = self.params.spacing * self.params.radius_factor;
-        let motions: Vec<_> = added.par_iter().map(&motion_at).collect();
         self.nodes
-            .extend(added.iter().zip(motions).map(|(p, motion)| Node {
+            .extend(positions.iter().zip(motions).map(|(p, motion)| Node {
                 position: *p,
                 radius,
                 motion,
@@ -274,5 +276,5 @@ impl DeformationGraph {
 
 /// A dual quaternion scaled to a unit real part, with the dual part made orthogonal to it.
 fn normalised(b: &DualQuaternion<f64>) -> DualQuaternion<f64> {
-    dual_quaternion(&dynamap_residuals::deform::rigid_motion(b))
+    dual_quaternion(&rigid_motion(b))
 }

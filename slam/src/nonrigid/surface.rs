@@ -70,13 +70,19 @@ pub fn bounding_diagonal(points: &[Vector3<f64>]) -> f64 {
 
 /// A mesh's vertices and normals in double precision.
 pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-    let mut m = m.clone();
-    if m.normals.len() != m.vertices.len() {
-        m.compute_normals();
+    let points = m.vertices.iter().map(|p| p.coords.cast()).collect();
+    if m.normals.len() == m.vertices.len() {
+        return (points, m.normals.iter().map(|n| n.cast()).collect());
     }
+    let mut with_normals = Mesh {
+        vertices: m.vertices.clone(),
+        faces: m.faces.clone(),
+        ..Mesh::default()
+    };
+    with_normals.compute_normals();
     (
-        m.vertices.iter().map(|p| p.coords.cast()).collect(),
-        m.normals.iter().map(|n| n.cast()).collect(),
+        points,
+        with_normals.normals.iter().map(|n| n.cast()).collect(),
     )
 }
 
