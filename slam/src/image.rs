@@ -448,29 +448,34 @@ pub fn vertex_map(depth: &DepthImage, camera: &Camera, out: &mut VertexMap) {
     });
 }
 
-/// Normals from neighbour differences (eq. 2.3): `n = ±(V(x+1, y) − V(x, y)) × (V(x, y+1) − V(x, y))`,
-/// normalised, with the sign chosen by the camera's handedness so that normals face the camera;
-/// NaN where a neighbour is missing.
+/// Normals from central differences (eq. 2.3, centred):
+/// `n = ±(V(x+1, y) − V(x−1, y)) × (V(x, y+1) − V(x, y−1))`, normalised, with the sign chosen by the
+/// camera's handedness so that normals face the camera; NaN where a neighbour is missing and on the
+/// image border. Centred differences give the normal at the pixel itself; forward differences
+/// (KinectFusion's) give it half a pixel down and right, a bias that a surface free to slide along
+/// itself (non-rigid tracking of a smooth sheet) turns into a steady drift.
 pub fn normal_map(vertices: &VertexMap, camera: &Camera, out: &mut NormalMap) {
     let (w, h) = (vertices.width, vertices.height);
     out.resize(w, h, INVALID);
     // x × y = +z (away from the camera) for a right-handed image; flip to face the camera.
     let sign = -camera.handedness() as f32;
     par_rows(&mut out.data, w, |y, row| {
-        if y + 1 >= h || w < 2 {
+        if y == 0 || y + 1 >= h || w < 3 {
             row.fill(INVALID);
             return;
         }
-        let (line, below) = (
+        let (above, line, below) = (
+            &vertices.data[(y - 1) * w..y * w],
             &vertices.data[y * w..(y + 1) * w],
             &vertices.data[(y + 1) * w..(y + 2) * w],
         );
-        for x in 0..w - 1 {
-            let (p, px, py) = (line[x], line[x + 1], below[x]);
+        row[0] = INVALID;
+        for x in 1..w - 1 {
+            let (l, r, u, d) = (line[x - 1], line[x + 1], above[x], below[x]);
             // Branch-free: a missing neighbour is NaN and makes the normal NaN (invalid); so does a
             // degenerate cross product (0 · ∞).
-            let a = [px[0] - p[0], px[1] - p[1], px[2] - p[2]];
-            let b = [py[0] - p[0], py[1] - p[1], py[2] - p[2]];
+            let a = [r[0] - l[0], r[1] - l[1], r[2] - l[2]];
+            let b = [d[0] - u[0], d[1] - u[1], d[2] - u[2]];
             let n = [
                 a[1] * b[2] - a[2] * b[1],
                 a[2] * b[0] - a[0] * b[2],

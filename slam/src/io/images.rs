@@ -36,6 +36,18 @@ pub fn read_color(path: impl AsRef<Path>) -> Result<ColorImage, IoError> {
     Ok(Image::from_vec(w as usize, h as usize, data).expect("size matches"))
 }
 
+/// Reads an object mask (any PNG or JPEG; a pixel belongs to the object where its first channel is
+/// not zero).
+pub fn read_mask(path: impl AsRef<Path>) -> Result<Image<bool>, IoError> {
+    let path = path.as_ref();
+    let img = image::open(path)
+        .map_err(|e| IoError::file(path, format!("cannot read mask image: {e}")))?
+        .into_luma16();
+    let (w, h) = img.dimensions();
+    let data = img.pixels().map(|p| p.0[0] != 0).collect();
+    Ok(Image::from_vec(w as usize, h as usize, data).expect("size matches"))
+}
+
 fn encode<P: image::Pixel<Subpixel = S> + image::PixelWithColorType, S: image::Primitive>(
     buffer: ImageBuffer<P, Vec<S>>,
     path: &Path,

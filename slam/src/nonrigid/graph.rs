@@ -78,7 +78,7 @@ pub struct DeformationGraph {
     pub nodes: Vec<Node>,
     /// Each node's regularisation neighbours (nearest first).
     pub edges: Vec<Vec<u32>>,
-    tree: ImmutableKdTree<f64, 3>,
+    pub(crate) tree: ImmutableKdTree<f64, 3>,
 }
 
 impl DeformationGraph {
@@ -180,30 +180,44 @@ impl DeformationGraph {
     }
 
     /// Binds a canonical point to its K nearest nodes with weights `exp(−|v − g_k|² / (2 r_k²))`,
-    /// normalised (the exponents are shifted by their largest before exponentiating, which the
-    /// normalisation cancels, so a point far from every node still gets finite weights).
+    /// normalised (see [`Self::binding`]).
     pub fn bind(&self, p: &Vector3<f64>) -> Binding {
-        let k = self
-            .params
+        let k = self.neighbours();
+        let mut found = [(0u32, 0.0); MAX_NEIGHBOURS];
+        let Some(k) = NonZero::new(k) else {
+            return self.binding(&[]);
+        };
+        let nearest = self.tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
+        for (o, n) in found.iter_mut().zip(&nearest) {
+            *o = (n.item as u32, n.distance);
+        }
+        self.binding(&found[..nearest.len()])
+    }
+
+    /// The number of nodes a point is bound to: K, at most [`MAX_NEIGHBOURS`] and the node count.
+    pub fn neighbours(&self) -> usize {
+        self.params
             .neighbours
             .clamp(1, MAX_NEIGHBOURS)
-            .min(self.nodes.len());
+            .min(self.nodes.len())
+    }
+
+    /// The binding to `nearest` (node, squared distance) pairs, at most [`MAX_NEIGHBOURS`]: weights
+    /// `exp(−d² / (2 r_k²))`, normalised. The exponents are shifted by their largest before
+    /// exponentiating, which the normalisation cancels, so a point far from every node still gets
+    /// finite weights.
+    pub fn binding(&self, nearest: &[(u32, f64)]) -> Binding {
         let mut b = Binding {
             nodes: [0; MAX_NEIGHBOURS],
             weights: [0.0; MAX_NEIGHBOURS],
-            count: 0,
+            count: nearest.len().min(MAX_NEIGHBOURS),
         };
-        let Some(k) = NonZero::new(k) else {
-            return b;
-        };
-        let found = self.tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
         let mut exponents = [0.0; MAX_NEIGHBOURS];
-        for (i, n) in found.iter().enumerate() {
-            let r = self.nodes[n.item as usize].radius;
-            b.nodes[i] = n.item as u32;
-            exponents[i] = -n.distance / (2.0 * r * r);
+        for (i, &(k, d2)) in nearest.iter().take(MAX_NEIGHBOURS).enumerate() {
+            let r = self.nodes[k as usize].radius;
+            b.nodes[i] = k;
+            exponents[i] = -d2 / (2.0 * r * r);
         }
-        b.count = found.len();
         let top = exponents[..b.count]
             .iter()
             .copied()

@@ -5,12 +5,16 @@
 //!   surface appears.
 //! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
 //!   as-rigid-as-possible regularisation under a decreasing weight, on the solver's sparse path.
+//! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
+//!   field tracked frame to frame against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds).
 
+pub mod fusion;
 pub mod graph;
 pub mod register;
 pub mod surface;
 
+pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,

@@ -20,6 +20,7 @@ use dynamap_residuals::deform::{
     WarpedPointToPoint, MAX_NEIGHBOURS,
 };
 use dynamap_residuals::icp::{point_to_plane, RigidMotion};
+use dynamap_residuals::pose_graph::Prior3;
 use dynamap_solver::dense::{self, DenseOptions, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::{Huber, Tukey};
@@ -27,7 +28,7 @@ use dynamap_solver::{
     Options, Problem, ProblemError, ResidualId, RobustKernel, SolveError, Solver, VarId, SE3,
 };
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -142,6 +143,10 @@ pub struct RegisterParams {
     pub tukey: f64,
     /// Weight of the point-to-point term beside point-to-plane (default 0.1; 0 leaves it out).
     pub point_weight: f64,
+    /// Weight w of a prior holding each node near its motion after the rigid pre-alignment,
+    /// `√w Log(A₀⁻¹ A)` (default 0: none). Tracking uses it: surface that slides along itself
+    /// leaves no trace in depth, so without it such motions are free.
+    pub stay_weight: f64,
 }
 
 impl Default for RegisterParams {
@@ -156,6 +161,7 @@ impl Default for RegisterParams {
             max_normal_angle_deg: 45.0,
             tukey: 0.05,
             point_weight: 0.1,
+            stay_weight: 0.0,
         }
     }
 }
@@ -183,10 +189,12 @@ struct Cached {
     planes: Vec<ResidualId>,
     points: Vec<ResidualId>,
     edges: Vec<(u32, u32, ResidualId)>,
+    /// One prior per node (empty without a stay weight).
+    priors: Vec<ResidualId>,
     bindings: Vec<Binding>,
     graph_edges: Vec<Vec<u32>>,
-    /// Tukey's c and the point-to-point weight the blocks' kernels were made with.
-    kernels: (f64, f64),
+    /// Tukey's c, the point-to-point weight and the stay weight the blocks were made with.
+    kernels: (f64, f64, f64),
 }
 
 /// The warp-field optimiser; keeps its problem and symbolic factorisation between calls.
@@ -426,7 +434,12 @@ impl WarpOptimiser {
             c.nodes.len() == graph.nodes.len()
                 && c.bindings == bindings
                 && c.graph_edges == graph.edges
-                && c.kernels == (self.params.tukey, self.params.point_weight)
+                && c.kernels
+                    == (
+                        self.params.tukey,
+                        self.params.point_weight,
+                        self.params.stay_weight,
+                    )
         });
         if !same {
             self.cached = Some(build(graph, points, bindings, &self.params)?);
@@ -436,6 +449,10 @@ impl WarpOptimiser {
         for (node, var) in graph.nodes.iter().zip(&cached.nodes) {
             se3::to_slice(&rigid_motion(&node.motion), &mut x);
             cached.problem.set_value(*var, &x)?;
+        }
+        for (node, &id) in graph.nodes.iter().zip(&cached.priors) {
+            let prior = stay_prior(node, self.params.stay_weight);
+            cached.problem.replace_residual(id, Box::new(prior))?;
         }
         Ok(())
     }
@@ -496,6 +513,14 @@ impl WarpOptimiser {
         }
         Ok(())
     }
+}
+
+/// The prior `√w Log(A₀⁻¹ A)` holding a node at its present motion A₀.
+fn stay_prior(node: &super::graph::Node, weight: f64) -> Prior3 {
+    Prior3::new(
+        rigid_motion(&node.motion),
+        Matrix6::identity() * weight.sqrt(),
+    )
 }
 
 /// φ_ij of eq. 4.7: `exp(−|g_i − g_j|² / (2 max(r_i, r_j)²))`, nearer neighbours held more rigidly.
@@ -581,6 +606,13 @@ fn build(
             ));
         }
     }
+    let mut priors = Vec::new();
+    if params.stay_weight > 0.0 {
+        for (node, &var) in graph.nodes.iter().zip(&nodes) {
+            let prior = stay_prior(node, params.stay_weight);
+            priors.push(problem.add_residual(prior, &[var])?);
+        }
+    }
     Ok(Cached {
         problem,
         nodes,
@@ -589,7 +621,8 @@ fn build(
         edges,
         bindings: bindings.to_vec(),
         graph_edges: graph.edges.clone(),
-        kernels: (params.tukey, params.point_weight),
+        priors,
+        kernels: (params.tukey, params.point_weight, params.stay_weight),
     })
 }
 

@@ -6,7 +6,7 @@ use super::tracker::{ModelPyramid, Tracker, TrackerParams};
 use crate::camera::Camera;
 use crate::image::{ColorImage, Image};
 use crate::preprocess::{PreprocessParams, Preprocessor};
-use crate::tsdf::{RaycastMaps, TsdfError, TsdfParams, TsdfVolume};
+use crate::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
 use nalgebra::Isometry3;
 use std::time::Instant;
 
@@ -179,7 +179,7 @@ impl RigidSlam {
                 &self.pose,
             ) {
                 Ok(_) => {}
-                Err(e @ TsdfError::BudgetExceeded { .. }) => failure = Some(e.to_string()),
+                Err(e) => failure = Some(e.to_string()),
             }
             times.integrate = t.elapsed().as_secs_f64();
             if failure.is_none() {

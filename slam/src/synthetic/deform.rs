@@ -177,6 +177,47 @@ impl DeformingScene {
         }
     }
 
+    /// Where the material point seen at world position `x` at frame 0 is at `frame` (world
+    /// coordinates): the ground truth of a non-rigid tracker whose canonical frame is frame 0.
+    pub fn follow(&self, x: &Point3<f64>, frame: f64) -> Point3<f64> {
+        self.pose * self.deform(&self.pose.inverse_transform_point(x), frame)
+    }
+
+    /// Distances between canonical points (world positions at frame 0) carried to `frame` by a
+    /// tracker (`warped`) and where their material points truly are then.
+    pub fn tracking_errors(
+        &self,
+        canonical: &[Vector3<f64>],
+        warped: &[Vector3<f64>],
+        frame: usize,
+    ) -> Vec<f64> {
+        canonical
+            .iter()
+            .zip(warped)
+            .map(|(p, w)| (self.follow(&Point3::from(*p), frame as f64).coords - w).norm())
+            .collect()
+    }
+
+    /// What a depth sensor at `pose` delivers at `frame`: raw depth at the camera's depth scale and
+    /// colour, through `noise` (seeded by the frame).
+    pub fn sensor_frame(
+        &self,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        frame: usize,
+        noise: &super::noise::SensorNoise,
+    ) -> (Image<u16>, crate::image::ColorImage) {
+        let mut r = render(&self.scene_at(frame), camera, pose);
+        let depth = noise.apply(
+            frame as u64,
+            &r.depth,
+            &r.cos_incidence,
+            &mut r.color,
+            camera.depth_scale,
+        );
+        (depth, r.color)
+    }
+
     /// The deformed surface at `frame`, in world coordinates (the ground-truth mesh).
     pub fn mesh_at(&self, frame: usize) -> Mesh {
         let mut m = self.canonical.clone();

@@ -83,49 +83,42 @@ impl TsdfVolume {
         coords
     }
 
-    /// Fuses a frame: `depth` in metres (0 where missing) seen by `camera` at `pose`
-    /// (camera-to-world), with its camera-frame `normals` (for the viewing-angle weight) and optional
-    /// colour. The projective signed distance `sdf = D(u) − z` of each voxel in view is truncated to
-    /// μ and averaged with the stored value under the weight `cos θ · (σ(1 m)/σ(z))²`: the cosine
-    /// between the pixel's ray and normal (at least 0.1) times the inverse axial noise variance of the
-    /// sensor model (σ(z) = 0.0012 + 0.0019 (z − 0.4)², Nguyen et al. 2012), so near, frontal views
-    /// dominate. Weights are capped at W_max. Colour is fused with the same weights.
-    pub fn integrate(
-        &mut self,
-        depth: &DepthImage,
-        normals: &NormalMap,
-        color: Option<&ColorImage>,
-        camera: &Camera,
-        pose: &Isometry3<f64>,
-    ) -> Result<IntegrateStats, TsdfError> {
-        let touched = self.touched_blocks(depth, camera, pose, 4);
-        let missing: Vec<[i32; 3]> = touched
+    /// Allocates the missing blocks among `touched` (within the budget) and marks exactly the
+    /// `touched` blocks active for this frame: the surface and the free space just in front of it
+    /// (voxel hashing's "visible set"; far free space keeps its last value). Returns the number of
+    /// blocks allocated.
+    fn allocate(&mut self, touched: &[[i32; 3]]) -> Result<usize, TsdfError> {
+        let missing = touched
             .iter()
             .filter(|c| !self.index.contains_key(*c))
-            .copied()
-            .collect();
-        if self.blocks.len() + missing.len() > self.params.max_blocks {
+            .count();
+        if self.blocks.len() + missing > self.params.max_blocks {
             return Err(TsdfError::BudgetExceeded {
-                needed: self.blocks.len() + missing.len(),
+                needed: self.blocks.len() + missing,
                 max: self.params.max_blocks,
             });
         }
-        for c in &missing {
-            self.index.insert(*c, self.blocks.len() as u32);
-            self.blocks.push(Block::new(*c));
+        for c in touched {
+            if !self.index.contains_key(c) {
+                self.index.insert(*c, self.blocks.len() as u32);
+                self.blocks.push(Block::new(*c));
+            }
         }
-        // Only the blocks the band crosses are updated: the surface and the free space just in front
-        // of it (voxel hashing's "visible set"; far free space keeps its last value).
         self.active.clear();
         self.active.resize(self.blocks.len(), false);
-        for c in &touched {
+        for c in touched {
             self.active[self.index[c] as usize] = true;
         }
-        // Per-pixel fusion weight: cos θ (≥ 0.1) · (σ(1 m)/σ(z))², computed once per pixel.
-        let (w, h) = (depth.width, depth.height);
-        self.pixel_weight.resize(w * h, 0.0);
+        Ok(missing)
+    }
+
+    /// The per-pixel fusion weight cos θ (≥ 0.1) · (σ(1 m)/σ(z))², once per pixel, into
+    /// `self.pixel_weight`.
+    fn pixel_weights(&mut self, depth: &DepthImage, normals: &NormalMap, camera: &Camera) {
+        let w = depth.width;
+        self.pixel_weight.resize(w * depth.height, 0.0);
         self.pixel_weight
-            .par_chunks_mut(w)
+            .par_chunks_mut(w.max(1))
             .enumerate()
             .for_each(|(y, row)| {
                 for (x, o) in row.iter_mut().enumerate() {
@@ -150,6 +143,28 @@ impl TsdfVolume {
                     *o = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
                 }
             });
+    }
+
+    /// Fuses a frame: `depth` in metres (0 where missing) seen by `camera` at `pose`
+    /// (camera-to-world), with its camera-frame `normals` (for the viewing-angle weight) and optional
+    /// colour. The projective signed distance `sdf = D(u) − z` of each voxel in view is truncated to
+    /// μ and averaged with the stored value under the weight `cos θ · (σ(1 m)/σ(z))²`: the cosine
+    /// between the pixel's ray and normal (at least 0.1) times the inverse axial noise variance of the
+    /// sensor model (σ(z) = 0.0012 + 0.0019 (z − 0.4)², Nguyen et al. 2012), so near, frontal views
+    /// dominate. Weights are capped at W_max. Colour is fused with the same weights.
+    pub fn integrate(
+        &mut self,
+        depth: &DepthImage,
+        normals: &NormalMap,
+        color: Option<&ColorImage>,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+    ) -> Result<IntegrateStats, TsdfError> {
+        check_sizes(depth, normals, color, camera)?;
+        let touched = self.touched_blocks(depth, camera, pose, 4);
+        let new_blocks = self.allocate(&touched)?;
+        self.pixel_weights(depth, normals, camera);
+        let (w, h) = (depth.width, depth.height);
         let params = self.params;
         let mu = params.truncation();
         let inv = pose.inverse();
@@ -165,7 +180,15 @@ impl TsdfVolume {
         let block_size = params.voxel_size * BLOCK as f32;
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
-        let (active, pixel_weight) = (&self.active, &self.pixel_weight);
+        let active = &self.active;
+        let frame = FrameView {
+            depth,
+            pixel_weight: &self.pixel_weight,
+            color,
+            mu,
+            max_depth: params.max_depth,
+            max_weight: params.max_weight,
+        };
         self.blocks
             .par_iter_mut()
             .enumerate()
@@ -229,31 +252,7 @@ impl TsdfVolume {
                             if pix < 0 {
                                 continue;
                             }
-                            let pix = pix as usize;
-                            let d = depth.data[pix];
-                            if d <= 0.0 || d > params.max_depth {
-                                continue;
-                            }
-                            let sdf = d - qz;
-                            if sdf < -mu {
-                                continue;
-                            }
-                            let cos = pixel_weight[pix];
-                            let i = local_index(x, y, z);
-                            let tsdf = (sdf / mu).min(1.0);
-                            let vox = &mut blk.voxels[i];
-                            let w0 = vox.weight;
-                            let inv = 1.0 / (w0 + cos);
-                            let (a, b) = (w0 * inv, cos * inv);
-                            vox.tsdf = vox.tsdf * a + tsdf * b;
-                            vox.weight = (w0 + cos).min(params.max_weight);
-                            if let Some(c) = color {
-                                let (col, old) = (c.data[pix], &mut blk.color[i]);
-                                for k in 0..3 {
-                                    old[k] = (old[k] as f32 * a + col[k] as f32 * b + 0.5) as u8;
-                                }
-                            }
-                            any = true;
+                            any |= frame.fuse(blk, local_index(x, y, z), pix as usize, qz);
                         }
                     }
                 }
@@ -262,7 +261,178 @@ impl TsdfVolume {
                 }
             });
         Ok(IntegrateStats {
-            new_blocks: missing.len(),
+            new_blocks,
+            updated_blocks: updated.into_inner(),
+        })
+    }
+}
+
+/// Depth, normals and colour must all be the camera's size.
+fn check_sizes(
+    depth: &DepthImage,
+    normals: &NormalMap,
+    color: Option<&ColorImage>,
+    camera: &Camera,
+) -> Result<(), TsdfError> {
+    let sizes = [(depth.width, depth.height), (normals.width, normals.height)];
+    for size in sizes.into_iter().chain(color.map(|c| (c.width, c.height))) {
+        if size != (camera.width, camera.height) {
+            return Err(TsdfError::Size {
+                image: size,
+                camera: (camera.width, camera.height),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// One frame as the voxel updates read it.
+struct FrameView<'a> {
+    depth: &'a DepthImage,
+    pixel_weight: &'a [f32],
+    color: Option<&'a ColorImage>,
+    mu: f32,
+    max_depth: f32,
+    max_weight: f32,
+}
+
+impl FrameView<'_> {
+    /// Fuses pixel `pix` into voxel `i` of `blk`, whose centre lies at depth `z` in the camera
+    /// frame: the projective signed distance `D(u) − z`, truncated to μ (voxels more than μ behind
+    /// the surface are left alone), enters a running weighted average (eq. 3.23-3.25) with the
+    /// pixel's weight, colour with it; the stored weight is capped at W_max. Returns whether the
+    /// voxel was updated.
+    #[inline(always)]
+    fn fuse(&self, blk: &mut Block, i: usize, pix: usize, z: f32) -> bool {
+        let d = self.depth.data[pix];
+        if d <= 0.0 || d > self.max_depth {
+            return false;
+        }
+        let sdf = d - z;
+        if sdf < -self.mu {
+            return false;
+        }
+        let (tsdf, weight) = ((sdf / self.mu).min(1.0), self.pixel_weight[pix]);
+        let vox = &mut blk.voxels[i];
+        let w0 = vox.weight;
+        let inv = 1.0 / (w0 + weight);
+        let (a, b) = (w0 * inv, weight * inv);
+        vox.tsdf = vox.tsdf * a + tsdf * b;
+        vox.weight = (w0 + weight).min(self.max_weight);
+        if let Some(c) = self.color {
+            let (col, old) = (c.data[pix], &mut blk.color[i]);
+            for k in 0..3 {
+                old[k] = (old[k] as f32 * a + col[k] as f32 * b + 0.5) as u8;
+            }
+        }
+        true
+    }
+}
+
+/// A map of the volume's (canonical) space into a live camera frame, voxel by voxel: the warp of
+/// non-rigid fusion (Newcombe et al., *DynamicFusion*, CVPR 2015, sec. 3.3), where each voxel
+/// centre is carried into the live frame before the projective signed distance is taken.
+pub trait VoxelWarp: Sync {
+    /// Per-thread scratch, reused from block to block.
+    type Scratch: Send + Default;
+    /// Prepares the warp of the voxels within `radius` of `centre` (one block, volume frame).
+    /// `false` leaves the block alone (nothing there can be warped reliably).
+    fn prepare(&self, centre: &Vector3<f64>, radius: f64, scratch: &mut Self::Scratch) -> bool;
+    /// Where the voxel centre `p` of the prepared block lands in the live camera frame, `None` for a
+    /// voxel that cannot be warped reliably.
+    fn warp(&self, p: &Vector3<f64>, scratch: &Self::Scratch) -> Option<Vector3<f64>>;
+}
+
+impl TsdfVolume {
+    /// The blocks within μ of any of `points` (volume frame), sorted and deduplicated.
+    fn blocks_near(&self, points: &[Vector3<f64>]) -> Vec<[i32; 3]> {
+        let mu = self.params.truncation() as f64;
+        let block_size = (self.params.voxel_size * BLOCK as f32) as f64;
+        let mut coords: Vec<[i32; 3]> = points
+            .par_iter()
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .flat_map_iter(|p| {
+                let lo = p.map(|v| ((v - mu) / block_size).floor() as i32);
+                let hi = p.map(|v| ((v + mu) / block_size).floor() as i32);
+                (lo.z..=hi.z).flat_map(move |z| {
+                    (lo.y..=hi.y).flat_map(move |y| (lo.x..=hi.x).map(move |x| [x, y, z]))
+                })
+            })
+            .collect();
+        coords.par_sort_unstable();
+        coords.dedup();
+        coords
+    }
+
+    /// Fuses a live frame through a non-rigid warp (DynamicFusion, sec. 3.3): the blocks within μ
+    /// of `band` (the live surface carried back into the volume's frame) are allocated and updated;
+    /// each of their voxel centres is warped into the live camera frame, projected, and its
+    /// projective signed distance `D(u) − z` fused as in [`Self::integrate`], with the same weights.
+    pub fn integrate_warped<W: VoxelWarp>(
+        &mut self,
+        depth: &DepthImage,
+        normals: &NormalMap,
+        color: Option<&ColorImage>,
+        camera: &Camera,
+        band: &[Vector3<f64>],
+        warp: &W,
+    ) -> Result<IntegrateStats, TsdfError> {
+        check_sizes(depth, normals, color, camera)?;
+        let touched = self.blocks_near(band);
+        let new_blocks = self.allocate(&touched)?;
+        self.pixel_weights(depth, normals, camera);
+        let params = self.params;
+        let mu = params.truncation();
+        let voxel = params.voxel_size as f64;
+        let half_diag = 0.5 * voxel * BLOCK as f64 * 3f64.sqrt();
+        let updated = std::sync::atomic::AtomicUsize::new(0);
+        let active = &self.active;
+        let frame = FrameView {
+            depth,
+            pixel_weight: &self.pixel_weight,
+            color,
+            mu,
+            max_depth: params.max_depth,
+            max_weight: params.max_weight,
+        };
+        self.blocks.par_iter_mut().enumerate().for_each_init(
+            W::Scratch::default,
+            |scratch, (bi, blk)| {
+                if !active[bi] {
+                    return;
+                }
+                let base = Vector3::new(
+                    (blk.coord[0] * BLOCK) as f64,
+                    (blk.coord[1] * BLOCK) as f64,
+                    (blk.coord[2] * BLOCK) as f64,
+                ) * voxel;
+                let centre = base + Vector3::repeat(0.5 * voxel * (BLOCK - 1) as f64);
+                if !warp.prepare(&centre, half_diag, scratch) {
+                    return;
+                }
+                let mut any = false;
+                for z in 0..BLOCK {
+                    for y in 0..BLOCK {
+                        for x in 0..BLOCK {
+                            let p = base + Vector3::new(x as f64, y as f64, z as f64) * voxel;
+                            let Some(q) = warp.warp(&p, scratch) else {
+                                continue;
+                            };
+                            let Some((u, v)) = camera.project_to_pixel(&q.into()) else {
+                                continue;
+                            };
+                            let pix = v * depth.width + u;
+                            any |= frame.fuse(blk, local_index(x, y, z), pix, q.z as f32);
+                        }
+                    }
+                }
+                if any {
+                    updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+            },
+        );
+        Ok(IntegrateStats {
+            new_blocks,
             updated_blocks: updated.into_inner(),
         })
     }

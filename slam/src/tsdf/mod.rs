@@ -12,7 +12,7 @@ mod integrate;
 mod mesh;
 mod raycast;
 
-pub use integrate::IntegrateStats;
+pub use integrate::{IntegrateStats, VoxelWarp};
 pub use raycast::RaycastMaps;
 
 use nalgebra::{Point3, Vector3};
@@ -109,6 +109,14 @@ pub enum TsdfError {
         needed: usize,
         /// The budget.
         max: usize,
+    },
+    /// Images and intrinsics of different sizes.
+    #[error("a {image:?} image does not match the camera's {camera:?}")]
+    Size {
+        /// Width and height of the image.
+        image: (usize, usize),
+        /// Width and height of the camera.
+        camera: (usize, usize),
     },
 }
 

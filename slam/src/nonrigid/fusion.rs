@@ -1,0 +1,523 @@
+//! Dense non-rigid SLAM after DynamicFusion (Newcombe, Fox & Seitz, CVPR 2015; thesis ch. 4): a
+//! canonical TSDF of the object, a deformation graph over its surface, and per frame
+//!
+//! 1. preprocess the live depth (masked to the object, if a mask is given);
+//! 2. warp the canonical surface samples by the current field and optimise the field against the
+//!    live depth (projective association, [`WarpOptimiser`]), starting from the last frame's field;
+//! 3. fuse the live depth into the canonical volume through the warp: each voxel centre near the
+//!    surface is carried into the live frame, projected, and its projective signed distance fused
+//!    ([`TsdfVolume::integrate_warped`]); the blocks to update are found by carrying the live
+//!    surface back into the canonical frame by the inverse of its blended node motion;
+//! 4. extract the canonical surface, extend the graph where it has grown beyond the nodes' reach,
+//!    and re-sample the data points when the graph changed (or every few frames).
+//!
+//! The canonical frame is the first camera frame. The warp carries canonical points into the live
+//! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
+
+use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
+use super::register::{DepthTarget, RegisterParams, RegisterSummary, WarpOptimiser};
+use crate::camera::Camera;
+use crate::image::{valid, ColorImage, Image};
+use crate::mesh::Mesh;
+use crate::preprocess::{PreprocessParams, Preprocessor};
+use crate::tsdf::{TsdfParams, TsdfVolume, VoxelWarp};
+use dynamap_residuals::deform::{rigid_motion, transform_point, MAX_NEIGHBOURS};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{DualQuaternion, Isometry3, Point3, Vector3};
+use rayon::prelude::*;
+use rustc_hash::FxHashSet;
+use std::num::NonZero;
+use std::time::Instant;
+
+/// Settings of the non-rigid pipeline.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FusionParams {
+    /// Front end (default 2 levels).
+    pub preprocess: PreprocessParams,
+    /// The canonical volume (default 1 cm voxels, weight cap 32).
+    pub tsdf: TsdfParams,
+    /// The deformation graph (default spacing 5 cm).
+    pub graph: GraphParams,
+    /// The per-frame optimisation (default: a 10-iteration rigid start, then λ = 100 for two rounds
+    /// of three iterations, 5 cm / 30° gates, Tukey c = 2 cm, point weight 0.1, stay weight 0.01).
+    pub register: RegisterParams,
+    /// The pyramid level whose depth the data term associates with (default 1: 320 × 240 from
+    /// 640 × 480).
+    pub data_level: usize,
+    /// Canonical data points are thinned to one per cube of this edge, metres (default 1 cm).
+    pub data_spacing: f64,
+    /// Re-sample the data points from the canonical surface at least every this many frames, even
+    /// when the graph has not changed (default 10).
+    pub refresh_every: usize,
+    /// A frame whose matched fraction of data points falls below this is a tracking failure
+    /// (default 0.2).
+    pub min_matched_fraction: f64,
+}
+
+impl Default for FusionParams {
+    fn default() -> Self {
+        Self {
+            preprocess: PreprocessParams {
+                levels: 2,
+                ..PreprocessParams::default()
+            },
+            tsdf: TsdfParams {
+                max_weight: 32.0,
+                ..TsdfParams::default()
+            },
+            graph: GraphParams {
+                spacing: 0.05,
+                ..GraphParams::default()
+            },
+            register: RegisterParams {
+                rigid_iterations: 10,
+                rigid_max_distance: 0.1,
+                schedule: vec![100.0],
+                rounds: 2,
+                iterations: 3,
+                max_distance: 0.05,
+                max_normal_angle_deg: 30.0,
+                tukey: 0.02,
+                point_weight: 0.1,
+                stay_weight: 0.01,
+            },
+            data_level: 1,
+            data_spacing: 0.01,
+            refresh_every: 10,
+            min_matched_fraction: 0.2,
+        }
+    }
+}
+
+/// Seconds spent in each stage of a frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FusionTimes {
+    /// Masking, filtering and pyramids.
+    pub preprocess: f64,
+    /// Warp-field optimisation.
+    pub optimise: f64,
+    /// Fusion through the warp.
+    pub fuse: f64,
+    /// Surface extraction, graph extension and data re-sampling.
+    pub surface: f64,
+}
+
+impl FusionTimes {
+    /// Adds another frame's times.
+    pub fn add(&mut self, o: &FusionTimes) {
+        self.preprocess += o.preprocess;
+        self.optimise += o.optimise;
+        self.fuse += o.fuse;
+        self.surface += o.surface;
+    }
+}
+
+/// What happened to one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FusionReport {
+    /// Why the frame was not fused, if it was not (the field is then left as it was).
+    pub failure: Option<String>,
+    /// Nodes after the frame.
+    pub nodes: usize,
+    /// Nodes added by the frame.
+    pub added_nodes: usize,
+    /// The optimisation, when one ran.
+    pub summary: Option<RegisterSummary>,
+    /// Stage times.
+    pub times: FusionTimes,
+}
+
+/// Dense non-rigid SLAM of one deforming object.
+pub struct NonRigidFusion {
+    /// Settings.
+    pub params: FusionParams,
+    camera: Camera,
+    pre: Preprocessor,
+    volume: TsdfVolume,
+    graph: Option<DeformationGraph>,
+    optimiser: WarpOptimiser,
+    points: Vec<Vector3<f64>>,
+    normals: Vec<Vector3<f64>>,
+    bindings: Vec<Binding>,
+    since_refresh: usize,
+    masked: Image<u16>,
+    band: Vec<Vector3<f64>>,
+    backup: Vec<DualQuaternion<f64>>,
+}
+
+impl NonRigidFusion {
+    /// A pipeline for images from `camera`.
+    pub fn new(camera: Camera, params: FusionParams) -> Self {
+        Self {
+            pre: Preprocessor::new(camera, params.preprocess),
+            volume: TsdfVolume::new(params.tsdf),
+            optimiser: WarpOptimiser::new(params.register.clone()),
+            params,
+            camera,
+            graph: None,
+            points: Vec::new(),
+            normals: Vec::new(),
+            bindings: Vec::new(),
+            since_refresh: 0,
+            masked: Image::new(0, 0),
+            band: Vec::new(),
+            backup: Vec::new(),
+        }
+    }
+
+    /// The canonical volume.
+    pub fn volume(&self) -> &TsdfVolume {
+        &self.volume
+    }
+
+    /// The deformation graph (none before the first fused frame).
+    pub fn graph(&self) -> Option<&DeformationGraph> {
+        self.graph.as_ref()
+    }
+
+    /// The canonical surface samples the data term uses.
+    pub fn data_points(&self) -> &[Vector3<f64>] {
+        &self.points
+    }
+
+    /// The canonical surface (marching cubes over the canonical volume).
+    pub fn canonical_mesh(&self) -> Mesh {
+        self.volume.extract_mesh()
+    }
+
+    /// Canonical `points` carried into the live camera frame by the current warp (each bound to its
+    /// K nearest nodes); unchanged before the first fused frame.
+    pub fn warp_points(&self, points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        match &self.graph {
+            None => points.to_vec(),
+            Some(graph) => points
+                .par_iter()
+                .map(|p| transform_point(&graph.blend(&graph.bind(p)), p))
+                .collect(),
+        }
+    }
+
+    /// `mesh` (canonical frame) carried into the live camera frame by the current warp, vertices in
+    /// their order, normals recomputed from the faces.
+    pub fn warp_mesh(&self, mesh: &Mesh) -> Mesh {
+        let points: Vec<Vector3<f64>> = mesh.vertices.iter().map(|v| v.coords.cast()).collect();
+        let mut out = mesh.clone();
+        for (v, p) in out.vertices.iter_mut().zip(self.warp_points(&points)) {
+            *v = p.cast::<f32>().into();
+        }
+        if !out.faces.is_empty() {
+            out.compute_normals();
+        }
+        out
+    }
+
+    /// Processes one frame: raw depth in sensor units, optional colour, and an optional mask of
+    /// the object's pixels. Never fails on bad input: a frame that cannot be tracked or fused is
+    /// reported in [`FusionReport::failure`] and leaves the state as it was.
+    pub fn process(
+        &mut self,
+        depth_raw: &Image<u16>,
+        color: Option<&ColorImage>,
+        mask: Option<&Image<bool>>,
+    ) -> FusionReport {
+        let mut report = FusionReport {
+            failure: None,
+            nodes: self.graph.as_ref().map_or(0, |g| g.nodes.len()),
+            added_nodes: 0,
+            summary: None,
+            times: FusionTimes::default(),
+        };
+        let size = (self.camera.width, self.camera.height);
+        let sizes = [(depth_raw.width, depth_raw.height)]
+            .into_iter()
+            .chain(color.map(|c| (c.width, c.height)))
+            .chain(mask.map(|m| (m.width, m.height)));
+        for s in sizes {
+            if s != size {
+                report.failure = Some(format!(
+                    "a {}x{} image does not match the camera's {}x{}",
+                    s.0, s.1, size.0, size.1
+                ));
+                return report;
+            }
+        }
+        let t = Instant::now();
+        self.masked.reset(size.0, size.1, 0);
+        self.masked
+            .data
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(i, o)| {
+                if mask.is_none_or(|m| m.data[i]) {
+                    *o = depth_raw.data[i];
+                }
+            });
+        self.pre.process(&self.masked, color);
+        report.times.preprocess = t.elapsed().as_secs_f64();
+        let result = match self.graph.is_some() {
+            false => self.start(color, &mut report),
+            true => self.track_and_fuse(color, &mut report),
+        };
+        if let Err(e) = result {
+            report.failure = Some(e);
+        }
+        report.nodes = self.graph.as_ref().map_or(0, |g| g.nodes.len());
+        report
+    }
+
+    /// The first frame: fused rigidly at the identity, then the graph sampled over its surface.
+    fn start(
+        &mut self,
+        color: Option<&ColorImage>,
+        report: &mut FusionReport,
+    ) -> Result<(), String> {
+        let level = &self.pre.levels[0];
+        let seen = level.depth.data.iter().filter(|d| **d > 0.0).count();
+        if seen < 100 {
+            return Err(format!(
+                "only {seen} valid depth pixels on the object to start the model"
+            ));
+        }
+        let t = Instant::now();
+        let mut volume = TsdfVolume::new(self.params.tsdf);
+        volume
+            .integrate(
+                &level.depth,
+                &level.normals,
+                color,
+                &self.camera,
+                &Isometry3::identity(),
+            )
+            .map_err(|e| e.to_string())?;
+        report.times.fuse = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let surface = surface_points(&volume.extract_mesh());
+        let graph = DeformationGraph::sample(&surface.0, self.params.graph)
+            .map_err(|e: GraphError| e.to_string())?;
+        report.added_nodes = graph.nodes.len();
+        self.volume = volume;
+        self.graph = Some(graph);
+        self.resample(&surface);
+        report.times.surface = t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Every later frame: optimise the field, fuse through it, grow the graph.
+    fn track_and_fuse(
+        &mut self,
+        color: Option<&ColorImage>,
+        report: &mut FusionReport,
+    ) -> Result<(), String> {
+        let graph = self.graph.as_mut().expect("started");
+        let t = Instant::now();
+        self.backup.clear();
+        self.backup.extend(graph.nodes.iter().map(|n| n.motion));
+        let l = self.params.data_level.min(self.pre.levels.len() - 1);
+        let level = &self.pre.levels[l];
+        let target = DepthTarget {
+            camera: &level.camera,
+            vertices: &level.vertices,
+            normals: &level.normals,
+        };
+        self.optimiser.params = self.params.register.clone();
+        let outcome =
+            self.optimiser
+                .optimise(graph, &self.points, &self.normals, &self.bindings, &target);
+        report.times.optimise = t.elapsed().as_secs_f64();
+        let failure = match &outcome {
+            Err(e) => Some(e.to_string()),
+            Ok(s)
+                if (s.matched as f64)
+                    < self.params.min_matched_fraction * self.points.len() as f64 =>
+            {
+                Some(format!(
+                    "only {} of {} surface points matched the live depth",
+                    s.matched,
+                    self.points.len()
+                ))
+            }
+            Ok(_) => None,
+        };
+        report.summary = outcome.ok();
+        if let Some(f) = failure {
+            for (n, m) in graph.nodes.iter_mut().zip(&self.backup) {
+                n.motion = *m;
+            }
+            return Err(f);
+        }
+        let t = Instant::now();
+        let level = &self.pre.levels[0];
+        inverse_warp(
+            graph,
+            &level.vertices.data,
+            2,
+            level.vertices.width,
+            &mut self.band,
+        );
+        let warp = GraphWarp::new(graph);
+        self.volume
+            .integrate_warped(
+                &level.depth,
+                &level.normals,
+                color,
+                &self.camera,
+                &self.band,
+                &warp,
+            )
+            .map_err(|e| e.to_string())?;
+        report.times.fuse = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let surface = surface_points(&self.volume.extract_mesh());
+        let graph = self.graph.as_mut().expect("started");
+        report.added_nodes = graph.extend(&surface.0);
+        self.since_refresh += 1;
+        if report.added_nodes > 0 || self.since_refresh >= self.params.refresh_every {
+            self.resample(&surface);
+        }
+        report.times.surface = t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Thins the canonical surface to the data points (one per `data_spacing` cube) and binds them.
+    fn resample(&mut self, (points, normals): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)) {
+        let cell = self.params.data_spacing.max(1e-6);
+        let mut seen = FxHashSet::default();
+        self.points.clear();
+        self.normals.clear();
+        for (p, n) in points.iter().zip(normals) {
+            let key = p.map(|v| (v / cell).floor() as i64);
+            if seen.insert((key.x, key.y, key.z)) {
+                self.points.push(*p);
+                self.normals.push(*n);
+            }
+        }
+        let graph = self.graph.as_ref().expect("started");
+        self.bindings = graph.bind_all(&self.points);
+        self.since_refresh = 0;
+    }
+}
+
+/// A mesh's vertices and unit normals in f64, degenerate ones left out.
+fn surface_points(mesh: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+    let mut mesh = mesh.clone();
+    if mesh.normals.len() != mesh.vertices.len() {
+        mesh.compute_normals();
+    }
+    mesh.vertices
+        .iter()
+        .zip(&mesh.normals)
+        .map(|(v, n)| (v.coords.cast::<f64>(), n.cast::<f64>()))
+        .filter(|(v, n)| v.iter().all(|x| x.is_finite()) && (n.norm() - 1.0).abs() < 1e-3)
+        .unzip()
+}
+
+/// Carries every `stride`-th live vertex (camera frame) back into the canonical frame: bound to
+/// its K nearest warped nodes, by the inverse of their blended motion (DynamicFusion's way of
+/// finding where new surface lies in the canonical volume).
+fn inverse_warp(
+    graph: &DeformationGraph,
+    vertices: &[[f32; 3]],
+    stride: usize,
+    width: usize,
+    out: &mut Vec<Vector3<f64>>,
+) {
+    let warped: Vec<[f64; 3]> = graph
+        .nodes
+        .iter()
+        .map(|n| transform_point(&n.motion, &n.position).into())
+        .collect();
+    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&warped);
+    let k = NonZero::new(graph.neighbours()).expect("a started graph has nodes");
+    let rows = vertices.len() / width.max(1);
+    *out = (0..rows)
+        .into_par_iter()
+        .step_by(stride)
+        .flat_map_iter(|y| {
+            let tree = &tree;
+            (0..width).step_by(stride).filter_map(move |x| {
+                let v = vertices[y * width + x];
+                if !valid(&v) {
+                    return None;
+                }
+                let q = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+                let mut found = [(0u32, 0.0); MAX_NEIGHBOURS];
+                let nearest = tree.nearest_n::<SquaredEuclidean>(&q.into(), k);
+                for (o, n) in found.iter_mut().zip(&nearest) {
+                    *o = (n.item as u32, n.distance);
+                }
+                let b = graph.binding(&found[..nearest.len()]);
+                let motion = rigid_motion(&graph.blend(&b));
+                Some(motion.inverse_transform_point(&Point3::from(q)).coords)
+            })
+        })
+        .collect();
+}
+
+/// The graph's warp as a voxel warp. For a block, the candidate nodes are those within
+/// `d₄ + 2h` of its centre (d₄: the centre's K-th nearest node, h: the block's half-diagonal),
+/// which holds every voxel's K nearest; voxels farther than two node radii from every node are
+/// left alone.
+struct GraphWarp<'a> {
+    graph: &'a DeformationGraph,
+    reach: f64,
+}
+
+impl<'a> GraphWarp<'a> {
+    fn new(graph: &'a DeformationGraph) -> Self {
+        let r = graph.nodes.iter().map(|n| n.radius).fold(0.0, f64::max);
+        Self {
+            graph,
+            reach: 2.0 * r,
+        }
+    }
+}
+
+impl VoxelWarp for GraphWarp<'_> {
+    type Scratch = Vec<u32>;
+
+    fn prepare(&self, centre: &Vector3<f64>, radius: f64, scratch: &mut Vec<u32>) -> bool {
+        let Some(k) = NonZero::new(self.graph.neighbours()) else {
+            return false;
+        };
+        let q: [f64; 3] = (*centre).into();
+        let nearest = self.graph.tree.nearest_n::<SquaredEuclidean>(&q, k);
+        let (Some(first), Some(last)) = (nearest.first(), nearest.last()) else {
+            return false;
+        };
+        if first.distance.sqrt() > self.reach + radius {
+            return false;
+        }
+        let r = last.distance.sqrt() + 2.0 * radius;
+        scratch.clear();
+        scratch.extend(
+            self.graph
+                .tree
+                .within_unsorted::<SquaredEuclidean>(&q, r * r)
+                .iter()
+                .map(|n| n.item as u32),
+        );
+        true
+    }
+
+    fn warp(&self, p: &Vector3<f64>, scratch: &Vec<u32>) -> Option<Vector3<f64>> {
+        let k = self.graph.neighbours();
+        // the K nearest candidates, by insertion into a short sorted list
+        let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
+        for &c in scratch {
+            let d2 = (self.graph.nodes[c as usize].position - p).norm_squared();
+            if d2 < best[k - 1].1 {
+                let mut i = k - 1;
+                while i > 0 && best[i - 1].1 > d2 {
+                    best[i] = best[i - 1];
+                    i -= 1;
+                }
+                best[i] = (c, d2);
+            }
+        }
+        if best[0].1.sqrt() > self.reach {
+            return None;
+        }
+        let b = self.graph.binding(&best[..k]);
+        Some(transform_point(&self.graph.blend(&b), p))
+    }
+}
