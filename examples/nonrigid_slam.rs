@@ -19,7 +19,7 @@ use dynamap::slam::image::Image;
 use dynamap::slam::io::images::read_mask;
 use dynamap::slam::io::tum::TumSequence;
 use dynamap::slam::io::{ply, write_atomic};
-use dynamap::slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion};
+use dynamap::slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
 use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -58,6 +58,9 @@ struct Args {
     /// Levenberg-Marquardt iterations per round.
     #[arg(long)]
     iterations: Option<usize>,
+    /// Canonical data points are thinned to one per cube of this edge, metres.
+    #[arg(long)]
+    data_spacing: Option<f64>,
     /// Gauss-Newton iterations of the rigid pre-alignment (0: none).
     #[arg(long)]
     rigid_iterations: Option<usize>,
@@ -97,6 +100,9 @@ fn params(args: &Args) -> Result<FusionParams> {
     }
     if let Some(v) = args.iterations {
         p.register.iterations = v;
+    }
+    if let Some(v) = args.data_spacing {
+        p.data_spacing = v;
     }
     if let Some(v) = args.rigid_iterations {
         p.register.rigid_iterations = v;
@@ -257,6 +263,7 @@ fn main() -> Result<()> {
         ProgressStyle::with_template("{bar:40} {pos}/{len} frames {msg}").expect("valid template"),
     );
     let (mut totals, mut failures, mut errors) = (FusionTimes::default(), 0usize, Vec::new());
+    let (mut stages, mut optimised) = (RegisterTimes::default(), 0usize);
     let mut processing = 0.0;
     let start = Instant::now();
     for i in 0..n {
@@ -272,6 +279,10 @@ fn main() -> Result<()> {
         let report = slam.process(&frame.depth, frame.color.as_ref(), frame.mask.as_ref());
         processing += t.elapsed().as_secs_f64();
         totals.add(&report.times);
+        if let Some(s) = &report.summary {
+            stages.add(&s.times);
+            optimised += 1;
+        }
         if let Some(why) = &report.failure {
             failures += 1;
             bar.println(format!("frame {i}: not fused: {why}"));
@@ -317,8 +328,17 @@ fn main() -> Result<()> {
             s.mean, s.max
         )
     });
+    let ms = |s: f64| 1e3 * s / optimised.max(1) as f64;
+    let stages = format!(
+        "{{\"prealign\": {:.2}, \"associate\": {:.2}, \"update\": {:.2}, \"evaluate\": {:.2}, \"linear\": {:.2}}}",
+        ms(stages.prealign),
+        ms(stages.associate),
+        ms(stages.update),
+        ms(stages.evaluate),
+        ms(stages.linear)
+    );
     println!(
-        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {failures}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}{}}}",
+        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {failures}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
         n as f64 / processing.max(1e-9),
         slam.graph().map_or(0, |g| g.nodes.len()),
         per_frame(totals.preprocess),

@@ -269,6 +269,31 @@ impl NormalEquations {
             let entry = self.entries[e];
             let diagonal = entry.row_block == jb;
             let di = self.block_start[entry.row_block + 1] - self.block_start[entry.row_block];
+            if di == 6 && dj == 6 {
+                // The common case (SE(3) blocks): accumulate the 6×6 block Σ J_aᵀ J_b over the
+                // contributions in registers, one residual row at a time, then write its columns.
+                let mut acc = [[0.0f64; 6]; 6];
+                for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
+                    let m = k.m;
+                    let (a, b) = (&jac[k.ja..k.ja + 6 * m], &jac[k.jb..k.jb + 6 * m]);
+                    for i in 0..m {
+                        let ar: [f64; 6] = std::array::from_fn(|r| a[r * m + i]);
+                        let bc: [f64; 6] = std::array::from_fn(|c| b[c * m + i]);
+                        for (row, &bcv) in acc.iter_mut().zip(&bc) {
+                            for (o, &arv) in row.iter_mut().zip(&ar) {
+                                *o += arv * bcv;
+                            }
+                        }
+                    }
+                }
+                for (c, column) in acc.iter().enumerate() {
+                    let rows = if diagonal { c + 1 } else { 6 };
+                    // SAFETY: column c0 + c belongs to block column jb only.
+                    let col = unsafe { h.slice(self.col_ptr[c0 + c] + entry.pos, rows) };
+                    col.copy_from_slice(&column[..rows]);
+                }
+                continue;
+            }
             for c in 0..dj {
                 let rows = if diagonal { c + 1 } else { di };
                 // SAFETY: column c0 + c belongs to block column jb only.

@@ -18,7 +18,7 @@ pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
-    RegisterSummary, Target, WarpOptimiser,
+    RegisterSummary, RegisterTimes, Target, WarpOptimiser,
 };
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_surfaces, SurfaceError,

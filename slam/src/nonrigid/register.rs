@@ -179,6 +179,34 @@ pub struct RegisterSummary {
     pub matched: usize,
     /// Wall-clock seconds.
     pub seconds: f64,
+    /// Where they went.
+    pub times: RegisterTimes,
+}
+
+/// Seconds spent in each stage of one optimisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RegisterTimes {
+    /// Rigid pre-alignment.
+    pub prealign: f64,
+    /// Warping the points and finding their partners.
+    pub associate: f64,
+    /// Writing correspondences and weights into the problem (and building it when new).
+    pub update: f64,
+    /// Evaluating residuals and Jacobians and assembling the normal equations.
+    pub evaluate: f64,
+    /// The rest of the solver: factorising and solving, trial costs, bookkeeping.
+    pub linear: f64,
+}
+
+impl RegisterTimes {
+    /// Adds another optimisation's times.
+    pub fn add(&mut self, o: &RegisterTimes) {
+        self.prealign += o.prealign;
+        self.associate += o.associate;
+        self.update += o.update;
+        self.evaluate += o.evaluate;
+        self.linear += o.linear;
+    }
 }
 
 /// The problem kept between calls: node variables, one data block (and one point block) per
@@ -274,9 +302,17 @@ impl WarpOptimiser {
             });
         }
         self.solver.options.max_iterations = self.params.iterations;
+        let mut times = RegisterTimes::default();
+        let mut clock = Instant::now();
+        let mut lap = |t: &mut f64| {
+            let now = Instant::now();
+            *t += (now - clock).as_secs_f64();
+            clock = now;
+        };
         if self.params.rigid_iterations > 0 {
             self.prealign(graph, points, normals, bindings, target, guesses);
         }
+        lap(&mut times.prealign);
         self.prepare(graph, points, bindings)?;
         let mut iterations = 0;
         let mut lambda = 0.0;
@@ -284,17 +320,26 @@ impl WarpOptimiser {
             lambda = self.params.schedule[stage];
             self.set_regulariser(graph, lambda)?;
             for _ in 0..self.params.rounds {
+                lap(&mut times.update);
                 self.associate(graph, points, normals, bindings, target);
+                lap(&mut times.associate);
                 self.set_data(points, bindings)?;
+                lap(&mut times.update);
                 let cached = self.cached.as_mut().expect("prepared above");
                 let summary = self.solver.solve(&mut cached.problem)?;
+                lap(&mut times.linear);
+                let evaluate: f64 = summary.iterations.iter().map(|i| i.evaluate_seconds).sum();
+                times.evaluate += evaluate;
+                times.linear -= evaluate;
                 iterations += summary.num_iterations();
                 for (node, var) in graph.nodes.iter_mut().zip(&cached.nodes) {
                     node.motion = dual_quaternion(&se3::from_slice(cached.problem.value(*var)));
                 }
             }
         }
+        lap(&mut times.update);
         self.associate(graph, points, normals, bindings, target);
+        lap(&mut times.associate);
         let (data_cost, matched) = self.data_cost();
         Ok(RegisterSummary {
             iterations,
@@ -302,6 +347,7 @@ impl WarpOptimiser {
             regulariser_cost: regulariser_cost(graph, lambda),
             matched,
             seconds: start.elapsed().as_secs_f64(),
+            times,
         })
     }
 
