@@ -187,7 +187,7 @@ impl Source {
                         let name = seq.frames[i].depth.file_name().with_context(|| {
                             format!("frame {i}: depth image without a file name")
                         })?;
-                        Some(read_mask(dir.join(name)).map_err(|e| e.in_frame(i))?)
+                        Some(read_mask(dir.join(name))?)
                     }
                 };
                 Ok(Frame {
@@ -264,20 +264,21 @@ fn main() -> Result<()> {
     );
     let (mut totals, mut failures, mut errors) = (FusionTimes::default(), 0usize, Vec::new());
     let (mut stages, mut optimised) = (RegisterTimes::default(), 0usize);
-    let mut processing = 0.0;
+    let (mut processing, mut processed) = (0.0, 0usize);
     let start = Instant::now();
     for i in 0..n {
         let frame = match source.load(i) {
             Ok(f) => f,
             Err(e) => {
                 failures += 1;
-                bar.println(format!("frame {i} skipped: {e:#}"));
+                report_line(&bar, format!("frame {i} skipped: {e:#}"));
                 continue;
             }
         };
         let t = Instant::now();
         let report = slam.process(&frame.depth, frame.color.as_ref(), frame.mask.as_ref());
         processing += t.elapsed().as_secs_f64();
+        processed += 1;
         totals.add(&report.times);
         if let Some(s) = &report.summary {
             stages.add(&s.times);
@@ -285,7 +286,7 @@ fn main() -> Result<()> {
         }
         if let Some(why) = &report.failure {
             failures += 1;
-            bar.println(format!("frame {i}: not fused: {why}"));
+            report_line(&bar, format!("frame {i}: not fused: {why}"));
         }
         let error = match &source {
             Source::Generated { scene, .. } if slam.graph().is_some() => {
@@ -320,7 +321,7 @@ fn main() -> Result<()> {
         ply::write(out.join("canonical.ply"), &slam.canonical_mesh())?;
         write_atomic(out.join("warp.txt"), warp_text(&slam).as_bytes())?;
     }
-    let per_frame = |s: f64| s / n.max(1) as f64;
+    let per_frame = |s: f64| s / processed.max(1) as f64;
     let error = (!errors.is_empty()).then(|| {
         let s = Stats::of(&errors);
         format!(
@@ -339,7 +340,11 @@ fn main() -> Result<()> {
     );
     println!(
         "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {failures}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
-        n as f64 / processing.max(1e-9),
+        if processing > 0.0 {
+            processed as f64 / processing
+        } else {
+            0.0
+        },
         slam.graph().map_or(0, |g| g.nodes.len()),
         per_frame(totals.preprocess),
         per_frame(totals.optimise),
@@ -348,4 +353,14 @@ fn main() -> Result<()> {
         error.unwrap_or_default()
     );
     Ok(())
+}
+
+/// A message above the progress bar, or on stderr when the bar is hidden (`--quiet`), so that
+/// skipped and failed frames are always reported.
+fn report_line(bar: &ProgressBar, message: String) {
+    if bar.is_hidden() {
+        eprintln!("{message}");
+    } else {
+        bar.println(message);
+    }
 }

@@ -264,7 +264,7 @@ fn main() -> Result<()> {
                 Ok(f) => f,
                 Err(e) => {
                     failures += 1;
-                    bar.println(format!("skipped: {e}"));
+                    report_line(&bar, format!("skipped: {e}"));
                     bar.inc(1);
                     continue;
                 }
@@ -273,10 +273,10 @@ fn main() -> Result<()> {
             totals.add(&report.times);
             if let Some(why) = &report.failure {
                 failures += 1;
-                bar.println(format!(
-                    "frame {i} ({:.6}): not fused: {why}",
-                    frame.timestamp
-                ));
+                report_line(
+                    &bar,
+                    format!("frame {i} ({:.6}): not fused: {why}", frame.timestamp),
+                );
             }
             trajectory.push(frame.timestamp, report.pose);
             bar.inc(1);
@@ -358,4 +358,14 @@ fn main() -> Result<()> {
         let _ = std::fs::remove_dir_all(&dir);
     }
     Ok(())
+}
+
+/// A message above the progress bar, or on stderr when the bar is hidden (`--quiet`), so that
+/// skipped and failed frames are always reported.
+fn report_line(bar: &ProgressBar, message: String) {
+    if bar.is_hidden() {
+        eprintln!("{message}");
+    } else {
+        bar.println(message);
+    }
 }

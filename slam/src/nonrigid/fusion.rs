@@ -213,7 +213,9 @@ impl NonRigidFusion {
 
     /// Processes one frame: raw depth in sensor units, optional colour, and an optional mask of
     /// the object's pixels. Never fails on bad input: a frame that cannot be tracked or fused is
-    /// reported in [`FusionReport::failure`] and leaves the state as it was.
+    /// reported in [`FusionReport::failure`]. One that cannot be tracked leaves the field as it was;
+    /// one that is tracked but cannot be fused (the block budget) keeps its field and leaves the
+    /// volume as it was.
     pub fn process(
         &mut self,
         depth_raw: &Image<u16>,
@@ -291,7 +293,7 @@ impl NonRigidFusion {
             .map_err(|e| e.to_string())?;
         report.times.fuse = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let surface = surface_points(&volume.extract_mesh());
+        let surface = surface_points(volume.extract_mesh());
         let graph = DeformationGraph::sample(&surface.0, self.params.graph)
             .map_err(|e: GraphError| e.to_string())?;
         report.added_nodes = graph.nodes.len();
@@ -367,7 +369,7 @@ impl NonRigidFusion {
             .map_err(|e| e.to_string())?;
         report.times.fuse = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let surface = surface_points(&self.volume.extract_mesh());
+        let surface = surface_points(self.volume.extract_mesh());
         let graph = self.graph.as_mut().expect("started");
         report.added_nodes = graph.extend(&surface.0);
         self.since_refresh += 1;
@@ -398,8 +400,7 @@ impl NonRigidFusion {
 }
 
 /// A mesh's vertices and unit normals in f64, degenerate ones left out.
-fn surface_points(mesh: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-    let mut mesh = mesh.clone();
+fn surface_points(mut mesh: Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     if mesh.normals.len() != mesh.vertices.len() {
         mesh.compute_normals();
     }
