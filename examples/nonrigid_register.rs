@@ -14,6 +14,9 @@
 //! vertex index as in the thesis), with max, mean and σ of the vertex-to-ground-truth distance
 //! before and after.
 
+#[path = "common/warp_flags.rs"]
+mod warp_flags;
+
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dynamap::slam::eval::Stats;
@@ -24,6 +27,7 @@ use dynamap::slam::nonrigid::{
 use dynamap::slam::synthetic::plate;
 use nalgebra::Vector3;
 use std::path::PathBuf;
+use warp_flags::WarpFlags;
 
 /// Non-rigid registration of one surface onto another.
 #[derive(Parser, Debug)]
@@ -36,27 +40,10 @@ struct Args {
     /// Where to write the warped source (binary PLY).
     #[arg(long)]
     output: Option<PathBuf>,
-    /// Node spacing (default 0.03 D).
-    #[arg(long)]
-    spacing: Option<f64>,
-    /// Regulariser weights, one stage each, largest first.
-    #[arg(long, value_delimiter = ',')]
-    schedule: Option<Vec<f64>>,
-    /// Association rounds per stage.
-    #[arg(long)]
-    rounds: Option<usize>,
-    /// Levenberg-Marquardt iterations per round.
-    #[arg(long)]
-    iterations: Option<usize>,
-    /// Association distance gate (default 0.1 D).
-    #[arg(long)]
-    max_distance: Option<f64>,
-    /// Association normal-angle gate, degrees.
-    #[arg(long)]
-    max_angle: Option<f64>,
-    /// Weight of the point-to-point term beside point-to-plane.
-    #[arg(long)]
-    point_weight: Option<f64>,
+    /// Graph and optimiser settings (defaults scale with the source's bounding-box diagonal D:
+    /// spacing 0.03 D, distance gate 0.1 D).
+    #[command(flatten)]
+    warp: WarpFlags,
     /// Also start the rigid pre-alignment from the principal-axes alignments (for shapes far apart).
     #[arg(long)]
     principal_axes: bool,
@@ -182,27 +169,7 @@ fn main() -> Result<()> {
     let (sp, sn) = mesh_points(&source);
     let (tp, tn) = mesh_points(&target);
     let (mut graph, mut params) = clean_surface_settings(bounding_diagonal(&sp));
-    if let Some(s) = args.spacing {
-        graph.spacing = s;
-    }
-    if let Some(s) = args.schedule {
-        params.schedule = s;
-    }
-    if let Some(r) = args.rounds {
-        params.rounds = r;
-    }
-    if let Some(i) = args.iterations {
-        params.iterations = i;
-    }
-    if let Some(d) = args.max_distance {
-        params.max_distance = d;
-    }
-    if let Some(a) = args.max_angle {
-        params.max_normal_angle_deg = a;
-    }
-    if let Some(w) = args.point_weight {
-        params.point_weight = w;
-    }
+    args.warp.apply(&mut graph, &mut params)?;
     let map = match &args.ground_truth {
         Some(p) => Some(read_map(p, sp.len(), tp.len())?),
         None => None,

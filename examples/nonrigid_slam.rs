@@ -11,6 +11,11 @@
 //! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures, nodes, per-stage
 //! seconds per frame and, for the generated sequence, the tracking error.
 
+#[path = "common/report.rs"]
+mod report;
+#[path = "common/warp_flags.rs"]
+mod warp_flags;
+
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dynamap::slam::camera::Camera;
@@ -24,9 +29,11 @@ use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKi
 use dynamap::slam::synthetic::noise::SensorNoise;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
+use report::report_line;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
+use warp_flags::WarpFlags;
 
 /// Dense non-rigid RGB-D SLAM.
 #[derive(Parser, Debug)]
@@ -43,36 +50,14 @@ struct Args {
     /// Frames to process at most (the generated sequence has 30 by default).
     #[arg(long)]
     max_frames: Option<usize>,
-    /// Node spacing, metres.
-    #[arg(long)]
-    spacing: Option<f64>,
     /// Voxel size, metres.
     #[arg(long)]
     voxel_size: Option<f32>,
-    /// Regulariser weights, one optimisation stage each, e.g. 10,1.
-    #[arg(long, value_delimiter = ',')]
-    schedule: Option<Vec<f64>>,
-    /// Association rounds per stage.
-    #[arg(long)]
-    rounds: Option<usize>,
-    /// Levenberg-Marquardt iterations per round.
-    #[arg(long)]
-    iterations: Option<usize>,
     /// Canonical data points are thinned to one per cube of this edge, metres.
     #[arg(long)]
     data_spacing: Option<f64>,
-    /// Gauss-Newton iterations of the rigid pre-alignment (0: none).
-    #[arg(long)]
-    rigid_iterations: Option<usize>,
-    /// Tukey's c of the data terms, metres.
-    #[arg(long)]
-    tukey: Option<f64>,
-    /// Weight of the point-to-point term.
-    #[arg(long)]
-    point_weight: Option<f64>,
-    /// Weight of the prior holding nodes at their last motion.
-    #[arg(long)]
-    stay_weight: Option<f64>,
+    #[command(flatten)]
+    warp: WarpFlags,
     /// The pyramid level of the data term's depth (0: full resolution).
     #[arg(long)]
     data_level: Option<usize>,
@@ -86,41 +71,15 @@ struct Args {
 
 fn params(args: &Args) -> Result<FusionParams> {
     let mut p = FusionParams::default();
-    if let Some(v) = args.spacing {
-        p.graph.spacing = v;
-    }
+    args.warp.apply(&mut p.graph, &mut p.register)?;
     if let Some(v) = args.voxel_size {
         p.tsdf.voxel_size = v;
-    }
-    if let Some(v) = &args.schedule {
-        p.register.schedule = v.clone();
-    }
-    if let Some(v) = args.rounds {
-        p.register.rounds = v;
-    }
-    if let Some(v) = args.iterations {
-        p.register.iterations = v;
     }
     if let Some(v) = args.data_spacing {
         p.data_spacing = v;
     }
-    if let Some(v) = args.rigid_iterations {
-        p.register.rigid_iterations = v;
-    }
-    if let Some(v) = args.tukey {
-        p.register.tukey = v;
-    }
-    if let Some(v) = args.point_weight {
-        p.register.point_weight = v;
-    }
-    if let Some(v) = args.stay_weight {
-        p.register.stay_weight = v;
-    }
     if let Some(v) = args.data_level {
         p.data_level = v;
-    }
-    if !(p.graph.spacing > 0.0 && p.graph.spacing.is_finite()) {
-        bail!("--spacing must be a positive length");
     }
     if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
         bail!("--voxel-size must be a positive length");
@@ -353,14 +312,4 @@ fn main() -> Result<()> {
         error.unwrap_or_default()
     );
     Ok(())
-}
-
-/// A message above the progress bar, or on stderr when the bar is hidden (`--quiet`), so that
-/// skipped and failed frames are always reported.
-fn report_line(bar: &ProgressBar, message: String) {
-    if bar.is_hidden() {
-        eprintln!("{message}");
-    } else {
-        bar.println(message);
-    }
 }

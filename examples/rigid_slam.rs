@@ -9,6 +9,9 @@
 //! seconds (the whole per-frame loop, image reading included), fps, failures, and the ATE when the
 //! folder has a ground truth.
 
+#[path = "common/report.rs"]
+mod report;
+
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dynamap::slam::camera::Camera;
@@ -23,6 +26,7 @@ use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequenc
 use dynamap::slam::tsdf::RaycastMaps;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
+use report::report_line;
 use serde::Deserialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -358,14 +362,4 @@ fn main() -> Result<()> {
         let _ = std::fs::remove_dir_all(&dir);
     }
     Ok(())
-}
-
-/// A message above the progress bar, or on stderr when the bar is hidden (`--quiet`), so that
-/// skipped and failed frames are always reported.
-fn report_line(bar: &ProgressBar, message: String) {
-    if bar.is_hidden() {
-        eprintln!("{message}");
-    } else {
-        bar.println(message);
-    }
 }

@@ -239,6 +239,13 @@ impl Residual for WarpedPointToPlane {
     ) {
         let k = vars.len().min(MAX_NEIGHBOURS);
         let nodes = node_dqs(vars);
+        if jacobians.is_none() {
+            // a cost evaluation: the warped point alone, no Jacobian chain
+            let p = transform_point(&blend(&nodes[..k], &self.weights[..k]).0, &self.point);
+            let r = self.normal.dot(&(p - self.target));
+            write_scaled::<0>(self.scale, &[r], &[], residual, None);
+            return;
+        }
         let mut jac = [[0.0; 6]; MAX_NEIGHBOURS];
         let r = warped_point_to_plane(
             &nodes[..k],
@@ -277,6 +284,17 @@ impl Residual for WarpedPointToPoint {
     ) {
         let k = vars.len().min(MAX_NEIGHBOURS);
         let nodes = node_dqs(vars);
+        if jacobians.is_none() {
+            let p = transform_point(&blend(&nodes[..k], &self.weights[..k]).0, &self.point);
+            write_scaled::<0>(
+                self.scale,
+                (p - self.target).as_slice(),
+                &[],
+                residual,
+                None,
+            );
+            return;
+        }
         let mut jac = [[0.0; 18]; MAX_NEIGHBOURS];
         let r = warped_point_to_point(
             &nodes[..k],

@@ -43,6 +43,18 @@ fn number(s: &str, path: &Path, line: usize) -> Result<f32, IoError> {
         .ok_or_else(|| IoError::line(path, line, format!("'{s}' is not a finite number")))
 }
 
+/// A vertex from its first three fields.
+fn point(f: &[&str], path: &Path, line: usize) -> Result<Point3<f32>, IoError> {
+    if f.len() < 3 {
+        return Err(IoError::line(path, line, "a vertex needs x y z"));
+    }
+    Ok(Point3::new(
+        number(f[0], path, line)?,
+        number(f[1], path, line)?,
+        number(f[2], path, line)?,
+    ))
+}
+
 /// Appends a polygon's fan of triangles after checking its indices.
 fn push_polygon(
     mesh: &mut Mesh,
@@ -103,14 +115,7 @@ pub fn parse_off(text: &str, path: &Path) -> Result<Mesh, IoError> {
         let (line, f) = lines.next().ok_or_else(|| {
             IoError::file(path, format!("the file ends after {k} of {nv} vertices"))
         })?;
-        if f.len() < 3 {
-            return Err(IoError::line(path, line, "a vertex needs x y z"));
-        }
-        mesh.vertices.push(Point3::new(
-            number(f[0], path, line)?,
-            number(f[1], path, line)?,
-            number(f[2], path, line)?,
-        ));
+        mesh.vertices.push(point(&f, path, line)?);
     }
     let mut corners = Vec::new();
     for k in 0..nf {
@@ -150,16 +155,7 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
         let line = i + 1;
         let f: Vec<&str> = l.split_whitespace().collect();
         match f.first() {
-            Some(&"v") => {
-                if f.len() < 4 {
-                    return Err(IoError::line(path, line, "a vertex needs x y z"));
-                }
-                mesh.vertices.push(Point3::new(
-                    number(f[1], path, line)?,
-                    number(f[2], path, line)?,
-                    number(f[3], path, line)?,
-                ));
-            }
+            Some(&"v") => mesh.vertices.push(point(&f[1..], path, line)?),
             Some(&"f") => {
                 corners.clear();
                 let nv = mesh.vertices.len() as i64;

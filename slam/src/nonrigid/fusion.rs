@@ -16,6 +16,7 @@
 
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::register::{DepthTarget, RegisterParams, RegisterSummary, WarpOptimiser};
+use super::surface::mesh_points;
 use crate::camera::Camera;
 use crate::image::{valid, ColorImage, Image};
 use crate::mesh::Mesh;
@@ -293,7 +294,7 @@ impl NonRigidFusion {
             .map_err(|e| e.to_string())?;
         report.times.fuse = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let surface = surface_points(volume.extract_mesh());
+        let surface = mesh_points(&volume.extract_mesh());
         let graph = DeformationGraph::sample(&surface.0, self.params.graph)
             .map_err(|e: GraphError| e.to_string())?;
         report.added_nodes = graph.nodes.len();
@@ -369,7 +370,7 @@ impl NonRigidFusion {
             .map_err(|e| e.to_string())?;
         report.times.fuse = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let surface = surface_points(self.volume.extract_mesh());
+        let surface = mesh_points(&self.volume.extract_mesh());
         let graph = self.graph.as_mut().expect("started");
         report.added_nodes = graph.extend(&surface.0);
         self.since_refresh += 1;
@@ -399,19 +400,6 @@ impl NonRigidFusion {
     }
 }
 
-/// A mesh's vertices and unit normals in f64, degenerate ones left out.
-fn surface_points(mut mesh: Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-    if mesh.normals.len() != mesh.vertices.len() {
-        mesh.compute_normals();
-    }
-    mesh.vertices
-        .iter()
-        .zip(&mesh.normals)
-        .map(|(v, n)| (v.coords.cast::<f64>(), n.cast::<f64>()))
-        .filter(|(v, n)| v.iter().all(|x| x.is_finite()) && (n.norm() - 1.0).abs() < 1e-3)
-        .unzip()
-}
-
 /// Carries every `stride`-th live vertex (camera frame) back into the canonical frame: bound to
 /// its K nearest warped nodes, by the inverse of their blended motion (DynamicFusion's way of
 /// finding where new surface lies in the canonical volume).
@@ -428,30 +416,26 @@ fn inverse_warp(
         .map(|n| transform_point(&n.motion, &n.position).into())
         .collect();
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&warped);
-    let k = NonZero::new(graph.neighbours()).expect("a started graph has nodes");
     let rows = vertices.len() / width.max(1);
-    *out = (0..rows)
-        .into_par_iter()
-        .step_by(stride)
-        .flat_map_iter(|y| {
-            let tree = &tree;
-            (0..width).step_by(stride).filter_map(move |x| {
-                let v = vertices[y * width + x];
-                if !valid(&v) {
-                    return None;
-                }
-                let q = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
-                let mut found = [(0u32, 0.0); MAX_NEIGHBOURS];
-                let nearest = tree.nearest_n::<SquaredEuclidean>(&q.into(), k);
-                for (o, n) in found.iter_mut().zip(&nearest) {
-                    *o = (n.item as u32, n.distance);
-                }
-                let b = graph.binding(&found[..nearest.len()]);
-                let motion = rigid_motion(&graph.blend(&b));
-                Some(motion.inverse_transform_point(&Point3::from(q)).coords)
-            })
-        })
-        .collect();
+    out.clear();
+    out.par_extend(
+        (0..rows)
+            .into_par_iter()
+            .step_by(stride)
+            .flat_map_iter(|y| {
+                let tree = &tree;
+                (0..width).step_by(stride).filter_map(move |x| {
+                    let v = vertices[y * width + x];
+                    if !valid(&v) {
+                        return None;
+                    }
+                    let q = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+                    let b = graph.bind_in(tree, &q);
+                    let motion = rigid_motion(&graph.blend(&b));
+                    Some(motion.inverse_transform_point(&Point3::from(q)).coords)
+                })
+            }),
+    );
 }
 
 /// The graph's warp as a voxel warp. For a block, the candidate nodes are those within

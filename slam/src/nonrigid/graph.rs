@@ -182,12 +182,17 @@ impl DeformationGraph {
     /// Binds a canonical point to its K nearest nodes with weights `exp(−|v − g_k|² / (2 r_k²))`,
     /// normalised (see [`Self::binding`]).
     pub fn bind(&self, p: &Vector3<f64>) -> Binding {
-        let k = self.neighbours();
+        self.bind_in(&self.tree, p)
+    }
+
+    /// [`Self::bind`] with the nearest nodes looked up in `tree`, a tree over the nodes in their
+    /// order at other positions (e.g. warped into the live frame).
+    pub fn bind_in(&self, tree: &ImmutableKdTree<f64, 3>, p: &Vector3<f64>) -> Binding {
         let mut found = [(0u32, 0.0); MAX_NEIGHBOURS];
-        let Some(k) = NonZero::new(k) else {
+        let Some(k) = NonZero::new(self.neighbours()) else {
             return self.binding(&[]);
         };
-        let nearest = self.tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
+        let nearest = tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
         for (o, n) in found.iter_mut().zip(&nearest) {
             *o = (n.item as u32, n.distance);
         }

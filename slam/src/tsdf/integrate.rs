@@ -1,7 +1,7 @@
 //! Fusing a depth frame (thesis eq. 3.23-3.25): allocate the blocks the truncation band crosses,
 //! then update every voxel of the blocks in view with the projective signed distance.
 
-use super::{local_index, round_i32, Block, TsdfError, TsdfVolume, BLOCK};
+use super::{local_index, round_i32, Block, TsdfError, TsdfParams, TsdfVolume, BLOCK};
 use crate::camera::Camera;
 use crate::image::{valid, ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
@@ -181,14 +181,7 @@ impl TsdfVolume {
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
-        let frame = FrameView {
-            depth,
-            pixel_weight: &self.pixel_weight,
-            color,
-            mu,
-            max_depth: params.max_depth,
-            max_weight: params.max_weight,
-        };
+        let frame = FrameView::new(depth, &self.pixel_weight, color, &params);
         self.blocks
             .par_iter_mut()
             .enumerate()
@@ -296,7 +289,23 @@ struct FrameView<'a> {
     max_weight: f32,
 }
 
-impl FrameView<'_> {
+impl<'a> FrameView<'a> {
+    fn new(
+        depth: &'a DepthImage,
+        pixel_weight: &'a [f32],
+        color: Option<&'a ColorImage>,
+        params: &TsdfParams,
+    ) -> Self {
+        Self {
+            depth,
+            pixel_weight,
+            color,
+            mu: params.truncation(),
+            max_depth: params.max_depth,
+            max_weight: params.max_weight,
+        }
+    }
+
     /// Fuses pixel `pix` into voxel `i` of `blk`, whose centre lies at depth `z` in the camera
     /// frame: the projective signed distance `D(u) − z`, truncated to μ (voxels more than μ behind
     /// the surface are left alone), enters a running weighted average (eq. 3.23-3.25) with the
@@ -382,19 +391,11 @@ impl TsdfVolume {
         let new_blocks = self.allocate(&touched)?;
         self.pixel_weights(depth, normals, camera);
         let params = self.params;
-        let mu = params.truncation();
         let voxel = params.voxel_size as f64;
         let half_diag = 0.5 * voxel * BLOCK as f64 * 3f64.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
-        let frame = FrameView {
-            depth,
-            pixel_weight: &self.pixel_weight,
-            color,
-            mu,
-            max_depth: params.max_depth,
-            max_weight: params.max_weight,
-        };
+        let frame = FrameView::new(depth, &self.pixel_weight, color, &params);
         self.blocks.par_iter_mut().enumerate().for_each_init(
             W::Scratch::default,
             |scratch, (bi, blk)| {

@@ -1,0 +1,68 @@
+//! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each example sets its
+//! own defaults first; a flag given overrides them).
+
+use dynamap::slam::nonrigid::{GraphParams, RegisterParams};
+
+/// Settings of the deformation graph and the warp-field optimiser.
+#[derive(clap::Args, Debug)]
+pub struct WarpFlags {
+    /// Node spacing, metres.
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// Regulariser weights, one optimisation stage each, largest first (e.g. 100,10).
+    #[arg(long, value_delimiter = ',')]
+    pub schedule: Option<Vec<f64>>,
+    /// Association rounds per stage.
+    #[arg(long)]
+    pub rounds: Option<usize>,
+    /// Levenberg-Marquardt iterations per round.
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Gauss-Newton iterations of the rigid pre-alignment (0: none).
+    #[arg(long)]
+    pub rigid_iterations: Option<usize>,
+    /// Association distance gate, metres.
+    #[arg(long)]
+    pub max_distance: Option<f64>,
+    /// Association normal-angle gate, degrees.
+    #[arg(long)]
+    pub max_angle: Option<f64>,
+    /// Tukey's c of the data terms, metres.
+    #[arg(long)]
+    pub tukey: Option<f64>,
+    /// Weight of the point-to-point term beside point-to-plane.
+    #[arg(long)]
+    pub point_weight: Option<f64>,
+    /// Weight of the prior holding each node at its motion after the rigid pre-alignment.
+    #[arg(long)]
+    pub stay_weight: Option<f64>,
+}
+
+impl WarpFlags {
+    /// Overrides the settings with the flags given; a spacing must be a positive length.
+    pub fn apply(
+        &self,
+        graph: &mut GraphParams,
+        register: &mut RegisterParams,
+    ) -> anyhow::Result<()> {
+        fn set<T: Clone>(flag: &Option<T>, field: &mut T) {
+            if let Some(v) = flag {
+                *field = v.clone();
+            }
+        }
+        set(&self.spacing, &mut graph.spacing);
+        set(&self.schedule, &mut register.schedule);
+        set(&self.rounds, &mut register.rounds);
+        set(&self.iterations, &mut register.iterations);
+        set(&self.rigid_iterations, &mut register.rigid_iterations);
+        set(&self.max_distance, &mut register.max_distance);
+        set(&self.max_angle, &mut register.max_normal_angle_deg);
+        set(&self.tukey, &mut register.tukey);
+        set(&self.point_weight, &mut register.point_weight);
+        set(&self.stay_weight, &mut register.stay_weight);
+        if !(graph.spacing > 0.0 && graph.spacing.is_finite()) {
+            anyhow::bail!("--spacing must be a positive length");
+        }
+        Ok(())
+    }
+}
