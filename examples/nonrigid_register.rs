@@ -9,6 +9,13 @@
 //! diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. One JSON line last:
 //! nodes, iterations, seconds, final data and regulariser costs.
 //!
+//! Either may instead be an RGB-D frame, a depth PNG (`.png`) read with `--intrinsics fx fy cx cy
+//! --depth-scale S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its
+//! colour given by `--color C` and `--target-color C` (with both colours, FAST/BRIEF matches give
+//! the rigid start). Then WARPED holds the source's valid pixels in row-major order, `--flow
+//! FLOW.sflow` writes their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow`
+//! scores it (EPE 3D).
+//!
 //! With no arguments: the thesis' experiment (sec. 4.5, Table 4.1), the flat 21 × 13 grid
 //! registered onto five deformed copies (correspondences found by closest point, not given by
 //! vertex index as in the thesis), with max, mean and σ of the vertex-to-ground-truth distance
@@ -19,24 +26,55 @@ mod warp_flags;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use dynamap::slam::eval::Stats;
+use dynamap::slam::camera::Camera;
+use dynamap::slam::eval::{self as epe, Stats};
+use dynamap::slam::image::{ColorImage, DepthImage, Image};
+use dynamap::slam::io::flow::{read_flow, write_flow};
+use dynamap::slam::io::images::{read_color, read_depth, read_mask};
 use dynamap::slam::io::{meshes::read_mesh, ply};
+use dynamap::slam::mesh::Mesh;
 use dynamap::slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_surfaces,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_surfaces,
+    FrameSettings, RegisterSummary, RgbdFrame,
 };
 use dynamap::slam::synthetic::plate;
 use nalgebra::Vector3;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use warp_flags::WarpFlags;
 
 /// Non-rigid registration of one surface onto another.
 #[derive(Parser, Debug)]
 #[command(about)]
 struct Args {
-    /// The surface to move (mesh: .ply, .off or .obj). Without it, the thesis' grid experiment runs.
+    /// The surface to move (mesh: .ply, .off or .obj; or an RGB-D frame's depth .png). Without it,
+    /// the thesis' grid experiment runs.
     source: Option<PathBuf>,
-    /// The surface to move it onto.
+    /// The surface to move it onto (a mesh, or a depth .png when SOURCE is one).
     target: Option<PathBuf>,
+    /// Intrinsics of depth frames: fx fy cx cy (pixels).
+    #[arg(long, num_args = 4, value_names = ["FX", "FY", "CX", "CY"])]
+    intrinsics: Option<Vec<f64>>,
+    /// Depth units per metre of depth frames (e.g. 1000 for millimetres).
+    #[arg(long)]
+    depth_scale: Option<f64>,
+    /// The object's pixels in the source frame (non-zero = object).
+    #[arg(long)]
+    mask: Option<PathBuf>,
+    /// The object's pixels in the target frame.
+    #[arg(long)]
+    target_mask: Option<PathBuf>,
+    /// The source frame's colour image (with --target-color: feature matches start the fit).
+    #[arg(long)]
+    color: Option<PathBuf>,
+    /// The target frame's colour image.
+    #[arg(long)]
+    target_color: Option<PathBuf>,
+    /// Where to write the source pixels' scene flow (DeepDeform .sflow; frames only).
+    #[arg(long)]
+    flow: Option<PathBuf>,
+    /// Ground-truth scene flow (.sflow) to score ours against: EPE 3D in the JSON.
+    #[arg(long)]
+    flow_ground_truth: Option<PathBuf>,
     /// Where to write the warped source (binary PLY).
     #[arg(long)]
     output: Option<PathBuf>,
@@ -156,6 +194,188 @@ fn grid_experiment() -> Result<()> {
     Ok(())
 }
 
+/// The JSON line's common part: nodes, iterations, seconds, final costs, matched and source points.
+fn summary_json(nodes: usize, summary: &RegisterSummary, points: usize) -> serde_json::Value {
+    serde_json::json!({
+        "nodes": nodes,
+        "iterations": summary.iterations,
+        "seconds": summary.seconds,
+        "data_cost": summary.data_cost,
+        "regulariser_cost": summary.regulariser_cost,
+        "matched": summary.matched,
+        "points": points,
+    })
+}
+
+/// A depth frame is given as a PNG.
+fn is_frame(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+}
+
+/// One RGB-D frame as read: its camera, depth in metres, optional colour and mask.
+struct FrameFiles {
+    camera: Camera,
+    depth: DepthImage,
+    color: Option<ColorImage>,
+    mask: Option<Image<bool>>,
+}
+
+impl FrameFiles {
+    fn frame(&self) -> RgbdFrame<'_> {
+        RgbdFrame::new(
+            &self.camera,
+            &self.depth,
+            self.color.as_ref(),
+            self.mask.as_ref(),
+        )
+    }
+}
+
+/// Reads one RGB-D frame: depth (metres) and the camera, optional colour and mask.
+fn read_frame(
+    args: &Args,
+    depth: &Path,
+    color: Option<&PathBuf>,
+    mask: Option<&PathBuf>,
+) -> Result<FrameFiles> {
+    let (Some(k), Some(scale)) = (&args.intrinsics, args.depth_scale) else {
+        bail!(
+            "{}: a depth frame needs --intrinsics fx fy cx cy and --depth-scale",
+            depth.display()
+        );
+    };
+    if !(scale > 0.0 && scale.is_finite()) || k.iter().any(|v| !v.is_finite()) {
+        bail!("--depth-scale must be positive and the intrinsics finite");
+    }
+    let raw = read_depth(depth)?;
+    let mut camera = Camera::new(k[0], k[1], k[2], k[3], raw.width, raw.height);
+    camera.depth_scale = scale;
+    let metres = Image::from_vec(
+        raw.width,
+        raw.height,
+        raw.data
+            .iter()
+            .map(|&d| (d as f64 / scale) as f32)
+            .collect(),
+    )
+    .expect("same size");
+    let color = color.map(read_color).transpose()?;
+    let mask = mask.map(read_mask).transpose()?;
+    Ok(FrameFiles {
+        camera,
+        depth: metres,
+        color,
+        mask,
+    })
+}
+
+/// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
+/// flow against ground truth, and prints the JSON line.
+fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> Result<()> {
+    if !(is_frame(source_path) && is_frame(target_path)) {
+        bail!(
+            "{} and {}: register a frame onto a frame or a mesh onto a mesh",
+            source_path.display(),
+            target_path.display()
+        );
+    }
+    let source = read_frame(args, source_path, args.color.as_ref(), args.mask.as_ref())?;
+    let target = read_frame(
+        args,
+        target_path,
+        args.target_color.as_ref(),
+        args.target_mask.as_ref(),
+    )?;
+    let mut settings = FrameSettings::default();
+    args.warp
+        .apply(&mut settings.graph, &mut settings.register)?;
+    let gt = match &args.flow_ground_truth {
+        Some(p) => {
+            let gt: Image<[f32; 3]> = read_flow(p)?;
+            let sc = &source.camera;
+            if (gt.width, gt.height) != (sc.width, sc.height) {
+                bail!(
+                    "{}: a {}×{} flow for a {}×{} source frame",
+                    p.display(),
+                    gt.width,
+                    gt.height,
+                    sc.width,
+                    sc.height
+                );
+            }
+            Some(gt)
+        }
+        None => None,
+    };
+    let reg = register_frames(&source.frame(), &target.frame(), &settings)
+        .with_context(|| format!("registering {}", source_path.display()))?;
+    let flow = reg.scene_flow(source.camera.width, source.camera.height);
+    if let Some(out) = &args.output {
+        let cloud = Mesh {
+            vertices: reg.warped.iter().map(|p| p.cast::<f32>().into()).collect(),
+            normals: reg.normals.iter().map(|n| n.cast::<f32>()).collect(),
+            ..Mesh::default()
+        };
+        ply::write(out, &cloud)?;
+    }
+    if let Some(out) = &args.flow {
+        write_flow(out, &flow)?;
+    }
+    let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, reg.points.len());
+    json["data_points"] = reg.data_points.into();
+    json["feature_matches"] = serde_json::json!(reg.matches.as_ref().map(|m| serde_json::json!({
+        "keypoints": [m.keypoints.0, m.keypoints.1],
+        "matches": m.matches,
+        "inliers": m.source.len(),
+    })));
+    if let Some(gt) = &gt {
+        json["epe"] = flow_scores(&flow, gt, source.mask.as_ref());
+    }
+    println!("{json}");
+    Ok(())
+}
+
+/// EPE 3D of `flow` against `gt` over the pixels where the ground truth is finite: on the object
+/// (inside the source mask, where there is one; pixels we gave no flow are left out and counted in
+/// `coverage`), and over every ground-truth pixel with a missing flow taken as zero (`all`). Also
+/// the EPE of zero flow, the score of doing nothing.
+fn flow_scores(
+    flow: &Image<[f32; 3]>,
+    gt: &Image<[f32; 3]>,
+    mask: Option<&Image<bool>>,
+) -> serde_json::Value {
+    let v = |p: &[f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    let finite = |p: &[f32; 3]| p.iter().all(|c| c.is_finite());
+    let (mut ours, mut truth, mut all_ours, mut all_truth) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut object = 0;
+    for (i, (f, g)) in flow.data.iter().zip(&gt.data).enumerate() {
+        if !finite(g) {
+            continue;
+        }
+        all_truth.push(v(g));
+        all_ours.push(if finite(f) { v(f) } else { Vector3::zeros() });
+        if mask.is_none_or(|m| m.data[i]) {
+            object += 1;
+            if finite(f) {
+                ours.push(v(f));
+                truth.push(v(g));
+            }
+        }
+    }
+    let score = |e: &epe::EpeResult| serde_json::json!({"mean": e.stats.mean, "median": e.stats.median, "within_5cm": e.within_5cm, "within_10cm": e.within_10cm});
+    let zeros = vec![Vector3::zeros(); all_truth.len()];
+    serde_json::json!({
+        "object": score(&epe::epe3d(&ours, &truth, None)),
+        "object_pixels": ours.len(),
+        "coverage": ours.len() as f64 / object.max(1) as f64,
+        "all": score(&epe::epe3d(&all_ours, &all_truth, None)),
+        "all_pixels": all_truth.len(),
+        "zero_flow": score(&epe::epe3d(&zeros, &all_truth, None)),
+    })
+}
+
 fn main() -> Result<()> {
     let args = Args::parse();
     let (Some(source_path), Some(target_path)) = (&args.source, &args.target) else {
@@ -164,6 +384,21 @@ fn main() -> Result<()> {
         }
         return grid_experiment();
     };
+    if is_frame(source_path) || is_frame(target_path) {
+        return register_frame_pair(&args, source_path, target_path);
+    }
+    for (flag, given) in [
+        ("--flow", args.flow.is_some()),
+        ("--flow-ground-truth", args.flow_ground_truth.is_some()),
+        ("--mask", args.mask.is_some()),
+        ("--target-mask", args.target_mask.is_some()),
+        ("--color", args.color.is_some()),
+        ("--target-color", args.target_color.is_some()),
+    ] {
+        if given {
+            bail!("{flag} applies to RGB-D frames (depth .png), not meshes");
+        }
+    }
     let source = read_mesh(source_path)?;
     let target = read_mesh(target_path)?;
     let (sp, sn) = mesh_points(&source);
@@ -182,15 +417,7 @@ fn main() -> Result<()> {
         warped.normals = reg.normals.iter().map(|n| n.cast::<f32>()).collect();
         ply::write(out, &warped)?;
     }
-    let mut json = serde_json::json!({
-            "nodes": reg.graph.nodes.len(),
-            "iterations": reg.summary.iterations,
-            "seconds": reg.summary.seconds,
-            "data_cost": reg.summary.data_cost,
-            "regulariser_cost": reg.summary.regulariser_cost,
-            "matched": reg.summary.matched,
-            "points": sp.len(),
-    });
+    let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
     if let Some(map) = &map {
         let d = bounding_diagonal(&tp);
         let scored = scored_entries(map, tp.len());

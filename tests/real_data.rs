@@ -475,3 +475,57 @@ fn tum_fr2_frames_track() {
         eprintln!("fr2 frame {k}: pose {:?}", r.pose.translation.vector);
     }
 }
+
+/// DeepDeform seq258 (a shirt moved about 23 cm between frames 0 and 110): the scene flow of the
+/// masked shirt's pixels against the ground truth, EPE 3D under 5 cm (zero flow scores 23 cm).
+#[test]
+fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
+    use dynamap::slam::camera::Camera;
+    use dynamap::slam::eval::epe3d;
+    use dynamap::slam::image::Image;
+    use dynamap::slam::io::flow::read_flow;
+    use dynamap::slam::io::images::read_mask;
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, RgbdFrame};
+    use nalgebra::Vector3;
+
+    let dir = data("nonrigid/deepdeform_2pairs/train/seq258");
+    let metres = |name: &str| {
+        let raw = read_depth(dir.join("depth").join(name)).unwrap();
+        Image::from_vec(
+            raw.width,
+            raw.height,
+            raw.data.iter().map(|&d| d as f32 / 1000.0).collect(),
+        )
+        .unwrap()
+    };
+    let (d0, d1) = (metres("000000.png"), metres("000110.png"));
+    let (c0, c1) = (
+        read_color(dir.join("color/000000.jpg")).unwrap(),
+        read_color(dir.join("color/000110.jpg")).unwrap(),
+    );
+    let mask = read_mask(dir.join("mask/000000_shirt.png")).unwrap();
+    // intrinsics.txt's 4×4 matrix
+    let camera = Camera::new(575.548, 577.46, 323.172, 236.417, d0.width, d0.height);
+    let reg = register_frames(
+        &RgbdFrame::new(&camera, &d0, Some(&c0), Some(&mask)),
+        &RgbdFrame::new(&camera, &d1, Some(&c1), None),
+        &FrameSettings::default(),
+    )
+    .unwrap();
+    let gt: Image<[f32; 3]> = read_flow(dir.join("scene_flow/shirt_000000_000110.sflow")).unwrap();
+    let flow = reg.scene_flow(d0.width, d0.height);
+    let v = |p: &[f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    let (mut ours, mut truth) = (Vec::new(), Vec::new());
+    for (i, g) in gt.data.iter().enumerate() {
+        if mask.data[i] && g.iter().all(|c| c.is_finite()) && flow.data[i][0].is_finite() {
+            ours.push(v(&flow.data[i]));
+            truth.push(v(g));
+        }
+    }
+    assert!(ours.len() > 50_000, "{} scored pixels", ours.len());
+    let zero = epe3d(&vec![Vector3::zeros(); truth.len()], &truth, None);
+    let epe = epe3d(&ours, &truth, None);
+    println!("EPE {} m (zero flow {} m)", epe.stats.mean, zero.stats.mean);
+    assert!(zero.stats.mean > 0.2, "zero flow {}", zero.stats.mean);
+    assert!(epe.stats.mean < 0.05, "EPE {} m", epe.stats.mean);
+}

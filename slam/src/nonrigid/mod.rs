@@ -8,12 +8,16 @@
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
 //!   field tracked frame to frame against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds).
+//! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
+//!   non-rigid refinement), with per-pixel scene flow.
 
+pub mod frames;
 pub mod fusion;
 pub mod graph;
 pub mod register;
 pub mod surface;
 
+pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, RgbdFrame};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{

@@ -124,7 +124,8 @@ impl Target for DepthTarget<'_> {
 /// Optimiser settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegisterParams {
-    /// Gauss-Newton iterations of the rigid pre-alignment (0: none; default 30).
+    /// Gauss-Newton iterations of the rigid pre-alignment (0: none, the closest starting guess is
+    /// taken as it is; default 30).
     pub rigid_iterations: usize,
     /// Correspondences of the rigid pre-alignment farther than this are rejected, metres (default
     /// 0.5: it has to bridge the whole initial misalignment).
@@ -309,9 +310,7 @@ impl WarpOptimiser {
             *t += (now - clock).as_secs_f64();
             clock = now;
         };
-        if self.params.rigid_iterations > 0 {
-            self.prealign(graph, points, normals, bindings, target, guesses);
-        }
+        self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
         self.prepare(graph, points, bindings)?;
         let mut iterations = 0;
@@ -404,7 +403,8 @@ impl WarpOptimiser {
 
     /// Rigid ICP (point-to-plane and point-to-point) of the warped points onto the target from each
     /// of `guesses`; the motion that leaves the points closest to the target (mean distance to their
-    /// closest partner, capped at the gate) is applied to every node.
+    /// closest partner, capped at the gate) is applied to every node. With no rigid iterations, the
+    /// closest of the guesses themselves is applied.
     fn prealign(
         &mut self,
         graph: &mut DeformationGraph,
@@ -435,6 +435,17 @@ impl WarpOptimiser {
         };
         let groups = [group, group];
         let mut best: Option<(f64, Isometry3<f64>)> = None;
+        if self.params.rigid_iterations == 0 {
+            // no refinement: the guess that fits best as it is (the identity is kept as is)
+            let best = guesses
+                .iter()
+                .map(|g| (terms.spread(g), g))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((_, t)) = best {
+                graph.premultiply(t);
+            }
+            return;
+        }
         for guess in guesses {
             let mut x = [0.0; 7];
             se3::to_slice(guess, &mut x);

@@ -21,7 +21,9 @@ use nalgebra::{Isometry3, Vector3};
 /// Tracking settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackerParams {
-    /// Gauss-Newton iterations per level, finest level first (default 4, 5, 10).
+    /// Gauss-Newton iterations per level, finest level first (default 2, 3, 6: the steps shrink
+    /// only linearly, by about 0.7 each, so each iteration buys a little accuracy at a fixed price;
+    /// 4, 5, 10 halve the ATE on rendered sequences at 1.6× the tracking time, BENCHMARKS.md).
     pub iterations: Vec<usize>,
     /// Association rejected beyond this distance, metres (default 0.1).
     pub max_distance: f64,
@@ -48,7 +50,7 @@ pub struct TrackerParams {
 impl Default for TrackerParams {
     fn default() -> Self {
         Self {
-            iterations: vec![4, 5, 10],
+            iterations: vec![2, 3, 6],
             max_distance: 0.1,
             max_normal_angle_deg: 20.0,
             lambda_photometric: 0.1,
