@@ -58,7 +58,7 @@ struct Args {
     /// Photometric weight λ.
     #[arg(long)]
     lambda: Option<f64>,
-    /// Iterations per level, finest first, e.g. 2,3,6
+    /// Iterations per level, finest first, e.g. 2,3,6.
     #[arg(long, value_delimiter = ',')]
     iterations: Option<Vec<usize>>,
     /// Association distance threshold, metres.

@@ -297,7 +297,7 @@ pub struct FrameMatches {
     pub target: Vec<Vector3<f64>>,
     /// The rigid motion fitted to them (source camera frame to target camera frame).
     pub motion: Isometry3<f64>,
-    /// Keypoints found in each frame and matches before RANSAC.
+    /// Keypoints found in each frame.
     pub keypoints: (usize, usize),
     /// Matches before RANSAC.
     pub matches: usize,

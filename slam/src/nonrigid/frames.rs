@@ -79,7 +79,7 @@ impl Default for FrameSettings {
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum FrameError {
     /// An image of another size than its camera.
-    #[error("the {what} is {image:?} but the camera is {camera:?}")]
+    #[error("the {what} is {}×{} but the camera is {}×{}", image.0, image.1, camera.0, camera.1)]
     Size {
         /// Which image.
         what: &'static str,

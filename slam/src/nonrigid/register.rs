@@ -414,6 +414,13 @@ impl WarpOptimiser {
         target: &dyn Target,
         guesses: &[Isometry3<f64>],
     ) {
+        if self.params.rigid_iterations == 0 && guesses.len() <= 1 {
+            // a single guess taken as it is needs no scoring
+            if let Some(t) = guesses.first() {
+                graph.premultiply(t);
+            }
+            return;
+        }
         graph.warp_all(
             bindings,
             points,
@@ -436,7 +443,7 @@ impl WarpOptimiser {
         let groups = [group, group];
         let mut best: Option<(f64, Isometry3<f64>)> = None;
         if self.params.rigid_iterations == 0 {
-            // no refinement: the guess that fits best as it is (the identity is kept as is)
+            // no refinement: the guess that fits best as it is
             let best = guesses
                 .iter()
                 .map(|g| (terms.spread(g), g))
