@@ -28,7 +28,7 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{self as epe, Stats};
-use dynamap::slam::image::{ColorImage, DepthImage, Image};
+use dynamap::slam::image::{depth_to_metres, ColorImage, DepthImage, Image};
 use dynamap::slam::io::flow::{read_flow, write_flow};
 use dynamap::slam::io::images::{read_color, read_depth, read_mask};
 use dynamap::slam::io::{meshes::read_mesh, ply};
@@ -251,15 +251,8 @@ fn read_frame(
     let raw = read_depth(depth)?;
     let mut camera = Camera::new(k[0], k[1], k[2], k[3], raw.width, raw.height);
     camera.depth_scale = scale;
-    let metres = Image::from_vec(
-        raw.width,
-        raw.height,
-        raw.data
-            .iter()
-            .map(|&d| (d as f64 / scale) as f32)
-            .collect(),
-    )
-    .expect("same size");
+    let mut metres = Image::new(0, 0);
+    depth_to_metres(&raw, &camera, &mut metres);
     let color = color.map(read_color).transpose()?;
     let mask = mask.map(read_mask).transpose()?;
     Ok(FrameFiles {

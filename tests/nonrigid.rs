@@ -137,7 +137,7 @@ fn a_bending_plate_is_tracked_within_five_millimetres() {
 fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
     use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::epe3d;
-    use dynamap::slam::image::Image;
+    use dynamap::slam::image::{depth_to_metres, Image};
     use dynamap::slam::nonrigid::{register_frames, FrameSettings, RgbdFrame};
     use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
     use dynamap::slam::synthetic::noise::SensorNoise;
@@ -153,15 +153,9 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
     );
     let frame = 8;
     let metres = |raw: &Image<u16>| {
-        Image::from_vec(
-            raw.width,
-            raw.height,
-            raw.data
-                .iter()
-                .map(|&d| (d as f64 / camera.depth_scale) as f32)
-                .collect(),
-        )
-        .unwrap()
+        let mut out = Image::new(0, 0);
+        depth_to_metres(raw, &camera, &mut out);
+        out
     };
     let (d0, c0) = scene.sensor_frame(&camera, &Isometry3::identity(), 0, &noise);
     let (d1, c1) = scene.sensor_frame(&camera, &moved, frame, &noise);

@@ -482,21 +482,21 @@ fn tum_fr2_frames_track() {
 fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::epe3d;
-    use dynamap::slam::image::Image;
+    use dynamap::slam::image::{depth_to_metres, Image};
     use dynamap::slam::io::flow::read_flow;
     use dynamap::slam::io::images::read_mask;
     use dynamap::slam::nonrigid::{register_frames, FrameSettings, RgbdFrame};
     use nalgebra::Vector3;
 
     let dir = data("nonrigid/deepdeform_2pairs/train/seq258");
+    // intrinsics.txt's 4×4 matrix; depth in millimetres
+    let mut camera = Camera::new(575.548, 577.46, 323.172, 236.417, 640, 480);
+    camera.depth_scale = 1000.0;
     let metres = |name: &str| {
         let raw = read_depth(dir.join("depth").join(name)).unwrap();
-        Image::from_vec(
-            raw.width,
-            raw.height,
-            raw.data.iter().map(|&d| d as f32 / 1000.0).collect(),
-        )
-        .unwrap()
+        let mut out = Image::new(0, 0);
+        depth_to_metres(&raw, &camera, &mut out);
+        out
     };
     let (d0, d1) = (metres("000000.png"), metres("000110.png"));
     let (c0, c1) = (
@@ -504,8 +504,6 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
         read_color(dir.join("color/000110.jpg")).unwrap(),
     );
     let mask = read_mask(dir.join("mask/000000_shirt.png")).unwrap();
-    // intrinsics.txt's 4×4 matrix
-    let camera = Camera::new(575.548, 577.46, 323.172, 236.417, d0.width, d0.height);
     let reg = register_frames(
         &RgbdFrame::new(&camera, &d0, Some(&c0), Some(&mask)),
         &RgbdFrame::new(&camera, &d1, Some(&c1), None),

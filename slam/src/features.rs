@@ -7,7 +7,7 @@
 
 use crate::camera::Camera;
 use crate::eval::umeyama;
-use crate::image::{ColorImage, DepthImage, Image};
+use crate::image::{intensity, ColorImage, DepthImage, Image};
 use imageproc::binary_descriptors::brief::{brief, BriefDescriptor, TestPair};
 use imageproc::binary_descriptors::BinaryDescriptor;
 use imageproc::point::Point;
@@ -136,9 +136,10 @@ pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
     if w <= 2 * BORDER || h <= 2 * BORDER || frame.depth.data.len() != frame.color.data.len() {
         return keypoints;
     }
+    let mut luma = Image::new(0, 0);
+    intensity(frame.color, &mut luma);
     let gray = image::GrayImage::from_fn(w, h, |x, y| {
-        let [r, g, b] = frame.color.data[(y * w + x) as usize];
-        image::Luma([((r as u32 * 299 + g as u32 * 587 + b as u32 * 114) / 1000) as u8])
+        image::Luma([(luma.data[(y * w + x) as usize] * 255.0).round() as u8])
     });
     let corners = imageproc::corners::corners_fast9(&gray, params.fast_threshold);
     let mut corners = imageproc::suppress::local_maxima(&corners, params.suppression_radius);
@@ -269,22 +270,22 @@ pub fn ransac_rigid(
             best = inliers;
         }
     }
-    let mut motion = None;
+    let mut motion = Isometry3::identity();
     for _ in 0..2 {
         if best.len() < params.min_inliers.max(3) {
             return None;
         }
-        let t = fit(src, dst, &best)?;
-        best = inliers_of(&t);
-        motion = Some(t);
+        motion = fit(src, dst, &best)?;
+        best = inliers_of(&motion);
     }
-    let motion = motion?;
+    if best.len() < params.min_inliers {
+        return None;
+    }
     let mut inliers = vec![false; n];
-    for k in inliers_of(&motion) {
+    for k in best {
         inliers[k] = true;
     }
-    let fit = RigidFit { motion, inliers };
-    (fit.inlier_count() >= params.min_inliers).then_some(fit)
+    Some(RigidFit { motion, inliers })
 }
 
 /// The 3D correspondences between two frames that survive matching and the rigid RANSAC: source

@@ -493,6 +493,22 @@ pub fn normal_map(vertices: &VertexMap, camera: &Camera, out: &mut NormalMap) {
     });
 }
 
+/// Raw sensor depth to metres: `d / depth_scale`, 0 outside the camera's valid range
+/// [`Camera::depth_min`, `Camera::depth_max`] (and where the sensor gave 0).
+pub fn depth_to_metres(raw: &Image<u16>, camera: &Camera, out: &mut DepthImage) {
+    let scale = 1.0 / camera.depth_scale as f32;
+    let (lo, hi) = (camera.depth_min as f32, camera.depth_max as f32);
+    out.reset(raw.width, raw.height, 0.0);
+    out.data
+        .par_iter_mut()
+        .zip(raw.data.par_iter())
+        .with_min_len(4096)
+        .for_each(|(o, &d)| {
+            let z = d as f32 * scale;
+            *o = if z >= lo && z <= hi { z } else { 0.0 };
+        });
+}
+
 /// Intensity I = (0.299 R + 0.587 G + 0.114 B) / 255 (ITU-R BT.601 luma).
 pub fn intensity(color: &ColorImage, out: &mut GrayImage) {
     let w = color.width;

@@ -6,10 +6,10 @@
 
 use crate::camera::Camera;
 use crate::image::{
-    bilateral_filter, downsample_depth, downsample_gray, gradients, intensity, normal_map,
-    vertex_map, BilateralParams, ColorImage, DepthImage, GrayImage, Image, NormalMap, VertexMap,
+    bilateral_filter, depth_to_metres, downsample_depth, downsample_gray, gradients, intensity,
+    normal_map, vertex_map, BilateralParams, ColorImage, DepthImage, GrayImage, Image, NormalMap,
+    VertexMap,
 };
-use rayon::prelude::*;
 
 /// One level of the pyramid.
 #[derive(Clone, Debug)]
@@ -90,18 +90,7 @@ impl Preprocessor {
     /// Processes one frame: `depth_raw` in sensor units (divided by the camera's depth scale), and
     /// optionally its colour.
     pub fn process(&mut self, depth_raw: &Image<u16>, color: Option<&ColorImage>) -> &[Level] {
-        let scale = 1.0 / self.camera.depth_scale as f32;
-        let (lo, hi) = (self.camera.depth_min as f32, self.camera.depth_max as f32);
-        self.raw.reset(depth_raw.width, depth_raw.height, 0.0);
-        self.raw
-            .data
-            .par_iter_mut()
-            .zip(depth_raw.data.par_iter())
-            .with_min_len(4096)
-            .for_each(|(o, &d)| {
-                let z = d as f32 * scale;
-                *o = if z >= lo && z <= hi { z } else { 0.0 };
-            });
+        depth_to_metres(depth_raw, &self.camera, &mut self.raw);
         self.process_metres_inner(color)
     }
 

@@ -10,9 +10,9 @@ use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummar
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams, FrameMatches};
 use crate::image::{
-    bilateral_filter, normal_map, valid, vertex_map, BilateralParams, ColorImage, DepthImage,
-    Image, NormalMap, VertexMap, INVALID,
+    valid, BilateralParams, ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID,
 };
+use crate::preprocess::{Level, PreprocessParams, Preprocessor};
 use nalgebra::{Isometry3, Vector3};
 
 /// One RGB-D frame: depth in metres (0 where missing), optional colour and object mask, all of the
@@ -174,13 +174,20 @@ impl<'a> RgbdFrame<'a> {
         Ok(())
     }
 
-    /// Vertex and normal maps of the smoothed depth, invalid outside the mask.
+    /// Vertex and normal maps of the smoothed depth (the front end's full-resolution level),
+    /// invalid outside the mask.
     fn maps(&self, bilateral: &BilateralParams) -> (VertexMap, NormalMap) {
-        let mut smooth = Image::new(0, 0);
-        bilateral_filter(self.depth, bilateral, &mut smooth);
-        let (mut vertices, mut normals) = (Image::new(0, 0), Image::new(0, 0));
-        vertex_map(&smooth, self.camera, &mut vertices);
-        normal_map(&vertices, self.camera, &mut normals);
+        let params = PreprocessParams {
+            levels: 1,
+            bilateral: *bilateral,
+        };
+        let mut pre = Preprocessor::new(*self.camera, params);
+        pre.process_metres(self.depth, None);
+        let Level {
+            mut vertices,
+            mut normals,
+            ..
+        } = pre.levels.swap_remove(0);
         if let Some(mask) = self.mask {
             for ((v, n), &m) in vertices
                 .data
