@@ -65,7 +65,8 @@ struct Args {
     /// Stop when an accepted step lowers chi2 by less than this fraction.
     #[arg(long, default_value_t = 1e-9)]
     function_tolerance: f64,
-    /// Levenberg-Marquardt: initial damping μ₀ = tau · max diag(JᵀJ).
+    /// Levenberg-Marquardt: initial damping μ₀ = tau · max diag(JᵀJ) (μ₀ = tau with
+    /// --diagonal-damping).
     #[arg(long, default_value_t = Options::default().initial_damping_tau)]
     tau: f64,
     /// Levenberg-Marquardt: damp with μ·diag(JᵀJ) instead of μ·I.

@@ -527,3 +527,62 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     assert!(zero.stats.mean > 0.2, "zero flow {}", zero.stats.mean);
     assert!(epe.stats.mean < 0.05, "EPE {} m", epe.stats.mean);
 }
+
+/// BAL's ladybug problem 49-7776: the initial cost matches the reference to 9 digits (SOURCE.txt:
+/// 8.50912460680839605629e+05) and 50 Levenberg-Marquardt iterations with the dense Schur solver
+/// reach 13344.25 or lower (Ceres 2.1 DENSE_SCHUR reaches 13344.2548 in 50 here).
+#[test]
+fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
+    use dynamap::residuals::bal;
+    use dynamap::solver::{DampingKind, LinearSolverKind, Options, Solver};
+    let data = bal::file::read(data("bal/problem-49-7776-pre.txt")).unwrap();
+    assert_eq!(
+        (data.cameras.len(), data.points.len()),
+        (49, 7776),
+        "ladybug's size"
+    );
+    let reference = 8.50912460680839605629e+05;
+    assert!(
+        (data.cost() - reference).abs() < 1e-9 * reference,
+        "initial cost {}",
+        data.cost()
+    );
+    let mut solve = data.build(None).unwrap();
+    let summary = Solver::new(Options {
+        linear_solver: LinearSolverKind::SchurDense,
+        damping: DampingKind::Diagonal,
+        max_iterations: 50,
+        check_rank: false,
+        ..Options::default()
+    })
+    .solve(&mut solve.problem)
+    .unwrap();
+    assert!((summary.initial_cost - reference).abs() < 1e-9 * reference);
+    assert!(summary.num_iterations() <= 50);
+    assert!(
+        summary.final_cost <= 13344.25,
+        "final cost {}",
+        summary.final_cost
+    );
+}
+
+/// dubrovnik-3-7 (3 cameras, 7 points, 19 observations: fewer residuals than unknowns) is solved
+/// exactly: its initial cost matches SOURCE.txt and LM drives the cost below 1e-12.
+#[test]
+fn bal_dubrovnik_converges_to_zero_cost() {
+    use dynamap::residuals::bal;
+    use dynamap::solver::{DampingKind, LinearSolverKind, Options, Solver};
+    let data = bal::file::read(data("bal/dubrovnik-3-7-pre.txt")).unwrap();
+    assert!((data.cost() - 2764.219984422157).abs() < 1e-9 * 2764.22);
+    let mut solve = data.build(None).unwrap();
+    let summary = Solver::new(Options {
+        linear_solver: LinearSolverKind::SchurDense,
+        damping: DampingKind::Diagonal,
+        max_iterations: 100,
+        check_rank: false,
+        ..Options::default()
+    })
+    .solve(&mut solve.problem)
+    .unwrap();
+    assert!(summary.final_cost < 1e-12, "{}", summary.table());
+}

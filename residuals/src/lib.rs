@@ -3,6 +3,8 @@
 //! Cost terms for the dynamap solver, each a small struct implementing
 //! [`Residual`](dynamap_solver::Residual) with exact Jacobians:
 //!
+//! - [`bal`]: bundle adjustment: the Snavely reprojection error, the BAL file format and
+//!   synthetic problems.
 //! - [`deform`]: the non-rigid data term under the dual-quaternion-blended warp of K nodes, and the
 //!   as-rigid-as-possible regulariser.
 //! - [`icp`]: point-to-plane and photometric terms of rigid tracking.
@@ -11,6 +13,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bal;
 pub mod deform;
 pub mod icp;
 pub mod pose_graph;

@@ -75,7 +75,10 @@ pub(crate) fn check_rank(
     if n == 0 {
         return Ok(());
     }
-    let max_diag = ne.diagonal().fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
+    let max_diag =
+        ne.h.diagonal()
+            .fold(0.0f64, f64::max)
+            .max(f64::MIN_POSITIVE);
     let mut eps = 1e-10 * max_diag;
     let mut factored = false;
     for _ in 0..4 {
@@ -95,14 +98,14 @@ pub(crate) fn check_rank(
         .collect();
     for _ in 0..3 {
         for v in basis.iter_mut() {
-            solver.solve(v);
+            solver.solve(ne, v);
         }
         orthonormalise(&mut basis);
     }
     let mut hv = vec![0.0; n];
     let mut t = DMatrix::zeros(k, k);
     for j in 0..k {
-        ne.multiply(&basis[j], &mut hv);
+        ne.h.multiply(&basis[j], &mut hv);
         for i in 0..k {
             t[(i, j)] = dot(&basis[i], &hv);
         }
@@ -117,7 +120,7 @@ pub(crate) fn check_rank(
             nullity += 1;
             let y = eig.eigenvectors.column(e);
             for (b, m) in mass.iter_mut().enumerate() {
-                for i in ne.block_start[b]..ne.block_start[b + 1] {
+                for i in ne.h.block_start[b]..ne.h.block_start[b + 1] {
                     let u: f64 = basis.iter().zip(y.iter()).map(|(v, yj)| v[i] * yj).sum();
                     *m += u * u;
                 }

@@ -24,6 +24,7 @@
 #![warn(missing_docs)]
 
 mod autodiff;
+mod block;
 pub mod dense;
 mod diagnose;
 mod error;
@@ -38,6 +39,7 @@ mod problem;
 mod real;
 mod residual;
 pub mod robust;
+mod schur;
 
 pub use autodiff::{AutoDiff, CostFunctor};
 pub use error::{ProblemError, SolveError};
@@ -45,7 +47,8 @@ pub use jet::Jet;
 pub use linear::LinearSolverKind;
 pub use manifold::{Euclidean, EuclideanDyn, Manifold, UnitQuaternionManifold, SE2, SE3, SO2, SO3};
 pub use minimizer::{
-    Algorithm, DampingKind, IterationSummary, Observer, Options, Solver, Summary, Termination,
+    Algorithm, DampingKind, Elimination, IterationSummary, Observer, Options, Solver, Summary,
+    Termination,
 };
 pub use numeric::{check_jacobians, JacobianCheck, NumericDiff, DEFAULT_STEP};
 pub use problem::{Problem, ResidualId, VarId};

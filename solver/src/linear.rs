@@ -1,12 +1,15 @@
 //! Linear solvers for the damped normal equations `(H + μD) δ = −g`: dense Cholesky for small
-//! systems, faer's sparse (supernodal or simplicial) Cholesky for large ones.
+//! systems, faer's sparse (supernodal or simplicial) Cholesky for large ones, and the Schur
+//! complement (see [`crate::schur`]) for problems with many small independent blocks.
 //!
 //! The sparse path orders the *block* graph of H with approximate minimum degree (Amestoy, Davis &
 //! Duff, 1996), expands it to scalars so each variable's coordinates stay together, and computes the
 //! symbolic factorisation once; every later factorisation with the same structure reuses it.
 
+use crate::block::BlockSparse;
 use crate::error::SolveError;
 use crate::normal::NormalEquations;
+use crate::schur::{Schur, SchurOptions};
 use dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::amd;
@@ -29,6 +32,27 @@ pub enum LinearSolverKind {
     Dense,
     /// Sparse Cholesky with AMD ordering.
     Sparse,
+    /// Schur complement: eliminate independent variables (see [`crate::Elimination`]), solve the
+    /// reduced system by dense Cholesky below [`crate::Options::dense_threshold`] unknowns and
+    /// sparse Cholesky above.
+    Schur,
+    /// Schur complement with a dense Cholesky of the reduced system.
+    SchurDense,
+    /// Schur complement with a sparse Cholesky of the reduced system.
+    SchurSparse,
+    /// Schur complement solved by preconditioned conjugate gradients with implicit products and a
+    /// block-Jacobi preconditioner (the reduced system is never formed).
+    SchurIterative,
+}
+
+impl LinearSolverKind {
+    /// True for the Schur-complement solvers.
+    pub fn is_schur(self) -> bool {
+        matches!(
+            self,
+            Self::Schur | Self::SchurDense | Self::SchurSparse | Self::SchurIterative
+        )
+    }
 }
 
 /// How the damping term D is formed.
@@ -42,6 +66,18 @@ pub enum Damping {
     Diagonal(f64),
 }
 
+impl Damping {
+    /// The damped value of a diagonal element `v` of H.
+    #[inline]
+    pub fn apply(self, v: f64) -> f64 {
+        match self {
+            Damping::None => v,
+            Damping::Identity(mu) => v + mu,
+            Damping::Diagonal(mu) => v + mu * v.clamp(1e-6, 1e32),
+        }
+    }
+}
+
 enum Kind {
     Dense {
         a: Mat<f64>,
@@ -53,29 +89,21 @@ enum Kind {
     },
 }
 
-/// A Cholesky factorisation of the damped normal equations, with its workspace kept across
-/// iterations.
-pub(crate) struct LinearSolver {
+/// A Cholesky factorisation of a symmetric block-sparse matrix plus damping, with its workspace
+/// kept across iterations.
+pub(crate) struct Cholesky {
     kind: Kind,
     mem: MemBuffer,
     par: Par,
     n: usize,
 }
 
-impl LinearSolver {
-    /// Prepares a solver for `ne`'s structure (the symbolic analysis for the sparse path).
-    pub fn new(
-        ne: &NormalEquations,
-        kind: LinearSolverKind,
-        dense_threshold: usize,
-    ) -> Result<Self, SolveError> {
-        let n = ne.dim();
+impl Cholesky {
+    /// Prepares a factorisation of matrices with `a`'s structure: dense, or sparse with the
+    /// symbolic analysis done here once.
+    pub fn new(a: &BlockSparse, dense: bool) -> Result<Self, SolveError> {
+        let n = a.dim();
         let threads = rayon::current_num_threads();
-        let dense = match kind {
-            LinearSolverKind::Dense => true,
-            LinearSolverKind::Sparse => false,
-            LinearSolverKind::Auto => n <= dense_threshold,
-        };
         if dense {
             let par = if threads > 1 && n >= 1024 {
                 Par::rayon(0)
@@ -97,9 +125,8 @@ impl LinearSolver {
                 n,
             });
         }
-        let perm = block_amd(ne)?;
-        let (fwd, inv) = perm;
-        let pattern = SymbolicSparseColMatRef::new_checked(n, n, &ne.col_ptr, None, &ne.row_idx);
+        let (fwd, inv) = block_amd(a)?;
+        let pattern = SymbolicSparseColMatRef::new_checked(n, n, &a.col_ptr, None, &a.row_idx);
         let perm_ref = faer::perm::PermRef::new_checked(&fwd, &inv, n);
         let symbolic = factorize_symbolic_cholesky(
             pattern,
@@ -124,7 +151,7 @@ impl LinearSolver {
             kind: Kind::Sparse {
                 symbolic: Box::new(symbolic),
                 l_values,
-                work: vec![0.0; ne.values.len()],
+                work: vec![0.0; a.values.len()],
             },
             mem: MemBuffer::new(req),
             par,
@@ -137,27 +164,19 @@ impl LinearSolver {
         matches!(self.kind, Kind::Sparse { .. })
     }
 
-    /// Factorises H + μD. On failure returns the (unpermuted) index of a non-positive pivot.
-    pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
-        let damp = |p: usize, v: f64| -> f64 {
-            let _ = p;
-            match damping {
-                Damping::None => v,
-                Damping::Identity(mu) => v + mu,
-                Damping::Diagonal(mu) => v + mu * v.clamp(1e-6, 1e32),
-            }
-        };
+    /// Factorises A + μD. On failure returns the (unpermuted) index of a non-positive pivot.
+    pub fn factor(&mut self, m: &BlockSparse, damping: Damping) -> Result<(), usize> {
         let stack = MemStack::new(&mut self.mem);
         match &mut self.kind {
             Kind::Dense { a } => {
                 a.fill(0.0);
                 for c in 0..self.n {
-                    for p in ne.col_ptr[c]..ne.col_ptr[c + 1] {
-                        let r = ne.row_idx[p];
+                    for p in m.col_ptr[c]..m.col_ptr[c + 1] {
+                        let r = m.row_idx[p];
                         let v = if r == c {
-                            damp(p, ne.values[p])
+                            damping.apply(m.values[p])
                         } else {
-                            ne.values[p]
+                            m.values[p]
                         };
                         a[(r, c)] = v;
                         a[(c, r)] = v;
@@ -182,17 +201,13 @@ impl LinearSolver {
                 l_values,
                 work,
             } => {
-                work.copy_from_slice(&ne.values);
-                for &p in &ne.diag_pos {
-                    work[p] = damp(p, work[p]);
+                work.copy_from_slice(&m.values);
+                for &p in &m.diag_pos {
+                    work[p] = damping.apply(work[p]);
                 }
                 let pattern = unsafe {
                     SymbolicSparseColMatRef::new_unchecked(
-                        self.n,
-                        self.n,
-                        &ne.col_ptr,
-                        None,
-                        &ne.row_idx,
+                        self.n, self.n, &m.col_ptr, None, &m.row_idx,
                     )
                 };
                 let a = SparseColMatRef::new(pattern, work);
@@ -248,14 +263,82 @@ impl LinearSolver {
     }
 }
 
-/// AMD on the block graph of H, expanded to a scalar permutation (new → old, and its inverse).
-fn block_amd(ne: &NormalEquations) -> Result<(Vec<usize>, Vec<usize>), SolveError> {
-    let nb = ne.num_blocks();
+/// The solver of the damped normal equations chosen by [`LinearSolverKind`].
+pub(crate) enum LinearSolver {
+    /// Cholesky of H itself.
+    Direct(Cholesky),
+    /// Elimination of independent blocks, then the reduced system.
+    Schur(Box<Schur>),
+}
+
+impl LinearSolver {
+    /// Prepares a solver for `ne`'s structure. `eliminate` marks the H blocks the Schur solvers
+    /// eliminate (ignored by the direct ones).
+    pub fn new(
+        ne: &NormalEquations,
+        kind: LinearSolverKind,
+        dense_threshold: usize,
+        eliminate: &[bool],
+        schur: SchurOptions,
+    ) -> Result<Self, SolveError> {
+        let n = ne.dim();
+        Ok(match kind {
+            LinearSolverKind::Dense => Self::Direct(Cholesky::new(&ne.h, true)?),
+            LinearSolverKind::Sparse => Self::Direct(Cholesky::new(&ne.h, false)?),
+            LinearSolverKind::Auto => Self::Direct(Cholesky::new(&ne.h, n <= dense_threshold)?),
+            _ => Self::Schur(Box::new(Schur::new(
+                ne,
+                eliminate,
+                kind,
+                dense_threshold,
+                schur,
+            )?)),
+        })
+    }
+
+    /// A name for summaries: "dense", "sparse", "schur-dense", "schur-sparse", "schur-iterative".
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Direct(c) if c.is_sparse() => "sparse",
+            Self::Direct(_) => "dense",
+            Self::Schur(s) => s.name(),
+        }
+    }
+
+    /// True when [`Self::solve`] is exact up to rounding (false for conjugate gradients).
+    pub fn is_exact(&self) -> bool {
+        match self {
+            Self::Direct(_) => true,
+            Self::Schur(s) => s.is_exact(),
+        }
+    }
+
+    /// Factorises H + μD (or prepares the reduced system). On failure returns the index of an
+    /// unknown where positive definiteness failed.
+    pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
+        match self {
+            Self::Direct(c) => c.factor(&ne.h, damping),
+            Self::Schur(s) => s.factor(ne, damping),
+        }
+    }
+
+    /// Solves with the last factorisation, overwriting `x` (the right-hand side) with the solution.
+    pub fn solve(&mut self, ne: &NormalEquations, x: &mut [f64]) {
+        match self {
+            Self::Direct(c) => c.solve(x),
+            Self::Schur(s) => s.solve(ne, x),
+        }
+    }
+}
+
+/// AMD on the block graph of `a`, expanded to a scalar permutation (new → old, and its inverse).
+fn block_amd(a: &BlockSparse) -> Result<(Vec<usize>, Vec<usize>), SolveError> {
+    let nb = a.num_blocks();
     let mut col_ptr = Vec::with_capacity(nb + 1);
-    let mut row_idx = Vec::with_capacity(ne.entries.len());
+    let mut row_idx = Vec::with_capacity(a.entries.len());
     col_ptr.push(0usize);
     for j in 0..nb {
-        for e in &ne.entries[ne.entry_ptr[j]..ne.entry_ptr[j + 1]] {
+        for e in &a.entries[a.entry_ptr[j]..a.entry_ptr[j + 1]] {
             row_idx.push(e.row_block);
         }
         col_ptr.push(row_idx.len());
@@ -273,10 +356,10 @@ fn block_amd(ne: &NormalEquations) -> Result<(Vec<usize>, Vec<usize>), SolveErro
         )
         .map_err(|e| SolveError::LinearSolver(format!("AMD ordering failed: {e:?}")))?;
     }
-    let n = ne.dim();
+    let n = a.dim();
     let mut fwd = Vec::with_capacity(n);
     for &b in &bp {
-        fwd.extend(ne.block_start[b]..ne.block_start[b + 1]);
+        fwd.extend(a.block_start[b]..a.block_start[b + 1]);
     }
     let mut inv = vec![0; n];
     for (new, &old) in fwd.iter().enumerate() {

@@ -9,7 +9,8 @@ use crate::diagnose;
 use crate::error::SolveError;
 use crate::linear::{Damping, LinearSolver, LinearSolverKind};
 use crate::normal::{dot, NormalEquations, SyncPtr};
-use crate::problem::Problem;
+use crate::problem::{Problem, VarId};
+use crate::schur::{self, SchurOptions};
 use rayon::prelude::*;
 use std::fmt;
 use std::ops::ControlFlow;
@@ -35,6 +36,17 @@ pub enum DampingKind {
     Diagonal,
 }
 
+/// Which variables the Schur-complement solvers eliminate.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Elimination {
+    /// A maximal set of independent variables (no residual ties two of them), chosen greedily by
+    /// fewest neighbours, then smallest tangent dimension: the points of bundle adjustment.
+    #[default]
+    Auto,
+    /// These variables (they must be independent; fixed ones are skipped).
+    Variables(Vec<VarId>),
+}
+
 /// Solver settings. The defaults suit most problems; [`Options::default`] documents each.
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -50,7 +62,8 @@ pub struct Options {
     pub step_tolerance: f64,
     /// Stop when an accepted step lowers the cost by less than this fraction (default 1e-10).
     pub function_tolerance: f64,
-    /// LM: τ in μ₀ = τ max diag(H) (default 1e-4).
+    /// LM: τ in the initial damping, μ₀ = τ max diag(H) for μI damping and μ₀ = τ for
+    /// μ diag(H) damping (Ceres' 1 / initial trust-region radius) (default 1e-4).
     pub initial_damping_tau: f64,
     /// LM: damping μI or μ diag(H) (default μI).
     pub damping: DampingKind,
@@ -62,6 +75,12 @@ pub struct Options {
     pub dense_threshold: usize,
     /// Check components that touch no fixed variable for a null space before solving (default true).
     pub check_rank: bool,
+    /// Variables the Schur solvers eliminate (default [`Elimination::Auto`]).
+    pub elimination: Elimination,
+    /// Iterative Schur: stop conjugate gradients at ‖S y − b‖ ≤ tol ‖b‖ (default 1e-6).
+    pub pcg_tolerance: f64,
+    /// Iterative Schur: most conjugate-gradient iterations per step (default 500).
+    pub pcg_max_iterations: usize,
 }
 
 impl Default for Options {
@@ -79,6 +98,9 @@ impl Default for Options {
             linear_solver: LinearSolverKind::Auto,
             dense_threshold: 200,
             check_rank: true,
+            elimination: Elimination::Auto,
+            pcg_tolerance: 1e-6,
+            pcg_max_iterations: 500,
         }
     }
 }
@@ -166,7 +188,7 @@ pub struct Summary {
     pub total_seconds: f64,
     /// Number of unknowns (tangent dimensions of the free variables).
     pub unknowns: usize,
-    /// "dense" or "sparse".
+    /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative".
     pub linear_solver: &'static str,
 }
 
@@ -274,10 +296,20 @@ impl Solver {
             }
         }
         let ne = NormalEquations::new(problem)?;
+        let eliminate = if self.options.linear_solver.is_schur() {
+            schur::elimination_set(problem, &ne, &self.options.elimination)?
+        } else {
+            Vec::new()
+        };
         let linear = LinearSolver::new(
             &ne,
             self.options.linear_solver,
             self.options.dense_threshold,
+            &eliminate,
+            SchurOptions {
+                pcg_tolerance: self.options.pcg_tolerance,
+                pcg_max_iterations: self.options.pcg_max_iterations,
+            },
         )?;
         let n = ne.dim();
         Ok(Workspace {
@@ -351,8 +383,11 @@ impl Solver {
             },
             &mut log,
         );
-        let max_diag = ne.diagonal().fold(0.0f64, f64::max);
-        let mut mu = opts.initial_damping_tau * max_diag.max(f64::MIN_POSITIVE);
+        let max_diag = ne.h.diagonal().fold(0.0f64, f64::max);
+        let mut mu = match opts.damping {
+            DampingKind::Identity => opts.initial_damping_tau * max_diag.max(f64::MIN_POSITIVE),
+            DampingKind::Diagonal => opts.initial_damping_tau,
+        };
         let mut nu = 2.0;
         let mut radius = opts.initial_trust_radius;
         let mut termination = if stop {
@@ -390,7 +425,7 @@ impl Solver {
                         })?;
                     }
                     negate_into(&ne.gradient, step);
-                    linear.solve(step);
+                    linear.solve(ne, step);
                     let pred = -dot(&ne.gradient, step) * 0.5;
                     (pred, 0.0)
                 }
@@ -412,18 +447,26 @@ impl Solver {
                         continue;
                     }
                     negate_into(&ne.gradient, step);
-                    linear.solve(step);
-                    // L(0) − L(δ) = ½ δᵀ(μDδ − g)
-                    let damp_term: f64 = match opts.damping {
-                        DampingKind::Identity => mu * dot(step, step),
-                        DampingKind::Diagonal => ne
-                            .diag_pos
-                            .iter()
-                            .zip(step.iter())
-                            .map(|(&p, s)| mu * ne.values[p].clamp(1e-6, 1e32) * s * s)
-                            .sum(),
-                    };
-                    (0.5 * (damp_term - dot(step, &ne.gradient)), mu)
+                    linear.solve(ne, step);
+                    if !linear.is_exact() {
+                        // L(0) − L(δ) = −gᵀδ − ½ δᵀHδ for any δ.
+                        ne.h.multiply(step, scratch);
+                        let pred = -dot(&ne.gradient, step) - 0.5 * dot(step, scratch);
+                        (pred, mu)
+                    } else {
+                        // For the exact solution of (H + μD)δ = −g: L(0) − L(δ) = ½ δᵀ(μDδ − g)
+                        let damp_term: f64 = match opts.damping {
+                            DampingKind::Identity => mu * dot(step, step),
+                            DampingKind::Diagonal => {
+                                ne.h.diag_pos
+                                    .iter()
+                                    .zip(step.iter())
+                                    .map(|(&p, s)| mu * ne.h.values[p].clamp(1e-6, 1e32) * s * s)
+                                    .sum()
+                            }
+                        };
+                        (0.5 * (damp_term - dot(step, &ne.gradient)), mu)
+                    }
                 }
                 Algorithm::Dogleg => {
                     if !gn_valid {
@@ -542,11 +585,7 @@ impl Solver {
             termination,
             total_seconds: start.elapsed().as_secs_f64(),
             unknowns: ne.dim(),
-            linear_solver: if linear.is_sparse() {
-                "sparse"
-            } else {
-                "dense"
-            },
+            linear_solver: linear.name(),
         })
     }
 }
@@ -574,10 +613,10 @@ fn rejected(
 }
 
 fn var_of_scalar(ne: &NormalEquations, i: usize) -> usize {
-    let b = ne
-        .block_start
-        .partition_point(|&s| s <= i)
-        .saturating_sub(1);
+    let b =
+        ne.h.block_start
+            .partition_point(|&s| s <= i)
+            .saturating_sub(1);
     ne.var_of_block[b.min(ne.var_of_block.len().saturating_sub(1))]
 }
 
@@ -620,7 +659,7 @@ fn apply_step(problem: &Problem, ne: &NormalEquations, step: &[f64], trial: &mut
             // SAFETY: each variable owns its ambient range of `trial`.
             let o = unsafe { out.slice(var.offset, a) };
             var.manifold
-                .plus(x, &step[ne.block_start[b]..ne.block_start[b + 1]], o);
+                .plus(x, &step[ne.h.block_start[b]..ne.h.block_start[b + 1]], o);
         });
 }
 
@@ -650,7 +689,7 @@ fn gauss_newton_step(
         };
     }
     negate_into(&ne.gradient, out);
-    linear.solve(out);
+    linear.solve(ne, out);
 }
 
 /// Powell's dogleg step inside `radius` (Madsen et al. 2004, alg. 3.21) from the Gauss-Newton step
@@ -668,7 +707,7 @@ fn dogleg_step(
     if gn_norm <= radius {
         step.copy_from_slice(gn);
     } else {
-        ne.multiply(g, hg);
+        ne.h.multiply(g, hg);
         let ghg = dot(g, hg);
         // Cauchy point: −α g with α = ‖g‖² / gᵀHg.
         let alpha = if ghg > 0.0 {
@@ -703,6 +742,6 @@ fn dogleg_step(
             }
         }
     }
-    ne.multiply(step, hg);
+    ne.h.multiply(step, hg);
     -dot(g, step) - 0.5 * dot(step, hg)
 }

@@ -8,6 +8,7 @@
 //!    over its contributing residuals in residual order, written straight into the values of the
 //!    upper triangle of H in compressed-column form (the layout faer's sparse Cholesky reads).
 
+use crate::block::BlockSparse;
 use crate::error::SolveError;
 use crate::problem::Problem;
 use rayon::prelude::*;
@@ -28,14 +29,6 @@ impl SyncPtr {
     pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [f64] {
         std::slice::from_raw_parts_mut(self.0.add(start), len)
     }
-}
-
-/// One block H_ij (i ≤ j) of the upper triangle.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Entry {
-    pub row_block: usize,
-    /// Offset of the block's first row inside each of its columns.
-    pub pos: usize,
 }
 
 /// A residual's share of an entry: J_aᵀ J_b with `m` rows, Jacobians at these buffer offsets.
@@ -60,21 +53,14 @@ pub(crate) struct NormalEquations {
     pub block_of_var: Vec<usize>,
     /// Variable of each block.
     pub var_of_block: Vec<usize>,
-    /// Scalar offset of each block, with the total at the end.
-    pub block_start: Vec<usize>,
     pub res_offset: Vec<usize>,
     pub jac_offset: Vec<usize>,
-    pub col_ptr: Vec<usize>,
-    pub row_idx: Vec<usize>,
-    pub diag_pos: Vec<usize>,
-    pub entry_ptr: Vec<usize>,
-    pub entries: Vec<Entry>,
+    /// H = JᵀJ, upper triangle; one block row and column per free variable.
+    pub h: BlockSparse,
     contrib_ptr: Vec<usize>,
     contribs: Vec<Contribution>,
     grad_ptr: Vec<usize>,
     grads: Vec<GradientContribution>,
-    /// Upper triangle of H, compressed columns.
-    pub values: Vec<f64>,
     /// Gradient Jᵀr.
     pub gradient: Vec<f64>,
     pub residuals: Vec<f64>,
@@ -132,52 +118,23 @@ impl NormalEquations {
         pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
         grad_list.sort_unstable_by_key(|g| (g.0, g.1));
 
-        let dim = |b: usize| block_start[b + 1] - block_start[b];
-        let mut entry_ptr = vec![0];
-        let mut entries = Vec::new();
+        let mut columns: Vec<Vec<usize>> = vec![Vec::new(); nb];
         let mut contrib_ptr = vec![0];
         let mut contribs = Vec::new();
-        let mut col_ptr = vec![0];
-        let mut row_idx = Vec::new();
-        let mut diag_pos = vec![0; *block_start.last().unwrap()];
         let mut i = 0;
-        for j in 0..nb {
-            // entries of block column j, sorted by row block
-            let first_entry = entries.len();
-            let mut pos = 0;
-            while i < pairs.len() && pairs[i].0 == j {
-                let row = pairs[i].1;
-                entries.push(Entry {
-                    row_block: row,
-                    pos,
+        while i < pairs.len() {
+            let (col, row) = (pairs[i].0, pairs[i].1);
+            columns[col].push(row);
+            while i < pairs.len() && pairs[i].0 == col && pairs[i].1 == row {
+                let p = pairs[i];
+                contribs.push(Contribution {
+                    ja: p.3,
+                    jb: p.4,
+                    m: p.5,
                 });
-                pos += if row == j { 0 } else { dim(row) };
-                while i < pairs.len() && pairs[i].0 == j && pairs[i].1 == row {
-                    let p = pairs[i];
-                    contribs.push(Contribution {
-                        ja: p.3,
-                        jb: p.4,
-                        m: p.5,
-                    });
-                    i += 1;
-                }
-                contrib_ptr.push(contribs.len());
+                i += 1;
             }
-            entry_ptr.push(entries.len());
-            let col_entries = &entries[first_entry..];
-            for c in 0..dim(j) {
-                for e in col_entries {
-                    let rows = if e.row_block == j {
-                        c + 1
-                    } else {
-                        dim(e.row_block)
-                    };
-                    let start = block_start[e.row_block];
-                    row_idx.extend(start..start + rows);
-                }
-                diag_pos[block_start[j] + c] = row_idx.len() - 1;
-                col_ptr.push(row_idx.len());
-            }
+            contrib_ptr.push(contribs.len());
         }
         let mut grad_ptr = vec![0; nb + 1];
         let mut grads = Vec::with_capacity(grad_list.len());
@@ -192,23 +149,17 @@ impl NormalEquations {
         for b in 0..nb {
             grad_ptr[b + 1] += grad_ptr[b];
         }
-        let n = *block_start.last().unwrap();
+        let h = BlockSparse::new(block_start, &columns);
         Ok(Self {
-            values: vec![0.0; row_idx.len()],
-            gradient: vec![0.0; n],
+            gradient: vec![0.0; h.dim()],
             residuals: vec![0.0; *res_offset.last().unwrap()],
             jacobians: vec![0.0; *jac_offset.last().unwrap()],
             costs: vec![0.0; problem.blocks.len()],
             block_of_var,
             var_of_block,
-            block_start,
             res_offset,
             jac_offset,
-            col_ptr,
-            row_idx,
-            diag_pos,
-            entry_ptr,
-            entries,
+            h,
             contrib_ptr,
             contribs,
             grad_ptr,
@@ -218,7 +169,7 @@ impl NormalEquations {
 
     /// Scalar size of the system.
     pub fn dim(&self) -> usize {
-        *self.block_start.last().unwrap()
+        self.h.dim()
     }
 
     /// Number of blocks (free variables).
@@ -252,7 +203,7 @@ impl NormalEquations {
 
     /// Forms H and g from the Jacobian and residual buffers filled by [`Self::evaluate`].
     pub fn assemble(&mut self) {
-        let h = SyncPtr::new(&mut self.values);
+        let h = SyncPtr::new(&mut self.h.values);
         let g = SyncPtr::new(&mut self.gradient);
         let this = &*self;
         (0..this.num_blocks())
@@ -261,43 +212,71 @@ impl NormalEquations {
             .for_each(|jb| this.assemble_column(jb, h, g));
     }
 
-    fn assemble_column(&self, jb: usize, h: SyncPtr, g: SyncPtr) {
-        let (jac, res) = (&self.jacobians, &self.residuals);
-        let c0 = self.block_start[jb];
-        let dj = self.block_start[jb + 1] - c0;
-        for e in self.entry_ptr[jb]..self.entry_ptr[jb + 1] {
-            let entry = self.entries[e];
-            let diagonal = entry.row_block == jb;
-            let di = self.block_start[entry.row_block + 1] - self.block_start[entry.row_block];
-            if di == 6 && dj == 6 {
-                // The common case (SE(3) blocks): accumulate the 6×6 block Σ J_aᵀ J_b over the
-                // contributions in registers, one residual row at a time, then write its columns.
-                let mut acc = [[0.0f64; 6]; 6];
-                for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
-                    let m = k.m;
-                    let (a, b) = (&jac[k.ja..k.ja + 6 * m], &jac[k.jb..k.jb + 6 * m]);
-                    for i in 0..m {
-                        let ar: [f64; 6] = std::array::from_fn(|r| a[r * m + i]);
-                        let bc: [f64; 6] = std::array::from_fn(|c| b[c * m + i]);
-                        for (row, &bcv) in acc.iter_mut().zip(&bc) {
-                            for (o, &arv) in row.iter_mut().zip(&ar) {
-                                *o += arv * bcv;
-                            }
-                        }
+    /// Entry `e` (a DI × DJ block of block column `jb`) as Σ J_aᵀ J_b over its contributions,
+    /// accumulated in registers one residual row at a time. Returns true (it always handles the
+    /// entry; the bool lets the caller dispatch on sizes in one match).
+    #[inline(always)]
+    fn fixed_block<const DI: usize, const DJ: usize>(
+        &self,
+        e: usize,
+        jb: usize,
+        h: SyncPtr,
+    ) -> bool {
+        let (jac, hm) = (&self.jacobians, &self.h);
+        let entry = hm.entries[e];
+        let diagonal = entry.row_block == jb;
+        let c0 = hm.block_start[jb];
+        let mut acc = [[0.0f64; DI]; DJ];
+        for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
+            let m = k.m;
+            let (a, b) = (&jac[k.ja..k.ja + DI * m], &jac[k.jb..k.jb + DJ * m]);
+            for i in 0..m {
+                let ar: [f64; DI] = std::array::from_fn(|r| a[r * m + i]);
+                let bc: [f64; DJ] = std::array::from_fn(|c| b[c * m + i]);
+                for (column, &bcv) in acc.iter_mut().zip(&bc) {
+                    for (o, &arv) in column.iter_mut().zip(&ar) {
+                        *o += arv * bcv;
                     }
                 }
-                for (c, column) in acc.iter().enumerate() {
-                    let rows = if diagonal { c + 1 } else { 6 };
-                    // SAFETY: column c0 + c belongs to block column jb only.
-                    let col = unsafe { h.slice(self.col_ptr[c0 + c] + entry.pos, rows) };
-                    col.copy_from_slice(&column[..rows]);
-                }
+            }
+        }
+        for (c, column) in acc.iter().enumerate() {
+            let rows = if diagonal { c + 1 } else { DI };
+            // SAFETY: column c0 + c belongs to block column jb only.
+            let col = unsafe { h.slice(hm.col_ptr[c0 + c] + entry.pos, rows) };
+            col.copy_from_slice(&column[..rows]);
+        }
+        true
+    }
+
+    fn assemble_column(&self, jb: usize, h: SyncPtr, g: SyncPtr) {
+        let (jac, res) = (&self.jacobians, &self.residuals);
+        let hm = &self.h;
+        let c0 = hm.block_start[jb];
+        let dj = hm.block_dim(jb);
+        for e in hm.entry_ptr[jb]..hm.entry_ptr[jb + 1] {
+            let entry = hm.entries[e];
+            let diagonal = entry.row_block == jb;
+            let di = hm.block_dim(entry.row_block);
+            // The common block sizes (SE(3) poses, BAL cameras and points) run through a
+            // fixed-size kernel the compiler unrolls; other sizes through the loop below.
+            let fixed = match (di, dj) {
+                (6, 6) => self.fixed_block::<6, 6>(e, jb, h),
+                (9, 9) => self.fixed_block::<9, 9>(e, jb, h),
+                (3, 3) => self.fixed_block::<3, 3>(e, jb, h),
+                (9, 3) => self.fixed_block::<9, 3>(e, jb, h),
+                (3, 9) => self.fixed_block::<3, 9>(e, jb, h),
+                (6, 3) => self.fixed_block::<6, 3>(e, jb, h),
+                (3, 6) => self.fixed_block::<3, 6>(e, jb, h),
+                _ => false,
+            };
+            if fixed {
                 continue;
             }
             for c in 0..dj {
                 let rows = if diagonal { c + 1 } else { di };
                 // SAFETY: column c0 + c belongs to block column jb only.
-                let col = unsafe { h.slice(self.col_ptr[c0 + c] + entry.pos, rows) };
+                let col = unsafe { h.slice(hm.col_ptr[c0 + c] + entry.pos, rows) };
                 col.fill(0.0);
                 for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
                     let m = k.m;
@@ -318,25 +297,6 @@ impl NormalEquations {
                 *out += dot(&jac[k.j + c * k.m..k.j + (c + 1) * k.m], r);
             }
         }
-    }
-
-    /// y = H x with H symmetric, stored as its upper triangle.
-    pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
-        y.fill(0.0);
-        for c in 0..self.dim() {
-            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
-                let (r, v) = (self.row_idx[p], self.values[p]);
-                y[r] += v * x[c];
-                if r != c {
-                    y[c] += v * x[r];
-                }
-            }
-        }
-    }
-
-    /// The diagonal of H.
-    pub fn diagonal(&self) -> impl Iterator<Item = f64> + '_ {
-        self.diag_pos.iter().map(|&p| self.values[p])
     }
 }
 

@@ -1,0 +1,112 @@
+//! Bundle adjustment in BAL's form: cameras `[ω, t, f, k₁, k₂]`, 3D points, and pixel
+//! observations scored by the [`SnavelyReprojection`] error (Agarwal et al., *Bundle Adjustment in
+//! the Large*, ECCV 2010).
+//!
+//! [`BalProblem::build`] turns a problem into a [`Problem`] with the cameras first and the points
+//! after; solve it with one of the Schur-complement linear solvers
+//! ([`dynamap_solver::LinearSolverKind::SchurDense`] and friends), which eliminate the points.
+
+pub mod file;
+mod snavely;
+pub mod synthetic;
+
+pub use file::BalError;
+pub use snavely::{reprojection, rotate, SnavelyReprojection};
+
+use dynamap_solver::robust::Huber;
+use dynamap_solver::{Euclidean, Problem, ProblemError, VarId};
+
+/// One observation: camera `camera` sees point `point` at pixel `uv`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observation {
+    /// Camera index.
+    pub camera: usize,
+    /// Point index.
+    pub point: usize,
+    /// The measured image point (u, v), pixels from the image centre.
+    pub uv: [f64; 2],
+}
+
+/// A bundle-adjustment problem: its cameras, points and observations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BalProblem {
+    /// `[ω (angle-axis), t, f, k₁, k₂]` per camera.
+    pub cameras: Vec<[f64; 9]>,
+    /// Point coordinates.
+    pub points: Vec<[f64; 3]>,
+    /// The observations.
+    pub observations: Vec<Observation>,
+}
+
+/// A [`BalProblem`] as a solver [`Problem`], with the handles of its variables.
+pub struct BalSolve {
+    /// The problem: one residual block per observation, in the file's order.
+    pub problem: Problem,
+    /// Handle of each camera.
+    pub cameras: Vec<VarId>,
+    /// Handle of each point.
+    pub points: Vec<VarId>,
+}
+
+impl BalProblem {
+    /// The reprojection residual of observation `k` at the current parameters.
+    pub fn residual(&self, k: usize) -> [f64; 2] {
+        let o = &self.observations[k];
+        reprojection(&self.cameras[o.camera], &self.points[o.point], o.uv, None)
+    }
+
+    /// ½ Σ ‖r_k‖² over the observations where `keep(k)` holds.
+    pub fn cost_where(&self, keep: impl Fn(usize) -> bool) -> f64 {
+        (0..self.observations.len())
+            .filter(|&k| keep(k))
+            .map(|k| {
+                let r = self.residual(k);
+                0.5 * (r[0] * r[0] + r[1] * r[1])
+            })
+            .sum()
+    }
+
+    /// ½ Σ ‖r_k‖², the cost BAL's reference values and Ceres report.
+    pub fn cost(&self) -> f64 {
+        self.cost_where(|_| true)
+    }
+
+    /// A solver problem with the cameras added first, then the points, then one
+    /// [`SnavelyReprojection`] per observation, under a Huber kernel of width `huber` if given.
+    pub fn build(&self, huber: Option<f64>) -> Result<BalSolve, ProblemError> {
+        let mut problem = Problem::new();
+        let cameras = self
+            .cameras
+            .iter()
+            .map(|c| problem.add_variable(c, Euclidean::<9>))
+            .collect::<Result<Vec<_>, _>>()?;
+        let points = self
+            .points
+            .iter()
+            .map(|p| problem.add_variable(p, Euclidean::<3>))
+            .collect::<Result<Vec<_>, _>>()?;
+        for o in &self.observations {
+            let r = SnavelyReprojection::new(o.uv[0], o.uv[1]);
+            let vars = [cameras[o.camera], points[o.point]];
+            match huber {
+                Some(delta) => problem.add_robust_residual(r, Huber(delta), &vars)?,
+                None => problem.add_residual(r, &vars)?,
+            };
+        }
+        Ok(BalSolve {
+            problem,
+            cameras,
+            points,
+        })
+    }
+
+    /// Copies the solved values of `solve` back into the cameras and points.
+    pub fn update_from(&mut self, solve: &BalSolve) {
+        for (c, &v) in self.cameras.iter_mut().zip(&solve.cameras) {
+            c.copy_from_slice(solve.problem.value(v));
+        }
+        for (p, &v) in self.points.iter_mut().zip(&solve.points) {
+            p.copy_from_slice(solve.problem.value(v));
+        }
+    }
+}

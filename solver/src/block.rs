@@ -1,0 +1,148 @@
+//! A symmetric block-sparse matrix stored as its upper triangle in compressed columns: the layout
+//! of the normal equations H and of the Schur complement S, and the one faer's sparse Cholesky
+//! reads.
+//!
+//! Block column j holds the blocks (i, j), i ≤ j, in increasing i; inside every scalar column the
+//! rows of one block are contiguous, and the diagonal block keeps only its upper triangle. So the
+//! element (r, c) of block (i, j) sits at `values[col_ptr[block_start[j] + c] + pos + r]`, with
+//! `pos` the block's offset inside its columns.
+
+/// One block (i, j), i ≤ j, of the upper triangle.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Entry {
+    pub row_block: usize,
+    /// Offset of the block's first row inside each of its columns.
+    pub pos: usize,
+}
+
+/// The symmetric matrix: structure and values.
+pub(crate) struct BlockSparse {
+    /// Scalar offset of each block, with the total at the end.
+    pub block_start: Vec<usize>,
+    /// Entries of block column j: `entries[entry_ptr[j]..entry_ptr[j + 1]]`.
+    pub entry_ptr: Vec<usize>,
+    pub entries: Vec<Entry>,
+    pub col_ptr: Vec<usize>,
+    pub row_idx: Vec<usize>,
+    /// Position of every diagonal element in `values`.
+    pub diag_pos: Vec<usize>,
+    pub values: Vec<f64>,
+}
+
+impl BlockSparse {
+    /// Lays out a matrix whose block column j has the row blocks `columns[j]` (strictly
+    /// increasing, each ≤ j, ending with j itself). Values start at zero.
+    pub fn new(block_start: Vec<usize>, columns: &[Vec<usize>]) -> Self {
+        let dim = |b: usize| block_start[b + 1] - block_start[b];
+        let mut entry_ptr = vec![0];
+        let mut entries = Vec::new();
+        let mut col_ptr = vec![0];
+        let mut row_idx = Vec::new();
+        let mut diag_pos = vec![0; *block_start.last().unwrap_or(&0)];
+        for (j, rows) in columns.iter().enumerate() {
+            debug_assert_eq!(rows.last(), Some(&j), "block column {j} lacks its diagonal");
+            let first = entries.len();
+            let mut pos = 0;
+            for &row in rows {
+                entries.push(Entry {
+                    row_block: row,
+                    pos,
+                });
+                pos += if row == j { 0 } else { dim(row) };
+            }
+            entry_ptr.push(entries.len());
+            for c in 0..dim(j) {
+                for e in &entries[first..] {
+                    let rows = if e.row_block == j {
+                        c + 1
+                    } else {
+                        dim(e.row_block)
+                    };
+                    let start = block_start[e.row_block];
+                    row_idx.extend(start..start + rows);
+                }
+                diag_pos[block_start[j] + c] = row_idx.len() - 1;
+                col_ptr.push(row_idx.len());
+            }
+        }
+        Self {
+            values: vec![0.0; row_idx.len()],
+            block_start,
+            entry_ptr,
+            entries,
+            col_ptr,
+            row_idx,
+            diag_pos,
+        }
+    }
+
+    /// Scalar size.
+    pub fn dim(&self) -> usize {
+        *self.block_start.last().unwrap_or(&0)
+    }
+
+    /// Number of block rows (and columns).
+    pub fn num_blocks(&self) -> usize {
+        self.block_start.len() - 1
+    }
+
+    /// Scalar size of block `b`.
+    #[inline]
+    pub fn block_dim(&self, b: usize) -> usize {
+        self.block_start[b + 1] - self.block_start[b]
+    }
+
+    /// Position in `values` of element (0, c) of entry `e` of block column `j`; its rows follow.
+    #[inline]
+    pub fn column_start(&self, j: usize, e: usize, c: usize) -> usize {
+        self.col_ptr[self.block_start[j] + c] + self.entries[e].pos
+    }
+
+    /// The entry index of block (i, j), i ≤ j, if it is stored.
+    pub fn find(&self, i: usize, j: usize) -> Option<usize> {
+        let range = self.entry_ptr[j]..self.entry_ptr[j + 1];
+        self.entries[range.clone()]
+            .binary_search_by_key(&i, |e| e.row_block)
+            .ok()
+            .map(|k| range.start + k)
+    }
+
+    /// y = A x with A symmetric, stored as its upper triangle.
+    pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for c in 0..self.dim() {
+            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let (r, v) = (self.row_idx[p], self.values[p]);
+                y[r] += v * x[c];
+                if r != c {
+                    y[c] += v * x[r];
+                }
+            }
+        }
+    }
+
+    /// The diagonal.
+    pub fn diagonal(&self) -> impl Iterator<Item = f64> + '_ {
+        self.diag_pos.iter().map(|&p| self.values[p])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layout_places_every_block_element_once() {
+        // blocks of sizes 2, 1, 3; column 2 holds blocks (0, 2) and (2, 2), column 1 only (1, 1)
+        let m = BlockSparse::new(vec![0, 2, 3, 6], &[vec![0], vec![1], vec![0, 2]]);
+        assert_eq!(m.dim(), 6);
+        assert_eq!(m.find(0, 2), Some(2));
+        assert_eq!(m.find(1, 2), None);
+        // column of scalar 4 (block 2, c = 1): rows 0, 1 of block 0, then rows 3, 4 of block 2
+        let p = m.col_ptr[4];
+        assert_eq!(&m.row_idx[p..m.col_ptr[5]], &[0, 1, 3, 4]);
+        assert_eq!(m.column_start(2, 3, 1), p + 2);
+        assert_eq!(m.row_idx[m.diag_pos[4]], 4);
+        assert_eq!(m.values.len(), 3 + 1 + 2 * 3 + 6);
+    }
+}

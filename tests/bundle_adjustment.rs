@@ -1,0 +1,204 @@
+//! Bundle adjustment and the Schur-complement solvers on generated problems with known answers.
+
+use dynamap::residuals::bal::{
+    synthetic::{self, SyntheticOptions},
+    BalProblem, SnavelyReprojection,
+};
+use dynamap::solver::{
+    AutoDiff, CostFunctor, DampingKind, Elimination, Euclidean, IterationSummary, LinearSolverKind,
+    Options, Problem, Real, SolveError, Solver,
+};
+use std::sync::{Arc, Mutex};
+
+fn options(linear_solver: LinearSolverKind) -> Options {
+    Options {
+        linear_solver,
+        damping: DampingKind::Diagonal,
+        check_rank: false,
+        max_iterations: 30,
+        pcg_tolerance: 1e-10,
+        ..Options::default()
+    }
+}
+
+/// Solves and returns the cost after every iteration.
+fn costs(problem: &mut Problem, options: Options) -> (Vec<f64>, &'static str) {
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let sink = log.clone();
+    let summary = Solver::new(options)
+        .with_observer(move |it: &IterationSummary| {
+            sink.lock().unwrap().push(it.cost);
+            std::ops::ControlFlow::Continue(())
+        })
+        .solve(problem)
+        .unwrap();
+    let costs = log.lock().unwrap().clone();
+    (costs, summary.linear_solver)
+}
+
+fn noisy() -> synthetic::Synthetic {
+    synthetic::generate(&SyntheticOptions {
+        cameras: 6,
+        points: 80,
+        pixel_noise: 0.5,
+        seed: 3,
+        ..SyntheticOptions::default()
+    })
+}
+
+#[test]
+fn every_schur_solver_follows_the_full_cholesky_path() {
+    let data = noisy().start;
+    let (reference, name) = costs(
+        &mut data.build(None).unwrap().problem,
+        options(LinearSolverKind::Sparse),
+    );
+    assert_eq!(name, "sparse");
+    for (kind, expected, tol) in [
+        (LinearSolverKind::SchurDense, "schur-dense", 1e-9),
+        (LinearSolverKind::SchurSparse, "schur-sparse", 1e-9),
+        (LinearSolverKind::Schur, "schur-dense", 1e-9),
+        (LinearSolverKind::SchurIterative, "schur-iterative", 1e-6),
+    ] {
+        let (path, name) = costs(&mut data.build(None).unwrap().problem, options(kind));
+        assert_eq!(name, expected);
+        assert_eq!(path.len(), reference.len(), "{kind:?}");
+        for (k, (a, b)) in path.iter().zip(&reference).enumerate() {
+            assert!(
+                (a - b).abs() <= tol * b.abs().max(1e-12),
+                "{kind:?} iteration {k}: {a} vs {b}"
+            );
+        }
+    }
+    // The noisy problem's optimum: pixel noise of 0.5 leaves about ¼ per observation.
+    let last = *reference.last().unwrap();
+    let per_obs = 2.0 * last / data.observations.len() as f64;
+    assert!(per_obs > 0.05 && per_obs < 0.5, "{per_obs}");
+}
+
+#[test]
+fn the_generated_problem_reaches_its_known_optimum() {
+    let s = synthetic::generate(&SyntheticOptions::default());
+    let mut solve = s.start.build(None).unwrap();
+    assert!(s.truth.cost() < 1e-20);
+    assert!(s.start.cost() > 1e3);
+    let summary = Solver::new(options(LinearSolverKind::SchurDense))
+        .solve(&mut solve.problem)
+        .unwrap();
+    assert!(summary.final_cost < 1e-16, "{}", summary.table());
+    assert!(summary.num_iterations() < 15, "{}", summary.table());
+}
+
+/// A prior tying two cameras' focal lengths: a kept-kept block of H (S gets H_cc off-diagonal).
+struct SameFocal;
+impl CostFunctor for SameFocal {
+    fn parameter_sizes(&self) -> &[usize] {
+        &[9, 9]
+    }
+    fn evaluate<T: Real>(&self, p: &[&[T]], r: &mut [T]) {
+        r[0] = (p[0][6] - p[1][6]) * 0.1;
+    }
+}
+
+#[test]
+fn points_before_cameras_and_coupled_cameras_are_eliminated_correctly() {
+    let data = noisy().start;
+    // Points first, so every H_ce block is stored transposed; cameras 0 and 1 share a residual.
+    let build = || {
+        let mut problem = Problem::new();
+        let points: Vec<_> = data
+            .points
+            .iter()
+            .map(|p| problem.add_variable(p, Euclidean::<3>).unwrap())
+            .collect();
+        let cameras: Vec<_> = data
+            .cameras
+            .iter()
+            .map(|c| problem.add_variable(c, Euclidean::<9>).unwrap())
+            .collect();
+        for o in &data.observations {
+            problem
+                .add_residual(
+                    SnavelyReprojection::new(o.uv[0], o.uv[1]),
+                    &[cameras[o.camera], points[o.point]],
+                )
+                .unwrap();
+        }
+        problem
+            .add_residual(
+                AutoDiff::<_, 1, 18>::new(SameFocal),
+                &[cameras[0], cameras[1]],
+            )
+            .unwrap();
+        (problem, points)
+    };
+    let (mut p, _) = build();
+    let (reference, _) = costs(&mut p, options(LinearSolverKind::Dense));
+    for kind in [
+        LinearSolverKind::SchurDense,
+        LinearSolverKind::SchurSparse,
+        LinearSolverKind::SchurIterative,
+    ] {
+        let (mut p, points) = build();
+        let o = Options {
+            elimination: Elimination::Variables(points),
+            ..options(kind)
+        };
+        let (path, _) = costs(&mut p, o);
+        let (a, b) = (path.last().unwrap(), reference.last().unwrap());
+        assert!((a - b).abs() <= 1e-7 * b, "{kind:?}: {a} vs {b}");
+    }
+}
+
+#[test]
+fn an_elimination_set_with_coupled_variables_is_refused() {
+    let data = noisy().start;
+    let solve = data.build(None).unwrap();
+    let mut problem = solve.problem;
+    let o = Options {
+        elimination: Elimination::Variables(vec![
+            solve.cameras[data.observations[0].camera],
+            solve.points[data.observations[0].point],
+        ]),
+        ..options(LinearSolverKind::SchurDense)
+    };
+    match Solver::new(o).solve(&mut problem) {
+        Err(SolveError::LinearSolver(m)) => assert!(m.contains("share a residual"), "{m}"),
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+}
+
+#[test]
+fn huber_lowers_the_inlier_cost_when_a_tenth_of_the_observations_are_corrupt() {
+    let s = synthetic::generate(&SyntheticOptions {
+        cameras: 8,
+        points: 200,
+        pixel_noise: 0.5,
+        outlier_fraction: 0.1,
+        seed: 5,
+        ..SyntheticOptions::default()
+    });
+    let outliers = s.outlier.iter().filter(|&&b| b).count();
+    assert!(outliers > s.outlier.len() / 20, "{outliers} outliers");
+    let solve_with = |huber: Option<f64>| -> BalProblem {
+        let mut data = s.start.clone();
+        let mut solve = data.build(huber).unwrap();
+        let summary = Solver::new(Options {
+            max_iterations: 100,
+            ..options(LinearSolverKind::SchurDense)
+        })
+        .solve(&mut solve.problem)
+        .unwrap();
+        assert!(summary.termination.converged(), "{}", summary.table());
+        data.update_from(&solve);
+        data
+    };
+    let inlier_cost = |d: &BalProblem| d.cost_where(|k| !s.outlier[k]);
+    let plain = inlier_cost(&solve_with(None));
+    let robust = inlier_cost(&solve_with(Some(1.0)));
+    let truth = inlier_cost(&s.truth);
+    assert!(
+        robust < 0.8 * plain,
+        "inlier cost with Huber {robust}, without {plain} (at the truth {truth})"
+    );
+}
