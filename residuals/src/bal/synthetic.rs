@@ -103,7 +103,7 @@ pub fn generate(o: &SyntheticOptions) -> Synthetic {
             let cam = &cameras[c];
             let pc = rotate(
                 &Vector3::new(cam[0], cam[1], cam[2]),
-                &Vector3::from(points[p]),
+                &Vector3::from(*point),
             ) + Vector3::new(cam[3], cam[4], cam[5]);
             let (xp, yp) = (-pc.x / pc.z, -pc.y / pc.z);
             let r2 = xp * xp + yp * yp;
