@@ -541,7 +541,7 @@ fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
         (49, 7776),
         "ladybug's size"
     );
-    let reference = 8.50912460680839605629e+05;
+    let reference = 850_912.460_680_839_6;
     assert!(
         (data.cost() - reference).abs() < 1e-9 * reference,
         "initial cost {}",
