@@ -61,6 +61,13 @@ pub enum SolveError {
     /// The initial cost is not finite.
     #[error("the cost at the initial point is not finite (residual block {0} is the first non-finite one)")]
     NonFiniteInitialCost(usize),
+    /// The box-constrained step could not be computed, or bounds were used where they are not
+    /// supported.
+    #[error("bounds: {0}")]
+    Bounds(String),
+    /// A covariance that cannot be computed as asked.
+    #[error("covariance: {0}")]
+    Covariance(String),
     /// The sparse factorisation could not be set up.
     #[error("linear solver: {0}")]
     LinearSolver(String),

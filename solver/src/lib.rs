@@ -15,6 +15,11 @@
 //! - [`Solver`]: Gauss-Newton, Levenberg-Marquardt and Powell's dogleg over normal equations
 //!   assembled in block form in parallel, solved by dense Cholesky or faer's sparse Cholesky with a
 //!   symbolic factorisation reused across iterations and solves.
+//! - [`Elimination`] and the Schur-complement [`LinearSolverKind`]s: eliminate many small
+//!   independent variables (the points of bundle adjustment) and solve the reduced system by dense
+//!   or sparse Cholesky, or by conjugate gradients with implicit products.
+//! - [`Problem::set_bounds`]: box constraints on Euclidean variables, honoured at every iterate.
+//! - [`covariance()`]: marginal covariances, blocks of H⁻¹ at the solution.
 //! - [`dense`]: the dense path for one variable with many scalar terms (trackers), reduced
 //!   straight into 6×6 normal equations.
 //! - [`lie`]: SO(2), SE(2), SO(3), SE(3) exponentials, logarithms, adjoints and Jacobians.
@@ -25,6 +30,8 @@
 
 mod autodiff;
 mod block;
+mod bounds;
+mod covariance;
 pub mod dense;
 mod diagnose;
 mod error;
@@ -42,6 +49,7 @@ pub mod robust;
 mod schur;
 
 pub use autodiff::{AutoDiff, CostFunctor};
+pub use covariance::covariance;
 pub use error::{ProblemError, SolveError};
 pub use jet::Jet;
 pub use linear::LinearSolverKind;

@@ -5,6 +5,7 @@
 //! ratio ρ = (F(x) − F(x+δ)) / (L(0) − L(δ)), and Nielsen's update μ ← μ max(1/3, 1 − (2ρ − 1)³) on
 //! success, μ ← μν, ν ← 2ν on failure. The dogleg follows the same text, alg. 3.21.
 
+use crate::bounds::{self, StepBox};
 use crate::diagnose;
 use crate::error::SolveError;
 use crate::linear::{Damping, LinearSolver, LinearSolverKind};
@@ -367,7 +368,13 @@ impl Solver {
         }
         let initial_cost = cost;
         let mut log = Vec::new();
-        let mut gnorm = max_abs(&ne.gradient);
+        let has_bounds = problem.variables.iter().any(|v| !v.lower.is_empty());
+        if has_bounds && opts.algorithm == Algorithm::Dogleg {
+            return Err(SolveError::Bounds(
+                "the dogleg does not take bounds; use Levenberg-Marquardt or Gauss-Newton".into(),
+            ));
+        }
+        let mut gnorm = gradient_norm(problem, ne);
         let mut stop = self.notify(
             &IterationSummary {
                 iteration: 0,
@@ -426,7 +433,11 @@ impl Solver {
                     }
                     negate_into(&ne.gradient, step);
                     linear.solve(ne, step);
-                    let pred = -dot(&ne.gradient, step) * 0.5;
+                    let pred = if constrain_step(problem, ne, Damping::None, step)? {
+                        model_decrease(ne, step, scratch)
+                    } else {
+                        -dot(&ne.gradient, step) * 0.5
+                    };
                     (pred, 0.0)
                 }
                 Algorithm::LevenbergMarquardt => {
@@ -448,11 +459,9 @@ impl Solver {
                     }
                     negate_into(&ne.gradient, step);
                     linear.solve(ne, step);
-                    if !linear.is_exact() {
-                        // L(0) − L(δ) = −gᵀδ − ½ δᵀHδ for any δ.
-                        ne.h.multiply(step, scratch);
-                        let pred = -dot(&ne.gradient, step) - 0.5 * dot(step, scratch);
-                        (pred, mu)
+                    let boxed = constrain_step(problem, ne, d, step)?;
+                    if boxed || !linear.is_exact() {
+                        (model_decrease(ne, step, scratch), mu)
                     } else {
                         // For the exact solution of (H + μD)δ = −g: L(0) − L(δ) = ½ δᵀ(μDδ − g)
                         let damp_term: f64 = match opts.damping {
@@ -501,6 +510,7 @@ impl Solver {
             }
             let t_eval = Instant::now();
             apply_step(problem, ne, step, trial);
+            bounds::clamp(problem, trial);
             let new_cost = ne.evaluate(problem, trial, true);
             let actual = cost - new_cost;
             let gain = actual / predicted;
@@ -513,7 +523,7 @@ impl Solver {
                 gn_valid = false;
                 problem.values.copy_from_slice(trial);
                 ne.assemble();
-                gnorm = max_abs(&ne.gradient);
+                gnorm = gradient_norm(problem, ne);
                 let relative = actual / cost.max(f64::MIN_POSITIVE);
                 cost = new_cost;
                 match opts.algorithm {
@@ -618,6 +628,34 @@ fn var_of_scalar(ne: &NormalEquations, i: usize) -> usize {
             .partition_point(|&s| s <= i)
             .saturating_sub(1);
     ne.var_of_block[b.min(ne.var_of_block.len().saturating_sub(1))]
+}
+
+/// max |g_i|, projected onto the bounds where there are any.
+fn gradient_norm(problem: &Problem, ne: &NormalEquations) -> f64 {
+    match StepBox::new(problem, ne) {
+        Some(b) => b.projected_gradient_norm(&ne.gradient),
+        None => max_abs(&ne.gradient),
+    }
+}
+
+/// Keeps `step` inside the bounds of the current point (see [`crate::bounds`]); true when it had
+/// to be replaced by the box-constrained minimiser.
+fn constrain_step(
+    problem: &Problem,
+    ne: &NormalEquations,
+    damping: Damping,
+    step: &mut [f64],
+) -> Result<bool, SolveError> {
+    match StepBox::new(problem, ne) {
+        Some(b) if !b.contains(step) => b.constrain(ne, damping, step).map(|_| true),
+        _ => Ok(false),
+    }
+}
+
+/// The decrease of the undamped model, L(0) − L(δ) = −gᵀδ − ½ δᵀHδ, for any δ.
+fn model_decrease(ne: &NormalEquations, step: &[f64], scratch: &mut [f64]) -> f64 {
+    ne.h.multiply(step, scratch);
+    -dot(&ne.gradient, step) - 0.5 * dot(step, scratch)
 }
 
 fn max_abs(v: &[f64]) -> f64 {

@@ -19,6 +19,9 @@ pub(crate) struct Variable {
     pub offset: usize,
     pub manifold: Box<dyn Manifold>,
     pub fixed: bool,
+    /// Per-coordinate lower and upper bounds (Euclidean variables only); empty when unbounded.
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
 }
 
 pub(crate) struct ResidualBlock {
@@ -106,6 +109,8 @@ impl Problem {
             offset,
             manifold,
             fixed: false,
+            lower: Vec::new(),
+            upper: Vec::new(),
         });
         self.structure_version += 1;
         Ok(VarId(id))
@@ -125,6 +130,62 @@ impl Problem {
             self.structure_version += 1;
         }
         Ok(())
+    }
+
+    /// Bounds each coordinate of a Euclidean variable to `[lower_i, upper_i]` (use ±∞ for a side
+    /// without a bound). The minimisers keep every iterate inside: a damped step that would leave
+    /// the box is replaced by the solution of the box-constrained quadratic model (solved with
+    /// Clarabel), and Levenberg-Marquardt and Gauss-Newton honour the bounds exactly. The current
+    /// value must lie inside.
+    pub fn set_bounds(
+        &mut self,
+        v: VarId,
+        lower: &[f64],
+        upper: &[f64],
+    ) -> Result<(), ProblemError> {
+        let var = self.check(v)?;
+        let n = var.manifold.ambient_dim();
+        let invalid = |reason: String| ProblemError::InvalidValue {
+            variable: v.0,
+            reason,
+        };
+        if !var.manifold.is_euclidean() {
+            return Err(invalid(
+                "bounds apply to Euclidean variables only".to_string(),
+            ));
+        }
+        if lower.len() != n || upper.len() != n {
+            return Err(invalid(format!(
+                "bounds need {n} lower and {n} upper values, got {} and {}",
+                lower.len(),
+                upper.len()
+            )));
+        }
+        let value = self.value(v);
+        for i in 0..n {
+            if lower[i].is_nan() || upper[i].is_nan() || lower[i] > upper[i] {
+                return Err(invalid(format!(
+                    "coordinate {i}: bounds [{}, {}] are not an interval",
+                    lower[i], upper[i]
+                )));
+            }
+            if value[i] < lower[i] || value[i] > upper[i] {
+                return Err(invalid(format!(
+                    "coordinate {i}: value {} lies outside its bounds [{}, {}]",
+                    value[i], lower[i], upper[i]
+                )));
+            }
+        }
+        let var = &mut self.variables[v.0];
+        var.lower = lower.to_vec();
+        var.upper = upper.to_vec();
+        Ok(())
+    }
+
+    /// The bounds of a variable, if it has any.
+    pub fn bounds(&self, v: VarId) -> Option<(&[f64], &[f64])> {
+        let var = &self.variables[v.0];
+        (!var.lower.is_empty()).then_some((var.lower.as_slice(), var.upper.as_slice()))
     }
 
     /// Whether a variable is held constant.
@@ -151,6 +212,19 @@ impl Problem {
                     variable: v.0,
                     reason,
                 })?;
+        if !var.lower.is_empty() {
+            for (i, x) in checked.iter().enumerate() {
+                if *x < var.lower[i] || *x > var.upper[i] {
+                    return Err(ProblemError::InvalidValue {
+                        variable: v.0,
+                        reason: format!(
+                            "coordinate {i}: value {x} lies outside its bounds [{}, {}]",
+                            var.lower[i], var.upper[i]
+                        ),
+                    });
+                }
+            }
+        }
         let off = var.offset;
         self.values[off..off + checked.len()].copy_from_slice(&checked);
         Ok(())
