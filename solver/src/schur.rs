@@ -492,7 +492,7 @@ impl Schur {
         }
     }
 
-    /// S = H_cc + damping − Σ_e W_ce H_ec: point-major into per-chunk copies when S is small,
+    /// S = H_cc + damping − Σ_e H_ce H_ee⁻¹ H_ec: point-major into per-chunk copies when S is small,
     /// else in parallel over S's block columns. Both sum in a fixed order.
     fn assemble(&mut self, ne: &NormalEquations, damping: Damping) {
         if self.chunk_values.is_empty() {
@@ -503,7 +503,7 @@ impl Schur {
     }
 
     /// Each chunk of eliminated blocks subtracts its W_ae H_beᵀ into its own copy of S, streaming
-    /// through W and H_ce once; the copies are then summed in chunk order onto H_cc.
+    /// through H_ce once (forming H_ee⁻¹ H_ecᵀ per block on the fly); the copies are then summed in chunk order onto H_cc.
     fn assemble_by_points(&mut self, ne: &NormalEquations, damping: Damping) {
         let h = &ne.h;
         let mut chunks = std::mem::take(&mut self.chunk_values);
