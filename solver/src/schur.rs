@@ -502,8 +502,9 @@ impl Schur {
         }
     }
 
-    /// Each chunk of eliminated blocks subtracts its W_ae H_beᵀ into its own copy of S, streaming
-    /// through H_ce once (forming H_ee⁻¹ H_ecᵀ per block on the fly); the copies are then summed in chunk order onto H_cc.
+    /// Each chunk of eliminated blocks subtracts its H_ae H_ee⁻¹ H_beᵀ into its own copy of S,
+    /// streaming through H_ce once (H_ee⁻¹ H_beᵀ formed per block on the fly); the copies are then
+    /// summed in chunk order onto H_cc.
     fn assemble_by_points(&mut self, ne: &NormalEquations, damping: Damping) {
         let h = &ne.h;
         let mut chunks = std::mem::take(&mut self.chunk_values);
