@@ -16,9 +16,7 @@ use dynamap::residuals::bal::{
     self,
     synthetic::{self, SyntheticOptions},
 };
-use dynamap::solver::{
-    Algorithm, DampingKind, IterationSummary, LinearSolverKind, Options, Solver,
-};
+use dynamap::solver::{IterationSummary, LinearSolverKind, Solver};
 use std::ops::ControlFlow;
 use std::path::PathBuf;
 
@@ -78,23 +76,13 @@ fn main() -> Result<()> {
         ),
     };
     let mut solve = data.build(args.huber)?;
-    let options = Options {
-        algorithm: Algorithm::LevenbergMarquardt,
-        damping: DampingKind::Diagonal,
-        max_iterations: args.max_iterations,
-        linear_solver: match args.linear_solver {
-            LinearKind::SchurDense => LinearSolverKind::SchurDense,
-            LinearKind::SchurSparse => LinearSolverKind::SchurSparse,
-            LinearKind::SchurIterative => LinearSolverKind::SchurIterative,
-            LinearKind::Cholesky => LinearSolverKind::Sparse,
-        },
-        function_tolerance: 1e-10,
-        gradient_tolerance: 1e-12,
-        step_tolerance: 1e-12,
-        // Bundle adjustment has a 7-dimensional similarity gauge; LM's damping handles it.
-        check_rank: false,
-        ..Options::default()
+    let linear_solver = match args.linear_solver {
+        LinearKind::SchurDense => LinearSolverKind::SchurDense,
+        LinearKind::SchurSparse => LinearSolverKind::SchurSparse,
+        LinearKind::SchurIterative => LinearSolverKind::SchurIterative,
+        LinearKind::Cholesky => LinearSolverKind::Sparse,
     };
+    let options = bal::options(linear_solver, args.max_iterations);
     let quiet = args.quiet;
     if !quiet {
         println!(

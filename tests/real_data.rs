@@ -528,13 +528,27 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     assert!(epe.stats.mean < 0.05, "EPE {} m", epe.stats.mean);
 }
 
+/// The dense Schur solver with `bal::options`, as the example runs it.
+fn solve_bal(
+    data: &dynamap::residuals::bal::BalProblem,
+    max_iterations: usize,
+) -> dynamap::solver::Summary {
+    use dynamap::solver::{LinearSolverKind, Solver};
+    let mut solve = data.build(None).unwrap();
+    Solver::new(dynamap::residuals::bal::options(
+        LinearSolverKind::SchurDense,
+        max_iterations,
+    ))
+    .solve(&mut solve.problem)
+    .unwrap()
+}
+
 /// BAL's ladybug problem 49-7776: the initial cost matches the reference to 9 digits (SOURCE.txt:
 /// 8.50912460680839605629e+05) and 50 Levenberg-Marquardt iterations with the dense Schur solver
 /// reach 13344.25 or lower (Ceres 2.1 DENSE_SCHUR reaches 13344.2548 in 50 here).
 #[test]
 fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
     use dynamap::residuals::bal;
-    use dynamap::solver::{DampingKind, LinearSolverKind, Options, Solver};
     let data = bal::file::read(data("bal/problem-49-7776-pre.txt")).unwrap();
     assert_eq!(
         (data.cameras.len(), data.points.len()),
@@ -547,16 +561,7 @@ fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
         "initial cost {}",
         data.cost()
     );
-    let mut solve = data.build(None).unwrap();
-    let summary = Solver::new(Options {
-        linear_solver: LinearSolverKind::SchurDense,
-        damping: DampingKind::Diagonal,
-        max_iterations: 50,
-        check_rank: false,
-        ..Options::default()
-    })
-    .solve(&mut solve.problem)
-    .unwrap();
+    let summary = solve_bal(&data, 50);
     assert!((summary.initial_cost - reference).abs() < 1e-9 * reference);
     assert!(summary.num_iterations() <= 50);
     assert!(
@@ -571,18 +576,8 @@ fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
 #[test]
 fn bal_dubrovnik_converges_to_zero_cost() {
     use dynamap::residuals::bal;
-    use dynamap::solver::{DampingKind, LinearSolverKind, Options, Solver};
     let data = bal::file::read(data("bal/dubrovnik-3-7-pre.txt")).unwrap();
     assert!((data.cost() - 2764.219984422157).abs() < 1e-9 * 2764.22);
-    let mut solve = data.build(None).unwrap();
-    let summary = Solver::new(Options {
-        linear_solver: LinearSolverKind::SchurDense,
-        damping: DampingKind::Diagonal,
-        max_iterations: 100,
-        check_rank: false,
-        ..Options::default()
-    })
-    .solve(&mut solve.problem)
-    .unwrap();
+    let summary = solve_bal(&data, 100);
     assert!(summary.final_cost < 1e-12, "{}", summary.table());
 }

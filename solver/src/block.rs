@@ -7,6 +7,8 @@
 //! element (r, c) of block (i, j) sits at `values[col_ptr[block_start[j] + c] + pos + r]`, with
 //! `pos` the block's offset inside its columns.
 
+use crate::linear::Damping;
+
 /// One block (i, j), i ≤ j, of the upper triangle.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Entry {
@@ -119,6 +121,40 @@ impl BlockSparse {
                 }
             }
         }
+    }
+
+    /// Calls `f(r, c, v)` for every stored element (r ≤ c) of A + damping.
+    pub fn for_each_damped(&self, damping: Damping, mut f: impl FnMut(usize, usize, f64)) {
+        for c in 0..self.dim() {
+            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let r = self.row_idx[p];
+                let v = self.values[p];
+                f(r, c, if r == c { damping.apply(v) } else { v });
+            }
+        }
+    }
+
+    /// Writes the diagonal block `b` of A + damping, both triangles, into `out` (d × d,
+    /// column-major).
+    pub fn damped_diagonal_block(&self, b: usize, damping: Damping, out: &mut [f64]) {
+        let d = self.block_dim(b);
+        let diag = self.entry_ptr[b + 1] - 1;
+        for c in 0..d {
+            let start = self.column_start(b, diag, c);
+            for r in 0..=c {
+                let v = self.values[start + r];
+                let v = if r == c { damping.apply(v) } else { v };
+                out[r + c * d] = v;
+                out[c + r * d] = v;
+            }
+        }
+    }
+
+    /// The block holding scalar `i`.
+    pub fn block_of_scalar(&self, i: usize) -> usize {
+        self.block_start
+            .partition_point(|&s| s <= i)
+            .saturating_sub(1)
     }
 
     /// The diagonal.

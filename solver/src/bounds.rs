@@ -174,18 +174,10 @@ fn polish(ne: &NormalEquations, damping: Damping, lo: &[f64], hi: &[f64], step: 
     }
     let h = &ne.h;
     let mut dense = DMatrix::<f64>::zeros(n, n);
-    for c in 0..n {
-        for p in h.col_ptr[c]..h.col_ptr[c + 1] {
-            let r = h.row_idx[p];
-            let v = if r == c {
-                damping.apply(h.values[p])
-            } else {
-                h.values[p]
-            };
-            dense[(r, c)] = v;
-            dense[(c, r)] = v;
-        }
-    }
+    h.for_each_damped(damping, |r, c, v| {
+        dense[(r, c)] = v;
+        dense[(c, r)] = v;
+    });
     let mut a = DMatrix::<f64>::zeros(free.len(), free.len());
     let mut b = DVector::<f64>::zeros(free.len());
     for (i, &fi) in free.iter().enumerate() {

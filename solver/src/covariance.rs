@@ -8,10 +8,10 @@
 
 use crate::diagnose;
 use crate::error::SolveError;
-use crate::linear::{Damping, LinearSolver, LinearSolverKind};
+use crate::linear::{Cholesky, Damping, LinearSolver};
+use crate::minimizer::Options;
 use crate::normal::NormalEquations;
 use crate::problem::{Problem, VarId};
-use crate::schur::SchurOptions;
 use nalgebra::DMatrix;
 
 /// The marginal covariance of each variable in `variables` (tangent_dim × tangent_dim, in the
@@ -45,28 +45,19 @@ pub fn covariance(problem: &Problem, variables: &[VarId]) -> Result<Vec<DMatrix<
         ));
     }
     ne.assemble();
-    let mut linear = LinearSolver::new(
-        &ne,
-        LinearSolverKind::Auto,
-        200,
-        &[],
-        SchurOptions {
-            pcg_tolerance: 0.0,
-            pcg_max_iterations: 0,
-        },
-    )?;
+    let dense = ne.dim() <= Options::default().dense_threshold;
+    let mut linear = LinearSolver::Direct(Cholesky::new(&ne.h, dense)?);
     if diagnose::has_unanchored_component(problem, &ne) {
         diagnose::check_rank(problem, &ne, &mut linear)?;
     }
     if let Err(pivot) = linear.factor(&ne, Damping::None) {
         diagnose::check_rank(problem, &ne, &mut linear)?;
-        let b = ne.h.block_start.partition_point(|&s| s <= pivot) - 1;
+        let v = ne.var_of_scalar(pivot);
         return Err(SolveError::RankDeficient {
             nullity: 1,
-            variables: vec![ne.var_of_block[b]],
+            variables: vec![v],
             message: format!(
-                "H is not positive definite at variable {}: its covariance is unbounded",
-                ne.var_of_block[b]
+                "H is not positive definite at variable {v}: its covariance is unbounded"
             ),
         });
     }

@@ -170,18 +170,10 @@ impl Cholesky {
         match &mut self.kind {
             Kind::Dense { a } => {
                 a.fill(0.0);
-                for c in 0..self.n {
-                    for p in m.col_ptr[c]..m.col_ptr[c + 1] {
-                        let r = m.row_idx[p];
-                        let v = if r == c {
-                            damping.apply(m.values[p])
-                        } else {
-                            m.values[p]
-                        };
-                        a[(r, c)] = v;
-                        a[(c, r)] = v;
-                    }
-                }
+                m.for_each_damped(damping, |r, c, v| {
+                    a[(r, c)] = v;
+                    a[(c, r)] = v;
+                });
                 faer::linalg::cholesky::llt::factor::cholesky_in_place(
                     a.as_mut(),
                     LltRegularization::default(),

@@ -368,13 +368,14 @@ impl Solver {
         }
         let initial_cost = cost;
         let mut log = Vec::new();
-        let has_bounds = problem.variables.iter().any(|v| !v.lower.is_empty());
-        if has_bounds && opts.algorithm == Algorithm::Dogleg {
+        // The step's box moves with the current point only: rebuilt when a step is accepted.
+        let mut step_box = StepBox::new(problem, ne);
+        if step_box.is_some() && opts.algorithm == Algorithm::Dogleg {
             return Err(SolveError::Bounds(
                 "the dogleg does not take bounds; use Levenberg-Marquardt or Gauss-Newton".into(),
             ));
         }
-        let mut gnorm = gradient_norm(problem, ne);
+        let mut gnorm = gradient_norm(step_box.as_ref(), ne);
         let mut stop = self.notify(
             &IterationSummary {
                 iteration: 0,
@@ -423,17 +424,17 @@ impl Solver {
                         linear.factor(ne, Damping::Identity(tiny)).map_err(|p| {
                             SolveError::RankDeficient {
                                 nullity: 1,
-                                variables: vec![var_of_scalar(ne, p)],
+                                variables: vec![ne.var_of_scalar(p)],
                                 message: format!(
                                     "the normal equations are singular at variable {}",
-                                    var_of_scalar(ne, p)
+                                    ne.var_of_scalar(p)
                                 ),
                             }
                         })?;
                     }
                     negate_into(&ne.gradient, step);
                     linear.solve(ne, step);
-                    let pred = if constrain_step(problem, ne, Damping::None, step)? {
+                    let pred = if constrain_step(step_box.as_ref(), ne, Damping::None, step)? {
                         model_decrease(ne, step, scratch)
                     } else {
                         -dot(&ne.gradient, step) * 0.5
@@ -459,7 +460,7 @@ impl Solver {
                     }
                     negate_into(&ne.gradient, step);
                     linear.solve(ne, step);
-                    let boxed = constrain_step(problem, ne, d, step)?;
+                    let boxed = constrain_step(step_box.as_ref(), ne, d, step)?;
                     if boxed || !linear.is_exact() {
                         (model_decrease(ne, step, scratch), mu)
                     } else {
@@ -523,7 +524,8 @@ impl Solver {
                 gn_valid = false;
                 problem.values.copy_from_slice(trial);
                 ne.assemble();
-                gnorm = gradient_norm(problem, ne);
+                step_box = StepBox::new(problem, ne);
+                gnorm = gradient_norm(step_box.as_ref(), ne);
                 let relative = actual / cost.max(f64::MIN_POSITIVE);
                 cost = new_cost;
                 match opts.algorithm {
@@ -622,17 +624,9 @@ fn rejected(
     }
 }
 
-fn var_of_scalar(ne: &NormalEquations, i: usize) -> usize {
-    let b =
-        ne.h.block_start
-            .partition_point(|&s| s <= i)
-            .saturating_sub(1);
-    ne.var_of_block[b.min(ne.var_of_block.len().saturating_sub(1))]
-}
-
 /// max |g_i|, projected onto the bounds where there are any.
-fn gradient_norm(problem: &Problem, ne: &NormalEquations) -> f64 {
-    match StepBox::new(problem, ne) {
+fn gradient_norm(step_box: Option<&StepBox>, ne: &NormalEquations) -> f64 {
+    match step_box {
         Some(b) => b.projected_gradient_norm(&ne.gradient),
         None => max_abs(&ne.gradient),
     }
@@ -641,12 +635,12 @@ fn gradient_norm(problem: &Problem, ne: &NormalEquations) -> f64 {
 /// Keeps `step` inside the bounds of the current point (see [`crate::bounds`]); true when it had
 /// to be replaced by the box-constrained minimiser.
 fn constrain_step(
-    problem: &Problem,
+    step_box: Option<&StepBox>,
     ne: &NormalEquations,
     damping: Damping,
     step: &mut [f64],
 ) -> Result<bool, SolveError> {
-    match StepBox::new(problem, ne) {
+    match step_box {
         Some(b) if !b.contains(step) => b.constrain(ne, damping, step).map(|_| true),
         _ => Ok(false),
     }

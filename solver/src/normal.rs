@@ -172,6 +172,14 @@ impl NormalEquations {
         self.h.dim()
     }
 
+    /// The variable owning unknown `i` of the system.
+    pub fn var_of_scalar(&self, i: usize) -> usize {
+        self.var_of_block[self
+            .h
+            .block_of_scalar(i)
+            .min(self.var_of_block.len().saturating_sub(1))]
+    }
+
     /// Number of blocks (free variables).
     pub fn num_blocks(&self) -> usize {
         self.var_of_block.len()

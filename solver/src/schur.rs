@@ -445,16 +445,7 @@ impl Schur {
                 let de = h.block_dim(b);
                 // SAFETY: block q owns its ranges of hinv and hce.
                 let inv = unsafe { hinv.slice(inv_offset[q], de * de) };
-                let diag = h.entry_ptr[b + 1] - 1;
-                for c in 0..de {
-                    let start = h.column_start(b, diag, c);
-                    for r in 0..=c {
-                        let v = h.values[start + r];
-                        let v = if r == c { damping.apply(v) } else { v };
-                        inv[r + c * de] = v;
-                        inv[c + r * de] = v;
-                    }
-                }
+                h.damped_diagonal_block(b, damping, inv);
                 if let Err(k) = invert_spd(inv, de) {
                     return Err(h.block_start[b] + k);
                 }
@@ -485,7 +476,7 @@ impl Schur {
         let (s, kept) = (&self.s, &self.kept);
         match &mut self.reduced {
             Reduced::Factored(chol) => chol.factor(s, Damping::None).map_err(|i| {
-                let k = s.block_start.partition_point(|&x| x <= i) - 1;
+                let k = s.block_of_scalar(i);
                 h.block_start[kept[k]] + (i - s.block_start[k])
             }),
             Reduced::Iterative(_) => Ok(()),
@@ -514,15 +505,12 @@ impl Schur {
             values.fill(0.0);
             for q in this.chunk_bounds[k]..this.chunk_bounds[k + 1] {
                 let de = h.block_dim(this.elim[q]);
-                let inv = &this.hinv[this.inv_offset[q]..][..de * de];
                 let mut u = [0.0; MAX_PRODUCT];
                 let list = &this.nbrs[this.nbr_ptr[q]..this.nbr_ptr[q + 1]];
                 let mut entries = this.pair_entry[this.pair_ptr[q]..this.pair_ptr[q + 1]].iter();
                 for nb in list {
                     let (j, dj) = (nb.kept, s.block_dim(nb.kept));
-                    let hj = &this.hce[nb.offset..][..dj * de];
-                    let u = &mut u[..de * dj];
-                    inverse_times_transpose(inv, hj, u, de, dj);
+                    let u = this.inverse_times_neighbour(q, nb, de, dj, &mut u);
                     for na in list {
                         if na.kept > j {
                             break;
@@ -576,11 +564,8 @@ impl Schur {
                 for t in this.touch_ptr[j]..this.touch_ptr[j + 1] {
                     let (q, nj) = this.touch[t];
                     let de = h.block_dim(this.elim[q]);
-                    let hj = &this.hce[this.nbrs[nj].offset..][..dj * de];
-                    let inv = &this.hinv[this.inv_offset[q]..][..de * de];
                     let mut u = [0.0; MAX_PRODUCT];
-                    let u = &mut u[..de * dj];
-                    inverse_times_transpose(inv, hj, u, de, dj);
+                    let u = this.inverse_times_neighbour(q, &this.nbrs[nj], de, dj, &mut u);
                     let first = this.nbr_ptr[q];
                     for (x, &se) in this.update[this.update_ptr[t]..this.update_ptr[t + 1]]
                         .iter()
@@ -651,25 +636,13 @@ impl Schur {
                 let dj = s.block_dim(j);
                 // SAFETY: block j owns its preconditioner range.
                 let p = unsafe { out.slice(offsets[j], dj * dj) };
-                p.fill(0.0);
-                let diag = s.entry_ptr[j + 1] - 1;
-                for c in 0..dj {
-                    let start = s.column_start(j, diag, c);
-                    for r in 0..=c {
-                        let v = s.values[start + r];
-                        let v = if r == c { damping.apply(v) } else { v };
-                        p[r + c * dj] = v;
-                        p[c + r * dj] = v;
-                    }
-                }
+                s.damped_diagonal_block(j, damping, p);
                 for t in this.touch_ptr[j]..this.touch_ptr[j + 1] {
                     let (q, nj) = this.touch[t];
                     let de = h.block_dim(this.elim[q]);
-                    let hj = &this.hce[this.nbrs[nj].offset..][..dj * de];
-                    let inv = &this.hinv[this.inv_offset[q]..][..de * de];
                     let mut u = [0.0; MAX_PRODUCT];
-                    let u = &mut u[..de * dj];
-                    inverse_times_transpose(inv, hj, u, de, dj);
+                    let u = this.inverse_times_neighbour(q, &this.nbrs[nj], de, dj, &mut u);
+                    let hj = &this.hce[this.nbrs[nj].offset..][..dj * de];
                     subtract_block(p, |c| c * dj, hj, u, (dj, dj, de), false);
                 }
                 invert_spd(p, dj).map_err(|k| h.block_start[this.kept[j]] + k)
@@ -803,6 +776,24 @@ impl Schur {
                 }
             });
         }
+    }
+
+    /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and its neighbour j, written into the
+    /// front of `scratch`.
+    #[inline(always)]
+    fn inverse_times_neighbour<'a>(
+        &'a self,
+        q: usize,
+        n: &Neighbour,
+        de: usize,
+        dj: usize,
+        scratch: &'a mut [f64; MAX_PRODUCT],
+    ) -> &'a [f64] {
+        let hj = &self.hce[n.offset..][..dj * de];
+        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
+        let u = &mut scratch[..de * dj];
+        inverse_times_transpose(inv, hj, u, de, dj);
+        u
     }
 
     /// `v ← H_ee⁻¹ (v − H_ec y)` for eliminated block q (d_e unknowns), y in reduced order.

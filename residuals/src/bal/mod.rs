@@ -14,7 +14,26 @@ pub use file::BalError;
 pub use snavely::{reprojection, rotate, SnavelyReprojection};
 
 use dynamap_solver::robust::Huber;
-use dynamap_solver::{Euclidean, Problem, ProblemError, VarId};
+use dynamap_solver::{
+    Algorithm, DampingKind, Euclidean, LinearSolverKind, Options, Problem, ProblemError, VarId,
+};
+
+/// Solver settings for bundle adjustment as Ceres runs it: Levenberg-Marquardt with μ diag(H)
+/// damping from μ₀ = 1e-4, tight tolerances, and no rank check (bundle adjustment's 7-dimensional
+/// similarity gauge is left to the damping).
+pub fn options(linear_solver: LinearSolverKind, max_iterations: usize) -> Options {
+    Options {
+        algorithm: Algorithm::LevenbergMarquardt,
+        damping: DampingKind::Diagonal,
+        max_iterations,
+        linear_solver,
+        function_tolerance: 1e-10,
+        gradient_tolerance: 1e-12,
+        step_tolerance: 1e-12,
+        check_rank: false,
+        ..Options::default()
+    }
+}
 
 /// One observation: camera `camera` sees point `point` at pixel `uv`.
 #[derive(Clone, Copy, Debug, PartialEq)]
