@@ -10,15 +10,24 @@
 //! Costs are ½ Σ ‖r‖² in pixels (with --huber, ½ Σ ρ(‖r‖²)), as BAL's reference values and Ceres
 //! report them; "seconds" times the solve alone, not reading the file.
 
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/iterations.rs"]
+mod iterations;
+#[path = "common/preview.rs"]
+mod preview;
+
 use anyhow::{bail, Context, Result};
 use clap::{Parser, ValueEnum};
+use cli::{InputError, Session};
 use dynamap::residuals::bal::{
     self,
     synthetic::{self, SyntheticOptions},
 };
-use dynamap::solver::{IterationSummary, LinearSolverKind, Solver};
-use std::ops::ControlFlow;
+use dynamap::solver::{LinearSolverKind, Solver};
+use iterations::IterationLog;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum LinearKind {
@@ -34,11 +43,11 @@ enum LinearKind {
 
 /// Bundle adjustment of a BAL problem.
 #[derive(Parser, Debug)]
-#[command(version, about)]
+#[command(version, long_about = None)]
 struct Args {
     /// The BAL file. Without it, a generated problem with a known optimum (cost 0) is solved.
     problem: Option<PathBuf>,
-    /// Huber kernel width in pixels (default: plain least squares).
+    /// Huber kernel width in pixels [default: none, plain least squares].
     #[arg(long)]
     huber: Option<f64>,
     /// Linear solver.
@@ -50,16 +59,25 @@ struct Args {
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
-    /// Print only the JSON line.
-    #[arg(long)]
-    quiet: bool,
+    /// A folder for a plot of the cost per iteration (cost.png).
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    common: cli::Common,
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+cli::has_common!(Args);
+
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(h) = args.huber {
         if !(h > 0.0 && h.is_finite()) {
-            bail!("--huber must be a positive number, got {h}");
+            return Err(cli::bad_input(format!(
+                "--huber must be a positive number, got {h}"
+            )));
         }
     }
     if args.threads > 0 {
@@ -69,13 +87,16 @@ fn main() -> Result<()> {
             .context("setting the thread count")?;
     }
     let (mut data, name) = match &args.problem {
-        Some(path) => (bal::file::read(path)?, path.display().to_string()),
+        Some(path) => (
+            bal::file::read(path).bad_input()?,
+            path.display().to_string(),
+        ),
         None => (
             synthetic::generate(&SyntheticOptions::default()).start,
             "generated".to_string(),
         ),
     };
-    let mut solve = data.build(args.huber)?;
+    let mut solve = data.build(args.huber).bad_input()?;
     let linear_solver = match args.linear_solver {
         LinearKind::SchurDense => LinearSolverKind::SchurDense,
         LinearKind::SchurSparse => LinearSolverKind::SchurSparse,
@@ -83,7 +104,7 @@ fn main() -> Result<()> {
         LinearKind::Cholesky => LinearSolverKind::Sparse,
     };
     let options = bal::options(linear_solver, args.max_iterations);
-    let quiet = args.quiet;
+    let quiet = session.quiet;
     if !quiet {
         println!(
             "{}: {} cameras, {} points, {} observations",
@@ -92,18 +113,27 @@ fn main() -> Result<()> {
             data.points.len(),
             data.observations.len()
         );
-        println!("{}", IterationSummary::HEADER);
     }
-    let mut solver = Solver::new(options).with_observer(move |it: &IterationSummary| {
-        if !quiet {
-            println!("{it}");
-        }
-        ControlFlow::Continue(())
-    });
+    let log = IterationLog::new(session, args.max_iterations);
+    let mut solver = Solver::new(options).with_observer(log.observer());
     let summary = solver
         .solve(&mut solve.problem)
         .with_context(|| format!("{name}: bundle adjustment failed"))?;
+    log.finish();
     data.update_from(&solve);
+    if let Some(dir) = &args.preview {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let file = args.problem.as_ref().and_then(|p| p.file_name());
+        let title = format!(
+            "bundle adjustment: {}",
+            file.map_or(name.clone(), |f| f.to_string_lossy().into_owned())
+        );
+        preview::cost_plot(
+            &dir.join("cost.png"),
+            &title,
+            &[(summary.linear_solver, log.costs())],
+        )?;
+    }
     if !quiet {
         println!(
             "stopped after {} iterations: {}; cost {:.10e} -> {:.10e} in {:.3} s ({} unknowns, {})",

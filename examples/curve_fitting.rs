@@ -6,13 +6,24 @@
 //! ```
 //! Prints both estimates against the true (m, c) and, last, one JSON line.
 
-use anyhow::{ensure, Result};
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/iterations.rs"]
+mod iterations;
+#[path = "common/preview.rs"]
+mod preview;
+
+use anyhow::{Context, Result};
 use clap::Parser;
+use cli::Session;
 use dynamap::solver::robust::Cauchy;
 use dynamap::solver::{AutoDiff, CostFunctor, Euclidean, Options, Problem, Real, Solver};
+use iterations::IterationLog;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use std::path::PathBuf;
+use std::process::ExitCode;
 
 /// r = y − exp(m x + c) for one observation.
 struct Exponential {
@@ -31,7 +42,7 @@ impl CostFunctor for Exponential {
 
 /// Robust curve fitting demo.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     /// Number of observations.
     #[arg(long, default_value_t = 200)]
@@ -42,9 +53,20 @@ struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// A folder for a plot of both fits' cost per iteration (cost.png).
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    common: cli::Common,
 }
 
-fn fit(data: &[(f64, f64)], robust: bool) -> Result<([f64; 2], usize)> {
+cli::has_common!(Args);
+
+/// A fit: the estimate (m, c), the iterations taken and the cost per iteration.
+type Fit = ([f64; 2], usize, Vec<(usize, f64)>);
+
+/// Fits (m, c), with or without the Cauchy kernel.
+fn fit(data: &[(f64, f64)], robust: bool, session: &Session) -> Result<Fit> {
     let mut problem = Problem::new();
     let mc = problem.add_variable(&[0.0, 0.0], Euclidean::<2>)?;
     for &(x, y) in data {
@@ -55,17 +77,26 @@ fn fit(data: &[(f64, f64)], robust: bool) -> Result<([f64; 2], usize)> {
             problem.add_residual(r, &[mc])?;
         }
     }
-    let summary = Solver::new(Options::default()).solve(&mut problem)?;
+    let options = Options::default();
+    let log = IterationLog::new(session, options.max_iterations);
+    let summary = Solver::new(options)
+        .with_observer(log.observer())
+        .solve(&mut problem)?;
+    log.finish();
     let v = problem.value(mc);
-    Ok(([v[0], v[1]], summary.num_iterations()))
+    Ok(([v[0], v[1]], summary.num_iterations(), log.costs()))
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
-    ensure!(
-        (0.0..1.0).contains(&args.outliers),
-        "--outliers must be in [0, 1)"
-    );
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    if !(0.0..1.0).contains(&args.outliers) || args.points < 2 {
+        return Err(cli::bad_input(
+            "--outliers must be in [0, 1) and --points at least 2",
+        ));
+    }
     let (m, c) = (0.3, 0.1);
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     let noise = Normal::new(0.0, 0.02)?;
@@ -80,17 +111,28 @@ fn main() -> Result<()> {
             (x, y)
         })
         .collect();
-    let (plain, it_plain) = fit(&data, false)?;
-    let (robust, it_robust) = fit(&data, true)?;
-    println!("true           m = {m:.5}  c = {c:.5}");
-    println!(
-        "least squares  m = {:.5}  c = {:.5}  ({it_plain} iterations)",
-        plain[0], plain[1]
-    );
-    println!(
-        "Cauchy(0.1)    m = {:.5}  c = {:.5}  ({it_robust} iterations)",
-        robust[0], robust[1]
-    );
+    let (plain, it_plain, cost_plain) = fit(&data, false, session)?;
+    let (robust, it_robust, cost_robust) = fit(&data, true, session)?;
+    if !session.quiet {
+        println!("true           m = {m:.5}  c = {c:.5}");
+        println!(
+            "least squares  m = {:.5}  c = {:.5}  ({it_plain} iterations)",
+            plain[0], plain[1]
+        );
+        println!(
+            "Cauchy(0.1)    m = {:.5}  c = {:.5}  ({it_robust} iterations)",
+            robust[0], robust[1]
+        );
+    }
+    if let Some(dir) = &args.preview {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let series = [("least squares", cost_plain), ("Cauchy(0.1)", cost_robust)];
+        preview::cost_plot(
+            &dir.join("cost.png"),
+            "curve fitting: y = exp(m x + c)",
+            &series,
+        )?;
+    }
     let err = |p: [f64; 2]| ((p[0] - m).powi(2) + (p[1] - c).powi(2)).sqrt();
     println!(
         "{}",

@@ -6,11 +6,18 @@
 //! ```
 //! Prints the statistics and, last, one JSON line (rmse, mean, median, max, pairs).
 
-use anyhow::Result;
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/preview.rs"]
+mod preview;
+
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
+use cli::{InputError, Session};
 use dynamap::slam::eval::{ate, rpe, Alignment, DeltaUnit, MAX_STAMP_DIFFERENCE};
 use dynamap::slam::io::trajectory::Trajectory;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Align {
@@ -40,6 +47,9 @@ enum Metric {
         /// Largest stamp difference for associating poses, seconds.
         #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
         max_difference: f64,
+        /// A folder for pictures: both trajectories from above, the per-frame error.
+        #[arg(long, value_name = "DIR")]
+        preview: Option<PathBuf>,
     },
     /// Relative pose error over intervals of --delta.
     Rpe {
@@ -61,37 +71,65 @@ enum Metric {
 
 /// Evaluate a trajectory against ground truth.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     #[command(subcommand)]
     metric: Metric,
+    #[command(flatten)]
+    common: cli::Common,
 }
 
-fn main() -> Result<()> {
-    match Args::parse().metric {
+cli::has_common!(Args);
+
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+/// Both trajectories, read as bad input when they fail.
+fn read_pair(gt: &std::path::Path, est: &std::path::Path) -> Result<(Trajectory, Trajectory)> {
+    Ok((
+        Trajectory::read_tum(gt).bad_input()?,
+        Trajectory::read_tum(est).bad_input()?,
+    ))
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    let quiet = session.quiet;
+    match args.metric {
         Metric::Ate {
             gt,
             est,
             align,
             max_difference,
+            preview,
         } => {
-            let (g, e) = (Trajectory::read_tum(&gt)?, Trajectory::read_tum(&est)?);
+            let (g, e) = read_pair(&gt, &est)?;
             let a = match align {
                 Align::Se3 => Alignment::Se3,
                 Align::Sim3 => Alignment::Sim3,
                 Align::None => Alignment::None,
             };
-            let r = ate(&g, &e, a, max_difference).map_err(anyhow::Error::msg)?;
+            let r = ate(&g, &e, a, max_difference)
+                .map_err(anyhow::Error::msg)
+                .bad_input()?;
             let s = r.stats;
-            println!(
-                "ATE (translation, m) over {} pose pairs, alignment {align:?} (scale {:.6})",
-                r.pairs.len(),
-                r.alignment.scale
-            );
-            println!(
-                "  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}  min {:.6}  std {:.6}",
-                s.rmse, s.mean, s.median, s.max, s.min, s.std
-            );
+            if !quiet {
+                println!(
+                    "ATE (translation, m) over {} pose pairs, alignment {align:?} (scale {:.6})",
+                    r.pairs.len(),
+                    r.alignment.scale
+                );
+                println!(
+                    "  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}  min {:.6}  std {:.6}",
+                    s.rmse, s.mean, s.median, s.max, s.min, s.std
+                );
+            }
+            if let Some(dir) = &preview {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                preview::trajectory_plot(&dir.join("trajectory.png"), &e, Some((&g, &r)))?;
+                preview::error_plot(&dir.join("error.png"), &g, &e, &r)?;
+            }
             println!(
                 "{}",
                 serde_json::json!({"metric": "ate", "rmse": s.rmse, "mean": s.mean, "median": s.median, "max": s.max, "pairs": r.pairs.len()})
@@ -104,23 +142,27 @@ fn main() -> Result<()> {
             delta_unit,
             max_difference,
         } => {
-            let (g, e) = (Trajectory::read_tum(&gt)?, Trajectory::read_tum(&est)?);
+            let (g, e) = read_pair(&gt, &est)?;
             let u = match delta_unit {
                 Unit::Frames => DeltaUnit::Frames,
                 Unit::Seconds => DeltaUnit::Seconds,
                 Unit::Meters => DeltaUnit::Meters,
             };
-            let r = rpe(&g, &e, delta, u, max_difference).map_err(anyhow::Error::msg)?;
+            let r = rpe(&g, &e, delta, u, max_difference)
+                .map_err(anyhow::Error::msg)
+                .bad_input()?;
             let (t, d) = (r.translation, r.rotation_deg);
-            println!("RPE over {} intervals of {delta} {delta_unit:?}", t.count);
-            println!(
-                "  translation (m):  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
-                t.rmse, t.mean, t.median, t.max
-            );
-            println!(
-                "  rotation (deg):   rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
-                d.rmse, d.mean, d.median, d.max
-            );
+            if !quiet {
+                println!("RPE over {} intervals of {delta} {delta_unit:?}", t.count);
+                println!(
+                    "  translation (m):  rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                    t.rmse, t.mean, t.median, t.max
+                );
+                println!(
+                    "  rotation (deg):   rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                    d.rmse, d.mean, d.median, d.max
+                );
+            }
             println!(
                 "{}",
                 serde_json::json!({"metric": "rpe", "rmse": t.rmse, "mean": t.mean, "median": t.median, "max": t.max, "pairs": t.count,

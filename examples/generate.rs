@@ -10,8 +10,12 @@
 //! (fx fy cx cy depth_scale) and, for deforming scenes, meshes/ (ground-truth surface per frame) and
 //! flow/ (per-pixel scene flow). Prints one JSON line last.
 
-use anyhow::{bail, Context, Result};
+#[path = "common/cli.rs"]
+mod cli;
+
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
+use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::synthetic::deform::{self, DeformingScene, Field, SurfaceKind};
@@ -19,8 +23,8 @@ use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::scene::Scene;
 use dynamap::slam::synthetic::sequence;
-use std::io::Write;
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -44,8 +48,9 @@ enum SurfaceArg {
     Sphere,
 }
 
+/// What both kinds of sequence take.
 #[derive(clap::Args, Debug)]
-struct Common {
+struct SequenceFlags {
     /// Output folder (created).
     out: PathBuf,
     /// Number of frames.
@@ -73,7 +78,7 @@ enum Kind {
     /// A furnished room seen along a camera trajectory.
     Rigid {
         #[command(flatten)]
-        common: Common,
+        sequence: SequenceFlags,
         /// Follow a TUM ground-truth trajectory (poses taken as they are at about --fps).
         #[arg(long, conflicts_with = "motion")]
         trajectory: Option<PathBuf>,
@@ -84,7 +89,7 @@ enum Kind {
     /// A surface deforming in front of a static camera.
     Deforming {
         #[command(flatten)]
-        common: Common,
+        sequence: SequenceFlags,
         /// The deformation field.
         #[arg(long, value_enum, default_value = "bend")]
         motion: DeformMotion,
@@ -99,17 +104,26 @@ enum Kind {
 
 /// Render an RGB-D sequence with ground truth.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     #[command(subcommand)]
     kind: Kind,
+    #[command(flatten)]
+    common: cli::Common,
 }
 
-impl Common {
+cli::has_common!(Args);
+
+impl SequenceFlags {
     /// The TUM default intrinsics scaled to the requested size.
     fn camera(&self) -> Result<Camera> {
         if self.width < 8 || self.height < 8 {
-            bail!("--width and --height must be at least 8");
+            return Err(cli::bad_input("--width and --height must be at least 8"));
+        }
+        if !(self.fps > 0.0 && self.fps.is_finite()) || self.frames == 0 {
+            return Err(cli::bad_input(
+                "--fps must be positive and --frames at least 1",
+            ));
         }
         let s = self.width as f64 / 640.0;
         Ok(Camera::new(
@@ -134,27 +148,28 @@ impl Common {
     }
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
     let start = Instant::now();
     let progress = |frames: usize| {
-        move |k: usize| {
-            eprint!("\rframe {}/{frames}", k + 1);
-            let _ = std::io::stderr().flush();
-        }
+        let bar = session.progress(frames as u64, "frames");
+        move |k: usize| bar.set_position(k as u64 + 1)
     };
     let (common, kind) = match &args.kind {
         Kind::Rigid {
-            common,
+            sequence: common,
             trajectory,
             motion: m,
         } => {
             let cam = common.camera()?;
             let (traj, to_room) = match trajectory {
                 Some(path) => {
-                    let gt = Trajectory::read_tum(path)?;
+                    let gt = Trajectory::read_tum(path).bad_input()?;
                     if gt.is_empty() {
-                        bail!("{}: no poses", path.display());
+                        return Err(cli::bad_input(format!("{}: no poses", path.display())));
                     }
                     let t = motion::resample(&gt, common.frames, common.fps);
                     (t, motion::world_to_room(&gt))
@@ -184,7 +199,7 @@ fn main() -> Result<()> {
             (common, "rigid")
         }
         Kind::Deforming {
-            common,
+            sequence: common,
             motion: m,
             surface,
             mesh,
@@ -202,9 +217,12 @@ fn main() -> Result<()> {
             };
             let canonical = match mesh {
                 Some(path) => {
-                    let mut m = dynamap::slam::io::ply::read(path)?;
+                    let mut m = dynamap::slam::io::ply::read(path).bad_input()?;
                     if m.faces.is_empty() {
-                        bail!("{}: the mesh has no faces", path.display());
+                        return Err(cli::bad_input(format!(
+                            "{}: the mesh has no faces",
+                            path.display()
+                        )));
                     }
                     m.compute_normals();
                     m
@@ -225,7 +243,6 @@ fn main() -> Result<()> {
             (common, "deforming")
         }
     };
-    eprintln!();
     println!(
         "{}",
         serde_json::json!({"kind": kind, "out": common.out.display().to_string(), "frames": common.frames,

@@ -21,11 +21,14 @@
 //! vertex index as in the thesis), with max, mean and σ of the vertex-to-ground-truth distance
 //! before and after.
 
+#[path = "common/cli.rs"]
+mod cli;
 #[path = "common/warp_flags.rs"]
 mod warp_flags;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{self as epe, Stats};
 use dynamap::slam::image::{depth_to_metres, ColorImage, DepthImage, Image};
@@ -40,11 +43,12 @@ use dynamap::slam::nonrigid::{
 use dynamap::slam::synthetic::plate;
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use warp_flags::WarpFlags;
 
 /// Non-rigid registration of one surface onto another.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     /// The surface to move (mesh: .ply, .off or .obj; or an RGB-D frame's depth .png). Without it,
     /// the thesis' grid experiment runs.
@@ -91,7 +95,11 @@ struct Args {
     /// over 1 % of the source points at are placeholders for "no partner" and are not scored.
     #[arg(long)]
     ground_truth: Option<PathBuf>,
+    #[command(flatten)]
+    common: cli::Common,
 }
+
+cli::has_common!(Args);
 
 /// Reads a vertex map of `n` lines, each an index below `targets`.
 fn read_map(path: &std::path::Path, n: usize, targets: usize) -> Result<Vec<usize>> {
@@ -157,14 +165,16 @@ fn map_error(
 }
 
 /// The thesis' experiment: prints one row per deformation.
-fn grid_experiment() -> Result<()> {
+fn grid_experiment(session: &Session) -> Result<()> {
     let source = plate::flat_grid();
     let (sp, sn) = mesh_points(&source);
     let (graph, params) = plate::registration_settings();
-    println!(
+    let bar = session.progress(plate::PlateDeformation::ALL.len() as u64, "targets");
+    let row = |line: String| bar.suspend(|| println!("{line}"));
+    row(format!(
         "{:<11} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9} | {:>5} {:>5} {:>7}",
         "target", "max", "mean", "sd", "max", "mean", "sd", "nodes", "iter", "seconds"
-    );
+    ));
     for def in plate::PlateDeformation::ALL {
         let target = def.deformed(&source);
         let (tp, tn) = mesh_points(&target);
@@ -177,7 +187,8 @@ fn grid_experiment() -> Result<()> {
             .map(|(a, b)| (a - b).norm())
             .collect();
         let (b, a) = (Stats::of(&before), Stats::of(&after));
-        println!(
+        bar.inc(1);
+        row(format!(
             "{:<11} {:>9.2e} {:>9.2e} {:>9.2e} | {:>9.2e} {:>9.2e} {:>9.2e} | {:>5} {:>5} {:>7.3}",
             def.name(),
             b.max,
@@ -189,7 +200,7 @@ fn grid_experiment() -> Result<()> {
             reg.graph.nodes.len(),
             reg.summary.iterations,
             reg.summary.seconds
-        );
+        ));
     }
     Ok(())
 }
@@ -267,35 +278,38 @@ fn read_frame(
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> Result<()> {
     if !(is_frame(source_path) && is_frame(target_path)) {
-        bail!(
+        return Err(cli::bad_input(format!(
             "{} and {}: register a frame onto a frame or a mesh onto a mesh",
             source_path.display(),
             target_path.display()
-        );
+        )));
     }
-    let source = read_frame(args, source_path, args.color.as_ref(), args.mask.as_ref())?;
+    let source =
+        read_frame(args, source_path, args.color.as_ref(), args.mask.as_ref()).bad_input()?;
     let target = read_frame(
         args,
         target_path,
         args.target_color.as_ref(),
         args.target_mask.as_ref(),
-    )?;
+    )
+    .bad_input()?;
     let mut settings = FrameSettings::default();
     args.warp
-        .apply(&mut settings.graph, &mut settings.register)?;
+        .apply(&mut settings.graph, &mut settings.register)
+        .bad_input()?;
     let gt = match &args.flow_ground_truth {
         Some(p) => {
-            let gt: Image<[f32; 3]> = read_flow(p)?;
+            let gt: Image<[f32; 3]> = read_flow(p).bad_input()?;
             let sc = &source.camera;
             if (gt.width, gt.height) != (sc.width, sc.height) {
-                bail!(
+                return Err(cli::bad_input(format!(
                     "{}: a {}×{} flow for a {}×{} source frame",
                     p.display(),
                     gt.width,
                     gt.height,
                     sc.width,
                     sc.height
-                );
+                )));
             }
             Some(gt)
         }
@@ -369,13 +383,29 @@ fn flow_scores(
     })
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+fn main() -> ExitCode {
+    let meshes = clean_surface_settings(1.0);
+    let frames = FrameSettings::default();
+    cli::run_with(
+        |cmd| {
+            WarpFlags::describe_defaults(
+                cmd,
+                (&meshes.0, &meshes.1),
+                (&frames.graph, &frames.register),
+            )
+        },
+        run,
+    )
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
     let (Some(source_path), Some(target_path)) = (&args.source, &args.target) else {
         if args.source.is_some() {
-            bail!("give both SOURCE and TARGET (or neither, for the grid experiment)");
+            return Err(cli::bad_input(
+                "give both SOURCE and TARGET (or neither, for the grid experiment)",
+            ));
         }
-        return grid_experiment();
+        return grid_experiment(session);
     };
     if is_frame(source_path) || is_frame(target_path) {
         return register_frame_pair(&args, source_path, target_path);
@@ -389,17 +419,19 @@ fn main() -> Result<()> {
         ("--target-color", args.target_color.is_some()),
     ] {
         if given {
-            bail!("{flag} applies to RGB-D frames (depth .png), not meshes");
+            return Err(cli::bad_input(format!(
+                "{flag} applies to RGB-D frames (depth .png), not meshes"
+            )));
         }
     }
-    let source = read_mesh(source_path)?;
-    let target = read_mesh(target_path)?;
+    let source = read_mesh(source_path).bad_input()?;
+    let target = read_mesh(target_path).bad_input()?;
     let (sp, sn) = mesh_points(&source);
     let (tp, tn) = mesh_points(&target);
     let (mut graph, mut params) = clean_surface_settings(bounding_diagonal(&sp));
-    args.warp.apply(&mut graph, &mut params)?;
+    args.warp.apply(&mut graph, &mut params).bad_input()?;
     let map = match &args.ground_truth {
-        Some(p) => Some(read_map(p, sp.len(), tp.len())?),
+        Some(p) => Some(read_map(p, sp.len(), tp.len()).bad_input()?),
         None => None,
     };
     let reg = register_surfaces((&sp, &sn), (&tp, &tn), graph, params, args.principal_axes)

@@ -11,13 +11,18 @@
 //! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures, nodes, per-stage
 //! seconds per frame and, for the generated sequence, the tracking error.
 
-#[path = "common/report.rs"]
-mod report;
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/preview.rs"]
+mod preview;
+#[path = "common/rerun_log.rs"]
+mod rerun_log;
 #[path = "common/warp_flags.rs"]
 mod warp_flags;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Parser;
+use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::Stats;
 use dynamap::slam::image::Image;
@@ -27,17 +32,16 @@ use dynamap::slam::io::{ply, write_atomic};
 use dynamap::slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
 use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
 use dynamap::slam::synthetic::noise::SensorNoise;
-use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::Isometry3;
-use report::report_line;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::fmt::Write as _;
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Instant;
 use warp_flags::WarpFlags;
 
 /// Dense non-rigid RGB-D SLAM.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     /// A TUM-layout sequence. Without it, a bending plate is rendered and tracked.
     dir: Option<PathBuf>,
@@ -47,42 +51,43 @@ struct Args {
     /// A folder for the canonical mesh, the live meshes and the warp field.
     #[arg(long)]
     output: Option<PathBuf>,
-    /// Frames to process at most (the generated sequence has 30 by default).
+    /// Frames to process at most [default: all; 30 for the generated sequence].
     #[arg(long)]
     max_frames: Option<usize>,
+    /// A folder for pictures: the canonical model shaded from three viewpoints and, for the
+    /// generated sequence, the tracking error per frame.
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    rerun: rerun_log::RerunFlags,
+    /// With --rerun: log the live (warped) mesh every this many frames.
+    #[arg(long, default_value_t = 1)]
+    rerun_mesh_every: usize,
     /// Voxel size, metres.
-    #[arg(long)]
-    voxel_size: Option<f32>,
+    #[arg(long, default_value_t = FusionParams::default().tsdf.voxel_size)]
+    voxel_size: f32,
     /// Canonical data points are thinned to one per cube of this edge, metres.
-    #[arg(long)]
-    data_spacing: Option<f64>,
+    #[arg(long, default_value_t = FusionParams::default().data_spacing)]
+    data_spacing: f64,
     #[command(flatten)]
     warp: WarpFlags,
     /// The pyramid level of the data term's depth (0: full resolution).
-    #[arg(long)]
-    data_level: Option<usize>,
-    /// Print each frame's figures.
-    #[arg(long)]
-    verbose: bool,
-    /// No progress bar.
-    #[arg(long)]
-    quiet: bool,
+    #[arg(long, default_value_t = FusionParams::default().data_level)]
+    data_level: usize,
+    #[command(flatten)]
+    common: cli::Common,
 }
+
+cli::has_common!(Args);
 
 fn params(args: &Args) -> Result<FusionParams> {
     let mut p = FusionParams::default();
-    args.warp.apply(&mut p.graph, &mut p.register)?;
-    if let Some(v) = args.voxel_size {
-        p.tsdf.voxel_size = v;
-    }
-    if let Some(v) = args.data_spacing {
-        p.data_spacing = v;
-    }
-    if let Some(v) = args.data_level {
-        p.data_level = v;
-    }
+    args.warp.apply(&mut p.graph, &mut p.register).bad_input()?;
+    p.tsdf.voxel_size = args.voxel_size;
+    p.data_spacing = args.data_spacing;
+    p.data_level = args.data_level;
     if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
-        bail!("--voxel-size must be a positive length");
+        return Err(cli::bad_input("--voxel-size must be a positive length"));
     }
     Ok(p)
 }
@@ -192,8 +197,69 @@ fn tracking_error(slam: &NonRigidFusion, scene: &DeformingScene, frame: usize) -
     Stats::of(&scene.tracking_errors(points, &slam.warp_points(points), frame)).mean
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+/// Logs one frame: the camera and its images, the deformation graph warped into the live frame
+/// (nodes and edges), the live mesh every `--rerun-mesh-every` frames, and the stage times.
+fn record(
+    rec: &rerun_log::Recorder,
+    args: &Args,
+    i: usize,
+    frame: &Frame,
+    slam: &NonRigidFusion,
+    camera: &Camera,
+) -> Result<()> {
+    rec.at("frame", i);
+    rec.camera("world/camera", camera, &Isometry3::identity())?;
+    if let Some(c) = &frame.color {
+        rec.color("world/camera/rgb", c)?;
+    }
+    rec.depth("world/camera/depth", &frame.depth, camera.depth_scale)?;
+    if let Some(g) = slam.graph() {
+        let canonical: Vec<Vector3<f64>> = g.nodes.iter().map(|n| n.position).collect();
+        let live: Vec<nalgebra::Point3<f64>> = slam
+            .warp_points(&canonical)
+            .into_iter()
+            .map(Into::into)
+            .collect();
+        let edges: Vec<(usize, usize)> = g
+            .edges
+            .iter()
+            .enumerate()
+            .flat_map(|(a, list)| list.iter().map(move |&b| (a, b as usize)))
+            .filter(|&(a, b)| a < b)
+            .collect();
+        rec.graph("world/graph", &live, &edges)?;
+        rec.scalar("tracking/nodes", g.nodes.len() as f64)?;
+    }
+    if args.rerun_mesh_every > 0 && i % args.rerun_mesh_every == 0 {
+        rec.mesh("world/live_mesh", &slam.warp_mesh(&slam.canonical_mesh()))?;
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let defaults = FusionParams::default();
+    cli::run_with(
+        |cmd| WarpFlags::show_defaults(cmd, &defaults.graph, &defaults.register),
+        run,
+    )
+}
+
+/// The canonical volume seen from the camera and from two sides, turned ±35° about the vertical
+/// axis through the object's data points.
+fn canonical_views(slam: &NonRigidFusion) -> Vec<Isometry3<f64>> {
+    let points = slam.data_points();
+    let centre = points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64;
+    [0.0f64, 35.0, -35.0]
+        .iter()
+        .map(|deg| {
+            // a camera at the origin, turned about the centre: x -> R (x - c) + c
+            let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), deg.to_radians());
+            Isometry3::from_parts(Translation3::from(centre - r * centre), r)
+        })
+        .collect()
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
     let params = params(&args)?;
     let source = match &args.dir {
         None => Source::Generated {
@@ -203,7 +269,7 @@ fn main() -> Result<()> {
             frames: args.max_frames.unwrap_or(30),
         },
         Some(d) => Source::Folder {
-            seq: TumSequence::open(d)?,
+            seq: TumSequence::open(d).bad_input()?,
             masks: args.masks.clone(),
         },
     };
@@ -213,14 +279,8 @@ fn main() -> Result<()> {
             .with_context(|| format!("cannot create {}", out.join("live").display()))?;
     }
     let mut slam = NonRigidFusion::new(source.camera(), params);
-    let bar = if args.quiet || args.verbose {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(n as u64)
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} frames {msg}").expect("valid template"),
-    );
+    let rec = rerun_log::Recorder::open(&args.rerun, "dynamap nonrigid_slam")?;
+    let bar = session.progress(n as u64, "frames");
     let (mut totals, mut failures, mut errors) = (FusionTimes::default(), 0usize, Vec::new());
     let (mut stages, mut optimised) = (RegisterTimes::default(), 0usize);
     let (mut processing, mut processed) = (0.0, 0usize);
@@ -230,7 +290,7 @@ fn main() -> Result<()> {
             Ok(f) => f,
             Err(e) => {
                 failures += 1;
-                report_line(&bar, format!("frame {i} skipped: {e:#}"));
+                tracing::warn!("frame {i} skipped: {e:#}");
                 continue;
             }
         };
@@ -245,7 +305,12 @@ fn main() -> Result<()> {
         }
         if let Some(why) = &report.failure {
             failures += 1;
-            report_line(&bar, format!("frame {i}: not fused: {why}"));
+            tracing::warn!("frame {i}: not fused: {why}");
+        }
+        if rec.enabled() {
+            record(&rec, &args, i, &frame, &slam, &source.camera())?;
+            rec.scalar("tracking/ms/optimise", 1e3 * report.times.optimise)?;
+            rec.scalar("tracking/ms/fuse", 1e3 * report.times.fuse)?;
         }
         let error = match &source {
             Source::Generated { scene, .. } if slam.graph().is_some() => {
@@ -253,10 +318,10 @@ fn main() -> Result<()> {
             }
             _ => None,
         };
-        errors.extend(error);
-        if args.verbose {
+        errors.extend(error.map(|e| (i, e)));
+        {
             let s = report.summary.as_ref();
-            eprintln!(
+            tracing::debug!(
                 "frame {i}: nodes {} (+{}), matched {}, iterations {}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
                 report.nodes,
                 report.added_nodes,
@@ -280,6 +345,22 @@ fn main() -> Result<()> {
         ply::write(out.join("canonical.ply"), &slam.canonical_mesh())?;
         write_atomic(out.join("warp.txt"), warp_text(&slam).as_bytes())?;
     }
+    rec.flush()?;
+    if let Some(dir) = &args.preview {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let views = canonical_views(&slam);
+        preview::model_views(dir, slam.volume(), &source.camera(), 1.0, &views)?;
+        if !errors.is_empty() {
+            let mm = errors.iter().map(|&(i, e)| (i as f64, 1e3 * e)).collect();
+            preview::line_plot(
+                &dir.join("error.png"),
+                "mean distance of the warped samples from their true positions",
+                ("frame", "error (mm)"),
+                &[("tracking error", mm)],
+            )?;
+        }
+    }
+    let errors: Vec<f64> = errors.iter().map(|e| e.1).collect();
     let per_frame = |s: f64| s / processed.max(1) as f64;
     let error = (!errors.is_empty()).then(|| {
         let s = Stats::of(&errors);

@@ -9,17 +9,28 @@
 //! chi2 is Σ eᵀΩe with GTSAM's BetweenFactor error e = Log(Z⁻¹ Xi⁻¹ Xj) (see `../shared/bench/peers/chi2.py`);
 //! "seconds" times the optimisation alone, not reading, initialisation or writing.
 
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/iterations.rs"]
+mod iterations;
+#[path = "common/preview.rs"]
+mod preview;
+#[path = "common/rerun_log.rs"]
+mod rerun_log;
+
 use anyhow::{bail, Context, Result};
 use clap::{Parser, ValueEnum};
+use cli::{InputError, Session};
 use dynamap::residuals::pose_graph::{
     g2o, init,
     synthetic::{self, SyntheticOptions},
     Dimension, Pose,
 };
-use dynamap::solver::{Algorithm, DampingKind, IterationSummary, Options, SolveError, Solver};
+use dynamap::solver::{Algorithm, DampingKind, Options, SolveError, Solver};
+use iterations::IterationLog;
 use std::collections::BTreeMap;
-use std::ops::ControlFlow;
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -44,7 +55,7 @@ enum AlgorithmKind {
 
 /// Optimise a pose graph in g2o format.
 #[derive(Parser, Debug)]
-#[command(version, about)]
+#[command(version, long_about = None)]
 struct Args {
     /// The g2o file (VERTEX_SE2/EDGE_SE2 or VERTEX_SE3:QUAT/EDGE_SE3:QUAT). Without it, a synthetic
     /// sphere graph with a known optimum is generated and solved.
@@ -75,13 +86,44 @@ struct Args {
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
-    /// Print only the JSON line.
-    #[arg(long)]
-    quiet: bool,
+    #[command(flatten)]
+    rerun: rerun_log::RerunFlags,
+    /// A folder for a plot of chi2 per iteration (cost.png).
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    common: cli::Common,
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+cli::has_common!(Args);
+
+/// The graph's vertex positions (in a plane for SE(2)) and its edges as index pairs.
+fn layout(
+    graph: &dynamap::residuals::pose_graph::PoseGraph,
+    poses: &BTreeMap<usize, Pose>,
+) -> (Vec<nalgebra::Point3<f64>>, Vec<(usize, usize)>) {
+    let index: BTreeMap<usize, usize> = poses.keys().enumerate().map(|(k, &id)| (id, k)).collect();
+    let points = poses
+        .values()
+        .map(|p| match p {
+            Pose::Se2(q) => nalgebra::Point3::new(q.translation.x, q.translation.y, 0.0),
+            Pose::Se3(q) => q.translation.vector.into(),
+        })
+        .collect();
+    let edges = graph
+        .edges
+        .iter()
+        .filter_map(|e| Some((*index.get(&e.from)?, *index.get(&e.to)?)))
+        .collect();
+    (points, edges)
+}
+
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    let quiet = session.quiet;
     if args.threads > 0 {
         rayon::ThreadPoolBuilder::new()
             .num_threads(args.threads)
@@ -89,10 +131,10 @@ fn main() -> Result<()> {
             .context("setting up the thread pool")?;
     }
     let (graph, truth) = match &args.graph {
-        Some(path) => (g2o::read(path)?, None),
+        Some(path) => (g2o::read(path).bad_input()?, None),
         None => {
             let s = synthetic::sphere(&SyntheticOptions::default());
-            if !args.quiet {
+            if !quiet {
                 println!(
                     "synthetic sphere graph: {} poses, {} edges, exact measurements (optimum chi2 = 0)",
                     s.graph.vertices.len(),
@@ -105,11 +147,18 @@ fn main() -> Result<()> {
     let t_init = Instant::now();
     let start: BTreeMap<usize, Pose> = match args.init {
         InitKind::File => graph.vertices.clone(),
-        InitKind::Odometry => init::odometry(&graph).map_err(anyhow::Error::msg)?,
-        InitKind::Chordal => init::chordal(&graph).map_err(anyhow::Error::msg)?,
+        InitKind::Odometry => init::odometry(&graph)
+            .map_err(anyhow::Error::msg)
+            .bad_input()?,
+        InitKind::Chordal => init::chordal(&graph)
+            .map_err(anyhow::Error::msg)
+            .bad_input()?,
     };
     let init_seconds = t_init.elapsed().as_secs_f64();
-    let mut pg = graph.build_problem(&start).map_err(anyhow::Error::msg)?;
+    let mut pg = graph
+        .build_problem(&start)
+        .map_err(anyhow::Error::msg)
+        .bad_input()?;
     let chi2_initial = 2.0 * pg.problem.cost();
     let options = Options {
         algorithm: match args.algorithm {
@@ -127,24 +176,23 @@ fn main() -> Result<()> {
         },
         ..Options::default()
     };
-    let quiet = args.quiet;
-    if !quiet {
-        println!("{}", IterationSummary::HEADER);
+    let rec = rerun_log::Recorder::open(&args.rerun, "dynamap pose_graph")?;
+    if rec.enabled() {
+        let (points, edges) = layout(&graph, &start);
+        rec.at("iteration", 0);
+        rec.graph("world/before", &points, &edges)?;
     }
-    let mut solver = Solver::new(options).with_observer(move |it: &IterationSummary| {
-        if !quiet {
-            println!("{it}");
-        }
-        ControlFlow::Continue(())
-    });
-    let summary = match solver.solve(&mut pg.problem) {
+    let log = IterationLog::new(session, args.max_iterations);
+    let mut solver = Solver::new(options).with_observer(log.observer());
+    let solved = solver.solve(&mut pg.problem);
+    log.finish();
+    let summary = match solved {
         Ok(s) => s,
         Err(SolveError::UntouchedVariable(v)) => {
-            bail!(
+            return Err(cli::bad_input(format!(
                 "{}: vertex {} is touched by no edge",
-                graph.source,
-                pg.ids[v]
-            )
+                graph.source, pg.ids[v]
+            )));
         }
         Err(SolveError::RankDeficient {
             message, variables, ..
@@ -154,16 +202,35 @@ fn main() -> Result<()> {
                 .take(12)
                 .map(|&v| pg.ids[v].to_string())
                 .collect();
-            bail!(
+            return Err(cli::bad_input(format!(
                 "{}: {message} (vertices {})",
                 graph.source,
                 names.join(", ")
-            )
+            )));
         }
         Err(e) => return Err(e.into()),
     };
     let poses = pg.poses();
     let chi2_final = graph.chi2(&poses);
+    if rec.enabled() {
+        for (i, cost) in log.costs() {
+            rec.at("iteration", i);
+            rec.scalar("solver/chi2", 2.0 * cost)?;
+        }
+        let (points, edges) = layout(&graph, &poses);
+        rec.graph("world/after", &points, &edges)?;
+        rec.flush()?;
+    }
+    if let Some(dir) = &args.preview {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let chi2: Vec<(usize, f64)> = log.costs().iter().map(|&(i, c)| (i, 2.0 * c)).collect();
+        let name = args.graph.as_ref().and_then(|p| p.file_name());
+        let title = format!(
+            "pose graph: {}",
+            name.map_or("synthetic".into(), |f| f.to_string_lossy())
+        );
+        preview::cost_plot(&dir.join("cost.png"), &title, &[("chi2 = 2 cost", chi2)])?;
+    }
     if !quiet {
         println!(
             "stopped: {}; chi2 {:.10e} -> {:.10e}; {} iterations, {:.4} s ({} unknowns, {} Cholesky); init {:.4} s",

@@ -6,8 +6,12 @@
 //! ```
 //! Prints the median and mean per frame, a per-stage breakdown, and one JSON line last.
 
+#[path = "common/cli.rs"]
+mod cli;
+
 use anyhow::Result;
 use clap::Parser;
+use cli::Session;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::image::{
     bilateral_filter, downsample_depth, gradients, intensity, normal_map, vertex_map, Image,
@@ -17,11 +21,12 @@ use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::render::render;
 use dynamap::slam::synthetic::scene::Scene;
+use std::process::ExitCode;
 use std::time::Instant;
 
 /// Front-end benchmark.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(long_about = None)]
 struct Args {
     /// Timed frames (after 20 warm-up frames).
     #[arg(long, default_value_t = 300)]
@@ -29,7 +34,11 @@ struct Args {
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    #[command(flatten)]
+    common: cli::Common,
 }
+
+cli::has_common!(Args);
 
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -51,8 +60,14 @@ fn time<F: FnMut()>(frames: usize, mut f: F) -> (f64, f64) {
     (median(&mut t), mean)
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    if args.frames == 0 {
+        return Err(cli::bad_input("--frames must be at least 1"));
+    }
     if args.threads > 0 {
         rayon::ThreadPoolBuilder::new()
             .num_threads(args.threads)
@@ -101,17 +116,19 @@ fn main() -> Result<()> {
         gradients(&g, &mut gx, &mut gy);
     });
     let threads = rayon::current_num_threads();
-    println!(
-        "640x480 preprocessing on {threads} threads, {} frames each:",
-        args.frames
-    );
-    println!("  depth only (filter + 3-level pyramid + vertex/normal maps): median {depth_median:.3} ms, mean {depth_mean:.3} ms");
-    println!("  with colour (+ intensity pyramid and gradients):           median {total_median:.3} ms, mean {total_mean:.3} ms");
-    println!("stages, median:");
-    println!("  bilateral filter (5x5)          {bilateral:.3} ms");
-    println!("  depth pyramid (2 halvings)      {pyramid:.3} ms");
-    println!("  vertex + normal map (level 0)   {maps:.3} ms");
-    println!("  intensity + gradients (level 0) {gray:.3} ms");
+    if !session.quiet {
+        println!(
+            "640x480 preprocessing on {threads} threads, {} frames each:",
+            args.frames
+        );
+        println!("  depth only (filter + 3-level pyramid + vertex/normal maps): median {depth_median:.3} ms, mean {depth_mean:.3} ms");
+        println!("  with colour (+ intensity pyramid and gradients):           median {total_median:.3} ms, mean {total_mean:.3} ms");
+        println!("stages, median:");
+        println!("  bilateral filter (5x5)          {bilateral:.3} ms");
+        println!("  depth pyramid (2 halvings)      {pyramid:.3} ms");
+        println!("  vertex + normal map (level 0)   {maps:.3} ms");
+        println!("  intensity + gradients (level 0) {gray:.3} ms");
+    }
     println!(
         "{}",
         serde_json::json!({"threads": threads, "frames": args.frames, "depth_median_ms": depth_median, "depth_mean_ms": depth_mean,

@@ -9,11 +9,16 @@
 //! seconds (the whole per-frame loop, image reading included), fps, failures, and the ATE when the
 //! folder has a ground truth.
 
-#[path = "common/report.rs"]
-mod report;
+#[path = "common/cli.rs"]
+mod cli;
+#[path = "common/preview.rs"]
+mod preview;
+#[path = "common/rerun_log.rs"]
+mod rerun_log;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Parser;
+use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
 use dynamap::slam::io::folder::FolderSequence;
@@ -21,21 +26,21 @@ use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
-use dynamap::slam::rigid::{RigidSlam, SlamParams, StageTimes};
+use dynamap::slam::rigid::{FrameReport, RigidSlam, SlamParams, StageTimes};
 use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
-use report::report_line;
-use serde::Deserialize;
+use rerun_log::Recorder;
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Instant;
 
-/// Dense rigid RGB-D SLAM.
+/// Dense rigid RGB-D SLAM: frame-to-model tracking into a voxel-hashed TSDF.
 #[derive(Parser, Debug)]
-#[command(about)]
+#[command(about, long_about = None)]
 struct Args {
-    /// A TUM-layout sequence. Without it, a 60-frame sequence is rendered and tracked.
+    /// A TUM-layout sequence (rgb.txt, depth.txt) or a folder of numbered colour/depth frames.
+    /// Without it, a 60-frame sequence is rendered and tracked.
     dir: Option<PathBuf>,
     /// Where to write the estimated trajectory (TUM format).
     #[arg(long)]
@@ -46,49 +51,62 @@ struct Args {
     /// Where to write a PNG of the fused model raycast from the last pose (shaded by its normals).
     #[arg(long)]
     render: Option<PathBuf>,
-    /// Parameters from a TOML file (keys as the flags below, with underscores).
-    #[arg(long)]
-    config: Option<PathBuf>,
+    /// A folder for pictures of the run: the model shaded from three of the estimated poses, the
+    /// trajectory from above over the ground truth, the per-frame error.
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    rerun: rerun_log::RerunFlags,
+    /// With --rerun: log the fused mesh every this many frames (and after the last).
+    #[arg(long, default_value_t = 50)]
+    rerun_mesh_every: usize,
     /// Voxel size, metres.
-    #[arg(long)]
-    voxel_size: Option<f32>,
-    /// Truncation, voxels.
-    #[arg(long)]
-    truncation: Option<f32>,
-    /// Photometric weight λ.
-    #[arg(long)]
-    lambda: Option<f64>,
-    /// Iterations per level, finest first, e.g. 2,3,6.
-    #[arg(long, value_delimiter = ',')]
-    iterations: Option<Vec<usize>>,
+    #[arg(long, default_value_t = SlamParams::default().tsdf.voxel_size)]
+    voxel_size: f32,
+    /// Truncation band, voxels.
+    #[arg(long, default_value_t = SlamParams::default().tsdf.truncation_voxels)]
+    truncation: f32,
+    /// Cap on a voxel's fused weight.
+    #[arg(long, default_value_t = SlamParams::default().tsdf.max_weight)]
+    max_weight: f32,
+    /// Block budget of the TSDF (blocks of 8³ voxels).
+    #[arg(long, default_value_t = SlamParams::default().tsdf.max_blocks)]
+    max_blocks: usize,
+    /// Photometric weight λ of E_geo + λ E_pho.
+    #[arg(long, default_value_t = SlamParams::default().tracker.lambda_photometric)]
+    lambda: f64,
+    /// Gauss-Newton iterations per pyramid level, finest first.
+    #[arg(long, value_delimiter = ',', default_values_t = SlamParams::default().tracker.iterations)]
+    iterations: Vec<usize>,
     /// Association distance threshold, metres.
-    #[arg(long)]
-    max_distance: Option<f64>,
+    #[arg(long, default_value_t = SlamParams::default().tracker.max_distance)]
+    max_distance: f64,
     /// Association normal-angle threshold, degrees.
-    #[arg(long)]
-    max_angle: Option<f64>,
-    /// Intrinsics when DIR has no intrinsics.txt.
+    #[arg(long, default_value_t = SlamParams::default().tracker.max_normal_angle_deg)]
+    max_angle: f64,
+    /// Focal length x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     fx: Option<f64>,
-    /// Intrinsics when DIR has no intrinsics.txt.
+    /// Focal length y, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     fy: Option<f64>,
-    /// Intrinsics when DIR has no intrinsics.txt.
+    /// Principal point x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     cx: Option<f64>,
-    /// Intrinsics when DIR has no intrinsics.txt.
+    /// Principal point y, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     cy: Option<f64>,
-    /// Depth units per metre when DIR has no intrinsics.txt.
+    /// Depth units per metre when DIR has no intrinsics.txt [default: 5000, TUM's].
     #[arg(long)]
     depth_scale: Option<f64>,
-    /// Frames to process at most.
+    /// Frames to process at most [default: all].
     #[arg(long)]
     max_frames: Option<usize>,
-    /// No progress bar.
-    #[arg(long)]
-    quiet: bool,
+    #[command(flatten)]
+    common: cli::Common,
 }
+
+cli::has_common!(Args);
 
 /// A TUM-layout folder (rgb.txt, depth.txt) or a plain folder of numbered colour/depth frames.
 enum Source {
@@ -138,48 +156,28 @@ impl Source {
     }
 }
 
-/// The TOML form of the parameters.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Config {
-    voxel_size: Option<f32>,
-    truncation: Option<f32>,
-    lambda: Option<f64>,
-    iterations: Option<Vec<usize>>,
-    max_distance: Option<f64>,
-    max_angle: Option<f64>,
-}
-
+/// The SLAM parameters the flags set, checked.
 fn params(args: &Args) -> Result<SlamParams> {
-    let file: Config = match &args.config {
-        Some(p) => toml::from_str(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("{}: invalid parameters", p.display()))?,
-        None => Config::default(),
-    };
     let mut p = SlamParams::default();
-    if let Some(v) = args.voxel_size.or(file.voxel_size) {
-        p.tsdf.voxel_size = v;
-    }
-    if let Some(v) = args.truncation.or(file.truncation) {
-        p.tsdf.truncation_voxels = v;
-    }
-    if let Some(v) = args.lambda.or(file.lambda) {
-        p.tracker.lambda_photometric = v;
-    }
-    if let Some(v) = args.iterations.clone().or(file.iterations) {
-        p.tracker.iterations = v;
-    }
-    if let Some(v) = args.max_distance.or(file.max_distance) {
-        p.tracker.max_distance = v;
-    }
-    if let Some(v) = args.max_angle.or(file.max_angle) {
-        p.tracker.max_normal_angle_deg = v;
-    }
+    p.tsdf.voxel_size = args.voxel_size;
+    p.tsdf.truncation_voxels = args.truncation;
+    p.tsdf.max_weight = args.max_weight;
+    p.tsdf.max_blocks = args.max_blocks;
+    p.tracker.lambda_photometric = args.lambda;
+    p.tracker.iterations = args.iterations.clone();
+    p.tracker.max_distance = args.max_distance;
+    p.tracker.max_normal_angle_deg = args.max_angle;
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
     if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {
-        bail!("voxel_size must be positive and truncation at least 1 voxel");
+        return Err(cli::bad_input(
+            "--voxel-size must be positive and --truncation at least 1 voxel",
+        ));
+    }
+    let weight_ok = p.tsdf.max_weight.is_finite() && p.tsdf.max_weight >= 1.0;
+    if p.tracker.iterations.is_empty() || !weight_ok || p.tsdf.max_blocks == 0 {
+        return Err(cli::bad_input(
+            "--iterations needs a level, --max-weight at least 1, --max-blocks at least 1",
+        ));
     }
     Ok(p)
 }
@@ -189,7 +187,7 @@ fn default_sequence() -> Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("dynamap-rigid-default-{}", std::process::id()));
     let cam = Camera::tum_default();
     let traj = motion::procedural(motion::Motion::Orbit, 60, 30.0);
-    eprintln!("rendering a 60-frame sequence into {}", dir.display());
+    tracing::info!("rendering a 60-frame sequence into {}", dir.display());
     sequence::write_rigid(
         &dir,
         &Scene::room(1),
@@ -202,14 +200,61 @@ fn default_sequence() -> Result<PathBuf> {
     Ok(dir)
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+/// Logs one frame to the recording: camera, images, the model view, the trajectory so far,
+/// tracking figures, and the mesh every `--rerun-mesh-every` frames.
+fn record(
+    rec: &Recorder,
+    args: &Args,
+    i: usize,
+    frame: &RgbdFrame,
+    report: &FrameReport,
+    slam: &RigidSlam,
+    trajectory: &Trajectory,
+) -> Result<()> {
+    let camera = slam.camera();
+    rec.at("frame", i);
+    rec.camera("world/camera", &camera, &report.pose)?;
+    if let Some(c) = &frame.color {
+        rec.color("world/camera/rgb", c)?;
+    }
+    rec.depth("world/camera/depth", &frame.depth, camera.depth_scale)?;
+    rec.color(
+        "model_view",
+        &preview::shade(slam.model_maps(), &report.pose),
+    )?;
+    rec.path(
+        "world/trajectory/estimate",
+        &trajectory.poses,
+        [220, 40, 40],
+    )?;
+    rec.scalar("tracking/inliers", report.inliers as f64)?;
+    rec.scalar("tracking/failed", report.failure.is_some() as u8 as f64)?;
+    let t = &report.times;
+    for (name, s) in [
+        ("preprocess", t.preprocess),
+        ("track", t.track),
+        ("integrate", t.integrate),
+        ("raycast", t.raycast),
+    ] {
+        rec.scalar(&format!("tracking/ms/{name}"), 1e3 * s)?;
+    }
+    if args.rerun_mesh_every > 0 && i % args.rerun_mesh_every == args.rerun_mesh_every - 1 {
+        rec.mesh("world/mesh", &slam.volume().extract_mesh())?;
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    cli::run(run)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
     let params = params(&args)?;
     let (dir, generated) = match &args.dir {
         Some(d) => (d.clone(), false),
         None => (default_sequence()?, true),
     };
-    let mut seq = Source::open(&dir)?;
+    let mut seq = Source::open(&dir).bad_input()?;
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
@@ -234,14 +279,13 @@ fn main() -> Result<()> {
         params,
         start_pose.unwrap_or_else(Isometry3::identity),
     );
-    let bar = if args.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(n as u64)
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} frames {msg}").expect("valid template"),
-    );
+    let bar = session.progress(n as u64, "frames");
+    let rec = Recorder::open(&args.rerun, "dynamap rigid_slam")?;
+    if let Some(gt) = seq.groundtruth() {
+        rec.at("frame", 0);
+        rec.path("world/trajectory/ground_truth", &gt.poses, [90, 90, 90])?;
+    }
+    let mut logged: Result<()> = Ok(());
     let mut trajectory = Trajectory::default();
     let mut totals = StageTimes::default();
     let (mut failures, mut read_seconds) = (0usize, 0.0);
@@ -268,7 +312,7 @@ fn main() -> Result<()> {
                 Ok(f) => f,
                 Err(e) => {
                     failures += 1;
-                    report_line(&bar, format!("skipped: {e}"));
+                    tracing::warn!("frame {i} skipped: {e}");
                     bar.inc(1);
                     continue;
                 }
@@ -277,21 +321,20 @@ fn main() -> Result<()> {
             totals.add(&report.times);
             if let Some(why) = &report.failure {
                 failures += 1;
-                report_line(
-                    &bar,
-                    format!("frame {i} ({:.6}): not fused: {why}", frame.timestamp),
-                );
+                tracing::warn!("frame {i} ({:.6}): not fused: {why}", frame.timestamp);
             }
             trajectory.push(frame.timestamp, report.pose);
-            bar.inc(1);
-            if i % 10 == 9 {
-                bar.set_message(format!(
-                    "{:.1} fps",
-                    (i + 1) as f64 / start.elapsed().as_secs_f64()
-                ));
+            if rec.enabled() && logged.is_ok() {
+                logged = record(&rec, &args, i, &frame, &report, &slam, &trajectory);
             }
+            bar.inc(1);
         }
     });
+    logged?;
+    if rec.enabled() {
+        rec.mesh("world/mesh", &slam.volume().extract_mesh())?;
+        rec.flush()?;
+    }
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(out) = &args.output {
@@ -303,37 +346,28 @@ fn main() -> Result<()> {
     if let Some(png) = &args.render {
         let mut maps = RaycastMaps::new();
         slam.volume().raycast(&camera, &slam.pose(), &mut maps);
-        let light = nalgebra::Vector3::new(0.3f32, -0.5, -1.0).normalize();
-        let rot = slam
-            .pose()
-            .rotation
-            .to_rotation_matrix()
-            .into_inner()
-            .cast::<f32>();
-        let data = maps
-            .normals
-            .data
-            .iter()
-            .map(|n| {
-                if !n[0].is_finite() {
-                    return [0, 0, 0];
-                }
-                // shade in the camera frame: a light from behind the viewer's left shoulder
-                let nc = rot.transpose() * nalgebra::Vector3::new(n[0], n[1], n[2]);
-                let v = (40.0 + 215.0 * nc.dot(&light).max(0.0)) as u8;
-                [v, v, v]
-            })
-            .collect();
-        let img =
-            dynamap::slam::image::Image::from_vec(camera.width, camera.height, data).expect("size");
-        dynamap::slam::io::images::write_color(png, &img)?;
+        dynamap::slam::io::images::write_color(png, &preview::shade(&maps, &slam.pose()))?;
     }
-    let ate_rmse = seq
+    let ate_result = seq
         .groundtruth()
-        .and_then(|gt| ate(gt, &trajectory, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok())
-        .map(|a| a.stats.rmse);
+        .and_then(|gt| ate(gt, &trajectory, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok());
+    if let Some(out) = &args.preview {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let poses = &trajectory.poses;
+        if !poses.is_empty() {
+            let views = [poses[0], poses[poses.len() / 2], poses[poses.len() - 1]];
+            preview::model_views(out, slam.volume(), &camera, 0.5, &views)?;
+        }
+        let truth = seq.groundtruth().zip(ate_result.as_ref());
+        preview::trajectory_plot(&out.join("trajectory.png"), &trajectory, truth)?;
+        if let Some((gt, a)) = truth {
+            preview::error_plot(&out.join("error.png"), gt, &trajectory, a)?;
+        }
+        tracing::info!("pictures in {}", out.display());
+    }
+    let ate_rmse = ate_result.as_ref().map(|a| a.stats.rmse);
     let k = |t: f64| 1e3 * t / n.max(1) as f64;
-    eprintln!(
+    tracing::info!(
         "per frame: read {:.2} ms, preprocess {:.2} ms, track {:.2} ms, integrate {:.2} ms, raycast {:.2} ms; {} blocks ({:.0} MiB)",
         k(read_seconds),
         k(totals.preprocess),
@@ -344,7 +378,7 @@ fn main() -> Result<()> {
         slam.volume().memory_bytes() as f64 / (1 << 20) as f64
     );
     if let Some(a) = ate_rmse {
-        eprintln!(
+        tracing::info!(
             "ATE (SE(3)-aligned RMSE) against {}: {a:.4} m",
             dir.join("groundtruth.txt").display()
         );

@@ -39,6 +39,59 @@ pub struct WarpFlags {
 }
 
 impl WarpFlags {
+    /// The flags' argument ids with the values `graph` and `register` give them, as text.
+    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 10] {
+        let schedule: Vec<String> = register.schedule.iter().map(|w| w.to_string()).collect();
+        [
+            ("spacing", graph.spacing.to_string()),
+            ("schedule", schedule.join(",")),
+            ("rounds", register.rounds.to_string()),
+            ("iterations", register.iterations.to_string()),
+            ("rigid_iterations", register.rigid_iterations.to_string()),
+            ("max_distance", register.max_distance.to_string()),
+            ("max_angle", register.max_normal_angle_deg.to_string()),
+            ("tukey", register.tukey.to_string()),
+            ("point_weight", register.point_weight.to_string()),
+            ("stay_weight", register.stay_weight.to_string()),
+        ]
+    }
+
+    /// Shows `graph` and `register` as the flags' defaults (in `--help` and `--print-config`).
+    #[allow(dead_code)] // nonrigid_register's defaults depend on its input
+    pub fn show_defaults(
+        cmd: clap::Command,
+        graph: &GraphParams,
+        register: &RegisterParams,
+    ) -> clap::Command {
+        Self::values(graph, register)
+            .into_iter()
+            .fold(cmd, |cmd, (id, value)| {
+                cmd.mut_arg(id, |a| a.default_value(value))
+            })
+    }
+
+    /// Describes in `--help` defaults that depend on the input: `meshes` (lengths as multiples of
+    /// the source's bounding-box diagonal D, so given for D = 1) and `frames`.
+    #[allow(dead_code)] // only nonrigid_register has input-dependent defaults
+    pub fn describe_defaults(
+        cmd: clap::Command,
+        meshes: (&GraphParams, &RegisterParams),
+        frames: (&GraphParams, &RegisterParams),
+    ) -> clap::Command {
+        let lengths = ["spacing", "max_distance", "tukey"];
+        let m = Self::values(meshes.0, meshes.1);
+        let f = Self::values(frames.0, frames.1);
+        m.into_iter().zip(f).fold(cmd, |cmd, ((id, mv), (_, fv))| {
+            let unit = if lengths.contains(&id) { " D" } else { "" };
+            cmd.mut_arg(id, |a| {
+                let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
+                a.help(format!(
+                    "{help} [default: {mv}{unit} for meshes, {fv} for frames]"
+                ))
+            })
+        })
+    }
+
     /// Overrides the settings with the flags given; a spacing must be a positive length.
     pub fn apply(
         &self,

@@ -142,7 +142,7 @@ impl Projected {
 
 /// Photometric: `r = I_ref(π(T_ref⁻¹ T p)) − i` for a live point p (camera frame) of intensity i,
 /// against a reference image taken at `T_ref` (thesis eq. 3.14). Returns r and
-/// ∂r/∂δ = ∇I · ∂π/∂x · R_ref⁻¹ R [−[p]×, I], or `None` when p projects behind the reference
+/// ∂r/∂δ = ∇I · ∂π/∂x · R_ref⁻¹ R [−\[p\]×, I], or `None` when p projects behind the reference
 /// camera or outside its valid image.
 #[inline]
 pub fn photometric<F: IntensityField + ?Sized>(

@@ -10,6 +10,32 @@
 //! - [`icp`]: point-to-plane and photometric terms of rigid tracking.
 //! - [`pose_graph`]: SE(2) and SE(3) between and prior factors, the g2o file format, and
 //!   initialisation (odometry spanning tree, chordal relaxation).
+//!
+//! ## The model
+//!
+//! A term here is a value type holding its measurement (a relative pose, an image observation,
+//! a point and its model normal) and implementing [`Residual`](dynamap_solver::Residual): given
+//! its variables' current values it writes its residual vector and, when asked, one Jacobian
+//! block per variable in that variable's tangent space. Information matrices enter as square
+//! roots (`r = U e` with `UᵀU = Ω`), so `½‖r‖²` is the Mahalanobis cost. Each term's Jacobians are
+//! property-tested against central differences (`check_jacobians`) in its module's tests. The file
+//! formats (g2o, BAL) build whole problems from these terms.
+//!
+//! ## Example: a bundle-adjustment problem with a known optimum
+//!
+//! ```
+//! use dynamap_residuals::bal::{self, synthetic::{generate, SyntheticOptions}};
+//! use dynamap_solver::{LinearSolverKind, Solver};
+//!
+//! let options = SyntheticOptions { cameras: 3, points: 40, ..SyntheticOptions::default() };
+//! let mut data = generate(&options).start;
+//! let mut solve = data.build(None).unwrap(); // one Snavely reprojection term per observation
+//! let summary = Solver::new(bal::options(LinearSolverKind::SchurDense, 50))
+//!     .solve(&mut solve.problem)
+//!     .unwrap();
+//! assert!(summary.final_cost < 1e-10 * summary.initial_cost);
+//! data.update_from(&solve);
+//! ```
 
 #![warn(missing_docs)]
 

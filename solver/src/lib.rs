@@ -24,7 +24,52 @@
 //!   straight into 6×6 normal equations.
 //! - [`lie`]: SO(2), SE(2), SO(3), SE(3) exponentials, logarithms, adjoints and Jacobians.
 //!
-//! See `Problem`'s example for a complete solve.
+//! ## The model
+//!
+//! A [`Problem`] holds *variables*, each a point `x_j` of a [`Manifold`] stored in ambient
+//! coordinates (a unit quaternion stores 4 numbers, has 3 degrees of freedom), and *residual
+//! blocks*, each a function `r_i` of a few variables with an optional robust kernel `ρ_i`. The
+//! solver linearises every block in the tangent spaces, `r_i(x ⊞ δ) ≈ r_i + J_i δ`, and solves the
+//! (damped) normal equations `(JᵀJ + μD) δ = −Jᵀr` block-sparse: each variable is one block row and
+//! column of `H = JᵀJ`, and each residual block adds to the blocks of the variables it touches.
+//! Robust kernels enter by Triggs' correction, so `H` stays the Gauss-Newton matrix of the
+//! reweighted problem. Gauss-Newton takes the step; Levenberg-Marquardt and dogleg accept it only
+//! when the cost falls as the model predicts.
+//!
+//! ## A first solve
+//!
+//! Three noisy measurements of a point in the plane, one of them an outlier tamed by a Cauchy
+//! kernel:
+//!
+//! ```
+//! use dynamap_solver::{robust::Cauchy, AutoDiff, CostFunctor, Euclidean, Options, Problem, Real, Solver};
+//!
+//! /// r = x − z for a measurement z of the point x.
+//! struct Measured([f64; 2]);
+//! impl CostFunctor for Measured {
+//!     fn parameter_sizes(&self) -> &[usize] {
+//!         &[2]
+//!     }
+//!     fn evaluate<T: Real>(&self, p: &[&[T]], r: &mut [T]) {
+//!         r[0] = p[0][0] - self.0[0];
+//!         r[1] = p[0][1] - self.0[1];
+//!     }
+//! }
+//!
+//! let mut problem = Problem::new();
+//! let x = problem.add_variable(&[0.0, 0.0], Euclidean::<2>).unwrap();
+//! for z in [[1.0, 2.0], [1.02, 1.98], [9.0, -4.0]] {
+//!     let r = AutoDiff::<_, 2, 2>::new(Measured(z));
+//!     problem.add_robust_residual(r, Cauchy(0.1), &[x]).unwrap();
+//! }
+//! let summary = Solver::new(Options::default()).solve(&mut problem).unwrap();
+//! assert!(summary.termination.converged());
+//! let v = problem.value(x);
+//! assert!((v[0] - 1.01).abs() < 0.02 && (v[1] - 1.99).abs() < 0.02, "{v:?}");
+//! ```
+//!
+//! The [`guide`] walks through a custom residual, a custom manifold, a property test of the
+//! Jacobians and the [`Summary`].
 
 #![warn(missing_docs)]
 
@@ -63,3 +108,10 @@ pub use problem::{Problem, ResidualId, VarId};
 pub use real::Real;
 pub use residual::{Jacobians, Residual, Var};
 pub use robust::RobustKernel;
+
+#[doc = include_str!("../../docs/solver_guide.md")]
+pub mod guide {
+    // in scope for the guide's links
+    #[allow(unused_imports)]
+    use crate::*;
+}

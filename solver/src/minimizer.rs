@@ -333,6 +333,14 @@ impl Solver {
     }
 
     fn notify(&mut self, it: &IterationSummary, log: &mut Vec<IterationSummary>) -> bool {
+        tracing::trace!(
+            iteration = it.iteration,
+            cost = it.cost,
+            gradient = it.gradient_norm,
+            damping = it.damping,
+            accepted = it.accepted,
+            "solver iteration"
+        );
         log.push(it.clone());
         match &mut self.observer {
             Some(o) => o(it).is_break(),

@@ -14,7 +14,7 @@ use nalgebra::{Matrix2, Matrix2x3, Matrix3, Vector3};
 /// ```
 ///
 /// Variables: the camera `[ω, t, f, k₁, k₂]` (9, Euclidean) and the point X (3, Euclidean).
-/// Analytic Jacobians: ∂P/∂ω = −R [X]× J_r(ω) with J_r the right Jacobian of SO(3) (Barfoot 2017,
+/// Analytic Jacobians: ∂P/∂ω = −R \[X\]× J_r(ω) with J_r the right Jacobian of SO(3) (Barfoot 2017,
 /// eq. 7.77), ∂P/∂X = R, ∂P/∂t = I, chained through the projection and the distortion.
 #[derive(Clone, Copy, Debug)]
 pub struct SnavelyReprojection {

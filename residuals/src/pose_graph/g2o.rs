@@ -16,7 +16,7 @@ use thiserror::Error;
 
 /// A g2o file that could not be read or written, with the place of the fault.
 #[derive(Debug, Error, Clone, PartialEq)]
-#[error("{path}:{line}: {message}")]
+#[error("{path}{}: {message}", place(*.line))]
 pub struct G2oError {
     /// The file.
     pub path: String,
@@ -24,6 +24,15 @@ pub struct G2oError {
     pub line: usize,
     /// What is wrong, naming the field where there is one.
     pub message: String,
+}
+
+/// `:line`, or nothing for a fault of the whole file (line 0).
+fn place(line: usize) -> String {
+    if line == 0 {
+        String::new()
+    } else {
+        format!(":{line}")
+    }
 }
 
 const SE2_VERTEX: &[&str] = &["id", "x", "y", "theta"];
@@ -434,8 +443,8 @@ mod tests {
             ("VERTEX_SE3:QUAT 1 0 0 0 0 0 0 0\n", "g.g2o:1: fields qx qy qz qw: the quaternion is zero"),
             ("VERTEX_SE2 0 0 0 0 7\n", "g.g2o:1: VERTEX_SE2 needs 4 fields (id x y theta), found 5: 1 unexpected extra fields"),
             ("EDGE_SE2 0 1 1 0 0.1 10 0 0 10 0 1e999\n", "g.g2o:1: field I33: '1e999' is not finite"),
-            ("# nothing\n\n", "g.g2o:0: no vertices or edges"),
-            ("VERTEX_SE2 0 0 0 0\nFIX 3\n", "g.g2o:0: FIX names vertex 3, which has no VERTEX line"),
+            ("# nothing\n\n", "g.g2o: no vertices or edges"),
+            ("VERTEX_SE2 0 0 0 0\nFIX 3\n", "g.g2o: FIX names vertex 3, which has no VERTEX line"),
             ("VERTEX_SE2 0 0 0 0\nFIX\n", "g.g2o:2: FIX needs at least one vertex id"),
         ];
         for (text, expected) in cases {

@@ -68,6 +68,8 @@ pub struct FrameReport {
     pub failure: Option<String>,
     /// Stage times.
     pub times: StageTimes,
+    /// Inlier point-to-plane associations at the finest tracking level (0 when not tracked).
+    pub inliers: usize,
 }
 
 /// Dense rigid SLAM: a TSDF map and a frame-to-model tracker.
@@ -113,6 +115,11 @@ impl RigidSlam {
         }
     }
 
+    /// The sensor's camera.
+    pub fn camera(&self) -> Camera {
+        self.camera
+    }
+
     /// The current pose.
     pub fn pose(&self) -> Isometry3<f64> {
         self.pose
@@ -142,13 +149,14 @@ impl RigidSlam {
                     depth_raw.width, depth_raw.height, self.camera.width, self.camera.height
                 )),
                 times,
+                inliers: 0,
             };
         }
         let t = Instant::now();
         self.pre.process(depth_raw, color);
         times.preprocess = t.elapsed().as_secs_f64();
         self.frames += 1;
-        let mut failure = None;
+        let (mut failure, mut inliers) = (None, 0);
         if self.has_model {
             let t = Instant::now();
             let outcome = self
@@ -156,6 +164,7 @@ impl RigidSlam {
                 .track(&self.pre.levels, &self.model, &self.pose);
             times.track = t.elapsed().as_secs_f64();
             failure = outcome.failure;
+            inliers = outcome.inliers;
             self.pose = outcome.pose;
         } else {
             let valid = self.pre.levels[0]
@@ -197,10 +206,20 @@ impl RigidSlam {
                 times.raycast = t.elapsed().as_secs_f64();
             }
         }
+        tracing::debug!(
+            frame = self.frames,
+            inliers,
+            preprocess_ms = 1e3 * times.preprocess,
+            track_ms = 1e3 * times.track,
+            integrate_ms = 1e3 * times.integrate,
+            raycast_ms = 1e3 * times.raycast,
+            "rigid frame"
+        );
         FrameReport {
             pose: self.pose,
             failure,
             times,
+            inliers,
         }
     }
 }

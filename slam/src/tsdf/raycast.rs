@@ -95,14 +95,32 @@ impl TsdfVolume {
             coord: [i32::MIN; 3],
             block: None,
         };
+        // Free space is crossed a block at a time; a long step that lands in an allocated block
+        // backs up to where it started and enters voxel by voxel, so it cannot land behind a
+        // surface whose band in front of it is thinner than the step (thin, one-sided surfaces).
+        let mut skipped_from: Option<f32> = None;
+        let mut creeping = false;
         while t < t_max {
             let p = origin + dir * t;
             let (value, allocated) = self.nearest(&p, &mut cache);
             if !allocated {
                 prev = None;
-                t += block_len * 0.9;
+                if creeping {
+                    t += vs;
+                } else {
+                    skipped_from = Some(t);
+                    t += block_len * 0.9;
+                }
                 continue;
             }
+            if let Some(from) = skipped_from.take() {
+                if !creeping && t - from > vs {
+                    creeping = true;
+                    t = from + vs;
+                    continue;
+                }
+            }
+            creeping = false;
             let Some(f) = value else {
                 prev = None;
                 t += vs;

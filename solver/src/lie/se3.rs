@@ -44,7 +44,7 @@ pub fn log(t: &Isometry3<f64>) -> Vector6<f64> {
     Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z)
 }
 
-/// The adjoint Ad(T) = [[R, 0], [[t]× R, R]] for the `[ω; v]` order.
+/// The adjoint Ad(T) = [[R, 0], [\[t\]× R, R]] for the `[ω; v]` order.
 pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
     let r = t.rotation.to_rotation_matrix().into_inner();
     let mut a = Matrix6::zeros();

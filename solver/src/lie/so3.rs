@@ -69,7 +69,7 @@ pub fn right_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() - h * a + h * h * b
 }
 
-/// The inverse right Jacobian Jr⁻¹(w) = I + ½[w]× + (1/t² - (1 + cos t)/(2 t sin t)) [w]×².
+/// The inverse right Jacobian Jr⁻¹(w) = I + ½\[w\]× + (1/t² - (1 + cos t)/(2 t sin t)) \[w\]×².
 pub fn right_jacobian_inv(w: &Vector3<f64>) -> Matrix3<f64> {
     let t2 = w.norm_squared();
     let t = t2.sqrt();

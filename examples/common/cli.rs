@@ -1,0 +1,403 @@
+//! What every example binary shares on its command line: a TOML config file whose keys are the
+//! long flags, `--print-config`, `-v`/`-q` verbosity through `tracing`, a progress bar that stays
+//! quiet off a terminal, and the exit codes (0 ok, 1 runtime failure, 2 bad input).
+//!
+//! A binary calls [`run`] with its `clap` arguments type and its body:
+//! ```text
+//! fn main() -> ExitCode { cli::run(|args: Args, _: &Session| { ... Ok(()) }) }
+//! ```
+//! Options come, highest first, from the command line, the `--config` file, then the defaults
+//! shown by `--help`. `--print-config` prints the merged options as TOML, a file `--config` reads
+//! back to the same run.
+
+#![allow(dead_code)] // each binary uses a different part
+
+use anyhow::{Context, Result};
+use clap::parser::ValueSource;
+use clap::ArgAction;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::ffi::OsString;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Mutex;
+
+/// The flags every binary has.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Common {
+    /// Options from a TOML file whose keys are the long flags (`max-iterations = 50`); flags on
+    /// the command line win over the file.
+    #[arg(long, value_name = "FILE", global = true)]
+    pub config: Option<PathBuf>,
+    /// Print the effective options as TOML (a file for --config) and exit.
+    #[arg(long, global = true)]
+    pub print_config: bool,
+    /// More log output on stderr: -v debug, -vv trace.
+    #[arg(short, long, action = ArgAction::Count, global = true)]
+    pub verbose: u8,
+    /// Errors only: no progress bar, no tables, no log lines; the JSON line is still printed.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+}
+
+/// Flags that are not options of a run, so never config keys.
+const NOT_OPTIONS: [&str; 4] = ["config", "print-config", "help", "version"];
+
+/// An error in what the user gave (a file, a flag, a config key): exit code 2.
+#[derive(Debug)]
+pub struct BadInput(pub anyhow::Error);
+
+impl std::fmt::Display for BadInput {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.0)
+    }
+}
+
+impl std::error::Error for BadInput {}
+
+/// Marks a failure as bad input (exit code 2).
+pub trait InputError<T> {
+    /// The error, kept with its message, now counted as bad input.
+    fn bad_input(self) -> Result<T>;
+}
+
+impl<T, E: Into<anyhow::Error>> InputError<T> for std::result::Result<T, E> {
+    fn bad_input(self) -> Result<T> {
+        self.map_err(|e| anyhow::Error::new(BadInput(e.into())))
+    }
+}
+
+/// Fails with bad input (exit code 2).
+pub fn bad_input(message: impl std::fmt::Display) -> anyhow::Error {
+    anyhow::Error::new(BadInput(anyhow::anyhow!("{message}")))
+}
+
+/// What a run's body gets besides its arguments.
+pub struct Session {
+    /// `-q` was given.
+    pub quiet: bool,
+}
+
+impl Session {
+    /// A progress bar over `len` steps of `unit` (frames, iterations) with their rate; hidden
+    /// under `-q` or when stderr is not a terminal (CI logs, pipes). Log lines printed while it is
+    /// shown go above it.
+    pub fn progress(&self, len: u64, unit: &str) -> ProgressBar {
+        let bar = if self.quiet || !std::io::stderr().is_terminal() {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(len)
+        };
+        let template = format!("{{bar:40}} {{pos}}/{{len}} {unit} {{per_sec}} {{msg}}");
+        bar.set_style(ProgressStyle::with_template(&template).expect("a valid template"));
+        *BAR.lock().unwrap_or_else(|e| e.into_inner()) = Some(bar.clone());
+        bar
+    }
+}
+
+/// The bar log lines must step around.
+static BAR: Mutex<Option<ProgressBar>> = Mutex::new(None);
+
+/// Log output to stderr, printed above the progress bar when one is shown.
+struct LogWriter;
+
+impl Write for LogWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let bar = BAR.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        match bar {
+            Some(b) if !b.is_hidden() && !b.is_finished() => {
+                b.suspend(|| std::io::stderr().write(buf))
+            }
+            _ => std::io::stderr().write(buf),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
+/// Parses the arguments (with `--config` merged in), sets up logging, runs `body`, and turns its
+/// result into the exit code: 0 ok, 1 runtime failure, 2 bad input (usage errors, unreadable or
+/// malformed files, invalid options). `A` must flatten [`Common`] as `common`.
+pub fn run<A, F>(body: F) -> ExitCode
+where
+    A: clap::Parser + HasCommon,
+    F: FnOnce(A, &Session) -> Result<()>,
+{
+    run_with(|c| c, body)
+}
+
+/// [`run`] with the command adjusted first by `tweak` (e.g. defaults known only at run time, so
+/// that `--help` shows them).
+pub fn run_with<A, F>(tweak: impl Fn(clap::Command) -> clap::Command, body: F) -> ExitCode
+where
+    A: clap::Parser + HasCommon,
+    F: FnOnce(A, &Session) -> Result<()>,
+{
+    let argv: Vec<OsString> = std::env::args_os().collect();
+    let args = match parse::<A>(&argv, &tweak) {
+        Ok(Parsed::Run(a)) => a,
+        Ok(Parsed::Exit(code)) => return code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            return ExitCode::from(2);
+        }
+    };
+    let common = args.common().clone();
+    let level = match (common.quiet, common.verbose) {
+        (true, _) => tracing::Level::ERROR,
+        (false, 0) => tracing::Level::INFO,
+        (false, 1) => tracing::Level::DEBUG,
+        _ => tracing::Level::TRACE,
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_max_level(level)
+        .with_target(false)
+        .without_time()
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(|| LogWriter)
+        .try_init();
+    let session = Session {
+        quiet: common.quiet,
+    };
+    let result = body(args, &session);
+    if let Some(bar) = BAR.lock().unwrap_or_else(|e| e.into_inner()).take() {
+        bar.finish_and_clear();
+    }
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            if e.chain().any(|c| c.is::<BadInput>()) {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
+}
+
+/// Access to the shared flags inside a binary's arguments.
+pub trait HasCommon {
+    /// The shared flags.
+    fn common(&self) -> &Common;
+}
+
+enum Parsed<A> {
+    Run(A),
+    Exit(ExitCode),
+}
+
+/// Parses `argv`; with `--config`, the file's options not given on the command line are added
+/// before them (after the subcommand's name, when there is one: the file then holds that
+/// subcommand's options) and the whole parsed again, so the file passes the same checks as flags.
+fn parse<A: clap::Parser>(
+    argv: &[OsString],
+    tweak: &dyn Fn(clap::Command) -> clap::Command,
+) -> Result<Parsed<A>> {
+    let first = match tweak(A::command()).try_get_matches_from(argv) {
+        Ok(m) => m,
+        Err(e) => return Ok(Parsed::Exit(clap_exit(e))),
+    };
+    let mut cmd = tweak(A::command());
+    cmd.build();
+    let (sub, given, at) = match first.subcommand() {
+        Some((name, m)) => {
+            let sub = cmd
+                .find_subcommand(name)
+                .expect("a parsed subcommand exists")
+                .clone();
+            let at = 1 + argv.iter().skip(1).position(|a| a == name).unwrap_or(0) + 1;
+            (sub, m, at)
+        }
+        None => (cmd, &first, 1),
+    };
+    let mut full = argv.to_vec();
+    let config = given.get_one::<PathBuf>("config").cloned();
+    if let Some(path) = &config {
+        let injected = config_args(&sub, given, path)?;
+        full.splice(at..at, injected);
+    }
+    let matches = match tweak(A::command()).try_get_matches_from(&full) {
+        Ok(m) => m,
+        Err(e) => {
+            let path = config.expect("only --config adds arguments");
+            let message = e.render().to_string();
+            let first = message.lines().next().unwrap_or_default();
+            let first = first.trim_start_matches("error: ");
+            return Err(bad_input(format!("{}: {first}", path.display())));
+        }
+    };
+    let leaf = matches.subcommand().map_or(&matches, |(_, m)| m);
+    if leaf.get_flag("print_config") {
+        print!("{}", effective_config(&sub, leaf));
+        return Ok(Parsed::Exit(ExitCode::SUCCESS));
+    }
+    Ok(Parsed::Run(
+        A::from_arg_matches(&matches).map_err(|e| bad_input(e.render()))?,
+    ))
+}
+
+/// Prints clap's message (help, version or usage error) and gives its exit code (0 or 2).
+fn clap_exit(e: clap::Error) -> ExitCode {
+    let _ = e.print();
+    ExitCode::from(e.exit_code().clamp(0, 255) as u8)
+}
+
+/// The options of a run: the arguments with a long flag, but not --config and its kin.
+fn options(cmd: &clap::Command) -> impl Iterator<Item = &clap::Arg> {
+    cmd.get_arguments().filter(|a| {
+        !a.is_positional()
+            && a.get_long().is_some_and(|l| !NOT_OPTIONS.contains(&l))
+            && !matches!(
+                a.get_action(),
+                ArgAction::Help | ArgAction::HelpLong | ArgAction::HelpShort | ArgAction::Version
+            )
+    })
+}
+
+/// The command-line arguments a config file stands for, leaving out what the command line gives.
+fn config_args(
+    cmd: &clap::Command,
+    given: &clap::ArgMatches,
+    path: &Path,
+) -> Result<Vec<OsString>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading {}", path.display()))
+        .bad_input()?;
+    let table: toml::Table = toml::from_str(&text)
+        .with_context(|| format!("{}: not a TOML table of options", path.display()))
+        .bad_input()?;
+    let mut out = Vec::new();
+    for (key, value) in &table {
+        let Some(arg) = options(cmd).find(|a| a.get_long() == Some(key.as_str())) else {
+            let keys: Vec<&str> = options(cmd).filter_map(|a| a.get_long()).collect();
+            return Err(bad_input(format!(
+                "{}: unknown key `{key}` (the keys are the long flags: {})",
+                path.display(),
+                keys.join(", ")
+            )));
+        };
+        if given.value_source(arg.get_id().as_str()) == Some(ValueSource::CommandLine) {
+            continue;
+        }
+        let flag = format!("--{key}");
+        let wrong = |what: &str| {
+            bad_input(format!(
+                "{}: `{key}` must be {what}, not `{value}`",
+                path.display()
+            ))
+        };
+        match arg.get_action() {
+            ArgAction::SetTrue | ArgAction::SetFalse => match value.as_bool() {
+                Some(b) if b == matches!(arg.get_action(), ArgAction::SetTrue) => {
+                    out.push(flag.into())
+                }
+                Some(_) => {}
+                None => return Err(wrong("true or false")),
+            },
+            ArgAction::Count => {
+                let n = value
+                    .as_integer()
+                    .filter(|n| (0..=255).contains(n))
+                    .ok_or_else(|| wrong("a count"))?;
+                out.extend((0..n).map(|_| OsString::from(&flag)));
+            }
+            _ => {
+                let items = match value {
+                    toml::Value::Array(a) => a.iter().map(scalar).collect::<Option<Vec<_>>>(),
+                    v => scalar(v).map(|s| vec![s]),
+                }
+                .ok_or_else(|| wrong("a number, a string, a boolean or an array of them"))?;
+                match arg.get_value_delimiter() {
+                    Some(d) => out.push(format!("{flag}={}", items.join(&d.to_string())).into()),
+                    None => out.extend(items.iter().map(|v| OsString::from(format!("{flag}={v}")))),
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// A TOML scalar as its command-line text.
+fn scalar(v: &toml::Value) -> Option<String> {
+    match v {
+        toml::Value::String(s) => Some(s.clone()),
+        toml::Value::Integer(i) => Some(i.to_string()),
+        toml::Value::Float(f) => Some(f.to_string()),
+        toml::Value::Boolean(b) => Some(b.to_string()),
+        _ => None,
+    }
+}
+
+/// The merged options as TOML, one key per long flag with a value (unset options are listed as
+/// comments).
+fn effective_config(cmd: &clap::Command, m: &clap::ArgMatches) -> String {
+    let mut table = toml::Table::new();
+    let mut unset = Vec::new();
+    for arg in options(cmd) {
+        let (id, key) = (
+            arg.get_id().as_str(),
+            arg.get_long().expect("options have one"),
+        );
+        let value = match arg.get_action() {
+            ArgAction::SetTrue | ArgAction::SetFalse => toml::Value::Boolean(m.get_flag(id)),
+            ArgAction::Count => toml::Value::Integer(m.get_count(id) as i64),
+            _ => match m.get_raw(id) {
+                None => {
+                    unset.push(key);
+                    continue;
+                }
+                Some(raw) => {
+                    let items: Vec<toml::Value> =
+                        raw.map(|s| typed(&s.to_string_lossy())).collect();
+                    let many = arg.get_value_delimiter().is_some()
+                        || matches!(arg.get_action(), ArgAction::Append);
+                    if many {
+                        toml::Value::Array(items)
+                    } else {
+                        items.into_iter().next().expect("a raw value")
+                    }
+                }
+            },
+        };
+        table.insert(key.to_string(), value);
+    }
+    let mut text = toml::to_string(&table).expect("a table of scalars serialises");
+    for key in unset {
+        text.push_str(&format!("# {key}: not set\n"));
+    }
+    text
+}
+
+/// A command-line value as the TOML value that reads back to the same text.
+fn typed(s: &str) -> toml::Value {
+    if let Ok(i) = s.parse::<i64>() {
+        if i.to_string() == s {
+            return toml::Value::Integer(i);
+        }
+    }
+    if let Ok(f) = s.parse::<f64>() {
+        // exponent notation is kept as a number: Rust prints 1e-9 as 0.000000001, same value
+        if f.is_finite() && (f.to_string() == s || s.contains(['e', 'E'])) {
+            return toml::Value::Float(f);
+        }
+    }
+    match s {
+        "true" => toml::Value::Boolean(true),
+        "false" => toml::Value::Boolean(false),
+        _ => toml::Value::String(s.to_string()),
+    }
+}
+
+/// Implements [`HasCommon`] for an arguments type with a flattened `common: Common` field.
+macro_rules! has_common {
+    ($t:ty) => {
+        impl cli::HasCommon for $t {
+            fn common(&self) -> &cli::Common {
+                &self.common
+            }
+        }
+    };
+}
+pub(crate) use has_common;

@@ -1,0 +1,304 @@
+//! The example binaries' command line (issue 7): `--help` with defaults, the config round trip
+//! (`--print-config` then `--config` gives the same run), quiet output off a terminal, and the exit
+//! codes (0 ok, 1 runtime failure, 2 bad input). Runs the binaries `cargo test` builds.
+
+mod common;
+
+use common::examples::example;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BINARIES: [&str; 9] = [
+    "rigid_slam",
+    "nonrigid_slam",
+    "nonrigid_register",
+    "pose_graph",
+    "bundle_adjustment",
+    "curve_fitting",
+    "generate",
+    "evaluate",
+    "preprocess_bench",
+];
+
+fn run(name: &str, args: &[&str]) -> Output {
+    Command::new(example(name))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("{name} does not start: {e}"))
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A scratch folder for one test.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dynamap-cli-{test}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a scratch folder");
+    dir
+}
+
+/// The JSON line a run prints last, without its timings.
+fn result_json(out: &Output) -> serde_json::Value {
+    let stdout = text(&out.stdout);
+    let last = stdout.lines().last().unwrap_or_default();
+    let mut v: serde_json::Value = serde_json::from_str(last)
+        .unwrap_or_else(|e| panic!("the last line is not JSON ({e}): {stdout}"));
+    for key in ["seconds", "init_seconds", "threads"] {
+        v.as_object_mut().expect("an object").remove(key);
+    }
+    v
+}
+
+#[test]
+fn every_binary_has_help_with_defaults_and_the_shared_flags() {
+    for name in BINARIES {
+        // the binaries with subcommands show their options under a subcommand
+        let args: &[&str] = match name {
+            "generate" => &["rigid", "--help"],
+            "evaluate" => &["ate", "--help"],
+            _ => &["--help"],
+        };
+        let out = run(name, args);
+        let help = text(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{name} --help failed: {}",
+            text(&out.stderr)
+        );
+        for needle in [
+            "Usage:",
+            "[default: ",
+            "--config <FILE>",
+            "--print-config",
+            "-q, --quiet",
+            "-v, --verbose",
+        ] {
+            assert!(
+                help.contains(needle),
+                "{name} --help lacks `{needle}`:\n{help}"
+            );
+        }
+    }
+}
+
+#[test]
+fn print_config_then_config_gives_the_same_options_and_the_same_run() {
+    let dir = scratch("roundtrip");
+    for (name, flags) in [
+        (
+            "pose_graph",
+            &[
+                "--max-iterations",
+                "7",
+                "--algorithm",
+                "lm",
+                "--tau",
+                "1e-5",
+            ][..],
+        ),
+        (
+            "bundle_adjustment",
+            &[
+                "--max-iterations",
+                "50",
+                "--huber",
+                "2.5",
+                "--linear-solver",
+                "schur-sparse",
+            ][..],
+        ),
+        (
+            "curve_fitting",
+            &["--points", "120", "--outliers", "0.1", "--seed", "7"][..],
+        ),
+    ] {
+        let printed = run(name, &[flags, &["--print-config"]].concat());
+        assert!(
+            printed.status.success(),
+            "{name}: {}",
+            text(&printed.stderr)
+        );
+        let toml_text = text(&printed.stdout);
+        let file = dir.join(format!("{name}.toml"));
+        std::fs::write(&file, &toml_text).unwrap();
+        let file_arg = file.to_str().unwrap();
+        let reprinted = run(name, &["--config", file_arg, "--print-config"]);
+        assert_eq!(
+            text(&reprinted.stdout),
+            toml_text,
+            "{name}: the config does not read back"
+        );
+        let by_flags = run(name, &[flags, &["-q"]].concat());
+        let by_file = run(name, &["--config", file_arg, "-q"]);
+        assert!(
+            by_flags.status.success() && by_file.status.success(),
+            "{name}: {}",
+            text(&by_file.stderr)
+        );
+        assert_eq!(
+            result_json(&by_flags),
+            result_json(&by_file),
+            "{name}: different runs"
+        );
+    }
+    // a flag on the command line wins over the file
+    let file = dir.join("pose_graph.toml");
+    let out = run(
+        "pose_graph",
+        &[
+            "--config",
+            file.to_str().unwrap(),
+            "--max-iterations",
+            "3",
+            "--print-config",
+        ],
+    );
+    let table: toml::Table = toml::from_str(&text(&out.stdout)).expect("TOML");
+    assert_eq!(table["max-iterations"].as_integer(), Some(3));
+    assert_eq!(table["algorithm"].as_str(), Some("lm"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn assert_exit(out: &Output, code: i32, mentions: &[&str]) {
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(code), "stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "a panic: {stderr}");
+    for m in mentions {
+        assert!(
+            stderr.contains(m),
+            "the message does not name `{m}`: {stderr}"
+        );
+    }
+}
+
+#[test]
+fn bad_input_exits_2_and_runtime_failure_exits_1() {
+    let dir = scratch("exit");
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    // config: unknown key, ill-typed value, missing file
+    std::fs::write(dir.join("unknown.toml"), "max-iterations = 5\nbogus = 1\n").unwrap();
+    assert_exit(
+        &run("pose_graph", &["--config", &path("unknown.toml")]),
+        2,
+        &["unknown.toml", "bogus"],
+    );
+    std::fs::write(dir.join("typed.toml"), "max-iterations = \"many\"\n").unwrap();
+    assert_exit(
+        &run("pose_graph", &["--config", &path("typed.toml")]),
+        2,
+        &["typed.toml", "many"],
+    );
+    assert_exit(
+        &run("pose_graph", &["--config", &path("absent.toml")]),
+        2,
+        &["absent.toml"],
+    );
+    // a usage error
+    assert_exit(
+        &run("bundle_adjustment", &["--linear-solver", "magic"]),
+        2,
+        &["magic"],
+    );
+    // malformed input files name the file and line
+    std::fs::write(
+        dir.join("bad.g2o"),
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 zero 0\n",
+    )
+    .unwrap();
+    assert_exit(
+        &run("pose_graph", &[&path("bad.g2o")]),
+        2,
+        &["bad.g2o", "2"],
+    );
+    std::fs::write(dir.join("bad.txt"), "1 1 1\n0 0 1.0 2.0\n").unwrap();
+    assert_exit(
+        &run("bundle_adjustment", &[&path("bad.txt")]),
+        2,
+        &["bad.txt"],
+    );
+    assert_exit(
+        &run("rigid_slam", &[&path("no-such-sequence")]),
+        2,
+        &["no-such-sequence"],
+    );
+    assert_exit(
+        &run("evaluate", &["ate", &path("none.txt"), &path("none.txt")]),
+        2,
+        &["none.txt"],
+    );
+    // a run that cannot write its output is a runtime failure
+    let unwritable = path("no-such-folder/out.g2o");
+    assert_exit(
+        &run("pose_graph", &["--output", &unwritable, "-q"]),
+        1,
+        &["out.g2o"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// No carriage returns or bar glyphs: what a progress bar leaves in a log.
+fn assert_no_bar(name: &str, stderr: &str) {
+    assert!(
+        !stderr.contains('\r') && !stderr.contains('█') && !stderr.contains("frames/s"),
+        "{name} drew a progress bar into a pipe:\n{stderr}"
+    );
+}
+
+#[test]
+fn no_progress_bars_when_output_is_not_a_terminal() {
+    let dir = scratch("quiet");
+    let seq = dir.join("seq");
+    let gen = run(
+        "generate",
+        &[
+            "rigid",
+            seq.to_str().unwrap(),
+            "--frames",
+            "4",
+            "--width",
+            "160",
+            "--height",
+            "120",
+        ],
+    );
+    assert!(gen.status.success(), "{}", text(&gen.stderr));
+    assert_no_bar("generate", &text(&gen.stderr));
+    // without -q: log lines, but no bar (stderr is a pipe here, as in CI)
+    let slam = run("rigid_slam", &[seq.to_str().unwrap()]);
+    assert!(slam.status.success(), "{}", text(&slam.stderr));
+    let stderr = text(&slam.stderr);
+    assert_no_bar("rigid_slam", &stderr);
+    assert!(
+        stderr.contains("per frame"),
+        "the stage log is missing: {stderr}"
+    );
+    // with -q: nothing on stderr, the JSON line on stdout
+    let quiet = run("rigid_slam", &[seq.to_str().unwrap(), "-q"]);
+    assert!(quiet.status.success());
+    assert_eq!(text(&quiet.stderr), "", "-q printed on stderr");
+    assert_eq!(result_json(&quiet)["frames"], 4);
+    let solve = run("pose_graph", &[]);
+    assert_no_bar("pose_graph", &text(&solve.stderr));
+    assert!(
+        text(&solve.stdout).contains("iter"),
+        "the iteration table is missing"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The README's pictures come from `--preview`: a run writes every one, as non-trivial PNGs.
+#[test]
+fn preview_writes_the_pictures() {
+    let dir = scratch("preview");
+    let out = run(
+        "bundle_adjustment",
+        &["--preview", dir.to_str().unwrap(), "-q"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let img = dynamap::slam::io::images::read_color(dir.join("cost.png")).expect("a PNG");
+    // a white page with a plotted line: not one colour
+    let first = img.data[0];
+    assert!(img.data.iter().filter(|p| **p != first).count() > 1000);
+    let _ = std::fs::remove_dir_all(Path::new(&dir));
+}
