@@ -280,6 +280,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
     }
     let mut slam = NonRigidFusion::new(source.camera(), params);
     let rec = rerun_log::Recorder::open(&args.rerun, "dynamap nonrigid_slam")?;
+    // a failed recording is reported after the outputs are written, so the run is not lost
+    let mut logged: Result<()> = Ok(());
     let bar = session.progress(n as u64, "frames");
     let (mut totals, mut failures, mut errors) = (FusionTimes::default(), 0usize, Vec::new());
     let (mut stages, mut optimised) = (RegisterTimes::default(), 0usize);
@@ -307,10 +309,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
             failures += 1;
             tracing::warn!("frame {i}: not fused: {why}");
         }
-        if rec.enabled() {
-            record(&rec, &args, i, &frame, &slam, &source.camera())?;
-            rec.scalar("tracking/ms/optimise", 1e3 * report.times.optimise)?;
-            rec.scalar("tracking/ms/fuse", 1e3 * report.times.fuse)?;
+        if rec.enabled() && logged.is_ok() {
+            logged = record(&rec, &args, i, &frame, &slam, &source.camera())
+                .and_then(|()| rec.scalar("tracking/ms/optimise", 1e3 * report.times.optimise))
+                .and_then(|()| rec.scalar("tracking/ms/fuse", 1e3 * report.times.fuse));
         }
         let error = match &source {
             Source::Generated { scene, .. } if slam.graph().is_some() => {
@@ -345,7 +347,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         ply::write(out.join("canonical.ply"), &slam.canonical_mesh())?;
         write_atomic(out.join("warp.txt"), warp_text(&slam).as_bytes())?;
     }
-    rec.flush()?;
+    let logged = logged.and_then(|()| rec.flush());
     if let Some(dir) = &args.preview {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let views = canonical_views(&slam);
@@ -392,5 +394,5 @@ fn run(args: Args, session: &Session) -> Result<()> {
         per_frame(totals.surface),
         error.unwrap_or_default()
     );
-    Ok(())
+    logged
 }

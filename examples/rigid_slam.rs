@@ -330,11 +330,13 @@ fn run(args: Args, session: &Session) -> Result<()> {
             bar.inc(1);
         }
     });
-    logged?;
-    if rec.enabled() {
-        rec.mesh("world/mesh", &slam.volume().extract_mesh())?;
-        rec.flush()?;
-    }
+    // a failed recording is reported after the outputs are written, so the run is not lost
+    let logged = logged.and_then(|()| {
+        if rec.enabled() {
+            rec.mesh("world/mesh", &slam.volume().extract_mesh())?;
+        }
+        rec.flush()
+    });
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(out) = &args.output {
@@ -395,5 +397,5 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if generated {
         let _ = std::fs::remove_dir_all(&dir);
     }
-    Ok(())
+    logged
 }
