@@ -29,6 +29,7 @@ use dynamap::slam::image::Image;
 use dynamap::slam::io::images::read_mask;
 use dynamap::slam::io::tum::TumSequence;
 use dynamap::slam::io::{ply, write_atomic};
+use dynamap::slam::mesh::Mesh;
 use dynamap::slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
 use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
 use dynamap::slam::synthetic::noise::SensorNoise;
@@ -198,14 +199,15 @@ fn tracking_error(slam: &NonRigidFusion, scene: &DeformingScene, frame: usize) -
 }
 
 /// Logs one frame: the camera and its images, the deformation graph warped into the live frame
-/// (nodes and edges), the live mesh every `--rerun-mesh-every` frames, and the stage times.
+/// (nodes and edges), the live mesh when given, and the stage times.
 fn record(
     rec: &rerun_log::Recorder,
-    args: &Args,
     i: usize,
     frame: &Frame,
     slam: &NonRigidFusion,
     camera: &Camera,
+    times: &FusionTimes,
+    live_mesh: Option<&Mesh>,
 ) -> Result<()> {
     rec.at("frame", i);
     rec.camera("world/camera", camera, &Isometry3::identity())?;
@@ -230,10 +232,11 @@ fn record(
         rec.graph("world/graph", &live, &edges)?;
         rec.scalar("tracking/nodes", g.nodes.len() as f64)?;
     }
-    if args.rerun_mesh_every > 0 && i % args.rerun_mesh_every == 0 {
-        rec.mesh("world/live_mesh", &slam.warp_mesh(&slam.canonical_mesh()))?;
+    if let Some(mesh) = live_mesh {
+        rec.mesh("world/live_mesh", mesh)?;
     }
-    Ok(())
+    rec.scalar("tracking/ms/optimise", 1e3 * times.optimise)?;
+    rec.scalar("tracking/ms/fuse", 1e3 * times.fuse)
 }
 
 fn main() -> ExitCode {
@@ -278,7 +281,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
         std::fs::create_dir_all(out.join("live"))
             .with_context(|| format!("cannot create {}", out.join("live").display()))?;
     }
-    let mut slam = NonRigidFusion::new(source.camera(), params);
+    let camera = source.camera();
+    let mut slam = NonRigidFusion::new(camera, params);
     let rec = rerun_log::Recorder::open(&args.rerun, "dynamap nonrigid_slam")?;
     // a failed recording is reported after the outputs are written, so the run is not lost
     let mut logged: Result<()> = Ok(());
@@ -309,10 +313,13 @@ fn run(args: Args, session: &Session) -> Result<()> {
             failures += 1;
             tracing::warn!("frame {i}: not fused: {why}");
         }
+        // the live mesh, built once when the output or the recording needs it this frame
+        let log_mesh = rec.enabled() && args.rerun_mesh_every > 0 && i % args.rerun_mesh_every == 0;
+        let live =
+            (args.output.is_some() || log_mesh).then(|| slam.warp_mesh(&slam.canonical_mesh()));
         if rec.enabled() && logged.is_ok() {
-            logged = record(&rec, &args, i, &frame, &slam, &source.camera())
-                .and_then(|()| rec.scalar("tracking/ms/optimise", 1e3 * report.times.optimise))
-                .and_then(|()| rec.scalar("tracking/ms/fuse", 1e3 * report.times.fuse));
+            let mesh = live.as_ref().filter(|_| log_mesh);
+            logged = record(&rec, i, &frame, &slam, &camera, &report.times, mesh);
         }
         let error = match &source {
             Source::Generated { scene, .. } if slam.graph().is_some() => {
@@ -321,9 +328,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             _ => None,
         };
         errors.extend(error.map(|e| (i, e)));
-        {
-            let s = report.summary.as_ref();
-            tracing::debug!(
+        let s = report.summary.as_ref();
+        tracing::debug!(
                 "frame {i}: nodes {} (+{}), matched {}, iterations {}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
                 report.nodes,
                 report.added_nodes,
@@ -334,10 +340,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 report.times.fuse * 1e3,
                 report.times.surface * 1e3
             );
-        }
-        if let Some(out) = &args.output {
-            let live = slam.warp_mesh(&slam.canonical_mesh());
-            ply::write(out.join("live").join(format!("{i:06}.ply")), &live)?;
+        if let (Some(out), Some(live)) = (&args.output, &live) {
+            ply::write(out.join("live").join(format!("{i:06}.ply")), live)?;
         }
         bar.inc(1);
     }
@@ -351,7 +355,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(dir) = &args.preview {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let views = canonical_views(&slam);
-        preview::model_views(dir, slam.volume(), &source.camera(), 1.0, &views)?;
+        preview::model_views(dir, slam.volume(), &camera, 1.0, &views)?;
         if !errors.is_empty() {
             let mm = errors.iter().map(|&(i, e)| (i as f64, 1e3 * e)).collect();
             preview::line_plot(
