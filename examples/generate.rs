@@ -5,7 +5,12 @@
 //!                                            [--frames N] [--width W --height H] [--seed K] [--no-noise]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
+//! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
 //! ```
+//! `faulty` is the reliability test's orbit of 180 frames with 10 dropped frames, 5 corrupt files,
+//! 3 blank depth frames, a 30 cm jump at frame 80 and 20 frames at a plain wall from frame 140
+//! (`--clean`: the same orbit without them).
+//!
 //! Writes rgb/, depth/, rgb.txt, depth.txt, associations.txt, groundtruth.txt, intrinsics.txt
 //! (fx fy cx cy depth_scale) and, for deforming scenes, meshes/ (ground-truth surface per frame) and
 //! flow/ (per-pixel scene flow). Prints one JSON line last.
@@ -19,6 +24,7 @@ use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::synthetic::deform::{self, DeformingScene, Field, SurfaceKind};
+use dynamap::slam::synthetic::faults::{self, FaultPlan};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::scene::Scene;
@@ -100,6 +106,15 @@ enum Kind {
         #[arg(long)]
         mesh: Option<PathBuf>,
     },
+    /// The room orbit with the faults of a real stream (dropped, corrupt and blank frames, a
+    /// 30 cm jump, a stretch at a plain wall); --frames is ignored (the plan has 180).
+    Faulty {
+        #[command(flatten)]
+        sequence: SequenceFlags,
+        /// The same orbit without faults (the reference), --frames long.
+        #[arg(long)]
+        clean: bool,
+    },
 }
 
 /// Render an RGB-D sequence with ground truth.
@@ -125,15 +140,7 @@ impl SequenceFlags {
                 "--fps must be positive and --frames at least 1",
             ));
         }
-        let s = self.width as f64 / 640.0;
-        Ok(Camera::new(
-            525.0 * s,
-            525.0 * s,
-            (self.width as f64 - 1.0) / 2.0,
-            (self.height as f64 - 1.0) / 2.0,
-            self.width,
-            self.height,
-        ))
+        Ok(Camera::scaled_default(self.width, self.height))
     }
 
     /// Creates the output folder and returns the sensor model the flags ask for.
@@ -158,7 +165,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         let bar = session.progress(frames as u64, "frames");
         move |k: usize| bar.set_position(k as u64 + 1)
     };
-    let (common, kind) = match &args.kind {
+    let (common, kind, frames) = match &args.kind {
         Kind::Rigid {
             sequence: common,
             trajectory,
@@ -196,7 +203,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 &noise,
                 progress(traj.len()),
             )?;
-            (common, "rigid")
+            (common, "rigid", traj.len())
         }
         Kind::Deforming {
             sequence: common,
@@ -240,12 +247,29 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 &noise,
                 progress(traj.len()),
             )?;
-            (common, "deforming")
+            (common, "deforming", traj.len())
+        }
+        Kind::Faulty {
+            sequence: common,
+            clean,
+        } => {
+            let cam = common.camera()?;
+            let plan = if *clean {
+                FaultPlan::clean(common.frames)
+            } else {
+                FaultPlan::standard()
+            };
+            let noise = common.prepare()?;
+            let bar = session.progress(1, "sequence");
+            let written = faults::write_faulty(&common.out, &plan, &cam, &noise)?;
+            bar.inc(1);
+            let kind = if *clean { "clean" } else { "faulty" };
+            (common, kind, written.listed.len())
         }
     };
     println!(
         "{}",
-        serde_json::json!({"kind": kind, "out": common.out.display().to_string(), "frames": common.frames,
+        serde_json::json!({"kind": kind, "out": common.out.display().to_string(), "frames": frames,
             "width": common.width, "height": common.height, "seconds": start.elapsed().as_secs_f64()})
     );
     Ok(())

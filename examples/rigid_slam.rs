@@ -6,8 +6,12 @@
 //! ```
 //! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else --fx/--fy/--cx/--cy/--depth-scale,
 //! else TUM's published ones). Prints a progress bar with the fps, and one JSON line last: frames,
-//! seconds (the whole per-frame loop, image reading included), fps, failures, and the ATE when the
-//! folder has a ground truth.
+//! seconds (the whole per-frame loop, image reading included), fps, failures (frames read but not
+//! tracked), skipped (frames whose files could not be read), relocalised, and the ATE when the
+//! folder has a ground truth. The trajectory holds the tracked frames only.
+//!
+//! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
+//! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
 
 #[path = "common/cli.rs"]
 mod cli;
@@ -99,6 +103,10 @@ struct Args {
     /// Depth units per metre when DIR has no intrinsics.txt [default: 5000, TUM's].
     #[arg(long)]
     depth_scale: Option<f64>,
+    /// Do not relocalise after losing track (frames then fail until tracking from the last good
+    /// pose works again).
+    #[arg(long)]
+    no_relocalise: bool,
     /// Frames to process at most [default: all].
     #[arg(long)]
     max_frames: Option<usize>,
@@ -167,6 +175,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.iterations = args.iterations.clone();
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
+    p.relocalise.enabled = !args.no_relocalise;
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
     if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {
         return Err(cli::bad_input(
@@ -288,7 +297,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let mut logged: Result<()> = Ok(());
     let mut trajectory = Trajectory::default();
     let mut totals = StageTimes::default();
-    let (mut failures, mut read_seconds) = (0usize, 0.0);
+    let (mut failures, mut skipped, mut relocalised, mut read_seconds) =
+        (0usize, 0usize, 0usize, 0.0);
+    let (mut processed, mut last_good) = (0usize, None);
+    let interrupt = cli::interrupt_flag()?;
     let start = Instant::now();
     // A reader thread decodes the next frames while this one is processed (as a sensor driver
     // would deliver them); "read" is the time spent waiting for a frame.
@@ -302,16 +314,21 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 }
             }
         });
+        let frames = frames; // dropped after the loop, so the reader stops on an interrupt
         loop {
+            if interrupt.load(std::sync::atomic::Ordering::SeqCst) {
+                break;
+            }
             let t_read = Instant::now();
             let Ok((i, loaded)) = frames.recv() else {
                 break;
             };
             read_seconds += t_read.elapsed().as_secs_f64();
+            processed += 1;
             let frame = match loaded {
                 Ok(f) => f,
                 Err(e) => {
-                    failures += 1;
+                    skipped += 1;
                     tracing::warn!("frame {i} skipped: {e}");
                     bar.inc(1);
                     continue;
@@ -321,15 +338,30 @@ fn run(args: Args, session: &Session) -> Result<()> {
             totals.add(&report.times);
             if let Some(why) = &report.failure {
                 failures += 1;
-                tracing::warn!("frame {i} ({:.6}): not fused: {why}", frame.timestamp);
+                tracing::warn!(
+                    "frame {i} ({:.6}): not tracked, not fused: {why}",
+                    frame.timestamp
+                );
+            } else {
+                if report.relocalised {
+                    relocalised += 1;
+                    tracing::info!(
+                        "frame {i} ({:.6}): relocalised after losing track{}",
+                        frame.timestamp,
+                        last_good.map_or(String::new(), |g| format!(" (last tracked: frame {g})"))
+                    );
+                }
+                last_good = Some(i);
+                trajectory.push(frame.timestamp, report.pose);
             }
-            trajectory.push(frame.timestamp, report.pose);
             if rec.enabled() && logged.is_ok() {
                 logged = record(&rec, &args, i, &frame, &report, &slam, &trajectory);
             }
             bar.inc(1);
         }
+        drop(frames);
     });
+    let interrupted = interrupt.load(std::sync::atomic::Ordering::SeqCst);
     // a failed recording is reported after the outputs are written, so the run is not lost
     let logged = logged.and_then(|()| {
         if rec.enabled() {
@@ -368,7 +400,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         tracing::info!("pictures in {}", out.display());
     }
     let ate_rmse = ate_result.as_ref().map(|a| a.stats.rmse);
-    let k = |t: f64| 1e3 * t / n.max(1) as f64;
+    let k = |t: f64| 1e3 * t / processed.max(1) as f64;
     tracing::info!(
         "per frame: read {:.2} ms, preprocess {:.2} ms, track {:.2} ms, integrate {:.2} ms, raycast {:.2} ms; {} blocks ({:.0} MiB)",
         k(read_seconds),
@@ -379,6 +411,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
         slam.volume().num_blocks(),
         slam.volume().memory_bytes() as f64 / (1 << 20) as f64
     );
+    if skipped + failures > 0 {
+        tracing::info!(
+            "{} of {processed} frames tracked: {skipped} skipped (unreadable), {failures} not tracked, {relocalised} relocalised",
+            trajectory.len()
+        );
+    }
     if let Some(a) = ate_rmse {
         tracing::info!(
             "ATE (SE(3)-aligned RMSE) against {}: {a:.4} m",
@@ -388,14 +426,18 @@ fn run(args: Args, session: &Session) -> Result<()> {
     println!(
         "{}",
         serde_json::json!({
-            "frames": n, "seconds": seconds, "fps": n as f64 / seconds, "failures": failures,
-            "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
+            "frames": processed, "seconds": seconds, "fps": processed as f64 / seconds, "failures": failures,
+            "skipped": skipped, "tracked": trajectory.len(), "relocalised": relocalised,
+            "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
             "ms_per_frame": {"read": k(read_seconds), "preprocess": k(totals.preprocess), "track": k(totals.track),
                              "integrate": k(totals.integrate), "raycast": k(totals.raycast)},
         })
     );
     if generated {
         let _ = std::fs::remove_dir_all(&dir);
+    }
+    if interrupted {
+        return Err(cli::Interrupted.into());
     }
     logged
 }

@@ -4,9 +4,9 @@
 
 mod common;
 
-use common::examples::example;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use common::examples::{result_json, run, scratch, text};
+use std::path::Path;
+use std::process::Output;
 
 const BINARIES: [&str; 9] = [
     "rigid_slam",
@@ -19,36 +19,6 @@ const BINARIES: [&str; 9] = [
     "evaluate",
     "preprocess_bench",
 ];
-
-fn run(name: &str, args: &[&str]) -> Output {
-    Command::new(example(name))
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("{name} does not start: {e}"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A scratch folder for one test.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("dynamap-cli-{test}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("a scratch folder");
-    dir
-}
-
-/// The JSON line a run prints last, without its timings.
-fn result_json(out: &Output) -> serde_json::Value {
-    let stdout = text(&out.stdout);
-    let last = stdout.lines().last().unwrap_or_default();
-    let mut v: serde_json::Value = serde_json::from_str(last)
-        .unwrap_or_else(|e| panic!("the last line is not JSON ({e}): {stdout}"));
-    for key in ["seconds", "init_seconds", "threads"] {
-        v.as_object_mut().expect("an object").remove(key);
-    }
-    v
-}
 
 #[test]
 fn every_binary_has_help_with_defaults_and_the_shared_flags() {

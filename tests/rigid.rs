@@ -99,3 +99,52 @@ fn blank_depth_frames_are_skipped_and_tracking_recovers() {
     assert_eq!(a.pairs.len(), 25);
     assert!(a.stats.max < 0.01, "ATE after the gap {:?}", a.stats);
 }
+
+/// A camera sliding along a wall: without texture the wall leaves three motions unobservable and
+/// the frame fails as degenerate (not fused); with texture the photometric term pins them and the
+/// slide is tracked.
+#[test]
+fn a_plain_wall_is_degenerate_and_a_textured_one_is_tracked() {
+    use dynamap::slam::synthetic::motion::look_at;
+    use dynamap::slam::synthetic::scene::Shape;
+    use dynamap::slam::synthetic::texture::Texture;
+    use nalgebra::{Isometry3, Point3, Vector3};
+
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let at = |x: f64| {
+        look_at(
+            &Point3::new(x, 0.0, 0.0),
+            &Point3::new(x, 0.0, 1.0),
+            &-Vector3::y(),
+        )
+    };
+    for (texture, degenerate) in [
+        (Texture::plain([0.6, 0.6, 0.6]), true),
+        (Texture::random(4, 10.0, 40.0), false),
+    ] {
+        let mut scene = Scene::default();
+        scene.add(
+            Shape::Plane { hx: 3.0, hy: 3.0 },
+            Isometry3::translation(0.0, 0.0, 1.0),
+            texture,
+        );
+        let mut slam = RigidSlam::new(cam, SlamParams::default(), at(0.0));
+        let frame = |x: f64| {
+            let mut r = render(&scene, &cam, &at(x));
+            let raw = SensorNoise::default().apply_to(0, &mut r, cam.depth_scale);
+            (raw, r.color)
+        };
+        let (d0, c0) = frame(0.0);
+        assert!(slam.process(&d0, Some(&c0)).failure.is_none());
+        let (d1, c1) = frame(0.02);
+        let report = slam.process(&d1, Some(&c1));
+        if degenerate {
+            let why = report.failure.expect("a plain wall was tracked");
+            assert!(why.contains("degenerate"), "{why}");
+        } else {
+            assert!(report.failure.is_none(), "{:?}", report.failure);
+            let x = report.pose.translation.vector.x;
+            assert!((x - 0.02).abs() < 0.005, "slid {x:.4} m of 0.02");
+        }
+    }
+}

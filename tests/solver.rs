@@ -586,3 +586,94 @@ impl CostFunctor for TwoRows {
         r[1] = p[0][0];
     }
 }
+
+/// r(x) = √x − 0.1 (closure tests below): NaN for x < 0, an infinite slope at 0.
+struct SquareRoot;
+
+impl Residual for SquareRoot {
+    fn dim(&self) -> usize {
+        1
+    }
+    fn evaluate(&self, vars: &[Var<'_>], r: &mut [f64], jac: Option<&mut Jacobians<'_>>) {
+        let x = vars[0].value[0];
+        r[0] = x.sqrt() - 0.1;
+        if let Some(j) = jac {
+            j.block(0)[0] = 0.5 / x.sqrt();
+        }
+    }
+}
+
+/// A residual that is finite only at the start point x = 0.5 (a broken user residual).
+struct FiniteOnlyAtStart;
+
+impl Residual for FiniteOnlyAtStart {
+    fn dim(&self) -> usize {
+        1
+    }
+    fn evaluate(&self, vars: &[Var<'_>], r: &mut [f64], jac: Option<&mut Jacobians<'_>>) {
+        let x = vars[0].value[0];
+        r[0] = if x == 0.5 { 0.0 } else { f64::NAN };
+        if let Some(j) = jac {
+            j.block(0)[0] = if x == 0.5 { 0.0 } else { f64::INFINITY };
+        }
+    }
+}
+
+/// A Gauss-Newton step from x = 4 on √x − 0.1 lands at x < 0, where the residual is NaN: the step
+/// is rejected, the damping raised, and the solve still reaches x = 0.01.
+#[test]
+fn steps_into_nan_are_rejected_and_the_solve_goes_on() {
+    let mut problem = Problem::new();
+    let x = problem.add_variable(&[4.0], Euclidean::<1>).unwrap();
+    problem.add_residual(SquareRoot, &[x]).unwrap();
+    let summary = Solver::new(Options {
+        initial_damping_tau: 1e-8,
+        max_iterations: 100,
+        ..Options::default()
+    })
+    .solve(&mut problem)
+    .unwrap();
+    assert!(summary.non_finite_steps > 0, "{}", summary.table());
+    assert_eq!(summary.non_finite_block, None);
+    assert!(summary.termination.converged(), "{}", summary.table());
+    assert!(
+        (problem.value(x)[0] - 0.01).abs() < 1e-8,
+        "{:?}",
+        problem.value(x)
+    );
+}
+
+/// A residual block that is NaN (or has an infinite Jacobian) everywhere but the start: every
+/// step is rejected until the damping runs out; the summary names the block, and the values are
+/// the last finite point, not NaN.
+#[test]
+fn a_persistently_non_finite_block_is_named_and_the_values_stay_finite() {
+    for algorithm in [
+        Algorithm::LevenbergMarquardt,
+        Algorithm::Dogleg,
+        Algorithm::GaussNewton,
+    ] {
+        let mut problem = Problem::new();
+        let x = problem.add_variable(&[0.5], Euclidean::<1>).unwrap();
+        problem.add_residual(Offset(3.0), &[x]).unwrap();
+        problem.add_residual(Offset(3.0), &[x]).unwrap();
+        problem.add_residual(FiniteOnlyAtStart, &[x]).unwrap();
+        let summary = Solver::new(Options {
+            algorithm,
+            max_iterations: 500,
+            ..Options::default()
+        })
+        .solve(&mut problem)
+        .unwrap();
+        assert_eq!(
+            summary.non_finite_block,
+            Some(2),
+            "{algorithm:?}: {}",
+            summary.table()
+        );
+        assert!(summary.table().contains("residual block 2"));
+        assert_eq!(problem.value(x), &[0.5], "{algorithm:?}");
+        assert!(summary.final_cost.is_finite());
+        assert!(!summary.termination.converged(), "{algorithm:?}");
+    }
+}

@@ -227,8 +227,8 @@ fn memory_follows_the_surface_area() {
     );
 }
 
-#[test]
-fn the_block_budget_is_a_clear_error() {
+/// The sphere seen from 1.2 m along +x at 320×240: camera, pose, rendering and normals.
+fn sphere_from_the_side() -> (Camera, Isometry3<f64>, Rendering, NormalMap) {
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
     let pose = look_at(
         &Point3::new(1.2, 0.0, 0.0),
@@ -236,6 +236,12 @@ fn the_block_budget_is_a_clear_error() {
         &Vector3::z(),
     );
     let (r, n) = render_with_normals(&sphere_scene(), &cam, &pose);
+    (cam, pose, r, n)
+}
+
+#[test]
+fn the_block_budget_is_a_clear_error() {
+    let (cam, pose, r, n) = sphere_from_the_side();
     let mut vol = TsdfVolume::new(TsdfParams {
         max_blocks: 10,
         ..TsdfParams::default()
@@ -274,4 +280,103 @@ fn rays_from_free_space_find_a_thin_wall_at_every_step_phase() {
         missed.is_empty(),
         "rays that missed the wall at 1 m: {missed:?}"
     );
+}
+
+/// Two spheres 5 m apart: fusing the second under a budget smaller than both evicts the first
+/// (farthest from the camera) and keeps every block of the current view; without eviction the
+/// frame fails instead.
+#[test]
+fn a_full_budget_evicts_the_blocks_farthest_from_the_camera() {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let mut scene = sphere_scene();
+    let far = Vector3::new(5.0, 0.0, 0.0);
+    scene.add(
+        Shape::Sphere { radius: RADIUS },
+        Isometry3::translation(far.x, far.y, far.z),
+        Texture::random(6, 5.0, 20.0),
+    );
+    let at = |centre: Vector3<f64>, side: f64| {
+        look_at(
+            &(Point3::from(centre) + Vector3::new(0.0, side * 1.2, 0.0)),
+            &Point3::from(centre),
+            &Vector3::z(),
+        )
+    };
+    let first = [at(Vector3::zeros(), 1.0), at(Vector3::zeros(), -1.0)];
+    let second = [at(far, 1.0), at(far, -1.0)];
+    let mut one = TsdfVolume::new(params());
+    for pose in &first {
+        let (r, n) = render_with_normals(&scene, &cam, pose);
+        one.integrate(&r.depth, &n, None, &cam, pose).unwrap();
+    }
+    let budget = one.num_blocks() + one.num_blocks() / 2;
+    let mut vol = TsdfVolume::new(TsdfParams {
+        max_blocks: budget,
+        ..params()
+    });
+    let mut strict = TsdfVolume::new(TsdfParams {
+        max_blocks: budget,
+        evict: false,
+        ..params()
+    });
+    let mut failed = 0;
+    for pose in first.iter().chain(&second) {
+        let (r, n) = render_with_normals(&scene, &cam, pose);
+        vol.integrate(&r.depth, &n, None, &cam, pose).unwrap();
+        assert!(vol.num_blocks() <= budget);
+        failed += strict.integrate(&r.depth, &n, None, &cam, pose).is_err() as usize;
+    }
+    assert!(failed > 0, "without eviction the budget must stop a frame");
+    assert!(vol.evicted_blocks() > 0);
+    // the second sphere is whole: its surface is found where the two views saw it (facing ±y)
+    for k in 0..22 {
+        let side = if k < 11 { 90.0 } else { -90.0 };
+        let a = (side + 10.0 * (k % 11) as f64 - 50.0f64).to_radians();
+        let p = far + Vector3::new(a.cos(), a.sin(), 0.0) * RADIUS;
+        let d = vol.sdf(&Point3::from(p.cast::<f32>()));
+        assert!(
+            d.is_some_and(|d| d.abs() < 0.3),
+            "second sphere at angle {k}: {d:?}"
+        );
+    }
+    // what was dropped is the first sphere's
+    let kept_near_first = vol.blocks().iter().filter(|b| b.coord[0] < 20).count();
+    let first_blocks = one.num_blocks();
+    assert!(
+        kept_near_first < first_blocks,
+        "{kept_near_first} of the first sphere's {first_blocks} blocks kept"
+    );
+}
+
+/// Depth maps from a user may hold NaN, infinities and negative values: they are not surface, and
+/// fusing them changes nothing that a map with those pixels at 0 would not.
+#[test]
+fn nan_inf_and_negative_depth_are_ignored() {
+    let (cam, pose, r, n) = sphere_from_the_side();
+    let (mut bad, mut zeroed) = (r.depth.clone(), r.depth.clone());
+    for (i, v) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0]
+        .iter()
+        .cycle()
+        .take(2000)
+        .enumerate()
+    {
+        let k = (i * 37) % bad.data.len();
+        bad.data[k] = *v;
+        zeroed.data[k] = 0.0;
+    }
+    let mut a = TsdfVolume::new(params());
+    let mut b = TsdfVolume::new(params());
+    a.integrate(&bad, &n, Some(&r.color), &cam, &pose).unwrap();
+    b.integrate(&zeroed, &n, Some(&r.color), &cam, &pose)
+        .unwrap();
+    assert_eq!(a.num_blocks(), b.num_blocks());
+    for (x, y) in a.blocks().iter().zip(b.blocks()) {
+        assert_eq!(x.coord, y.coord);
+        for (u, v) in x.voxels.iter().zip(y.voxels.iter()) {
+            assert!(u.tsdf.is_finite() && u.weight.is_finite());
+            assert_eq!(u, v);
+        }
+    }
+    let mut maps = RaycastMaps::new();
+    a.raycast(&cam, &pose, &mut maps);
 }

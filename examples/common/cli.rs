@@ -1,6 +1,7 @@
 //! What every example binary shares on its command line: a TOML config file whose keys are the
 //! long flags, `--print-config`, `-v`/`-q` verbosity through `tracing`, a progress bar that stays
-//! quiet off a terminal, and the exit codes (0 ok, 1 runtime failure, 2 bad input).
+//! quiet off a terminal, and the exit codes (0 ok, 1 runtime failure, 2 bad input, 130
+//! interrupted by Ctrl-C after writing the outputs so far).
 //!
 //! A binary calls [`run`] with its `clap` arguments type and its body:
 //! ```text
@@ -54,6 +55,38 @@ impl std::fmt::Display for BadInput {
 }
 
 impl std::error::Error for BadInput {}
+
+/// A run stopped by Ctrl-C (SIGINT) after writing what it had: exit code 130, as shells report a
+/// process ended by SIGINT.
+#[derive(Debug)]
+pub struct Interrupted;
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "interrupted (the outputs hold the frames processed so far)"
+        )
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// A flag that Ctrl-C (SIGINT) sets, for a loop to stop at the next frame and write its outputs; a
+/// second Ctrl-C ends the process at once (exit code 130).
+pub fn interrupt_flag() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let flag = std::sync::Arc::new(AtomicBool::new(false));
+    let seen = flag.clone();
+    ctrlc::set_handler(move || {
+        if seen.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        tracing::warn!("interrupted: stopping after this frame (Ctrl-C again to quit at once)");
+    })
+    .context("installing the Ctrl-C handler")?;
+    Ok(flag)
+}
 
 /// Marks a failure as bad input (exit code 2).
 pub trait InputError<T> {
@@ -168,7 +201,9 @@ where
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.chain().any(|c| c.is::<BadInput>()) {
+            if e.chain().any(|c| c.is::<Interrupted>()) {
+                ExitCode::from(130)
+            } else if e.chain().any(|c| c.is::<BadInput>()) {
                 ExitCode::from(2)
             } else {
                 ExitCode::from(1)
@@ -183,8 +218,12 @@ pub trait HasCommon {
     fn common(&self) -> &Common;
 }
 
-enum Parsed<A> {
+/// What parsing the command line gave: the arguments of a run, or an exit (help, --print-config, a
+/// usage error).
+pub enum Parsed<A> {
+    /// Run with these arguments.
     Run(A),
+    /// Exit with this code.
     Exit(ExitCode),
 }
 
@@ -194,6 +233,19 @@ enum Parsed<A> {
 fn parse<A: clap::Parser>(
     argv: &[OsString],
     tweak: &dyn Fn(clap::Command) -> clap::Command,
+) -> Result<Parsed<A>> {
+    parse_with(argv, tweak, &|path| {
+        std::fs::read_to_string(path)
+            .with_context(|| format!("reading {}", path.display()))
+            .bad_input()
+    })
+}
+
+/// [`parse`] with the config file's text from `load` (the fuzz target gives it from memory).
+pub fn parse_with<A: clap::Parser>(
+    argv: &[OsString],
+    tweak: &dyn Fn(clap::Command) -> clap::Command,
+    load: &dyn Fn(&Path) -> Result<String>,
 ) -> Result<Parsed<A>> {
     let first = match tweak(A::command()).try_get_matches_from(argv) {
         Ok(m) => m,
@@ -215,7 +267,7 @@ fn parse<A: clap::Parser>(
     let mut full = argv.to_vec();
     let config = given.get_one::<PathBuf>("config").cloned();
     if let Some(path) = &config {
-        let injected = config_args(&sub, given, path)?;
+        let injected = config_args(&sub, given, &load(path)?, path)?;
         full.splice(at..at, injected);
     }
     let matches = match tweak(A::command()).try_get_matches_from(&full) {
@@ -260,12 +312,10 @@ fn options(cmd: &clap::Command) -> impl Iterator<Item = &clap::Arg> {
 fn config_args(
     cmd: &clap::Command,
     given: &clap::ArgMatches,
+    text: &str,
     path: &Path,
 ) -> Result<Vec<OsString>> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading {}", path.display()))
-        .bad_input()?;
-    let table: toml::Table = toml::from_str(&text)
+    let table: toml::Table = toml::from_str(text)
         .with_context(|| format!("{}: not a TOML table of options", path.display()))
         .bad_input()?;
     let mut out = Vec::new();

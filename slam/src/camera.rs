@@ -52,6 +52,20 @@ impl Camera {
         Self::new(525.0, 525.0, 319.5, 239.5, 640, 480)
     }
 
+    /// TUM's default focal length (525 px at 640 wide) scaled to a `width` × `height` image, the
+    /// principal point at its centre: the camera of the project's rendered sequences.
+    pub fn scaled_default(width: usize, height: usize) -> Self {
+        let f = 525.0 * width as f64 / 640.0;
+        Self::new(
+            f,
+            f,
+            (width as f64 - 1.0) / 2.0,
+            (height as f64 - 1.0) / 2.0,
+            width,
+            height,
+        )
+    }
+
     /// Projects a point in the camera frame to continuous pixel coordinates (u, v) (eq. 2.1);
     /// `None` behind the camera (z ≤ 0).
     #[inline]

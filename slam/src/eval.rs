@@ -115,7 +115,12 @@ pub fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>], with_scale: bool) -> Op
     }
     cov /= n as f64;
     var_x /= n as f64;
-    let svd = cov.svd(true, true);
+    // coordinates so large that their products overflow give no alignment (and would keep the
+    // SVD iterating for ever)
+    if !cov.iter().all(|v| v.is_finite()) || !var_x.is_finite() {
+        return None;
+    }
+    let svd = cov.try_svd(true, true, f64::EPSILON, 1000)?;
     let (u, vt) = (svd.u?, svd.v_t?);
     let mut s = Matrix3::identity();
     if u.determinant() * vt.determinant() < 0.0 {
@@ -131,7 +136,12 @@ pub fn umeyama(src: &[Point3<f64>], dst: &[Point3<f64>], with_scale: bool) -> Op
         1.0
     };
     let t = my - r * mx * scale;
-    let rot = UnitQuaternion::from_matrix(&r);
+    if !r.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    // R = U S Vᵀ is orthonormal by construction: take it in closed form (nalgebra's iterative
+    // `from_matrix` never returns on some ill-conditioned inputs)
+    let rot = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
     Some(Similarity {
         scale,
         isometry: Isometry3::from_parts(Translation3::from(t), rot),

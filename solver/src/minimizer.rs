@@ -191,6 +191,14 @@ pub struct Summary {
     pub unknowns: usize,
     /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative".
     pub linear_solver: &'static str,
+    /// Steps rejected because a residual block returned NaN or an infinity (in its residual or
+    /// its Jacobian) at the trial point; the damping was raised after each.
+    pub non_finite_steps: usize,
+    /// The residual block (its [`crate::ResidualId`] index) that returned a non-finite value at
+    /// the last such rejected step, when the solve ended on it: without progress, or with every
+    /// step of its last iterations rejected that way. The values are those of the last finite
+    /// point, never NaN.
+    pub non_finite_block: Option<usize>,
 }
 
 impl Summary {
@@ -217,6 +225,17 @@ impl Summary {
             self.unknowns,
             self.linear_solver
         ));
+        if let Some(block) = self.non_finite_block {
+            s.push_str(&format!(
+                "\nresidual block {block} returned NaN or infinity at the last trial points ({} steps rejected for it in all); the result is the last finite point",
+                self.non_finite_steps
+            ));
+        } else if self.non_finite_steps > 0 {
+            s.push_str(&format!(
+                "\n{} trial steps were rejected for non-finite residuals, and the solve went on",
+                self.non_finite_steps
+            ));
+        }
         s
     }
 }
@@ -414,6 +433,9 @@ impl Solver {
             Termination::MaxIterations
         };
         let mut iteration = 0;
+        // non-finite trial points: in all, in a row, and the last block that gave one
+        let (mut non_finite_steps, mut non_finite_run, mut non_finite_block) =
+            (0usize, 0usize, None);
         while !stop && termination == Termination::MaxIterations && iteration < opts.max_iterations
         {
             iteration += 1;
@@ -528,6 +550,18 @@ impl Solver {
                     Algorithm::GaussNewton => true,
                     _ => gain > 0.0 && predicted > 0.0,
                 };
+            if new_cost.is_finite() {
+                non_finite_run = 0;
+            } else {
+                non_finite_steps += 1;
+                non_finite_run += 1;
+                non_finite_block = ne.first_non_finite();
+                tracing::debug!(
+                    iteration,
+                    block = non_finite_block,
+                    "trial point rejected: a residual block is not finite there"
+                );
+            }
             if accept {
                 gn_valid = false;
                 problem.values.copy_from_slice(trial);
@@ -598,6 +632,10 @@ impl Solver {
         if stop && termination == Termination::MaxIterations {
             termination = Termination::UserStopped;
         }
+        if non_finite_run > 0 && termination.converged() {
+            // the step shrank only because every trial point was non-finite: not a convergence
+            termination = Termination::NoProgress;
+        }
         Ok(Summary {
             initial_cost,
             final_cost: cost,
@@ -606,6 +644,12 @@ impl Solver {
             total_seconds: start.elapsed().as_secs_f64(),
             unknowns: ne.dim(),
             linear_solver: linear.name(),
+            non_finite_steps,
+            non_finite_block: if non_finite_run > 0 {
+                non_finite_block
+            } else {
+                None
+            },
         })
     }
 }

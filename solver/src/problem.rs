@@ -372,6 +372,11 @@ impl Problem {
                     .residual
                     .evaluate(&vars, r, Some(&mut Jacobians::new(j, m, &block.cols)));
                 let s: f64 = r.iter().map(|v| v * v).sum();
+                // A point where the Jacobian is undefined is no more usable than one where the
+                // residual is: the block reports a non-finite cost, so the step is rejected.
+                if !j.iter().all(|v| v.is_finite()) {
+                    return f64::NAN;
+                }
                 match &block.kernel {
                     Some(kernel) => {
                         let rho = kernel.evaluate(s);

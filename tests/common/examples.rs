@@ -1,6 +1,7 @@
 //! The example binaries, as `cargo test` builds them beside the test executables.
 
 use std::path::PathBuf;
+use std::process::{Command, Output};
 
 /// The path of example `name` in this profile's `examples/` folder (`cargo test` builds every
 /// example before it runs the tests; `cargo test --test X` alone does not).
@@ -20,4 +21,36 @@ pub fn example(name: &str) -> PathBuf {
         path.display()
     );
     path
+}
+
+/// Runs example `name` with `args` and waits for it.
+pub fn run(name: &str, args: &[&str]) -> Output {
+    Command::new(example(name))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("{name} does not start: {e}"))
+}
+
+/// Bytes as text (lossy).
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A scratch folder for one test.
+pub fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("dynamap-cli-{test}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a scratch folder");
+    dir
+}
+
+/// The JSON line a run prints last, without its timings.
+pub fn result_json(out: &Output) -> serde_json::Value {
+    let stdout = text(&out.stdout);
+    let last = stdout.lines().last().unwrap_or_default();
+    let mut v: serde_json::Value = serde_json::from_str(last)
+        .unwrap_or_else(|e| panic!("the last line is not JSON ({e}): {stdout}"));
+    for key in ["seconds", "init_seconds", "threads"] {
+        v.as_object_mut().expect("an object").remove(key);
+    }
+    v
 }

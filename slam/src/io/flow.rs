@@ -12,6 +12,12 @@ pub fn read_flow<const C: usize>(path: impl AsRef<Path>) -> Result<Image<[f32; C
     let path = path.as_ref();
     let bytes =
         std::fs::read(path).map_err(|e| IoError::file(path, format!("cannot read: {e}")))?;
+    decode_flow(&bytes, path)
+}
+
+/// Decodes the bytes of a flow file of `C` channels (see [`read_flow`]); `path` names them in
+/// errors.
+pub fn decode_flow<const C: usize>(bytes: &[u8], path: &Path) -> Result<Image<[f32; C]>, IoError> {
     let word = |k: usize| -> Option<u32> {
         bytes
             .get(4 * k..4 * k + 4)
@@ -27,6 +33,9 @@ pub fn read_flow<const C: usize>(path: impl AsRef<Path>) -> Result<Image<[f32; C
         ));
     }
     let (w, h) = (w as usize, h as usize);
+    if w == 0 || h == 0 {
+        return Err(IoError::file(path, format!("an empty {w}×{h} flow")));
+    }
     let plane = w
         .checked_mul(h)
         .filter(|n| n.checked_mul(4 * C).is_some_and(|b| b + 12 == bytes.len()))

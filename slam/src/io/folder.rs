@@ -31,8 +31,13 @@ fn sorted_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
 
 /// Reads an Open3D `PinholeCameraIntrinsic` JSON (depth scale 1000: millimetres).
 pub fn read_open3d_camera(path: &Path) -> Result<Camera, IoError> {
-    let text = read_text(path)?;
-    let j: serde_json::Value = serde_json::from_str(&text)
+    parse_open3d_camera(&read_text(path)?, path)
+}
+
+/// Parses the text of an Open3D intrinsics JSON (see [`read_open3d_camera`]); `path` names it in
+/// errors.
+pub fn parse_open3d_camera(text: &str, path: &Path) -> Result<Camera, IoError> {
+    let j: serde_json::Value = serde_json::from_str(text)
         .map_err(|e| IoError::line(path, e.line(), format!("invalid JSON: {e}")))?;
     let field = |k: &str| {
         j.get(k)

@@ -174,6 +174,22 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
             Some(other) => return Err(err(&format!("unknown header keyword '{other}'"))),
         }
     }
+    // every property takes at least a byte (two in ASCII): a count beyond the body is a lie, and
+    // looping over it would take forever (an element without properties is read as nothing)
+    if let Some(el) = elements
+        .iter()
+        .find(|e| !e.props.is_empty() && e.count > body.len())
+    {
+        return Err(IoError::file(
+            path,
+            format!(
+                "element '{}' declares {} entries, more than the {} bytes after the header hold",
+                el.name,
+                el.count,
+                body.len()
+            ),
+        ));
+    }
     let text = if ascii {
         Some(std::str::from_utf8(body).map_err(|_| IoError::file(path, "ASCII body is not text"))?)
     } else {
@@ -197,7 +213,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
         }
     };
     let mut mesh = Mesh::default();
-    for el in &elements {
+    for el in elements.iter().filter(|e| !e.props.is_empty()) {
         for _ in 0..el.count {
             let mut vals: Vec<(usize, f64)> = Vec::with_capacity(el.props.len());
             let mut face = Vec::new();

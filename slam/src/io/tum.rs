@@ -53,8 +53,12 @@ pub struct TumSequence {
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
 pub fn read_list(path: &Path) -> Result<Vec<(f64, String)>, IoError> {
-    let text = read_text(path)?;
-    data_lines(&text)
+    parse_list(&read_text(path)?, path)
+}
+
+/// Parses the text of an image list (see [`read_list`]); `path` names it in errors.
+pub fn parse_list(text: &str, path: &Path) -> Result<Vec<(f64, String)>, IoError> {
+    data_lines(text)
         .map(|(line, f)| {
             if f.len() != 2 {
                 return Err(IoError::line(
@@ -108,8 +112,17 @@ pub fn associate(first: &[f64], second: &[f64], max_difference: f64) -> Vec<(usi
 /// Reads `intrinsics.txt`: `fx fy cx cy depth_scale` on one line; the image size comes from `width`,
 /// `height`.
 pub fn read_intrinsics(path: &Path, width: usize, height: usize) -> Result<Camera, IoError> {
-    let text = read_text(path)?;
-    let (line, f) = data_lines(&text).next().ok_or_else(|| {
+    parse_intrinsics(&read_text(path)?, path, width, height)
+}
+
+/// Parses the text of an intrinsics file (see [`read_intrinsics`]); `path` names it in errors.
+pub fn parse_intrinsics(
+    text: &str,
+    path: &Path,
+    width: usize,
+    height: usize,
+) -> Result<Camera, IoError> {
+    let (line, f) = data_lines(text).next().ok_or_else(|| {
         IoError::file(
             path,
             "no intrinsics line (expected 'fx fy cx cy depth_scale')",
@@ -178,7 +191,22 @@ impl TumSequence {
         } else {
             None
         };
-        let first = read_depth(&frames[0].depth)?;
+        // the image size from the first depth image that reads (a broken one is the frame's
+        // problem, reported when it is loaded, not the sequence's)
+        let mut first_error = None;
+        let first = frames
+            .iter()
+            .find_map(|f| match read_depth(&f.depth) {
+                Ok(d) => Some(d),
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                    None
+                }
+            })
+            .ok_or_else(|| {
+                let e = first_error.expect("at least one frame was tried");
+                IoError::file(&root, format!("no depth image can be read; the first: {e}"))
+            })?;
         let intr = root.join("intrinsics.txt");
         let camera = if intr.exists() {
             read_intrinsics(&intr, first.width, first.height)?

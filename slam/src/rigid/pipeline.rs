@@ -2,13 +2,47 @@
 //! pose → fuse at the new pose → raycast the model for the next frame. A frame that fails to track
 //! is reported and not fused; the next frame starts from the last good pose.
 
-use super::tracker::{ModelPyramid, Tracker, TrackerParams};
+use super::tracker::{ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
-use crate::image::{ColorImage, Image};
+use crate::features::{match_frames, FeatureFrame, FeatureParams};
+use crate::image::{ColorImage, DepthImage, Image};
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::time::Instant;
+
+/// How a lost track is found again (see [`RigidSlam::process`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RelocaliseParams {
+    /// Try at all (default true).
+    pub enabled: bool,
+    /// Start poses tried around the last good pose: shifts of these lengths along each world
+    /// axis, metres (default 0.15 and 0.3).
+    pub shifts: Vec<f64>,
+    /// … and turns by this angle about the camera's x and y axes, degrees (default 10).
+    pub turn_deg: f64,
+    /// A frame relocalised away from the last pose must have at least this fraction of its valid
+    /// pixels as inliers (default 0.25, stricter than tracking's, as a false relocalisation
+    /// corrupts the map; when the last pose itself wins, tracking's own tests apply).
+    pub min_inlier_fraction: f64,
+    /// Sparse features matched against the last fused frame give one more start pose.
+    pub features: FeatureParams,
+}
+
+impl Default for RelocaliseParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            shifts: vec![0.15, 0.3],
+            turn_deg: 10.0,
+            min_inlier_fraction: 0.25,
+            features: FeatureParams {
+                ransac_iterations: 500,
+                ..FeatureParams::default()
+            },
+        }
+    }
+}
 
 /// Settings of the whole pipeline.
 #[derive(Clone, Debug, PartialEq)]
@@ -23,6 +57,8 @@ pub struct SlamParams {
     /// a quarter of the rays: the finest tracking level then associates against a half-resolution
     /// model, as its pixels are strided by 2 anyway).
     pub raycast_level: usize,
+    /// Relocalisation after a tracking failure.
+    pub relocalise: RelocaliseParams,
 }
 
 impl Default for SlamParams {
@@ -32,6 +68,7 @@ impl Default for SlamParams {
             tracker: TrackerParams::default(),
             tsdf: TsdfParams::default(),
             raycast_level: 1,
+            relocalise: RelocaliseParams::default(),
         }
     }
 }
@@ -70,6 +107,11 @@ pub struct FrameReport {
     pub times: StageTimes,
     /// Inlier point-to-plane associations at the finest tracking level (0 when not tracked).
     pub inliers: usize,
+    /// The frame was tracked only after relocalisation (tracking from the last pose failed).
+    pub relocalised: bool,
+    /// λ_min / λ_max of the tracking system (see [`TrackerParams::min_conditioning`]; 0 when
+    /// not tracked).
+    pub conditioning: f64,
 }
 
 /// Dense rigid SLAM: a TSDF map and a frame-to-model tracker.
@@ -85,6 +127,11 @@ pub struct RigidSlam {
     pose: Isometry3<f64>,
     frames: usize,
     has_model: bool,
+    /// The last tracked frame failed: the next is relocalised.
+    lost: bool,
+    /// The last fused frame (filtered depth, colour) for feature relocalisation.
+    key_depth: DepthImage,
+    key_color: ColorImage,
 }
 
 impl RigidSlam {
@@ -112,6 +159,9 @@ impl RigidSlam {
             pose: initial_pose,
             frames: 0,
             has_model: false,
+            lost: false,
+            key_depth: DepthImage::new(0, 0),
+            key_color: ColorImage::new(0, 0),
         }
     }
 
@@ -150,31 +200,63 @@ impl RigidSlam {
                 )),
                 times,
                 inliers: 0,
+                relocalised: false,
+                conditioning: 0.0,
             };
         }
         let t = Instant::now();
         self.pre.process(depth_raw, color);
         times.preprocess = t.elapsed().as_secs_f64();
         self.frames += 1;
-        let (mut failure, mut inliers) = (None, 0);
+        let (mut failure, mut inliers, mut relocalised) = (None, 0, false);
+        let (mut conditioning, mut texture) = (0.0, 0.0);
         if self.has_model {
             let t = Instant::now();
-            let outcome = self
-                .tracker
-                .track(&self.pre.levels, &self.model, &self.pose);
+            // after a failure the last pose is only one start among the relocaliser's: a track
+            // that converges from it is not trusted over a better one
+            let lost = self.lost && self.params.relocalise.enabled;
+            let mut outcome = if lost {
+                self.relocalise(color).unwrap_or_else(|| TrackOutcome {
+                    failure: Some("lost, and no start pose relocalised the frame".into()),
+                    ..TrackOutcome::failed(self.pose)
+                })
+            } else {
+                self.tracker
+                    .track(&self.pre.levels, &self.model, &self.pose)
+            };
+            if lost {
+                relocalised = outcome.failure.is_none();
+            } else if outcome.failure.is_some()
+                && self.params.relocalise.enabled
+                && outcome.valid_pixels > 0
+            {
+                if let Some(found) = self.relocalise(color) {
+                    outcome = found;
+                    relocalised = true;
+                }
+            }
+            if relocalised {
+                tracing::debug!(frame = self.frames, "relocalised");
+            }
             times.track = t.elapsed().as_secs_f64();
+            conditioning = outcome.conditioning;
+            texture = outcome.texture;
+            self.lost = outcome.failure.is_some();
             failure = outcome.failure;
             inliers = outcome.inliers;
             self.pose = outcome.pose;
         } else {
+            let max = self.params.tsdf.max_depth;
             let valid = self.pre.levels[0]
                 .depth
                 .data
                 .iter()
-                .filter(|d| **d > 0.0)
+                .filter(|d| **d > 0.0 && **d <= max)
                 .count();
             if valid < 1000 {
-                failure = Some(format!("only {valid} valid depth pixels to start the map"));
+                failure = Some(format!(
+                    "only {valid} depth pixels within the fusion range (0, {max} m] to start the map"
+                ));
             }
         }
         if failure.is_none() {
@@ -191,6 +273,12 @@ impl RigidSlam {
                 Err(e) => failure = Some(e.to_string()),
             }
             times.integrate = t.elapsed().as_secs_f64();
+            if failure.is_none() && self.params.relocalise.enabled {
+                self.key_depth.clone_from(&level.depth);
+                if let Some(c) = color {
+                    self.key_color.clone_from(c);
+                }
+            }
             if failure.is_none() {
                 let t = Instant::now();
                 let r = self.model.offset;
@@ -209,6 +297,9 @@ impl RigidSlam {
         tracing::debug!(
             frame = self.frames,
             inliers,
+            conditioning,
+            texture,
+            relocalised,
             preprocess_ms = 1e3 * times.preprocess,
             track_ms = 1e3 * times.track,
             integrate_ms = 1e3 * times.integrate,
@@ -220,6 +311,89 @@ impl RigidSlam {
             failure,
             times,
             inliers,
+            relocalised,
+            conditioning,
         }
+    }
+
+    /// Tries to find the live frame's pose after tracking from the last pose failed: start poses
+    /// around the last good pose (shifted along each axis, turned about the camera's x and y), and
+    /// the motion that sparse features matched against the last fused frame give, are each tracked
+    /// on the coarsest level; the best is refined on all levels and kept when it passes the
+    /// tracker's tests with [`RelocaliseParams::min_inlier_fraction`] inliers.
+    fn relocalise(&mut self, color: Option<&ColorImage>) -> Option<TrackOutcome> {
+        let p = &self.params.relocalise;
+        let last = self.pose;
+        let mut starts = vec![last];
+        if let Some(c) = color.filter(|_| !self.key_color.data.is_empty()) {
+            let live = FeatureFrame {
+                color: c,
+                depth: &self.pre.levels[0].depth,
+                camera: &self.camera,
+                mask: None,
+            };
+            let key = FeatureFrame {
+                color: &self.key_color,
+                depth: &self.key_depth,
+                camera: &self.camera,
+                mask: None,
+            };
+            if let Some(m) = match_frames(&live, &key, &p.features) {
+                // live points map into the key frame: T_live = T_key · M
+                starts.push(last * m.motion);
+            }
+        }
+        for &d in &p.shifts {
+            for axis in 0..3 {
+                for sign in [-1.0, 1.0] {
+                    let mut t = Vector3::zeros();
+                    t[axis] = sign * d;
+                    starts.push(Translation3::from(t) * last);
+                }
+            }
+        }
+        for axis in [Vector3::x(), Vector3::y()] {
+            for sign in [-1.0, 1.0] {
+                let turn = UnitQuaternion::from_scaled_axis(axis * sign * p.turn_deg.to_radians());
+                starts.push(last * turn);
+            }
+        }
+        // screen on the coarsest level only
+        let full = std::mem::take(&mut self.tracker.params.iterations);
+        let coarse = full.len().saturating_sub(1);
+        self.tracker.params.iterations = (0..full.len())
+            .map(|l| if l == coarse { full[l].max(4) } else { 0 })
+            .collect();
+        let mut best: Option<(f64, usize)> = None;
+        for (k, start) in starts.iter().enumerate() {
+            let o = self.tracker.track(&self.pre.levels, &self.model, start);
+            let fraction = o.inliers as f64 / o.valid_pixels.max(1) as f64;
+            if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
+                best = Some((fraction, k));
+            }
+        }
+        self.tracker.params.iterations = full;
+        let (screened, k) = best?;
+        let o = self
+            .tracker
+            .track(&self.pre.levels, &self.model, &starts[k]);
+        let fraction = o.inliers as f64 / o.valid_pixels.max(1) as f64;
+        tracing::debug!(
+            frame = self.frames,
+            candidates = starts.len(),
+            best = k,
+            screened,
+            fraction,
+            failure = o.failure.as_deref().unwrap_or_default(),
+            "relocalisation"
+        );
+        // the last pose winning is ordinary tracking, held to its tests; a jump elsewhere must
+        // also have the stricter inlier fraction
+        let strict = if k == 0 {
+            0.0
+        } else {
+            self.params.relocalise.min_inlier_fraction
+        };
+        (o.failure.is_none() && fraction >= strict).then_some(o)
     }
 }

@@ -45,6 +45,16 @@ pub struct TrackerParams {
     pub max_translation: f64,
     /// … or turns more than this, degrees (default 30).
     pub max_rotation_deg: f64,
+    /// A frame fails as degenerate when its geometry constrains the motion badly — λ_min / λ_max
+    /// of the point-to-plane covariance Σ [p × n; n][p × n; n]ᵀ of its coarsest level, rotations
+    /// scaled by the mean depth, below this (default 1e-3; a plane leaves three motions free:
+    /// Gelfand et al., *Geometrically stable sampling for the ICP algorithm*, 3DIM 2003) — and its
+    /// image has no texture for the photometric term to hold on to (see `min_texture`).
+    pub min_conditioning: f64,
+    /// … the RMS intensity gradient of the coarsest level below this, intensity per pixel
+    /// (default 0.01; a plain wall under sensor noise gives about 0.001, the rendered room
+    /// 0.04–0.06).
+    pub min_texture: f64,
 }
 
 impl Default for TrackerParams {
@@ -60,6 +70,8 @@ impl Default for TrackerParams {
             min_inlier_fraction: 0.1,
             max_translation: 0.3,
             max_rotation_deg: 30.0,
+            min_conditioning: 1e-3,
+            min_texture: 0.01,
         }
     }
 }
@@ -351,6 +363,26 @@ pub struct TrackOutcome {
     pub inliers: usize,
     /// Valid live pixels at the finest level that ran (on its strided grid).
     pub valid_pixels: usize,
+    /// λ_min / λ_max of the live frame's depth-scaled point-to-plane covariance (see
+    /// [`TrackerParams::min_conditioning`]).
+    pub conditioning: f64,
+    /// RMS intensity gradient of the live frame's coarsest level (see
+    /// [`TrackerParams::min_texture`]; 0 without colour).
+    pub texture: f64,
+}
+
+impl TrackOutcome {
+    /// A frame that was not tracked: the pose stays `pose`.
+    pub fn failed(pose: Isometry3<f64>) -> Self {
+        Self {
+            pose,
+            failure: Some("not tracked".into()),
+            inliers: 0,
+            valid_pixels: 0,
+            conditioning: 0.0,
+            texture: 0.0,
+        }
+    }
 }
 
 /// The frame-to-model tracker; keeps its buffers between frames.
@@ -402,6 +434,8 @@ impl Tracker {
         let stride_of = |l: usize| if l == 0 { p.finest_stride.max(1) } else { 1 };
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let mut inliers = 0;
+        let coarsest = &live[levels - 1];
+        let (conditioning, texture) = (geometric_conditioning(coarsest), texture(coarsest));
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = p.iterations.get(l).copied().unwrap_or(0);
@@ -446,12 +480,19 @@ impl Tracker {
         let pose = se3::from_slice(&x);
         let motion = start.inverse() * pose;
         let failure = if matches!(stop, DenseStop::NoTerms) {
-            Some("no associations (blank or unusable depth)".to_string())
+            Some(
+                "no associations with the model (blank depth, or a view the model has not seen)"
+                    .to_string(),
+            )
         } else if matches!(stop, DenseStop::Singular) {
             Some("singular system (degenerate geometry)".to_string())
         } else if (inliers as f64) < p.min_inlier_fraction * valid_pixels.max(1) as f64 {
             Some(format!(
                 "too few inliers: {inliers} of {valid_pixels} valid pixels"
+            ))
+        } else if conditioning < p.min_conditioning && texture < p.min_texture {
+            Some(format!(
+                "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.3} (a plain wall?)"
             ))
         } else if motion.translation.vector.norm() > p.max_translation
             || motion.rotation.angle().to_degrees() > p.max_rotation_deg
@@ -471,6 +512,62 @@ impl Tracker {
             failure,
             inliers,
             valid_pixels,
+            conditioning,
+            texture,
         }
     }
+}
+
+/// λ_min / λ_max of Σ [p × n; n][p × n; n]ᵀ over a level's valid points, with the rotation part
+/// divided by the mean depth so both parts are in metres (0 when there are too few points).
+fn geometric_conditioning(level: &Level) -> f64 {
+    let mut c = nalgebra::Matrix6::<f64>::zeros();
+    let (mut depth, mut n) = (0.0, 0usize);
+    for (p, nn) in level.vertices.data.iter().zip(&level.normals.data) {
+        if !(valid(p) && valid(nn)) {
+            continue;
+        }
+        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        let nn = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
+        let row = nalgebra::Vector6::from_iterator(p.cross(&nn).iter().chain(nn.iter()).copied());
+        c.syger(1.0, &row, &row, 1.0);
+        depth += p.z;
+        n += 1;
+    }
+    if n < 6 {
+        return 0.0;
+    }
+    let k = n as f64 / depth.max(1e-6);
+    for i in 0..6 {
+        for j in 0..6 {
+            c[(i, j)] *= if i < 3 { k } else { 1.0 } * if j < 3 { k } else { 1.0 };
+        }
+    }
+    let e = c.symmetric_eigenvalues();
+    if e.max() > 0.0 {
+        (e.min() / e.max()).max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// RMS of the intensity gradient over a level's valid pixels (0 without colour).
+fn texture(level: &Level) -> f64 {
+    if level.gradient_x.data.len() != level.vertices.data.len() {
+        return 0.0;
+    }
+    let (mut sum, mut n) = (0.0, 0usize);
+    for ((gx, gy), p) in level
+        .gradient_x
+        .data
+        .iter()
+        .zip(&level.gradient_y.data)
+        .zip(&level.vertices.data)
+    {
+        if valid(p) {
+            sum += (gx * gx + gy * gy) as f64;
+            n += 1;
+        }
+    }
+    (sum / n.max(1) as f64).sqrt()
 }

@@ -8,12 +8,15 @@
 //! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
 //!   per-pixel scene flow and the deformed mesh per frame;
 //! - [`plate`]: the thesis' flat 21 × 13 grid and its five target deformations (Table 4.1);
-//! - [`sequence`]: writing everything in the TUM layout.
+//! - [`sequence`]: writing everything in the TUM layout;
+//! - [`faults`]: a sequence with dropped, corrupt and blank frames, a jump and a textureless
+//!   stretch, for reliability tests.
 //!
 //! Everything is seeded and deterministic.
 
 pub mod bvh;
 pub mod deform;
+pub mod faults;
 pub mod motion;
 pub mod noise;
 pub mod plate;

@@ -41,6 +41,17 @@ pub fn depth_sigma(z: f64) -> f64 {
 }
 
 impl SensorNoise {
+    /// [`Self::apply`] to a whole rendering: its colour made noisy in place, its raw depth
+    /// returned.
+    pub fn apply_to(
+        &self,
+        frame: u64,
+        r: &mut super::render::Rendering,
+        depth_scale: f64,
+    ) -> Image<u16> {
+        self.apply(frame, &r.depth, &r.cos_incidence, &mut r.color, depth_scale)
+    }
+
     /// Turns rendered depth (metres) and colour into sensor output: raw 16-bit depth at
     /// `depth_scale` units per metre (0 = missing) and noisy colour.
     pub fn apply(

@@ -70,12 +70,12 @@ pub fn read_flow(path: impl AsRef<Path>) -> Result<Image<[f32; 3]>, IoError> {
     Ok(Image::from_vec(w, h, data).expect("size checked"))
 }
 
-fn stamp_name(stamp: f64) -> String {
+pub(crate) fn stamp_name(stamp: f64) -> String {
     format!("{stamp:.6}")
 }
 
 /// Applies the sensor model to a rendering and writes its depth and colour PNGs, named by stamp.
-fn write_sensor_frame(
+pub(crate) fn write_sensor_frame(
     dir: &Path,
     stamp: f64,
     k: usize,
@@ -83,25 +83,26 @@ fn write_sensor_frame(
     noise: &SensorNoise,
     camera: &Camera,
 ) -> Result<(), IoError> {
-    let raw = noise.apply(
-        k as u64,
-        &r.depth,
-        &r.cos_incidence,
-        &mut r.color,
-        camera.depth_scale,
-    );
+    let raw = noise.apply_to(k as u64, r, camera.depth_scale);
     let n = stamp_name(stamp);
     write_depth(dir.join("depth").join(format!("{n}.png")), &raw)?;
     write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)
 }
 
-fn write_index(dir: &Path, camera: &Camera, trajectory: &Trajectory) -> Result<(), IoError> {
+/// Writes the image lists (the frames at `listed` stamps), the ground truth (all of `trajectory`)
+/// and the intrinsics.
+pub(crate) fn write_index(
+    dir: &Path,
+    camera: &Camera,
+    listed: &[f64],
+    trajectory: &Trajectory,
+) -> Result<(), IoError> {
     let (mut rgb, mut depth, mut assoc) = (
         String::from("# color images\n# timestamp filename\n"),
         String::from("# depth maps\n# timestamp filename\n"),
         String::new(),
     );
-    for s in &trajectory.stamps {
+    for s in listed {
         let n = stamp_name(*s);
         let _ = writeln!(rgb, "{n} rgb/{n}.png");
         let _ = writeln!(depth, "{n} depth/{n}.png");
@@ -118,7 +119,7 @@ fn write_index(dir: &Path, camera: &Camera, trajectory: &Trajectory) -> Result<(
     write_atomic(dir.join("intrinsics.txt"), intr.as_bytes())
 }
 
-fn make_dirs(dir: &Path, extra: &[&str]) -> Result<(), IoError> {
+pub(crate) fn make_dirs(dir: &Path, extra: &[&str]) -> Result<(), IoError> {
     for d in ["rgb", "depth"].iter().chain(extra) {
         std::fs::create_dir_all(dir.join(d))
             .map_err(|e| IoError::file(dir.join(d), format!("cannot create: {e}")))?;
@@ -144,7 +145,7 @@ pub fn write_rigid(
         write_sensor_frame(dir, *stamp, k, &mut r, noise, camera)?;
         progress(k);
     }
-    write_index(dir, camera, trajectory)
+    write_index(dir, camera, &trajectory.stamps, trajectory)
 }
 
 /// Renders a deforming scene seen from `trajectory` and writes a TUM-layout sequence plus the
@@ -171,7 +172,7 @@ pub fn write_deforming(
         )?;
         progress(k);
     }
-    write_index(dir, camera, trajectory)
+    write_index(dir, camera, &trajectory.stamps, trajectory)
 }
 
 /// A static camera 1.5 m from the deforming surface (world = camera frame), `frames` poses.

@@ -43,6 +43,16 @@ impl Texture {
         }
     }
 
+    /// One flat colour everywhere: a surface without texture, where the photometric term sees no
+    /// gradient.
+    pub fn plain(color: [f64; 3]) -> Self {
+        Self {
+            waves: Vec::new(),
+            base: color,
+            contrast: 0.0,
+        }
+    }
+
     /// Colour in [0, 1]³ at a point of the surface (in the object's own frame).
     pub fn color(&self, p: &Point3<f64>) -> [f64; 3] {
         let mut f = [0.0; 3];

@@ -17,6 +17,8 @@ pub struct IntegrateStats {
     pub new_blocks: usize,
     /// Blocks updated (in view).
     pub updated_blocks: usize,
+    /// Blocks evicted to stay within the budget.
+    pub evicted_blocks: usize,
 }
 
 impl TsdfVolume {
@@ -46,7 +48,8 @@ impl TsdfVolume {
                 let mut out = Vec::new();
                 for x in (0..w).step_by(step) {
                     let d = depth.data[y * w + x];
-                    if d <= 0.0 || d > max_depth {
+                    // written so that NaN fails too
+                    if !(d > 0.0 && d <= max_depth) {
                         continue;
                     }
                     let ray = rot
@@ -86,22 +89,44 @@ impl TsdfVolume {
     /// Allocates the missing blocks among `touched` (within the budget) and marks exactly the
     /// `touched` blocks active for this frame: the surface and the free space just in front of it
     /// (voxel hashing's "visible set"; far free space keeps its last value). Returns the number of
-    /// blocks allocated.
-    fn allocate(&mut self, touched: &[[i32; 3]]) -> Result<usize, TsdfError> {
+    /// blocks allocated and evicted.
+    ///
+    /// When the budget would be exceeded and `camera` (the viewpoint, in the volume's frame) is
+    /// given and eviction is on, the untouched blocks farthest from it are dropped first (down to
+    /// 15/16 of the budget, so that eviction is rare), as voxel hashing streams blocks out of the
+    /// GPU; otherwise the frame fails with [`TsdfError::BudgetExceeded`].
+    fn allocate(
+        &mut self,
+        touched: &[[i32; 3]],
+        camera: Option<Vector3<f32>>,
+    ) -> Result<(usize, usize), TsdfError> {
         let missing = touched
             .iter()
             .filter(|c| !self.index.contains_key(*c))
             .count();
-        if self.blocks.len() + missing > self.params.max_blocks {
-            return Err(TsdfError::BudgetExceeded {
-                needed: self.blocks.len() + missing,
-                max: self.params.max_blocks,
-            });
+        let max = self.params.max_blocks;
+        let mut evicted = 0;
+        if self.blocks.len() + missing > max {
+            let needed = self.blocks.len() + missing;
+            match camera {
+                Some(eye) if self.params.evict && touched.len() <= max => {
+                    let keep = (max - max / 16).max(touched.len()).min(max) - missing;
+                    evicted = self.evict(touched, &eye, keep);
+                }
+                _ => return Err(TsdfError::BudgetExceeded { needed, max }),
+            }
         }
         for c in touched {
             if !self.index.contains_key(c) {
+                let block = match self.spare.pop() {
+                    Some(mut b) => {
+                        b.reset(*c);
+                        b
+                    }
+                    None => Block::new(*c),
+                };
                 self.index.insert(*c, self.blocks.len() as u32);
-                self.blocks.push(Block::new(*c));
+                self.blocks.push(block);
             }
         }
         self.active.clear();
@@ -109,7 +134,54 @@ impl TsdfVolume {
         for c in touched {
             self.active[self.index[c] as usize] = true;
         }
-        Ok(missing)
+        Ok((missing, evicted))
+    }
+
+    /// Drops blocks not in `touched` (sorted), farthest from `eye` first, until at most `keep`
+    /// remain (never a touched one); their storage goes to the spare pool that later allocations
+    /// take from, so a long run's memory stays flat. Returns how many were dropped.
+    fn evict(&mut self, touched: &[[i32; 3]], eye: &Vector3<f32>, keep: usize) -> usize {
+        let block_size = self.params.voxel_size * BLOCK as f32;
+        let mut far: Vec<(f32, u32)> = self
+            .blocks
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| touched.binary_search(&b.coord).is_err())
+            .map(|(i, b)| {
+                let c = Vector3::new(
+                    b.coord[0] as f32 + 0.5,
+                    b.coord[1] as f32 + 0.5,
+                    b.coord[2] as f32 + 0.5,
+                ) * block_size;
+                ((c - eye).norm_squared(), i as u32)
+            })
+            .collect();
+        let drop = self.blocks.len().saturating_sub(keep).min(far.len());
+        if drop == 0 {
+            return 0;
+        }
+        far.select_nth_unstable_by(drop - 1, |a, b| b.0.total_cmp(&a.0));
+        let mut gone = vec![false; self.blocks.len()];
+        for &(_, i) in &far[..drop] {
+            gone[i as usize] = true;
+        }
+        let blocks = std::mem::take(&mut self.blocks);
+        self.index.clear();
+        for (b, g) in blocks.into_iter().zip(gone) {
+            if g {
+                self.spare.push(b);
+            } else {
+                self.index.insert(b.coord, self.blocks.len() as u32);
+                self.blocks.push(b);
+            }
+        }
+        self.evicted += drop;
+        tracing::debug!(
+            evicted = drop,
+            kept = self.blocks.len(),
+            "TSDF budget reached: far blocks evicted"
+        );
+        drop
     }
 
     /// The per-pixel fusion weight cos θ (≥ 0.1) · (σ(1 m)/σ(z))², once per pixel, into
@@ -124,7 +196,7 @@ impl TsdfVolume {
                 for (x, o) in row.iter_mut().enumerate() {
                     let i = y * w + x;
                     let d = depth.data[i];
-                    if d <= 0.0 {
+                    if !(d > 0.0 && d.is_finite()) {
                         *o = 0.0;
                         continue;
                     }
@@ -162,7 +234,8 @@ impl TsdfVolume {
     ) -> Result<IntegrateStats, TsdfError> {
         check_sizes(depth, normals, color, camera)?;
         let touched = self.touched_blocks(depth, camera, pose, 4);
-        let new_blocks = self.allocate(&touched)?;
+        let eye = pose.translation.vector.cast::<f32>();
+        let (new_blocks, evicted_blocks) = self.allocate(&touched, Some(eye))?;
         self.pixel_weights(depth, normals, camera);
         let (w, h) = (depth.width, depth.height);
         let params = self.params;
@@ -256,6 +329,7 @@ impl TsdfVolume {
         Ok(IntegrateStats {
             new_blocks,
             updated_blocks: updated.into_inner(),
+            evicted_blocks,
         })
     }
 }
@@ -314,7 +388,7 @@ impl<'a> FrameView<'a> {
     #[inline(always)]
     fn fuse(&self, blk: &mut Block, i: usize, pix: usize, z: f32) -> bool {
         let d = self.depth.data[pix];
-        if d <= 0.0 || d > self.max_depth {
+        if !(d > 0.0 && d <= self.max_depth) {
             return false;
         }
         let sdf = d - z;
@@ -388,7 +462,8 @@ impl TsdfVolume {
     ) -> Result<IntegrateStats, TsdfError> {
         check_sizes(depth, normals, color, camera)?;
         let touched = self.blocks_near(band);
-        let new_blocks = self.allocate(&touched)?;
+        // no viewpoint in the canonical frame to evict by: a full budget is an error here
+        let (new_blocks, evicted_blocks) = self.allocate(&touched, None)?;
         self.pixel_weights(depth, normals, camera);
         let params = self.params;
         let voxel = params.voxel_size as f64;
@@ -435,6 +510,7 @@ impl TsdfVolume {
         Ok(IntegrateStats {
             new_blocks,
             updated_blocks: updated.into_inner(),
+            evicted_blocks,
         })
     }
 }

@@ -35,6 +35,9 @@ pub struct TsdfParams {
     pub max_weight: f32,
     /// Most blocks that may be allocated (default 150 000, about 0.8 GiB).
     pub max_blocks: usize,
+    /// When the budget is reached, evict the blocks farthest from the camera (default true);
+    /// otherwise the frame fails with [`TsdfError::BudgetExceeded`].
+    pub evict: bool,
     /// Depths beyond this are not fused, metres (default 4).
     pub max_depth: f32,
 }
@@ -46,6 +49,7 @@ impl Default for TsdfParams {
             truncation_voxels: 4.0,
             max_weight: 64.0,
             max_blocks: 150_000,
+            evict: true,
             max_depth: 4.0,
         }
     }
@@ -79,6 +83,16 @@ pub struct Block {
 }
 
 impl Block {
+    /// Unobserved voxels at `coord`, in storage taken from an evicted block.
+    fn reset(&mut self, coord: [i32; 3]) {
+        self.coord = coord;
+        self.voxels.fill(Voxel {
+            tsdf: 1.0,
+            weight: 0.0,
+        });
+        self.color.fill([0; 3]);
+    }
+
     fn new(coord: [i32; 3]) -> Self {
         Self {
             coord,
@@ -131,6 +145,10 @@ pub struct TsdfVolume {
     pub(crate) active: Vec<bool>,
     /// Scratch: the current frame's per-pixel fusion weight.
     pub(crate) pixel_weight: Vec<f32>,
+    /// Storage of evicted blocks, reused by later allocations.
+    pub(crate) spare: Vec<Block>,
+    /// Blocks evicted so far.
+    pub(crate) evicted: usize,
 }
 
 /// ⌊x⌋ as an integer without a libm call (x86-64's baseline has no vector or scalar floor
@@ -168,6 +186,8 @@ impl TsdfVolume {
             index: FxHashMap::default(),
             active: Vec::new(),
             pixel_weight: Vec::new(),
+            spare: Vec::new(),
+            evicted: 0,
         }
     }
 
@@ -176,9 +196,15 @@ impl TsdfVolume {
         self.blocks.len()
     }
 
-    /// Bytes held by voxel data.
+    /// Bytes held by voxel data (allocated blocks and the spare storage of evicted ones).
     pub fn memory_bytes(&self) -> usize {
-        self.blocks.len() * (BLOCK_VOXELS * (4 + 4 + 3) + std::mem::size_of::<Block>())
+        (self.blocks.len() + self.spare.len())
+            * (BLOCK_VOXELS * (4 + 4 + 3) + std::mem::size_of::<Block>())
+    }
+
+    /// Blocks evicted so far to stay within the budget.
+    pub fn evicted_blocks(&self) -> usize {
+        self.evicted
     }
 
     /// The allocated blocks.
