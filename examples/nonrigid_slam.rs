@@ -8,7 +8,8 @@
 //! MASKS holds one object mask per depth image, with the depth image's file name. OUT receives the
 //! canonical mesh (`canonical.ply`), the live mesh of every frame (`live/NNNNNN.ply`) and the warp
 //! field (`warp.txt`: one node per line, position, radius and unit dual quaternion
-//! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures, nodes, per-stage
+//! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures (frames not
+//! fused), skipped (frames that could not be read), nodes, per-stage
 //! seconds per frame and, for the generated sequence, the tracking error.
 
 #[path = "common/cli.rs"]
@@ -288,6 +289,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let mut logged: Result<()> = Ok(());
     let bar = session.progress(n as u64, "frames");
     let (mut totals, mut failures, mut errors) = (FusionTimes::default(), 0usize, Vec::new());
+    let mut skipped = 0usize;
     let (mut stages, mut optimised) = (RegisterTimes::default(), 0usize);
     let (mut processing, mut processed) = (0.0, 0usize);
     let start = Instant::now();
@@ -295,7 +297,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         let frame = match source.load(i) {
             Ok(f) => f,
             Err(e) => {
-                failures += 1;
+                skipped += 1;
                 tracing::warn!("frame {i} skipped: {e:#}");
                 continue;
             }
@@ -385,7 +387,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         ms(stages.linear)
     );
     println!(
-        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {failures}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
+        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {failures}, \"skipped\": {skipped}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
         if processing > 0.0 {
             processed as f64 / processing
         } else {
