@@ -227,7 +227,7 @@ impl Summary {
         ));
         if let Some(block) = self.non_finite_block {
             s.push_str(&format!(
-                "\nresidual block {block} returned NaN or infinity at the last trial points ({} steps rejected for it in all); the result is the last finite point",
+                "\nresidual block {block} returned NaN or infinity at the last trial points ({} non-finite trial points in all); the result is the last finite point",
                 self.non_finite_steps
             ));
         } else if self.non_finite_steps > 0 {
