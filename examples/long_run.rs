@@ -112,7 +112,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let mut estimate = Trajectory::default();
     let mut samples: Vec<(usize, f64, usize, usize, f64)> = Vec::new();
     let trajectory_mib = |t: &Trajectory| {
-        (t.stamps.capacity() * 8 + t.poses.capacity() * 56) as f64 / (1 << 20) as f64
+        (t.stamps.capacity() * std::mem::size_of::<f64>()
+            + t.poses.capacity() * std::mem::size_of::<Isometry3<f64>>()) as f64
+            / (1 << 20) as f64
     };
     let (mut failures, mut max_blocks) = (0usize, 0usize);
     let bar = session.progress(args.frames as u64, "frames");

@@ -6,4 +6,4 @@ pub mod pipeline;
 pub mod tracker;
 
 pub use pipeline::{FrameReport, RigidSlam, SlamParams, StageTimes};
-pub use tracker::{ModelPyramid, TrackOutcome, Tracker, TrackerParams};
+pub use tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};

@@ -2,7 +2,7 @@
 //! pose → fuse at the new pose → raycast the model for the next frame. A frame that fails to track
 //! is reported and not fused; the next frame starts from the last good pose.
 
-use super::tracker::{ModelPyramid, TrackOutcome, Tracker, TrackerParams};
+use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams};
 use crate::image::{ColorImage, DepthImage, Image};
@@ -109,8 +109,8 @@ pub struct FrameReport {
     pub inliers: usize,
     /// The frame was tracked only after relocalisation (tracking from the last pose failed).
     pub relocalised: bool,
-    /// λ_min / λ_max of the tracking system (see [`TrackerParams::min_conditioning`]; 0 when
-    /// not tracked).
+    /// λ_min / λ_max of the frame's geometry (see [`TrackerParams::min_conditioning`]; 0 for
+    /// the first frame).
     pub conditioning: f64,
 }
 
@@ -212,35 +212,36 @@ impl RigidSlam {
         let (mut conditioning, mut texture) = (0.0, 0.0);
         if self.has_model {
             let t = Instant::now();
-            // after a failure the last pose is only one start among the relocaliser's: a track
-            // that converges from it is not trusted over a better one
-            let lost = self.lost && self.params.relocalise.enabled;
-            let mut outcome = if lost {
-                self.relocalise(color).unwrap_or_else(|| TrackOutcome {
-                    failure: Some("lost, and no start pose relocalised the frame".into()),
-                    ..TrackOutcome::failed(self.pose)
+            // degeneracy does not depend on the pose: checked once, before any start is tried
+            let constraint = FrameConstraint::of(&self.pre.levels);
+            (conditioning, texture) = (constraint.conditioning, constraint.texture);
+            let enabled = self.params.relocalise.enabled;
+            let outcome = if let Some(why) = constraint.degeneracy(&self.tracker.params) {
+                TrackOutcome::failed(self.pose, why)
+            } else if self.lost && enabled {
+                // after a failure the last pose is only one start among the relocaliser's: a
+                // track that converges from it is not trusted over a better one
+                let found = self.relocalise(color);
+                relocalised = found.is_some();
+                found.unwrap_or_else(|| {
+                    TrackOutcome::failed(
+                        self.pose,
+                        "lost, and no start pose relocalised the frame".into(),
+                    )
                 })
             } else {
-                self.tracker
-                    .track(&self.pre.levels, &self.model, &self.pose)
+                let tracked = self
+                    .tracker
+                    .track(&self.pre.levels, &self.model, &self.pose);
+                let retry = tracked.failure.is_some() && enabled && tracked.valid_pixels > 0;
+                let found = if retry { self.relocalise(color) } else { None };
+                relocalised = found.is_some();
+                found.unwrap_or(tracked)
             };
-            if lost {
-                relocalised = outcome.failure.is_none();
-            } else if outcome.failure.is_some()
-                && self.params.relocalise.enabled
-                && outcome.valid_pixels > 0
-            {
-                if let Some(found) = self.relocalise(color) {
-                    outcome = found;
-                    relocalised = true;
-                }
-            }
             if relocalised {
                 tracing::debug!(frame = self.frames, "relocalised");
             }
             times.track = t.elapsed().as_secs_f64();
-            conditioning = outcome.conditioning;
-            texture = outcome.texture;
             self.lost = outcome.failure.is_some();
             failure = outcome.failure;
             inliers = outcome.inliers;

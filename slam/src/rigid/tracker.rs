@@ -363,25 +363,49 @@ pub struct TrackOutcome {
     pub inliers: usize,
     /// Valid live pixels at the finest level that ran (on its strided grid).
     pub valid_pixels: usize,
-    /// λ_min / λ_max of the live frame's depth-scaled point-to-plane covariance (see
-    /// [`TrackerParams::min_conditioning`]).
-    pub conditioning: f64,
-    /// RMS intensity gradient of the live frame's coarsest level (see
-    /// [`TrackerParams::min_texture`]; 0 without colour).
-    pub texture: f64,
 }
 
 impl TrackOutcome {
-    /// A frame that was not tracked: the pose stays `pose`.
-    pub fn failed(pose: Isometry3<f64>) -> Self {
+    /// A frame that was not tracked, for `why`: the pose stays `pose`.
+    pub fn failed(pose: Isometry3<f64>, why: String) -> Self {
         Self {
             pose,
-            failure: Some("not tracked".into()),
+            failure: Some(why),
             inliers: 0,
             valid_pixels: 0,
-            conditioning: 0.0,
-            texture: 0.0,
         }
+    }
+}
+
+/// How well a live frame can fix its pose, whatever the pose: the geometry's conditioning and the
+/// image's texture, from its coarsest level (see [`TrackerParams::min_conditioning`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameConstraint {
+    /// λ_min / λ_max of the depth-scaled point-to-plane covariance.
+    pub conditioning: f64,
+    /// RMS intensity gradient (0 without colour).
+    pub texture: f64,
+}
+
+impl FrameConstraint {
+    /// The constraint of a live pyramid.
+    pub fn of(live: &[Level]) -> Self {
+        let coarsest = &live[live.len() - 1];
+        Self {
+            conditioning: geometric_conditioning(coarsest),
+            texture: texture(coarsest),
+        }
+    }
+
+    /// Why the frame is degenerate under `p`, if it is: a plane without texture leaves motions
+    /// that no start pose can fix.
+    pub fn degeneracy(&self, p: &TrackerParams) -> Option<String> {
+        (self.conditioning < p.min_conditioning && self.texture < p.min_texture).then(|| {
+            format!(
+                "degenerate: geometry conditioning {:.1e} and texture {:.3} (a plain wall?)",
+                self.conditioning, self.texture
+            )
+        })
     }
 }
 
@@ -434,8 +458,6 @@ impl Tracker {
         let stride_of = |l: usize| if l == 0 { p.finest_stride.max(1) } else { 1 };
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let mut inliers = 0;
-        let coarsest = &live[levels - 1];
-        let (conditioning, texture) = (geometric_conditioning(coarsest), texture(coarsest));
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = p.iterations.get(l).copied().unwrap_or(0);
@@ -490,10 +512,6 @@ impl Tracker {
             Some(format!(
                 "too few inliers: {inliers} of {valid_pixels} valid pixels"
             ))
-        } else if conditioning < p.min_conditioning && texture < p.min_texture {
-            Some(format!(
-                "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.3} (a plain wall?)"
-            ))
         } else if motion.translation.vector.norm() > p.max_translation
             || motion.rotation.angle().to_degrees() > p.max_rotation_deg
         {
@@ -512,8 +530,6 @@ impl Tracker {
             failure,
             inliers,
             valid_pixels,
-            conditioning,
-            texture,
         }
     }
 }
