@@ -82,6 +82,9 @@ struct Args {
     /// Gauss-Newton iterations per pyramid level, finest first.
     #[arg(long, value_delimiter = ',', default_values_t = SlamParams::default().tracker.iterations)]
     iterations: Vec<usize>,
+    /// Pixel stride of the tracking grid per pyramid level, finest first.
+    #[arg(long, value_delimiter = ',', default_values_t = SlamParams::default().tracker.strides)]
+    strides: Vec<usize>,
     /// Association distance threshold, metres.
     #[arg(long, default_value_t = SlamParams::default().tracker.max_distance)]
     max_distance: f64,
@@ -173,6 +176,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tsdf.max_blocks = args.max_blocks;
     p.tracker.lambda_photometric = args.lambda;
     p.tracker.iterations = args.iterations.clone();
+    p.tracker.strides = args.strides.clone();
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
     p.relocalise.enabled = !args.no_relocalise;
@@ -186,6 +190,11 @@ fn params(args: &Args) -> Result<SlamParams> {
     if p.tracker.iterations.is_empty() || !weight_ok || p.tsdf.max_blocks == 0 {
         return Err(cli::bad_input(
             "--iterations needs a level, --max-weight at least 1, --max-blocks at least 1",
+        ));
+    }
+    if p.tracker.strides.contains(&0) {
+        return Err(cli::bad_input(
+            "--strides must be at least 1 on every level",
         ));
     }
     Ok(p)

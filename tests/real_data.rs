@@ -294,7 +294,7 @@ fn register_against(icl: &IclNuimSequence, a: usize, b: usize) -> nalgebra::Isom
     let live = pre.process(&fa.depth, fa.color.as_ref());
     let mut tracker = Tracker::new(TrackerParams {
         iterations: vec![20, 20, 20],
-        finest_stride: 1,
+        strides: vec![1, 1, 1],
         ..TrackerParams::default()
     });
     let out = tracker.track(live, &model, &icl.poses[a]);

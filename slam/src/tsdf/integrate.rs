@@ -1,11 +1,15 @@
 //! Fusing a depth frame (thesis eq. 3.23-3.25): allocate the blocks the truncation band crosses,
 //! then update every voxel of the blocks in view with the projective signed distance.
 
-use super::{local_index, round_i32, Block, TsdfError, TsdfParams, TsdfVolume, BLOCK};
+use super::{
+    block_key, block_of_key, floor_i32, local_index, round_i32, Block, TsdfError, TsdfParams,
+    TsdfVolume, BLOCK,
+};
 use crate::camera::Camera;
-use crate::image::{valid, ColorImage, DepthImage, NormalMap};
+use crate::image::{ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The sensor model's axial noise at 1 m, the reference of the distance weight.
 const SIGMA_1M: f32 = 0.0012 + 0.0019 * 0.6 * 0.6;
@@ -23,17 +27,18 @@ pub struct IntegrateStats {
 
 impl TsdfVolume {
     /// The block coordinates the truncation band [d − μ, d + μ] of each valid pixel's ray crosses
-    /// (every `step`-th pixel), sorted and deduplicated.
+    /// (every `step`-th pixel), sorted and deduplicated; an error if one lies beyond the range of
+    /// block coordinates ([`super::MAX_BLOCK_COORD`]).
     fn touched_blocks(
         &self,
         depth: &DepthImage,
         camera: &Camera,
         pose: &Isometry3<f64>,
         step: usize,
-    ) -> Vec<[i32; 3]> {
+    ) -> Result<Vec<[i32; 3]>, TsdfError> {
         let mu = self.params.truncation();
-        let block_size = self.params.voxel_size * BLOCK as f32;
-        let origin = pose.translation.vector.cast::<f32>();
+        let inv_block = 1.0 / (self.params.voxel_size * BLOCK as f32);
+        let origin = pose.translation.vector.cast::<f32>() * inv_block;
         let rot = pose
             .rotation
             .to_rotation_matrix()
@@ -41,49 +46,56 @@ impl TsdfVolume {
             .cast::<f32>();
         let (w, h) = (depth.width, depth.height);
         let max_depth = self.params.max_depth;
-        let mut coords: Vec<[i32; 3]> = (0..h)
+        let (ifx, ify) = (1.0 / camera.fx as f32, 1.0 / camera.fy as f32);
+        let (cx, cy) = (camera.cx as f32, camera.cy as f32);
+        // samples half a block apart along the band, in block units
+        let n = ((2.0 * mu * inv_block) / 0.5).ceil() as usize + 1;
+        let out_of_range = AtomicUsize::new(0);
+        let mut keys: Vec<u64> = (0..h)
             .into_par_iter()
             .step_by(step)
             .flat_map_iter(|y| {
                 let mut out = Vec::new();
+                let ry = (y as f32 - cy) * ify;
                 for x in (0..w).step_by(step) {
                     let d = depth.data[y * w + x];
                     // written so that NaN fails too
                     if !(d > 0.0 && d <= max_depth) {
                         continue;
                     }
-                    let ray = rot
-                        * camera
-                            .back_project(x as f64, y as f64, 1.0)
-                            .coords
-                            .cast::<f32>();
-                    let len = ray.norm();
-                    let dir = ray / len;
-                    // distance along the ray of the surface point, and the band around it
-                    let t_surface = d * len;
-                    let (t0, t1) = (t_surface - mu, t_surface + mu);
-                    let n = ((t1 - t0) / (0.5 * block_size)).ceil() as usize + 1;
-                    let mut last = [i32::MIN; 3];
+                    // the ray through the pixel, scaled so that its camera-frame z is 1, in block
+                    // units: a point at z-depth t lies at origin + dir · t
+                    let dir = rot * Vector3::new((x as f32 - cx) * ifx, ry, 1.0) * inv_block;
+                    let len = dir.norm() / inv_block;
+                    // the band [d − μ, d + μ] along the ray, as z-depths
+                    let (t0, t1) = (d - mu / len, d + mu / len);
+                    let mut last = u64::MAX;
                     for k in 0..=n {
                         let t = t0 + (t1 - t0) * k as f32 / n as f32;
                         let p = origin + dir * t;
-                        let b = [
-                            (p.x / block_size).floor() as i32,
-                            (p.y / block_size).floor() as i32,
-                            (p.z / block_size).floor() as i32,
-                        ];
-                        if b != last {
-                            out.push(b);
-                            last = b;
+                        match block_key(floor_i32(p.x), floor_i32(p.y), floor_i32(p.z)) {
+                            Some(key) if key != last => {
+                                out.push(key);
+                                last = key;
+                            }
+                            Some(_) => {}
+                            None => {
+                                out_of_range.fetch_add(1, Ordering::Relaxed);
+                            }
                         }
                     }
                 }
                 out
             })
             .collect();
-        coords.par_sort_unstable();
-        coords.dedup();
-        coords
+        if out_of_range.into_inner() > 0 {
+            return Err(TsdfError::OutOfRange {
+                position: pose.translation.vector.into(),
+            });
+        }
+        keys.par_sort_unstable();
+        keys.dedup();
+        Ok(keys.into_iter().map(block_of_key).collect())
     }
 
     /// Allocates the missing blocks among `touched` (within the budget) and marks exactly the
@@ -185,34 +197,35 @@ impl TsdfVolume {
     }
 
     /// The per-pixel fusion weight cos θ (≥ 0.1) · (σ(1 m)/σ(z))², once per pixel, into
-    /// `self.pixel_weight`.
+    /// `self.pixel_weight`: θ between the pixel's ray and its normal (0.1 where the normal is
+    /// missing), 0 where the depth is.
     fn pixel_weights(&mut self, depth: &DepthImage, normals: &NormalMap, camera: &Camera) {
         let w = depth.width;
+        let (ifx, ify) = (1.0 / camera.fx as f32, 1.0 / camera.fy as f32);
+        let (cx, cy) = (camera.cx as f32, camera.cy as f32);
         self.pixel_weight.resize(w * depth.height, 0.0);
         self.pixel_weight
             .par_chunks_mut(w.max(1))
             .enumerate()
             .for_each(|(y, row)| {
-                for (x, o) in row.iter_mut().enumerate() {
-                    let i = y * w + x;
-                    let d = depth.data[i];
-                    if !(d > 0.0 && d.is_finite()) {
-                        *o = 0.0;
-                        continue;
-                    }
-                    let n = normals.data[i];
-                    let cos = if valid(&n) {
-                        let ray = camera
-                            .back_project(x as f64, y as f64, 1.0)
-                            .coords
-                            .cast::<f32>()
-                            .normalize();
-                        (-(ray.x * n[0] + ray.y * n[1] + ray.z * n[2])).clamp(0.1, 1.0)
-                    } else {
-                        0.1
-                    };
+                let ry = (y as f32 - cy) * ify;
+                let (d_row, n_row) = (
+                    &depth.data[y * w..(y + 1) * w],
+                    &normals.data[y * w..(y + 1) * w],
+                );
+                for (x, (o, (&d, n))) in row.iter_mut().zip(d_row.iter().zip(n_row)).enumerate() {
+                    let rx = (x as f32 - cx) * ifx;
+                    // −ray · n over |ray|: NaN for a missing normal, which the test below takes
+                    // as grazing
+                    let c = -(rx * n[0] + ry * n[1] + n[2]) / (rx * rx + ry * ry + 1.0).sqrt();
+                    let cos = if c >= 0.1 { c.min(1.0) } else { 0.1 };
                     let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
-                    *o = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
+                    let weight = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
+                    *o = if d > 0.0 && d.is_finite() {
+                        weight
+                    } else {
+                        0.0
+                    };
                 }
             });
     }
@@ -233,7 +246,7 @@ impl TsdfVolume {
         pose: &Isometry3<f64>,
     ) -> Result<IntegrateStats, TsdfError> {
         check_sizes(depth, normals, color, camera)?;
-        let touched = self.touched_blocks(depth, camera, pose, 4);
+        let touched = self.touched_blocks(depth, camera, pose, 4)?;
         let eye = pose.translation.vector.cast::<f32>();
         let (new_blocks, evicted_blocks) = self.allocate(&touched, Some(eye))?;
         self.pixel_weights(depth, normals, camera);
@@ -300,26 +313,26 @@ impl TsdfVolume {
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
                         let qyz = q0 + c1 * y as f32 + c2 * z as f32;
-                        // the row's 8 projections first, branch-free so that they vectorise; a
-                        // voxel behind the camera or outside the image gets pixel −1
+                        // the row's 8 projections first, on plain arrays and branch-free so that
+                        // they vectorise; a voxel behind the camera or outside the image gets
+                        // pixel −1
                         let mut pixels = [-1i32; BLOCK as usize];
                         let mut depths = [0.0f32; BLOCK as usize];
-                        for (x, (pix, qz)) in pixels.iter_mut().zip(&mut depths).enumerate() {
-                            let q = qyz + c0 * x as f32;
-                            let iz = 1.0 / q.z;
-                            let u = round_i32(fx * q.x * iz + cx);
-                            let v = round_i32(fy * q.y * iz + cy);
-                            let inside = q.z > 0.0 && u >= 0 && v >= 0 && u < w && v < h;
-                            *pix = if inside { v * w + u } else { -1 };
-                            *qz = q.z;
+                        for k in 0..BLOCK as usize {
+                            let step = k as f32;
+                            let (qx, qy, qz) = (
+                                qyz.x + c0.x * step,
+                                qyz.y + c0.y * step,
+                                qyz.z + c0.z * step,
+                            );
+                            let iz = 1.0 / qz;
+                            let u = round_i32(fx * qx * iz + cx);
+                            let v = round_i32(fy * qy * iz + cy);
+                            let inside = (qz > 0.0) & (u >= 0) & (v >= 0) & (u < w) & (v < h);
+                            pixels[k] = if inside { v * w + u } else { -1 };
+                            depths[k] = qz;
                         }
-                        for x in 0..BLOCK {
-                            let (pix, qz) = (pixels[x as usize], depths[x as usize]);
-                            if pix < 0 {
-                                continue;
-                            }
-                            any |= frame.fuse(blk, local_index(x, y, z), pix as usize, qz);
-                        }
+                        any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &depths);
                     }
                 }
                 if any {
@@ -380,35 +393,58 @@ impl<'a> FrameView<'a> {
         }
     }
 
-    /// Fuses pixel `pix` into voxel `i` of `blk`, whose centre lies at depth `z` in the camera
-    /// frame: the projective signed distance `D(u) − z`, truncated to μ (voxels more than μ behind
-    /// the surface are left alone), enters a running weighted average (eq. 3.23-3.25) with the
-    /// pixel's weight, colour with it; the stored weight is capped at W_max. Returns whether the
-    /// voxel was updated.
+    /// Fuses the 8 voxels of a row of `blk` from local index `i0`, whose centres lie at `depths`
+    /// in the camera frame and project to `pixels` (−1: none): the projective signed distance
+    /// `D(u) − z`, truncated to μ (voxels more than μ behind the surface are left alone), enters a
+    /// running weighted average (eq. 3.23-3.25) with the pixel's weight, colour with it; the stored
+    /// weight is capped at W_max. Branch-free, so that it vectorises: a voxel not updated takes
+    /// weight 0, which leaves it as it was. Returns whether any voxel was updated.
     #[inline(always)]
-    fn fuse(&self, blk: &mut Block, i: usize, pix: usize, z: f32) -> bool {
-        let d = self.depth.data[pix];
-        if !(d > 0.0 && d <= self.max_depth) {
-            return false;
+    fn fuse_row(
+        &self,
+        blk: &mut Block,
+        i0: usize,
+        pixels: &[i32; BLOCK as usize],
+        depths: &[f32; BLOCK as usize],
+    ) -> bool {
+        const N: usize = BLOCK as usize;
+        let mut any = false;
+        // the new sample's share of each voxel's colour, in 1/256
+        let mut share = [0u32; N];
+        let voxels = &mut blk.voxels[i0..i0 + N];
+        for k in 0..N {
+            let pix = pixels[k].max(0) as usize;
+            let (d, pw) = (self.depth.data[pix], self.pixel_weight[pix]);
+            let sdf = d - depths[k];
+            let ok = (pixels[k] >= 0) & (d > 0.0) & (d <= self.max_depth) & (sdf >= -self.mu);
+            let weight = if ok { pw } else { 0.0 };
+            let vox = &mut voxels[k];
+            let w0 = vox.weight;
+            let sum = w0 + weight;
+            let b = if ok { weight / sum } else { 0.0 };
+            let tsdf = (sdf / self.mu).min(1.0);
+            vox.tsdf = if ok {
+                vox.tsdf + (tsdf - vox.tsdf) * b
+            } else {
+                vox.tsdf
+            };
+            vox.weight = if ok { sum.min(self.max_weight) } else { w0 };
+            // b is in [0, 1]: the product is in [0, 256]
+            share[k] = (b * 256.0 + 0.5) as u32;
+            any |= ok;
         }
-        let sdf = d - z;
-        if sdf < -self.mu {
-            return false;
-        }
-        let (tsdf, weight) = ((sdf / self.mu).min(1.0), self.pixel_weight[pix]);
-        let vox = &mut blk.voxels[i];
-        let w0 = vox.weight;
-        let inv = 1.0 / (w0 + weight);
-        let (a, b) = (w0 * inv, weight * inv);
-        vox.tsdf = vox.tsdf * a + tsdf * b;
-        vox.weight = (w0 + weight).min(self.max_weight);
         if let Some(c) = self.color {
-            let (col, old) = (c.data[pix], &mut blk.color[i]);
-            for k in 0..3 {
-                old[k] = (old[k] as f32 * a + col[k] as f32 * b + 0.5) as u8;
+            let colors = &mut blk.color[i0..i0 + N];
+            for k in 0..N {
+                let col = c.data[pixels[k].max(0) as usize];
+                let (s, old) = (share[k], &mut colors[k]);
+                for j in 0..3 {
+                    // (old (256 − s) + new s + 128) / 256: within [0, 255], and old where s = 0
+                    old[j] = ((old[j] as u32 * (256 - s) + col[j] as u32 * s + 128) >> 8) as u8;
+                }
             }
         }
-        true
+        any
     }
 }
 
@@ -489,6 +525,10 @@ impl TsdfVolume {
                 let mut any = false;
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
+                        // the row's voxels carried into the live frame and projected (pixel −1:
+                        // not warped or not in the image)
+                        let mut pixels = [-1i32; BLOCK as usize];
+                        let mut depths = [0.0f32; BLOCK as usize];
                         for x in 0..BLOCK {
                             let p = base + Vector3::new(x as f64, y as f64, z as f64) * voxel;
                             let Some(q) = warp.warp(&p, scratch) else {
@@ -497,9 +537,10 @@ impl TsdfVolume {
                             let Some((u, v)) = camera.project_to_pixel(&q.into()) else {
                                 continue;
                             };
-                            let pix = v * depth.width + u;
-                            any |= frame.fuse(blk, local_index(x, y, z), pix, q.z as f32);
+                            pixels[x as usize] = (v * depth.width + u) as i32;
+                            depths[x as usize] = q.z as f32;
                         }
+                        any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &depths);
                     }
                 }
                 if any {

@@ -107,6 +107,52 @@ impl Block {
     }
 }
 
+/// The last few blocks looked up (allocated or not), so that neighbouring samples (along a ray,
+/// of neighbouring rays, of a cell's corners) skip the hash map; replaced round-robin.
+pub(crate) struct BlockCache<'a> {
+    coords: [[i32; 3]; 8],
+    blocks: [Option<&'a Block>; 8],
+    last: usize,
+    next: usize,
+}
+
+impl<'a> BlockCache<'a> {
+    /// An empty cache.
+    pub(crate) fn new() -> Self {
+        Self {
+            coords: [[i32::MIN; 3]; 8],
+            blocks: [None; 8],
+            last: 0,
+            next: 0,
+        }
+    }
+
+    /// The block at `coord` in `volume`, `None` where unallocated.
+    #[inline(always)]
+    pub(crate) fn get(&mut self, volume: &'a TsdfVolume, coord: [i32; 3]) -> Option<&'a Block> {
+        let hit = self.coords[self.last];
+        if (hit[0] == coord[0]) & (hit[1] == coord[1]) & (hit[2] == coord[2]) {
+            return self.blocks[self.last];
+        }
+        self.miss(volume, coord)
+    }
+
+    /// [`Self::get`] past the last block used.
+    #[inline(never)]
+    fn miss(&mut self, volume: &'a TsdfVolume, coord: [i32; 3]) -> Option<&'a Block> {
+        if let Some(k) = self.coords.iter().position(|c| *c == coord) {
+            self.last = k;
+            return self.blocks[k];
+        }
+        let k = self.next;
+        self.next = (k + 1) % self.coords.len();
+        self.coords[k] = coord;
+        self.blocks[k] = volume.block(&coord);
+        self.last = k;
+        self.blocks[k]
+    }
+}
+
 /// Index of local voxel (x, y, z) in a block.
 #[inline]
 pub fn local_index(x: i32, y: i32, z: i32) -> usize {
@@ -123,6 +169,16 @@ pub enum TsdfError {
         needed: usize,
         /// The budget.
         max: usize,
+    },
+    /// The camera is so far from the origin that the surface it sees lies beyond the range of
+    /// block coordinates ([`MAX_BLOCK_COORD`]).
+    #[error(
+        "the camera at {position:?} sees beyond the volume's range of ±{} blocks per axis",
+        MAX_BLOCK_COORD
+    )]
+    OutOfRange {
+        /// The camera's position, metres.
+        position: [f64; 3],
     },
     /// Images and intrinsics of different sizes.
     #[error("a {image:?} image does not match the camera's {camera:?}")]
@@ -163,6 +219,28 @@ pub(crate) fn floor_i32(x: f32) -> i32 {
 #[inline(always)]
 pub(crate) fn round_i32(x: f32) -> i32 {
     floor_i32(x + 0.5)
+}
+
+/// Block coordinates are limited to |c| < 2²⁰ on each axis (±84 km at 1 cm voxels), so that one
+/// fits a 64-bit sort key.
+pub const MAX_BLOCK_COORD: i32 = 1 << 20;
+
+/// A block coordinate as a key whose order is the coordinate's lexicographic order; `None` beyond
+/// [`MAX_BLOCK_COORD`].
+#[inline(always)]
+pub(crate) fn block_key(x: i32, y: i32, z: i32) -> Option<u64> {
+    let lift = |c: i32| {
+        let u = c.wrapping_add(MAX_BLOCK_COORD) as u32 as u64;
+        (u < 2 * MAX_BLOCK_COORD as u64).then_some(u)
+    };
+    Some((lift(x)? << 42) | (lift(y)? << 21) | lift(z)?)
+}
+
+/// The block coordinate of a [`block_key`].
+#[inline(always)]
+pub(crate) fn block_of_key(key: u64) -> [i32; 3] {
+    let part = |shift: u32| ((key >> shift) & ((1 << 21) - 1)) as i32 - MAX_BLOCK_COORD;
+    [part(42), part(21), part(0)]
 }
 
 /// Splits a global voxel coordinate into (block coordinate, local coordinate).
@@ -250,16 +328,16 @@ impl TsdfVolume {
         &self,
         p: &Point3<f32>,
     ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
-        self.trilinear_gradient_near(p, None)
+        self.trilinear_gradient_near(p, &mut BlockCache::new())
     }
 
-    /// [`Self::trilinear_gradient`], given a block the caller already holds (e.g. the one a ray is
-    /// marching through), so that each distinct block of the 8 corners is looked up at most once and
-    /// a known one not at all.
+    /// [`Self::trilinear_gradient`] through the caller's `cache` of recent blocks (e.g. those of
+    /// a ray and its neighbours), so that a block already seen costs no hash lookup. A cell inside
+    /// one block (343 of 512) reads its corners at fixed offsets.
     pub(crate) fn trilinear_gradient_near<'a>(
         &'a self,
         p: &Point3<f32>,
-        known: Option<&'a Block>,
+        cache: &mut BlockCache<'a>,
     ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
         let s = p.coords / self.params.voxel_size;
         let g0 = [floor_i32(s.x), floor_i32(s.y), floor_i32(s.z)];
@@ -268,17 +346,19 @@ impl TsdfVolume {
         // the corners' blocks: b + (ex, ey, ez), where e is 1 only on an axis whose corner crosses
         // the block's upper face
         let cross = [l[0] == BLOCK - 1, l[1] == BLOCK - 1, l[2] == BLOCK - 1];
+        if !(cross[0] | cross[1] | cross[2]) {
+            // the whole cell in one block: fixed offsets, no per-corner lookup
+            let blk = cache.get(self, b)?;
+            return Self::trilinear_in_block(blk, local_index(l[0], l[1], l[2]), &f);
+        }
         let mut blocks: [Option<&Block>; 8] = [None; 8];
-        let lookup = |e: usize| -> Option<&'a Block> {
+        let mut lookup = |e: usize| -> Option<&'a Block> {
             let c = [
                 b[0] + (e & 1) as i32,
                 b[1] + ((e >> 1) & 1) as i32,
                 b[2] + ((e >> 2) & 1) as i32,
             ];
-            match known {
-                Some(k) if k.coord == c => Some(k),
-                _ => self.block(&c),
-            }
+            cache.get(self, c)
         };
         let mut v = [0.0f32; 8];
         let mut color = [0.0f32; 3];
@@ -309,7 +389,52 @@ impl TsdfVolume {
                 *c += w * v as f32;
             }
         }
-        // v[c] with c = dx + 2 dy + 4 dz; interpolate along x, then y, then z
+        let (value, grad) = Self::interpolate(&v, &f);
+        Some((value, grad, color))
+    }
+
+    /// [`Self::trilinear_gradient_near`] for a cell whose 8 corners lie in `blk`, its lower corner
+    /// at local index `i0`.
+    #[inline]
+    fn trilinear_in_block(
+        blk: &Block,
+        i0: usize,
+        f: &Vector3<f32>,
+    ) -> Option<(f32, Vector3<f32>, [f32; 3])> {
+        const STEP: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
+        let corners: [Voxel; 8] = STEP.map(|d| blk.voxels[i0 + d]);
+        if !corners.iter().fold(true, |ok, c| ok & (c.weight > 0.0)) {
+            return None;
+        }
+        let v = corners.map(|c| c.tsdf);
+        let (gx, gy) = (1.0 - f.x, 1.0 - f.y);
+        let gz = 1.0 - f.z;
+        let w = [
+            gx * gy * gz,
+            f.x * gy * gz,
+            gx * f.y * gz,
+            f.x * f.y * gz,
+            gx * gy * f.z,
+            f.x * gy * f.z,
+            gx * f.y * f.z,
+            f.x * f.y * f.z,
+        ];
+        let mut color = [0.0f32; 3];
+        for (d, wc) in STEP.iter().zip(w) {
+            let c = blk.color[i0 + d];
+            for k in 0..3 {
+                color[k] += wc * c[k] as f32;
+            }
+        }
+        let (value, grad) = Self::interpolate(&v, f);
+        Some((value, grad, color))
+    }
+
+    /// The trilinear value and gradient (per voxel) of corner values `v[dx + 2 dy + 4 dz]` at
+    /// fractional position `f` in the cell.
+    #[inline(always)]
+    fn interpolate(v: &[f32; 8], f: &Vector3<f32>) -> (f32, Vector3<f32>) {
+        // interpolate along x, then y, then z
         let lx = |a: f32, b: f32| a + (b - a) * f.x;
         let (x00, x10, x01, x11) = (
             lx(v[0], v[1]),
@@ -324,6 +449,6 @@ impl TsdfVolume {
         let dxs = |a: f32, b: f32| b - a;
         let gx = (dxs(v[0], v[1]) * (1.0 - f.y) + dxs(v[2], v[3]) * f.y) * (1.0 - f.z)
             + (dxs(v[4], v[5]) * (1.0 - f.y) + dxs(v[6], v[7]) * f.y) * f.z;
-        Some((value, Vector3::new(gx, gy, gz), color))
+        (value, Vector3::new(gx, gy, gz))
     }
 }

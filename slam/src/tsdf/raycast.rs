@@ -1,9 +1,11 @@
 //! Rendering the model: march each pixel's ray through the TSDF, skipping unallocated blocks,
 //! stepping by the stored distance inside them, and refining the + → − zero crossing by linear
-//! interpolation of trilinear samples (Parker et al. 1998; KinectFusion's raycaster). Normals are the
-//! normalised TSDF gradient (central differences of trilinear samples).
+//! interpolation of trilinear samples (Parker et al. 1998; KinectFusion's raycaster). Where a depth
+//! is expected (the frame just fused), Newton's method on the trilinear field along the ray finds
+//! the crossing from there first. Normals are the normalised TSDF gradient (of the trilinear
+//! interpolant).
 
-use super::{round_i32, split, TsdfVolume, BLOCK};
+use super::{round_i32, split, BlockCache, TsdfVolume, BLOCK};
 use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -44,12 +46,6 @@ impl Default for RaycastMaps {
 /// A hit of one ray: world point, normal, colour and depth along the ray.
 type RayHit = (Point3<f32>, Vector3<f32>, [u8; 3], f32);
 
-/// The last block a ray looked up, so consecutive samples in one block cost no hash lookup.
-struct BlockCache<'a> {
-    coord: [i32; 3],
-    block: Option<&'a super::Block>,
-}
-
 impl TsdfVolume {
     /// The TSDF sample (units of μ) nearest to `p`, or `None` if unobserved (the `bool` says whether
     /// its block exists).
@@ -58,11 +54,7 @@ impl TsdfVolume {
         let s = p.coords / self.params.voxel_size;
         let g = [round_i32(s.x), round_i32(s.y), round_i32(s.z)];
         let (b, l) = split(g);
-        if b != cache.coord {
-            cache.coord = b;
-            cache.block = self.block(&b);
-        }
-        match cache.block {
+        match cache.get(self, b) {
             Some(blk) => {
                 let i = super::local_index(l[0], l[1], l[2]);
                 (
@@ -91,10 +83,7 @@ impl TsdfVolume {
         let block_len = vs * BLOCK as f32;
         let mut t = t_min;
         let mut prev: Option<(f32, f32)> = None; // (t, tsdf) of the last observed sample
-        let mut cache = BlockCache {
-            coord: [i32::MIN; 3],
-            block: None,
-        };
+        let mut cache = BlockCache::new();
         // Free space is crossed a block at a time; a long step that lands in an allocated block
         // backs up to where it started and enters voxel by voxel, so it cannot land behind a
         // surface whose band in front of it is thinner than the step (thin, one-sided surfaces).
@@ -132,7 +121,7 @@ impl TsdfVolume {
                     // (the normal) and colour there by trilinear interpolation
                     let mut ts = tp + (t - tp) * fp / (fp - f);
                     let (value, grad, color) =
-                        self.trilinear_gradient_near(&(origin + dir * ts), cache.block)?;
+                        self.trilinear_gradient_near(&(origin + dir * ts), &mut cache)?;
                     // one Newton step on the interpolated field along the ray; the normal and colour
                     // stay those sampled at the linear estimate, under a voxel away
                     let slope = grad.dot(dir) / vs;
@@ -158,6 +147,47 @@ impl TsdfVolume {
         None
     }
 
+    /// The surface near an expected distance `t_hint` along the ray from `origin` along the unit
+    /// `dir`: Newton's method on the trilinear TSDF along the ray, from the hint. Where the hint is
+    /// within the band of the surface the field is close to linear along the ray, so two or three
+    /// samples reach the zero crossing; `None` (the caller marches instead) when a sample is
+    /// unobserved or saturated, the surface is seen from behind, or the steps add up to more than
+    /// μ. `cache` keeps the blocks of the previous rays of the row, as neighbouring rays share them.
+    fn cast_near_hint<'a>(
+        &'a self,
+        origin: &Point3<f32>,
+        dir: &Vector3<f32>,
+        t_hint: f32,
+        cache: &mut BlockCache<'a>,
+    ) -> Option<RayHit> {
+        let vs = self.params.voxel_size;
+        let mu = self.params.truncation();
+        let inv_vs = 1.0 / vs;
+        let mut t = t_hint;
+        let mut travelled = 0.0f32;
+        for _ in 0..4 {
+            let p = origin + dir * t;
+            let (value, grad, color) = self.trilinear_gradient_near(&p, cache)?;
+            // d(tsdf)/dt per metre: negative where the ray enters the surface from the front
+            let slope = grad.dot(dir) * inv_vs;
+            if value.abs() >= 1.0 || slope >= -1e-3 {
+                return None;
+            }
+            let dt = -value / slope;
+            travelled += dt.abs();
+            if travelled > mu {
+                return None;
+            }
+            t += dt;
+            if dt.abs() < 0.05 * vs {
+                let n = grad.try_normalize(1e-12)?;
+                let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
+                return Some((origin + dir * t, n, color, t));
+            }
+        }
+        None
+    }
+
     /// Renders the model seen by `camera` at `pose` (camera-to-world) into `out`.
     pub fn raycast(&self, camera: &Camera, pose: &Isometry3<f64>, out: &mut RaycastMaps) {
         self.raycast_with_hint(camera, pose, None, out)
@@ -165,8 +195,9 @@ impl TsdfVolume {
 
     /// [`Self::raycast`], starting each ray near a depth it is expected to hit (`hint`: z-depth per
     /// pixel, e.g. the frame just fused; 0 = unknown, where the previous pixel's hit is used). A ray
-    /// that finds no surface within [z − μ − 2 voxels, z + 3μ] of its hint marches the whole range,
-    /// so the hint changes speed, not the surface found (but for one nearer than the hint's band).
+    /// first takes Newton steps from its hint; if they fail it marches [z − μ − 2 voxels, z + 3μ],
+    /// and if that finds no surface, the whole range. So the hint changes speed, not the surface
+    /// found, but for one nearer than the hint's band (a surface the live frame did not see).
     pub fn raycast_with_hint(
         &self,
         camera: &Camera,
@@ -203,6 +234,7 @@ impl TsdfVolume {
             .zip(out.colors.data.par_chunks_mut(w))
             .enumerate()
             .for_each(|(y, (((vr, nr), dr), cr))| {
+                let mut cache = BlockCache::new();
                 for x in 0..w {
                     let rc = camera
                         .back_project(x as f64, y as f64, 1.0)
@@ -220,6 +252,9 @@ impl TsdfVolume {
                     if z > t_max + band {
                         // the hint says the surface is beyond the fused range
                     } else if z > 0.0 {
+                        hit = self.cast_near_hint(&origin, &dir, z * len, &mut cache);
+                    }
+                    if hit.is_none() && z > 0.0 && z <= t_max + band {
                         hit = self.cast_ray(
                             &origin,
                             &dir,
