@@ -57,7 +57,7 @@ pub struct SlamParams {
     /// pixels wide (default 160: level 2 of a 640×480 sensor, level 1 of a 320×240 one). A pixel of
     /// a 160-wide raycast spans about one 1 cm voxel at 1.5 m with TUM's intrinsics: finer maps
     /// resample the same voxels. Measured on the rendered sequences of BENCHMARKS.md, a 320-wide
-    /// raycast costs 2.5× the time for an ATE within 0.05 mm.
+    /// raycast costs 2.4× the time, and the ATE differs by at most 0.05 mm.
     pub raycast_max_width: usize,
     /// Relocalisation after a tracking failure.
     pub relocalise: RelocaliseParams,

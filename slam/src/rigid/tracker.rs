@@ -35,8 +35,8 @@ pub struct TrackerParams {
     /// Per level, finest first: use every `strides[l]`-th pixel each way (default 3, 3, 2; a
     /// level not listed takes every pixel). The levels are smoothed copies of one frame, so a
     /// sparse grid on each gives the same pose for a fraction of the work: on the rendered
-    /// sequences of BENCHMARKS.md 3, 3, 2 tracks in a third of the time of 2, 1, 1, with the ATE
-    /// within 0.03 mm.
+    /// sequences of BENCHMARKS.md 3, 3, 2 tracks in a third of the time of 2, 1, 1, and the ATE
+    /// moved by at most 0.035 mm.
     pub strides: Vec<usize>,
     /// A level's stride is made finer where its grid would have fewer points than this (default
     /// 4800, an 80×60 grid), so that small images keep enough terms: at 320×240 the strides
