@@ -192,6 +192,12 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
         2,
         &["no-such-sequence"],
     );
+    // a tracking grid with stride 0 on a level
+    assert_exit(
+        &run("rigid_slam", &["--strides", "3,0,2"]),
+        2,
+        &["--strides"],
+    );
     assert_exit(
         &run("evaluate", &["ate", &path("none.txt"), &path("none.txt")]),
         2,
