@@ -152,6 +152,7 @@ pub struct RigidSlam {
 impl RigidSlam {
     /// A pipeline for images from `camera`, starting at `initial_pose`.
     pub fn new(camera: Camera, params: SlamParams, initial_pose: Isometry3<f64>) -> Self {
+        let raycast_level = params.raycast_level(&camera);
         Self {
             pre: Preprocessor::new(camera, params.preprocess),
             tracker: Tracker::new(params.tracker.clone()),
@@ -159,8 +160,8 @@ impl RigidSlam {
             raycast: RaycastMaps::new(),
             model: ModelPyramid::new(
                 &camera,
-                params.preprocess.levels.max(1) - params.raycast_level(&camera),
-                params.raycast_level(&camera),
+                params.preprocess.levels.max(1) - raycast_level,
+                raycast_level,
             ),
             params,
             camera,

@@ -428,7 +428,8 @@ impl<'a> FrameView<'a> {
             } else {
                 vox.tsdf
             };
-            vox.weight = if ok { sum.min(self.max_weight) } else { w0 };
+            // a stored weight never exceeds W_max, so a voxel not updated (weight 0) keeps its own
+            vox.weight = sum.min(self.max_weight);
             // b is in [0, 1]: the product is in [0, 256]
             share[k] = (b * 256.0 + 0.5) as u32;
             any |= ok;

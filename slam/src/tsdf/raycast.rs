@@ -46,6 +46,20 @@ impl Default for RaycastMaps {
 /// A hit of one ray: world point, normal, colour and depth along the ray.
 type RayHit = (Point3<f32>, Vector3<f32>, [u8; 3], f32);
 
+/// The hit at distance `t` along the ray, its normal the field's gradient `grad` (none where it
+/// vanishes) and its colour the interpolated `color`, rounded.
+fn ray_hit(
+    origin: &Point3<f32>,
+    dir: &Vector3<f32>,
+    t: f32,
+    grad: &Vector3<f32>,
+    color: &[f32; 3],
+) -> Option<RayHit> {
+    let n = grad.try_normalize(1e-12)?;
+    let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
+    Some((origin + dir * t, n, color, t))
+}
+
 impl TsdfVolume {
     /// The TSDF sample (units of μ) nearest to `p`, or `None` if unobserved (the `bool` says whether
     /// its block exists).
@@ -131,10 +145,7 @@ impl TsdfVolume {
                             ts = tn;
                         }
                     }
-                    let hit = origin + dir * ts;
-                    let n = grad.try_normalize(1e-12)?;
-                    let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
-                    return Some((hit, n, color, ts));
+                    return ray_hit(origin, dir, ts, &grad, &color);
                 }
                 if fp < 0.0 && f > 0.0 {
                     return None; // seen from behind: a back face
@@ -180,9 +191,7 @@ impl TsdfVolume {
             }
             t += dt;
             if dt.abs() < 0.05 * vs {
-                let n = grad.try_normalize(1e-12)?;
-                let color = color.map(|v| v.round().clamp(0.0, 255.0) as u8);
-                return Some((origin + dir * t, n, color, t));
+                return ray_hit(origin, dir, t, &grad, &color);
             }
         }
         None
@@ -248,23 +257,20 @@ impl TsdfVolume {
                         z if z > 0.0 || x == 0 || hint.is_none() => z,
                         _ => dr[x - 1],
                     };
-                    let mut hit = None;
-                    if z > t_max + band {
-                        // the hint says the surface is beyond the fused range
-                    } else if z > 0.0 {
-                        hit = self.cast_near_hint(&origin, &dir, z * len, &mut cache);
-                    }
-                    if hit.is_none() && z > 0.0 && z <= t_max + band {
-                        hit = self.cast_ray(
-                            &origin,
-                            &dir,
-                            (z - lead).max(t_min) * len,
-                            (z + band) * len,
-                        );
-                    }
-                    if hit.is_none() && z <= t_max + band {
-                        hit = self.cast_ray(&origin, &dir, t_min * len, t_max * len);
-                    }
+                    let hit = if z > t_max + band {
+                        None // the hint says the surface is beyond the fused range
+                    } else {
+                        let near = if z > 0.0 {
+                            self.cast_near_hint(&origin, &dir, z * len, &mut cache)
+                                .or_else(|| {
+                                    let (from, to) = ((z - lead).max(t_min), z + band);
+                                    self.cast_ray(&origin, &dir, from * len, to * len)
+                                })
+                        } else {
+                            None
+                        };
+                        near.or_else(|| self.cast_ray(&origin, &dir, t_min * len, t_max * len))
+                    };
                     match hit {
                         Some((p, n, c, t)) => {
                             vr[x] = [p.x, p.y, p.z];
