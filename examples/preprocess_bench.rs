@@ -4,8 +4,11 @@
 //! ```text
 //! cargo run --release --example preprocess_bench [-- --frames 300 --threads 2]
 //! ```
-//! Prints the median and mean per frame, a per-stage breakdown, and one JSON line last.
+//! Prints the median and mean per frame (after 20 warm-up frames), a per-stage breakdown, and one
+//! JSON line last.
 
+#[path = "common/bench.rs"]
+mod bench;
 #[path = "common/cli.rs"]
 mod cli;
 
@@ -28,22 +31,13 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(long_about = None)]
 struct Args {
-    /// Timed frames (after 20 warm-up frames).
-    #[arg(long, default_value_t = 300)]
-    frames: usize,
-    /// Worker threads (0: all cores).
-    #[arg(long, default_value_t = 0)]
-    threads: usize,
+    #[command(flatten)]
+    timing: bench::Timing,
     #[command(flatten)]
     common: cli::Common,
 }
 
 cli::has_common!(Args);
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 fn time<F: FnMut()>(frames: usize, mut f: F) -> (f64, f64) {
     for _ in 0..20 {
@@ -57,7 +51,7 @@ fn time<F: FnMut()>(frames: usize, mut f: F) -> (f64, f64) {
         })
         .collect();
     let mean = t.iter().sum::<f64>() / t.len() as f64;
-    (median(&mut t), mean)
+    (bench::median(&mut t), mean)
 }
 
 fn main() -> ExitCode {
@@ -65,24 +59,17 @@ fn main() -> ExitCode {
 }
 
 fn run(args: Args, session: &Session) -> Result<()> {
-    if args.frames == 0 {
-        return Err(cli::bad_input("--frames must be at least 1"));
-    }
-    if args.threads > 0 {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(args.threads)
-            .build_global()?;
-    }
+    args.timing.setup()?;
     let cam = Camera::tum_default();
     let pose = motion::procedural(Motion::Orbit, 1, 30.0).poses[0];
     let mut r = render(&Scene::room(1), &cam, &pose);
     let raw =
         SensorNoise::default().apply(0, &r.depth, &r.cos_incidence, &mut r.color, cam.depth_scale);
     let mut pre = Preprocessor::new(cam, PreprocessParams::default());
-    let (total_median, total_mean) = time(args.frames, || {
+    let (total_median, total_mean) = time(args.timing.frames, || {
         pre.process(&raw, Some(&r.color));
     });
-    let (depth_median, depth_mean) = time(args.frames, || {
+    let (depth_median, depth_mean) = time(args.timing.frames, || {
         pre.process(&raw, None);
     });
     // Stage by stage, on the same inputs.
@@ -94,11 +81,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
     )
     .expect("size");
     let mut filtered = Image::new(0, 0);
-    let (bilateral, _) = time(args.frames, || {
+    let (bilateral, _) = time(args.timing.frames, || {
         bilateral_filter(&depth, &params.bilateral, &mut filtered)
     });
     let (mut d1, mut d2) = (Image::new(0, 0), Image::new(0, 0));
-    let (pyramid, _) = time(args.frames, || {
+    let (pyramid, _) = time(args.timing.frames, || {
         downsample_depth(&filtered, 0.03, &mut d1);
         downsample_depth(&d1, 0.03, &mut d2);
     });
@@ -106,12 +93,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Image::filled(0, 0, [0.0f32; 3]),
         Image::filled(0, 0, [0.0f32; 3]),
     );
-    let (maps, _) = time(args.frames, || {
+    let (maps, _) = time(args.timing.frames, || {
         vertex_map(&filtered, &cam, &mut v);
         normal_map(&v, &cam, &mut n);
     });
     let (mut g, mut gx, mut gy) = (Image::new(0, 0), Image::new(0, 0), Image::new(0, 0));
-    let (gray, _) = time(args.frames, || {
+    let (gray, _) = time(args.timing.frames, || {
         intensity(&r.color, &mut g);
         gradients(&g, &mut gx, &mut gy);
     });
@@ -119,7 +106,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if !session.quiet {
         println!(
             "640x480 preprocessing on {threads} threads, {} frames each:",
-            args.frames
+            args.timing.frames
         );
         println!("  depth only (filter + 3-level pyramid + vertex/normal maps): median {depth_median:.3} ms, mean {depth_mean:.3} ms");
         println!("  with colour (+ intensity pyramid and gradients):           median {total_median:.3} ms, mean {total_mean:.3} ms");
@@ -131,7 +118,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     }
     println!(
         "{}",
-        serde_json::json!({"threads": threads, "frames": args.frames, "depth_median_ms": depth_median, "depth_mean_ms": depth_mean,
+        serde_json::json!({"threads": threads, "frames": args.timing.frames, "depth_median_ms": depth_median, "depth_mean_ms": depth_mean,
             "median_ms": total_median, "mean_ms": total_mean,
             "bilateral_ms": bilateral, "pyramid_ms": pyramid, "maps_level0_ms": maps, "intensity_level0_ms": gray})
     );

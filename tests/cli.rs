@@ -8,7 +8,7 @@ use common::examples::{result_json, run, scratch, text};
 use std::path::Path;
 use std::process::Output;
 
-const BINARIES: [&str; 9] = [
+const BINARIES: [&str; 11] = [
     "rigid_slam",
     "nonrigid_slam",
     "nonrigid_register",
@@ -18,6 +18,8 @@ const BINARIES: [&str; 9] = [
     "generate",
     "evaluate",
     "preprocess_bench",
+    "tsdf_bench",
+    "long_run",
 ];
 
 #[test]

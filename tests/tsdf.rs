@@ -380,3 +380,66 @@ fn nan_inf_and_negative_depth_are_ignored() {
     let mut maps = RaycastMaps::new();
     a.raycast(&cam, &pose, &mut maps);
 }
+
+/// Two flat frames seen straight on, about 1.00 m away in one colour and 1.03 m in another: each voxel
+/// on the optical axis holds the weighted running average of the truncated distances (eq.
+/// 3.23-3.25) under the sensor-noise weights cos θ · (σ(1 m)/σ(z))², and the colour average
+/// under the same weights (to one unit of rounding).
+#[test]
+fn fusion_averages_distance_and_colour_under_the_sensor_weights() {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let pose = Isometry3::identity();
+    let normals: NormalMap = Image::filled(320, 240, [0.0, 0.0, -1.0]);
+    // depths off the voxel grid, so that no voxel sits on the edge of a band
+    let frames = [(1.004f32, [200u8, 100, 40]), (1.033, [40, 180, 250])];
+    let mut vol = TsdfVolume::new(params());
+    for (d, rgb) in frames {
+        let depth = Image::filled(320, 240, d);
+        let color = Image::filled(320, 240, rgb);
+        vol.integrate(&depth, &normals, Some(&color), &cam, &pose)
+            .unwrap();
+    }
+    // the voxel column x = y = 0 projects to pixel (160, 120)
+    let (rx, ry) = (0.5 / 262.5f32, 0.5 / 262.5f32);
+    let cos = 1.0 / (rx * rx + ry * ry + 1.0).sqrt();
+    let sigma = |z: f32| 0.0012 + 0.0019 * (z - 0.4) * (z - 0.4);
+    let weight = |z: f32| cos * (sigma(1.0) / sigma(z)).powi(2);
+    let mu = params().truncation();
+    let mut checked = 0;
+    // the blocks the two bands touch: z from 0.96 to 1.11 m
+    for k in 96..=111 {
+        let z = vol.voxel_center([0, 0, k]).z;
+        let (mut t, mut w, mut c) = (1.0f32, 0.0f32, [0.0f32; 3]);
+        for (d, rgb) in frames {
+            let sdf = d - z;
+            if sdf < -mu {
+                continue;
+            }
+            let wi = weight(d);
+            t = (t * w + (sdf / mu).min(1.0) * wi) / (w + wi);
+            for j in 0..3 {
+                c[j] = (c[j] * w + rgb[j] as f32 * wi) / (w + wi);
+            }
+            w += wi;
+        }
+        let (tsdf, weight_stored) = vol.voxel([0, 0, k]).expect("allocated");
+        assert!(
+            (weight_stored - w).abs() < 1e-5,
+            "z {z}: weight {weight_stored} vs {w}"
+        );
+        if w == 0.0 {
+            continue;
+        }
+        assert!((tsdf - t).abs() < 1e-5, "z {z}: tsdf {tsdf} vs {t}");
+        let block = vol.block(&[0, 0, k.div_euclid(8)]).unwrap();
+        let stored = block.color[(k.rem_euclid(8) * 64) as usize];
+        for j in 0..3 {
+            assert!(
+                (stored[j] as f32 - c[j]).abs() <= 1.0,
+                "z {z}: colour {stored:?} vs {c:?}"
+            );
+        }
+        checked += 1;
+    }
+    assert!(checked >= 10, "{checked} voxels in the band");
+}

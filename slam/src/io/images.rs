@@ -32,7 +32,10 @@ pub fn read_color(path: impl AsRef<Path>) -> Result<ColorImage, IoError> {
         .map_err(|e| IoError::file(path, format!("cannot read colour image: {e}")))?
         .into_rgb8();
     let (w, h) = img.dimensions();
-    let data = img.pixels().map(|p| p.0).collect();
+    // the decoder's buffer reused as pixels where it holds a whole number of them (its own
+    // allocations do), copied otherwise
+    let data = bytemuck::allocation::try_cast_vec(img.into_raw())
+        .unwrap_or_else(|(_, raw)| raw.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect());
     Ok(Image::from_vec(w as usize, h as usize, data).expect("size matches"))
 }
 

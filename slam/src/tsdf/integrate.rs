@@ -2,14 +2,15 @@
 //! then update every voxel of the blocks in view with the projective signed distance.
 
 use super::{
-    block_key, block_of_key, floor_i32, local_index, round_i32, Block, TsdfError, TsdfParams,
-    TsdfVolume, BLOCK,
+    block_key, block_of_key, floor_i32, local_index, Block, TsdfError, TsdfParams, TsdfVolume,
+    BLOCK,
 };
 use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicUsize, Ordering};
+use wide::{f32x8, i32x8};
 
 /// The sensor model's axial noise at 1 m, the reference of the distance weight.
 const SIGMA_1M: f32 = 0.0012 + 0.0019 * 0.6 * 0.6;
@@ -196,15 +197,26 @@ impl TsdfVolume {
         drop
     }
 
-    /// The per-pixel fusion weight cos θ (≥ 0.1) · (σ(1 m)/σ(z))², once per pixel, into
-    /// `self.pixel_weight`: θ between the pixel's ray and its normal (0.1 where the normal is
-    /// missing), 0 where the depth is.
-    fn pixel_weights(&mut self, depth: &DepthImage, normals: &NormalMap, camera: &Camera) {
+    /// Each pixel's sample for fusion, once per frame, into `self.samples`: its depth and fusion
+    /// weight cos θ (≥ 0.1) · (σ(1 m)/σ(z))², θ between the pixel's ray and its normal (0.1 where
+    /// the normal is missing); [0, 0] where the depth is missing or beyond the fusion range, and one
+    /// more such entry at the end, the sample of voxels that project nowhere. With colour, each
+    /// pixel's colour packed as `r | g << 8 | b << 16` into `self.sample_color`.
+    fn pixel_samples(
+        &mut self,
+        depth: &DepthImage,
+        normals: &NormalMap,
+        color: Option<&ColorImage>,
+        camera: &Camera,
+    ) {
         let w = depth.width;
+        let n = w * depth.height;
         let (ifx, ify) = (1.0 / camera.fx as f32, 1.0 / camera.fy as f32);
         let (cx, cy) = (camera.cx as f32, camera.cy as f32);
-        self.pixel_weight.resize(w * depth.height, 0.0);
-        self.pixel_weight
+        let max_depth = self.params.max_depth;
+        self.samples.resize(n + 1, [0.0; 2]);
+        self.samples[n] = [0.0; 2];
+        self.samples[..n]
             .par_chunks_mut(w.max(1))
             .enumerate()
             .for_each(|(y, row)| {
@@ -221,13 +233,25 @@ impl TsdfVolume {
                     let cos = if c >= 0.1 { c.min(1.0) } else { 0.1 };
                     let sigma = 0.0012 + 0.0019 * (d - 0.4) * (d - 0.4);
                     let weight = cos * (SIGMA_1M / sigma) * (SIGMA_1M / sigma);
-                    *o = if d > 0.0 && d.is_finite() {
-                        weight
+                    // written so that NaN fails too
+                    *o = if d > 0.0 && d <= max_depth {
+                        [d, weight]
                     } else {
-                        0.0
+                        [0.0; 2]
                     };
                 }
             });
+        if let Some(c) = color {
+            self.sample_color.resize(n + 1, 0);
+            self.sample_color[..n]
+                .par_chunks_mut(w.max(1))
+                .zip(c.data.par_chunks(w.max(1)))
+                .for_each(|(out, row)| {
+                    for (o, p) in out.iter_mut().zip(row) {
+                        *o = p[0] as u32 | (p[1] as u32) << 8 | (p[2] as u32) << 16;
+                    }
+                });
+        }
     }
 
     /// Fuses a frame: `depth` in metres (0 where missing) seen by `camera` at `pose`
@@ -249,7 +273,7 @@ impl TsdfVolume {
         let touched = self.touched_blocks(depth, camera, pose, 4)?;
         let eye = pose.translation.vector.cast::<f32>();
         let (new_blocks, evicted_blocks) = self.allocate(&touched, Some(eye))?;
-        self.pixel_weights(depth, normals, camera);
+        self.pixel_samples(depth, normals, color, camera);
         let (w, h) = (depth.width, depth.height);
         let params = self.params;
         let mu = params.truncation();
@@ -262,12 +286,17 @@ impl TsdfVolume {
             camera.cx as f32,
             camera.cy as f32,
         );
+        let none = (w * h) as i32;
         let (w, h) = (w as i32, h as i32);
         let block_size = params.voxel_size * BLOCK as f32;
         let half_diag = block_size * 0.5 * 3f32.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
-        let frame = FrameView::new(depth, &self.pixel_weight, color, &params);
+        let frame = FrameView::new(
+            &self.samples,
+            color.map(|_| &self.sample_color[..]),
+            &params,
+        );
         self.blocks
             .par_iter_mut()
             .enumerate()
@@ -310,29 +339,30 @@ impl TsdfVolume {
                     rot.column(1) * params.voxel_size,
                     rot.column(2) * params.voxel_size,
                 );
+                // the x-steps of a row, eight lanes at once
+                let steps = f32x8::new(std::array::from_fn(|k| k as f32));
+                let row = [c0.x, c0.y, c0.z].map(|c| f32x8::splat(c) * steps);
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
                         let qyz = q0 + c1 * y as f32 + c2 * z as f32;
-                        // the row's 8 projections first, on plain arrays and branch-free so that
-                        // they vectorise; a voxel behind the camera or outside the image gets
-                        // pixel −1
-                        let mut pixels = [-1i32; BLOCK as usize];
-                        let mut depths = [0.0f32; BLOCK as usize];
-                        for k in 0..BLOCK as usize {
-                            let step = k as f32;
-                            let (qx, qy, qz) = (
-                                qyz.x + c0.x * step,
-                                qyz.y + c0.y * step,
-                                qyz.z + c0.z * step,
-                            );
-                            let iz = 1.0 / qz;
-                            let u = round_i32(fx * qx * iz + cx);
-                            let v = round_i32(fy * qy * iz + cy);
-                            let inside = (qz > 0.0) & (u >= 0) & (v >= 0) & (u < w) & (v < h);
-                            pixels[k] = if inside { v * w + u } else { -1 };
-                            depths[k] = qz;
-                        }
-                        any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &depths);
+                        let [qx, qy, qz] = std::array::from_fn(|i| f32x8::splat(qyz[i]) + row[i]);
+                        // a voxel behind the camera or outside the image gets the empty sample
+                        // past the last pixel
+                        let front = qz.simd_gt(f32x8::ZERO);
+                        let iz = f32x8::ONE / qz;
+                        let pixel = |f: f32, q: f32x8, c: f32| {
+                            let p = f32x8::splat(f) * q * iz + f32x8::splat(c + 0.5);
+                            // ⌊p + ½⌋, the nearest pixel; −1 behind the camera
+                            front.select(p, f32x8::splat(-1.0)).floor().trunc_int()
+                        };
+                        let (u, v) = (pixel(fx, qx, cx), pixel(fy, qy, cy));
+                        let inside = u.simd_ge(i32x8::ZERO)
+                            & v.simd_ge(i32x8::ZERO)
+                            & u.simd_lt(i32x8::splat(w))
+                            & v.simd_lt(i32x8::splat(h));
+                        let index = inside.select(v * i32x8::splat(w) + u, i32x8::splat(none));
+                        let pixels = index.to_array().map(|i| i as u32);
+                        any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &qz.to_array());
                     }
                 }
                 if any {
@@ -366,86 +396,93 @@ fn check_sizes(
     Ok(())
 }
 
-/// One frame as the voxel updates read it.
+/// One frame as the voxel updates read it: per pixel, and one empty sample past the last.
 struct FrameView<'a> {
-    depth: &'a DepthImage,
-    pixel_weight: &'a [f32],
-    color: Option<&'a ColorImage>,
+    samples: &'a [[f32; 2]],
+    color: Option<&'a [u32]>,
     mu: f32,
-    max_depth: f32,
     max_weight: f32,
 }
 
 impl<'a> FrameView<'a> {
-    fn new(
-        depth: &'a DepthImage,
-        pixel_weight: &'a [f32],
-        color: Option<&'a ColorImage>,
-        params: &TsdfParams,
-    ) -> Self {
+    fn new(samples: &'a [[f32; 2]], color: Option<&'a [u32]>, params: &TsdfParams) -> Self {
         Self {
-            depth,
-            pixel_weight,
+            samples,
             color,
             mu: params.truncation(),
-            max_depth: params.max_depth,
             max_weight: params.max_weight,
         }
     }
 
     /// Fuses the 8 voxels of a row of `blk` from local index `i0`, whose centres lie at `depths`
-    /// in the camera frame and project to `pixels` (−1: none): the projective signed distance
-    /// `D(u) − z`, truncated to μ (voxels more than μ behind the surface are left alone), enters a
-    /// running weighted average (eq. 3.23-3.25) with the pixel's weight, colour with it; the stored
-    /// weight is capped at W_max. Branch-free, so that it vectorises: a voxel not updated takes
-    /// weight 0, which leaves it as it was. Returns whether any voxel was updated.
+    /// in the camera frame and project to `pixels` (the index past the last pixel: none): the
+    /// projective signed distance `D(u) − z`, truncated to μ (voxels more than μ behind the surface
+    /// are left alone), enters a running weighted average (eq. 3.23-3.25) with the pixel's weight,
+    /// colour with it; the stored weight is capped at W_max. The eight voxels are the lanes of one
+    /// SIMD vector (`wide`'s `f32x8`; the compiler left the scalar loop scalar, the interleaved
+    /// distance and weight in the way): a voxel not updated takes weight 0, which leaves it as it
+    /// was. Returns whether any voxel was updated.
     #[inline(always)]
     fn fuse_row(
         &self,
         blk: &mut Block,
         i0: usize,
-        pixels: &[i32; BLOCK as usize],
+        pixels: &[u32; BLOCK as usize],
         depths: &[f32; BLOCK as usize],
     ) -> bool {
         const N: usize = BLOCK as usize;
-        let mut any = false;
-        // the new sample's share of each voxel's colour, in 1/256
-        let mut share = [0u32; N];
-        let voxels = &mut blk.voxels[i0..i0 + N];
+        // in phases: the samples gathered, the row's distances and weights read apart, updated as
+        // vectors, and written back
+        let last = self.samples.len() - 1;
+        let (mut d, mut pw) = ([0.0f32; N], [0.0f32; N]);
         for k in 0..N {
-            let pix = pixels[k].max(0) as usize;
-            let (d, pw) = (self.depth.data[pix], self.pixel_weight[pix]);
-            let sdf = d - depths[k];
-            let ok = (pixels[k] >= 0) & (d > 0.0) & (d <= self.max_depth) & (sdf >= -self.mu);
-            let weight = if ok { pw } else { 0.0 };
-            let vox = &mut voxels[k];
-            let w0 = vox.weight;
-            let sum = w0 + weight;
-            let b = if ok { weight / sum } else { 0.0 };
-            let tsdf = (sdf / self.mu).min(1.0);
-            vox.tsdf = if ok {
-                vox.tsdf + (tsdf - vox.tsdf) * b
-            } else {
-                vox.tsdf
-            };
-            // a stored weight never exceeds W_max, so a voxel not updated (weight 0) keeps its own
-            vox.weight = sum.min(self.max_weight);
-            // b is in [0, 1]: the product is in [0, 256]
-            share[k] = (b * 256.0 + 0.5) as u32;
-            any |= ok;
+            [d[k], pw[k]] = self.samples[(pixels[k] as usize).min(last)];
+        }
+        let voxels = &mut blk.voxels[i0..i0 + N];
+        let (mut t, mut w) = ([0.0f32; N], [0.0f32; N]);
+        for k in 0..N {
+            (t[k], w[k]) = (voxels[k].tsdf, voxels[k].weight);
+        }
+        // the new sample's share of each voxel's value, and whether it enters at all
+        let zero = f32x8::ZERO;
+        let (d, pw, z) = (f32x8::new(d), f32x8::new(pw), f32x8::new(*depths));
+        let (t_old, w_old) = (f32x8::new(t), f32x8::new(w));
+        let sdf = d - z;
+        let ok = pw.simd_gt(zero) & sdf.simd_ge(f32x8::splat(-self.mu));
+        let weight = ok.select(pw, zero);
+        let sum = w_old + weight;
+        let b = ok.select(weight / sum, zero);
+        let t_new = t_old + ((sdf * f32x8::splat(1.0 / self.mu)).min(f32x8::ONE) - t_old) * b;
+        // a stored weight never exceeds W_max, so a voxel not updated (weight 0) keeps its own
+        let w_new = sum.min(f32x8::splat(self.max_weight));
+        let (t, w) = (t_new.to_array(), w_new.to_array());
+        // b is in [0, 1]: the share is in [0, 256]
+        let share = (b * f32x8::splat(256.0) + f32x8::splat(0.5)).trunc_int();
+        for k in 0..N {
+            voxels[k].tsdf = t[k];
+            voxels[k].weight = w[k];
         }
         if let Some(c) = self.color {
+            // per channel (old (256 − s) + new s + 128) / 256: within [0, 255], and old where s = 0
             let colors = &mut blk.color[i0..i0 + N];
-            for k in 0..N {
-                let col = c.data[pixels[k].max(0) as usize];
-                let (s, old) = (share[k], &mut colors[k]);
-                for j in 0..3 {
-                    // (old (256 − s) + new s + 128) / 256: within [0, 255], and old where s = 0
-                    old[j] = ((old[j] as u32 * (256 - s) + col[j] as u32 * s + 128) >> 8) as u8;
-                }
+            let last = c.len() - 1;
+            let new = i32x8::new(std::array::from_fn(|k| {
+                c[(pixels[k] as usize).min(last)] as i32
+            }));
+            let old = i32x8::new(std::array::from_fn(|k| {
+                u32::from_le_bytes(colors[k]) as i32
+            }));
+            let (keep, byte) = (i32x8::splat(256) - share, i32x8::splat(0xff));
+            let mut blend = i32x8::ZERO;
+            for shift in [0, 8, 16] {
+                let (o, n) = ((old >> shift) & byte, (new >> shift) & byte);
+                blend |= ((o * keep + n * share + i32x8::splat(128)) >> 8) << shift;
+            }
+            for (out, v) in colors.iter_mut().zip(blend.to_array()) {
+                *out = (v as u32).to_le_bytes();
             }
         }
-        any
+        ok.any()
     }
 }
 
@@ -501,13 +538,18 @@ impl TsdfVolume {
         let touched = self.blocks_near(band);
         // no viewpoint in the canonical frame to evict by: a full budget is an error here
         let (new_blocks, evicted_blocks) = self.allocate(&touched, None)?;
-        self.pixel_weights(depth, normals, camera);
+        self.pixel_samples(depth, normals, color, camera);
         let params = self.params;
+        let none = (depth.width * depth.height) as u32;
         let voxel = params.voxel_size as f64;
         let half_diag = 0.5 * voxel * BLOCK as f64 * 3f64.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
-        let frame = FrameView::new(depth, &self.pixel_weight, color, &params);
+        let frame = FrameView::new(
+            &self.samples,
+            color.map(|_| &self.sample_color[..]),
+            &params,
+        );
         self.blocks.par_iter_mut().enumerate().for_each_init(
             W::Scratch::default,
             |scratch, (bi, blk)| {
@@ -526,9 +568,9 @@ impl TsdfVolume {
                 let mut any = false;
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
-                        // the row's voxels carried into the live frame and projected (pixel −1:
-                        // not warped or not in the image)
-                        let mut pixels = [-1i32; BLOCK as usize];
+                        // the row's voxels carried into the live frame and projected (the empty
+                        // sample past the last pixel: not warped or not in the image)
+                        let mut pixels = [none; BLOCK as usize];
                         let mut depths = [0.0f32; BLOCK as usize];
                         for x in 0..BLOCK {
                             let p = base + Vector3::new(x as f64, y as f64, z as f64) * voxel;
@@ -538,7 +580,7 @@ impl TsdfVolume {
                             let Some((u, v)) = camera.project_to_pixel(&q.into()) else {
                                 continue;
                             };
-                            pixels[x as usize] = (v * depth.width + u) as i32;
+                            pixels[x as usize] = (v * depth.width + u) as u32;
                             depths[x as usize] = q.z as f32;
                         }
                         any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &depths);

@@ -52,7 +52,7 @@ impl TsdfVolume {
         let i = local_index(l[0], l[1], l[2]);
         (blk.voxels[i].weight > 0.0).then(|| Corner {
             tsdf: blk.voxels[i].tsdf,
-            color: blk.color[i],
+            color: [blk.color[i][0], blk.color[i][1], blk.color[i][2]],
         })
     }
 

@@ -78,8 +78,9 @@ pub struct Block {
     pub coord: [i32; 3],
     /// Distance and weight per voxel, interleaved so that reading a voxel touches one cache line.
     pub voxels: Box<[Voxel; BLOCK_VOXELS]>,
-    /// Fused colour per voxel (apart: only surface hits and meshes read it).
-    pub color: Box<[[u8; 3]; BLOCK_VOXELS]>,
+    /// Fused colour per voxel, RGB and a padding byte (apart: only surface hits and meshes read
+    /// it; one 32-bit word a voxel, so that fusion blends a row of eight at once).
+    pub color: Box<[[u8; 4]; BLOCK_VOXELS]>,
 }
 
 impl Block {
@@ -90,7 +91,7 @@ impl Block {
             tsdf: 1.0,
             weight: 0.0,
         });
-        self.color.fill([0; 3]);
+        self.color.fill([0; 4]);
     }
 
     fn new(coord: [i32; 3]) -> Self {
@@ -102,7 +103,7 @@ impl Block {
                     weight: 0.0,
                 }; BLOCK_VOXELS],
             ),
-            color: Box::new([[0; 3]; BLOCK_VOXELS]),
+            color: Box::new([[0; 4]; BLOCK_VOXELS]),
         }
     }
 }
@@ -199,8 +200,11 @@ pub struct TsdfVolume {
     pub(crate) index: FxHashMap<[i32; 3], u32>,
     /// Scratch: blocks the current frame updates.
     pub(crate) active: Vec<bool>,
-    /// Scratch: the current frame's per-pixel fusion weight.
-    pub(crate) pixel_weight: Vec<f32>,
+    /// Scratch: the current frame's per-pixel depth and fusion weight, and one empty sample past
+    /// the last pixel.
+    pub(crate) samples: Vec<[f32; 2]>,
+    /// Scratch: the current frame's per-pixel colour, packed `r | g << 8 | b << 16`.
+    pub(crate) sample_color: Vec<u32>,
     /// Storage of evicted blocks, reused by later allocations.
     pub(crate) spare: Vec<Block>,
     /// Blocks evicted so far.
@@ -263,7 +267,8 @@ impl TsdfVolume {
             blocks: Vec::new(),
             index: FxHashMap::default(),
             active: Vec::new(),
-            pixel_weight: Vec::new(),
+            samples: Vec::new(),
+            sample_color: Vec::new(),
             spare: Vec::new(),
             evicted: 0,
         }
