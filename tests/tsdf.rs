@@ -215,9 +215,10 @@ fn memory_follows_the_surface_area() {
             .collect();
         let vol = fuse(&s, &poses);
         counts.push(vol.num_blocks() as f64);
+        // per voxel: distance and weight (4 + 4 bytes), colour (RGB and a pad byte)
         assert_eq!(
             vol.memory_bytes(),
-            vol.num_blocks() * (512 * 11 + std::mem::size_of::<dynamap::slam::tsdf::Block>())
+            vol.num_blocks() * (512 * 12 + std::mem::size_of::<dynamap::slam::tsdf::Block>())
         );
     }
     let ratio = counts[1] / counts[0];

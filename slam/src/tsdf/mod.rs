@@ -282,7 +282,8 @@ impl TsdfVolume {
     /// Bytes held by voxel data (allocated blocks and the spare storage of evicted ones).
     pub fn memory_bytes(&self) -> usize {
         (self.blocks.len() + self.spare.len())
-            * (BLOCK_VOXELS * (4 + 4 + 3) + std::mem::size_of::<Block>())
+            * (BLOCK_VOXELS * (std::mem::size_of::<Voxel>() + std::mem::size_of::<[u8; 4]>())
+                + std::mem::size_of::<Block>())
     }
 
     /// Blocks evicted so far to stay within the budget.
