@@ -6,7 +6,8 @@
 //! cargo run --release --example tsdf_bench [-- --frames 300 --threads 2]
 //! ```
 //! The map is first built from 30 frames; then each timed call fuses (or raycasts) the next frame
-//! of the orbit, so the work is that of a steady run. Prints medians and one JSON line last.
+//! of a 40-view orbit, cycled, so the work is that of a steady run. Prints medians and one JSON
+//! line last.
 
 #[path = "common/bench.rs"]
 mod bench;

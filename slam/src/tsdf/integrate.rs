@@ -360,6 +360,8 @@ impl TsdfVolume {
                             & v.simd_ge(i32x8::ZERO)
                             & u.simd_lt(i32x8::splat(w))
                             & v.simd_lt(i32x8::splat(h));
+                        // lanes outside are zeroed before the product, which then cannot overflow
+                        let (u, v) = (inside.select(u, i32x8::ZERO), inside.select(v, i32x8::ZERO));
                         let index = inside.select(v * i32x8::splat(w) + u, i32x8::splat(none));
                         let pixels = index.to_array().map(|i| i as u32);
                         any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &qz.to_array());
@@ -419,8 +421,8 @@ impl<'a> FrameView<'a> {
     /// projective signed distance `D(u) − z`, truncated to μ (voxels more than μ behind the surface
     /// are left alone), enters a running weighted average (eq. 3.23-3.25) with the pixel's weight,
     /// colour with it; the stored weight is capped at W_max. The eight voxels are the lanes of one
-    /// SIMD vector (`wide`'s `f32x8`; the compiler left the scalar loop scalar, the interleaved
-    /// distance and weight in the way): a voxel not updated takes weight 0, which leaves it as it
+    /// SIMD vector (`wide`'s `f32x8`: the compiler did not vectorise the plain loop over the
+    /// interleaved distance and weight). A voxel not updated takes weight 0, which leaves it as it
     /// was. Returns whether any voxel was updated.
     #[inline(always)]
     fn fuse_row(
