@@ -44,12 +44,17 @@ fn main() -> ExitCode {
     cli::run(run)
 }
 
-/// A rendered, noisy frame: its filtered depth, normals and colour.
+/// A rendered, noisy frame: its filtered depth, normals and colour, and the depth of the pyramid
+/// level the model is raycast at (the raycast's hint).
 struct Frame {
     depth: Image<f32>,
     normals: Image<[f32; 3]>,
     color: Image<[u8; 3]>,
+    hint: Image<f32>,
 }
+
+/// The pyramid level the model is raycast at: 160×120 for a 640×480 sensor.
+const RAYCAST_LEVEL: usize = 2;
 
 fn run(args: Args, session: &Session) -> Result<()> {
     args.timing.setup()?;
@@ -72,11 +77,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 &mut r.color,
                 cam.depth_scale,
             );
-            let level = &pre.process(&raw, Some(&r.color))[0];
+            let levels = pre.process(&raw, Some(&r.color));
             Frame {
-                depth: level.depth.clone(),
-                normals: level.normals.clone(),
+                depth: levels[0].depth.clone(),
+                normals: levels[0].normals.clone(),
                 color: r.color,
+                hint: levels[RAYCAST_LEVEL].depth.clone(),
             }
         })
         .collect();
@@ -101,16 +107,16 @@ fn run(args: Args, session: &Session) -> Result<()> {
         updated += fuse(30 + k, &mut volume)?;
         integrate.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    let level = 2;
     let mut maps = RaycastMaps::new();
     let mut raycast = Vec::new();
     for k in 0..args.timing.frames {
-        let pose = &trajectory.poses[k % views];
-        let hint = pre.process_metres(&frames[k % views].depth, None)[level]
-            .depth
-            .clone();
         let t = Instant::now();
-        volume.raycast_with_hint(&cam.level(level), pose, Some(&hint), &mut maps);
+        volume.raycast_with_hint(
+            &cam.level(RAYCAST_LEVEL),
+            &trajectory.poses[k % views],
+            Some(&frames[k % views].hint),
+            &mut maps,
+        );
         raycast.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let updated = updated as f64 / args.timing.frames as f64;

@@ -366,6 +366,7 @@ impl TsdfVolume {
             ];
             cache.get(self, c)
         };
+        let w = Self::corner_weights(&f);
         let mut v = [0.0f32; 8];
         let mut color = [0.0f32; 3];
         for (c, value) in v.iter_mut().enumerate() {
@@ -388,11 +389,8 @@ impl TsdfVolume {
                 return None;
             }
             *value = vox.tsdf;
-            let w = (if dx == 1 { f.x } else { 1.0 - f.x })
-                * (if dy == 1 { f.y } else { 1.0 - f.y })
-                * (if dz == 1 { f.z } else { 1.0 - f.z });
-            for (c, v) in color.iter_mut().zip(blk.color[i]) {
-                *c += w * v as f32;
+            for (k, v) in color.iter_mut().zip(blk.color[i]) {
+                *k += w[c] * v as f32;
             }
         }
         let (value, grad) = Self::interpolate(&v, &f);
@@ -413,18 +411,7 @@ impl TsdfVolume {
             return None;
         }
         let v = corners.map(|c| c.tsdf);
-        let (gx, gy) = (1.0 - f.x, 1.0 - f.y);
-        let gz = 1.0 - f.z;
-        let w = [
-            gx * gy * gz,
-            f.x * gy * gz,
-            gx * f.y * gz,
-            f.x * f.y * gz,
-            gx * gy * f.z,
-            f.x * gy * f.z,
-            gx * f.y * f.z,
-            f.x * f.y * f.z,
-        ];
+        let w = Self::corner_weights(f);
         let mut color = [0.0f32; 3];
         for (d, wc) in STEP.iter().zip(w) {
             let c = blk.color[i0 + d];
@@ -434,6 +421,23 @@ impl TsdfVolume {
         }
         let (value, grad) = Self::interpolate(&v, f);
         Some((value, grad, color))
+    }
+
+    /// The trilinear weight of each corner `dx + 2 dy + 4 dz` of a cell at fractional position
+    /// `f`: the product over the axes of `f` (corner on the upper side) or `1 − f`.
+    #[inline(always)]
+    fn corner_weights(f: &Vector3<f32>) -> [f32; 8] {
+        let (gx, gy, gz) = (1.0 - f.x, 1.0 - f.y, 1.0 - f.z);
+        [
+            gx * gy * gz,
+            f.x * gy * gz,
+            gx * f.y * gz,
+            f.x * f.y * gz,
+            gx * gy * f.z,
+            f.x * gy * f.z,
+            gx * f.y * f.z,
+            f.x * f.y * f.z,
+        ]
     }
 
     /// The trilinear value and gradient (per voxel) of corner values `v[dx + 2 dy + 4 dz]` at
