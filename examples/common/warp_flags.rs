@@ -36,11 +36,14 @@ pub struct WarpFlags {
     /// Weight of the prior holding each node at its motion after the rigid pre-alignment.
     #[arg(long)]
     pub stay_weight: Option<f64>,
+    /// Levenberg-Marquardt's initial damping, as a fraction of H's largest diagonal element.
+    #[arg(long)]
+    pub damping: Option<f64>,
 }
 
 impl WarpFlags {
     /// The flags' argument ids with the values `graph` and `register` give them, as text.
-    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 10] {
+    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 11] {
         let schedule: Vec<String> = register.schedule.iter().map(|w| w.to_string()).collect();
         [
             ("spacing", graph.spacing.to_string()),
@@ -53,6 +56,7 @@ impl WarpFlags {
             ("tukey", register.tukey.to_string()),
             ("point_weight", register.point_weight.to_string()),
             ("stay_weight", register.stay_weight.to_string()),
+            ("damping", register.damping.to_string()),
         ]
     }
 
@@ -113,6 +117,10 @@ impl WarpFlags {
         set(&self.tukey, &mut register.tukey);
         set(&self.point_weight, &mut register.point_weight);
         set(&self.stay_weight, &mut register.stay_weight);
+        set(&self.damping, &mut register.damping);
+        if !(register.damping > 0.0 && register.damping.is_finite()) {
+            anyhow::bail!("--damping must be a positive number");
+        }
         if !(graph.spacing > 0.0 && graph.spacing.is_finite()) {
             anyhow::bail!("--spacing must be a positive length");
         }

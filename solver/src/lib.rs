@@ -20,6 +20,8 @@
 //!   or sparse Cholesky, or by conjugate gradients with implicit products.
 //! - [`Problem::set_bounds`]: box constraints on Euclidean variables, honoured at every iterate.
 //! - [`covariance()`]: marginal covariances, blocks of H⁻¹ at the solution.
+//! - [`BlockSystem`]: block-sparse normal equations the caller assembles itself (terms that share
+//!   work the residual interface cannot see), solved by the sparse path's Cholesky.
 //! - [`dense`]: the dense path for one variable with many scalar terms (trackers), reduced
 //!   straight into 6×6 normal equations.
 //! - [`lie`]: SO(2), SE(2), SO(3), SE(3) exponentials, logarithms, adjoints and Jacobians.
@@ -92,12 +94,13 @@ mod real;
 mod residual;
 pub mod robust;
 mod schur;
+mod system;
 
 pub use autodiff::{AutoDiff, CostFunctor};
 pub use covariance::covariance;
 pub use error::{ProblemError, SolveError};
 pub use jet::Jet;
-pub use linear::LinearSolverKind;
+pub use linear::{Damping, LinearSolverKind};
 pub use manifold::{Euclidean, EuclideanDyn, Manifold, UnitQuaternionManifold, SE2, SE3, SO2, SO3};
 pub use minimizer::{
     Algorithm, DampingKind, Elimination, IterationSummary, Observer, Options, Solver, Summary,
@@ -108,6 +111,7 @@ pub use problem::{Problem, ResidualId, VarId};
 pub use real::Real;
 pub use residual::{Jacobians, Residual, Var};
 pub use robust::RobustKernel;
+pub use system::BlockSystem;
 
 #[doc = include_str!("../../docs/solver_guide.md")]
 pub mod guide {

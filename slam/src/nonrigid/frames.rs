@@ -67,6 +67,7 @@ impl Default for FrameSettings {
                 tukey: 0.08,
                 point_weight: 0.1,
                 stay_weight: 0.01,
+                damping: 1e-4,
             },
             features: Some(FeatureParams::default()),
             data_stride: 2,

@@ -39,8 +39,9 @@ pub struct FusionParams {
     pub tsdf: TsdfParams,
     /// The deformation graph (default spacing 5 cm).
     pub graph: GraphParams,
-    /// The per-frame optimisation (default: a 10-iteration rigid start, then λ = 100 for two rounds
-    /// of three iterations, 5 cm / 30° gates, Tukey c = 2 cm, point weight 0.1, stay weight 0.01).
+    /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 100 for one round
+    /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 2 cm, point weight
+    /// 0.1, stay weight 0.01).
     pub register: RegisterParams,
     /// The pyramid level whose depth the data term associates with (default 1: 320 × 240 from
     /// 640 × 480).
@@ -71,16 +72,17 @@ impl Default for FusionParams {
                 ..GraphParams::default()
             },
             register: RegisterParams {
-                rigid_iterations: 10,
+                rigid_iterations: 3,
                 rigid_max_distance: 0.1,
                 schedule: vec![100.0],
-                rounds: 2,
-                iterations: 3,
+                rounds: 1,
+                iterations: 2,
                 max_distance: 0.05,
                 max_normal_angle_deg: 30.0,
                 tukey: 0.02,
                 point_weight: 0.1,
                 stay_weight: 0.01,
+                damping: 1e-6,
             },
             data_level: 1,
             data_spacing: 0.01,

@@ -4,7 +4,8 @@
 //!   binding through a KD-tree, dual-quaternion blending of points and normals, growth where new
 //!   surface appears.
 //! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
-//!   as-rigid-as-possible regularisation under a decreasing weight, on the solver's sparse path.
+//!   as-rigid-as-possible regularisation under a decreasing weight, solved on the solver's
+//!   block-sparse Cholesky from normal equations assembled in the blend's coordinates (`system`).
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
 //!   field tracked frame to frame against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds).
@@ -16,6 +17,7 @@ pub mod fusion;
 pub mod graph;
 pub mod register;
 pub mod surface;
+mod system;
 
 pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, RgbdFrame};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};

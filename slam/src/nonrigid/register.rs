@@ -8,36 +8,31 @@
 //! (eq. 4.4-4.7), with correspondences (q, n) re-found between rounds (closest point or projective)
 //! and rejected by distance and normal angle. Coarse to fine: a rigid point-to-plane pre-alignment
 //! (the solver's dense 6-DoF path), then stages of decreasing λ, each a few association rounds of
-//! Levenberg-Marquardt through the solver's sparse path: 6×6 node blocks, faer's Cholesky, and one
-//! symbolic factorisation for as long as the graph and the bound points stay the same (rounds,
-//! stages and further calls: the residuals are replaced in place, the structure never changes).
+//! Levenberg-Marquardt on the solver's block-sparse Cholesky ([`dynamap_solver::BlockSystem`]):
+//! 6×6 node blocks assembled in the blend's coordinates (module `system`), and one symbolic
+//! factorisation for as long as the graph stays the same and the points' node pairs fit its
+//! structure (rounds, stages, and further calls and frames).
 
 use super::graph::{Binding, DeformationGraph};
+use super::system::{RoundTimes, WarpSystem, WarpTerms};
 use crate::camera::Camera;
 use crate::image::{valid, NormalMap, VertexMap};
 use dynamap_residuals::deform::{
-    as_rigid_as_possible, dual_quaternion, rigid_motion, AsRigidAsPossible, WarpedPointToPlane,
-    WarpedPointToPoint, MAX_NEIGHBOURS,
+    as_rigid_as_possible, dual_quaternion, rigid_motion, MAX_NEIGHBOURS,
 };
 use dynamap_residuals::icp::{point_to_plane, RigidMotion};
-use dynamap_residuals::pose_graph::Prior3;
 use dynamap_solver::dense::{self, DenseOptions, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::{Huber, Tukey};
-use dynamap_solver::{
-    Options, Problem, ProblemError, ResidualId, RobustKernel, SolveError, Solver, VarId, SE3,
-};
+use dynamap_solver::{RobustKernel, SolveError, SE3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use std::time::Instant;
 
 /// Why an optimisation failed.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum RegisterError {
-    /// The problem could not be built (a node motion that is not a rigid motion, say).
-    #[error("warp-field problem: {0}")]
-    Problem(#[from] ProblemError),
     /// The solver refused it.
     #[error("warp-field solve: {0}")]
     Solve(#[from] SolveError),
@@ -148,6 +143,10 @@ pub struct RegisterParams {
     /// `√w Log(A₀⁻¹ A)` (default 0: none). Tracking uses it: surface that slides along itself
     /// leaves no trace in depth, so without it such motions are free.
     pub stay_weight: f64,
+    /// Levenberg-Marquardt's initial damping τ: each round starts from μ = τ max diag H (default
+    /// 1e-4, the solver's). Tracking from the last frame's field starts near the optimum, where a
+    /// small τ lets the first steps go most of the way.
+    pub damping: f64,
 }
 
 impl Default for RegisterParams {
@@ -163,6 +162,7 @@ impl Default for RegisterParams {
             tukey: 0.05,
             point_weight: 0.1,
             stay_weight: 0.0,
+            damping: 1e-4,
         }
     }
 }
@@ -191,11 +191,11 @@ pub struct RegisterTimes {
     pub prealign: f64,
     /// Warping the points and finding their partners.
     pub associate: f64,
-    /// Writing correspondences and weights into the problem (and building it when new).
+    /// Readying the system's structure and the terms' weights, and copying motions back.
     pub update: f64,
-    /// Evaluating residuals and Jacobians and assembling the normal equations.
+    /// Assembling the normal equations (residuals, Jacobians, H and g) and trial costs.
     pub evaluate: f64,
-    /// The rest of the solver: factorising and solving, trial costs, bookkeeping.
+    /// Factorising and solving the damped normal equations.
     pub linear: f64,
 }
 
@@ -210,28 +210,15 @@ impl RegisterTimes {
     }
 }
 
-/// The problem kept between calls: node variables, one data block (and one point block) per
-/// bound point, one regulariser block per directed edge.
-struct Cached {
-    problem: Problem,
-    nodes: Vec<VarId>,
-    planes: Vec<ResidualId>,
-    points: Vec<ResidualId>,
-    edges: Vec<(u32, u32, ResidualId)>,
-    /// One prior per node (empty without a stay weight).
-    priors: Vec<ResidualId>,
-    bindings: Vec<Binding>,
-    graph_edges: Vec<Vec<u32>>,
-    /// Tukey's c, the point-to-point weight and the stay weight the blocks were made with.
-    kernels: (f64, f64, f64),
-}
-
-/// The warp-field optimiser; keeps its problem and symbolic factorisation between calls.
+/// The warp-field optimiser; keeps its system, structure and symbolic factorisation between calls.
 pub struct WarpOptimiser {
     /// Settings.
     pub params: RegisterParams,
-    solver: Solver,
-    cached: Option<Cached>,
+    system: WarpSystem,
+    /// Directed regulariser edges (i, j, g_j, λ φ_ij) of the current stage.
+    edges: Vec<(u32, u32, Vector3<f64>, f64)>,
+    /// `A₀⁻¹` of every node's motion after the pre-alignment (the stay priors).
+    anchors: Vec<Isometry3<f64>>,
     rigid_ws: DenseWorkspace<6>,
     warped: Vec<Vector3<f64>>,
     warped_normals: Vec<Vector3<f64>>,
@@ -241,14 +228,11 @@ pub struct WarpOptimiser {
 impl WarpOptimiser {
     /// An optimiser with these settings.
     pub fn new(params: RegisterParams) -> Self {
-        let options = Options {
-            check_rank: false,
-            ..Options::default()
-        };
         Self {
             params,
-            solver: Solver::new(options),
-            cached: None,
+            system: WarpSystem::default(),
+            edges: Vec::new(),
+            anchors: Vec::new(),
             rigid_ws: DenseWorkspace::default(),
             warped: Vec::new(),
             warped_normals: Vec::new(),
@@ -302,7 +286,6 @@ impl WarpOptimiser {
                 nodes,
             });
         }
-        self.solver.options.max_iterations = self.params.iterations;
         let mut times = RegisterTimes::default();
         let mut clock = Instant::now();
         let mut lap = |t: &mut f64| {
@@ -312,27 +295,46 @@ impl WarpOptimiser {
         };
         self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
-        self.prepare(graph, points, bindings)?;
+        self.system.prepare(graph, bindings)?;
+        self.system
+            .set_motions(graph.nodes.iter().map(|n| rigid_motion(&n.motion)));
+        self.anchors.clear();
+        if self.params.stay_weight > 0.0 {
+            self.anchors
+                .extend(self.system.motions().iter().map(|m| m.inverse()));
+        }
         let mut iterations = 0;
         let mut lambda = 0.0;
         for stage in 0..self.params.schedule.len() {
             lambda = self.params.schedule[stage];
-            self.set_regulariser(graph, lambda)?;
+            self.set_regulariser(graph, lambda);
             for _ in 0..self.params.rounds {
                 lap(&mut times.update);
                 self.associate(graph, points, normals, bindings, target);
                 lap(&mut times.associate);
-                self.set_data(points, bindings)?;
-                lap(&mut times.update);
-                let cached = self.cached.as_mut().expect("prepared above");
-                let summary = self.solver.solve(&mut cached.problem)?;
+                let terms = WarpTerms {
+                    points,
+                    bindings,
+                    matches: &self.matches,
+                    tukey: self.params.tukey,
+                    point_weight: self.params.point_weight,
+                    edges: &self.edges,
+                    anchors: &self.anchors,
+                    stay_weight: self.params.stay_weight,
+                };
+                let mut round = RoundTimes::default();
+                iterations += self.system.minimise(
+                    &terms,
+                    self.params.iterations,
+                    self.params.damping,
+                    &mut round,
+                )?;
                 lap(&mut times.linear);
-                let evaluate: f64 = summary.iterations.iter().map(|i| i.evaluate_seconds).sum();
-                times.evaluate += evaluate;
-                times.linear -= evaluate;
-                iterations += summary.num_iterations();
-                for (node, var) in graph.nodes.iter_mut().zip(&cached.nodes) {
-                    node.motion = dual_quaternion(&se3::from_slice(cached.problem.value(*var)));
+                // the round's wall time went to `linear`; its assembly belongs to `evaluate`
+                times.evaluate += round.evaluate;
+                times.linear -= round.evaluate;
+                for (node, m) in graph.nodes.iter_mut().zip(self.system.motions()) {
+                    node.motion = dual_quaternion(m);
                 }
             }
         }
@@ -486,105 +488,17 @@ impl WarpOptimiser {
         }
     }
 
-    /// Builds the problem for this graph and these bindings, or keeps the last one when they are
-    /// the same (so the solver keeps its symbolic factorisation).
-    fn prepare(
-        &mut self,
-        graph: &DeformationGraph,
-        points: &[Vector3<f64>],
-        bindings: &[Binding],
-    ) -> Result<(), RegisterError> {
-        let same = self.cached.as_ref().is_some_and(|c| {
-            c.nodes.len() == graph.nodes.len()
-                && c.bindings == bindings
-                && c.graph_edges == graph.edges
-                && c.kernels
-                    == (
-                        self.params.tukey,
-                        self.params.point_weight,
-                        self.params.stay_weight,
-                    )
-        });
-        if !same {
-            self.cached = Some(build(graph, points, bindings, &self.params)?);
-        }
-        let cached = self.cached.as_mut().expect("built above");
-        let mut x = [0.0; 7];
-        for (node, var) in graph.nodes.iter().zip(&cached.nodes) {
-            se3::to_slice(&rigid_motion(&node.motion), &mut x);
-            cached.problem.set_value(*var, &x)?;
-        }
-        for (node, &id) in graph.nodes.iter().zip(&cached.priors) {
-            let prior = stay_prior(node, self.params.stay_weight);
-            cached.problem.replace_residual(id, Box::new(prior))?;
-        }
-        Ok(())
-    }
-
-    /// Sets the regulariser weight λ on every edge block.
-    fn set_regulariser(
-        &mut self,
-        graph: &DeformationGraph,
-        lambda: f64,
-    ) -> Result<(), RegisterError> {
-        let cached = self.cached.as_mut().expect("prepared");
-        for &(i, j, id) in &cached.edges {
-            cached.problem.replace_residual(
-                id,
-                Box::new(AsRigidAsPossible {
-                    position: graph.nodes[j as usize].position,
-                    scale: (lambda * edge_weight(graph, i, j)).sqrt(),
-                }),
-            )?;
-        }
-        Ok(())
-    }
-
-    /// Writes the current correspondences into the data blocks (scale 0 where a point has none).
-    fn set_data(
-        &mut self,
-        points: &[Vector3<f64>],
-        bindings: &[Binding],
-    ) -> Result<(), RegisterError> {
-        let cached = self.cached.as_mut().expect("prepared");
-        let point_scale = self.params.point_weight.sqrt();
-        for (k, m) in self.matches.iter().enumerate() {
-            let (target, normal, on) = match m {
-                Some((q, n)) => (*q, *n, 1.0),
-                None => (points[k], Vector3::z(), 0.0),
-            };
-            cached.problem.replace_residual(
-                cached.planes[k],
-                Box::new(WarpedPointToPlane {
-                    point: points[k],
-                    weights: bindings[k].weights,
-                    target,
-                    normal,
-                    scale: on,
-                }),
-            )?;
-            if let Some(&id) = cached.points.get(k) {
-                cached.problem.replace_residual(
-                    id,
-                    Box::new(WarpedPointToPoint {
-                        point: points[k],
-                        weights: bindings[k].weights,
-                        target,
-                        scale: on * point_scale,
-                    }),
-                )?;
+    /// The regulariser edges of a stage: every directed edge (i, j) with weight λ φ_ij.
+    fn set_regulariser(&mut self, graph: &DeformationGraph, lambda: f64) {
+        self.edges.clear();
+        for (i, js) in graph.edges.iter().enumerate() {
+            for &j in js {
+                let weight = lambda * edge_weight(graph, i as u32, j);
+                self.edges
+                    .push((i as u32, j, graph.nodes[j as usize].position, weight));
             }
         }
-        Ok(())
     }
-}
-
-/// The prior `√w Log(A₀⁻¹ A)` holding a node at its present motion A₀.
-fn stay_prior(node: &super::graph::Node, weight: f64) -> Prior3 {
-    Prior3::new(
-        rigid_motion(&node.motion),
-        Matrix6::identity() * weight.sqrt(),
-    )
 }
 
 /// φ_ij of eq. 4.7: `exp(−|g_i − g_j|² / (2 max(r_i, r_j)²))`, nearer neighbours held more rigidly.
@@ -613,81 +527,6 @@ pub fn regulariser_cost(graph: &DeformationGraph, lambda: f64) -> f64 {
         }
     }
     cost
-}
-
-/// A fresh problem: node variables and placeholder blocks, the structure that stays fixed.
-fn build(
-    graph: &DeformationGraph,
-    points: &[Vector3<f64>],
-    bindings: &[Binding],
-    params: &RegisterParams,
-) -> Result<Cached, RegisterError> {
-    let with_points = params.point_weight > 0.0;
-    let mut problem = Problem::new();
-    let mut x = [0.0; 7];
-    let mut nodes = Vec::with_capacity(graph.nodes.len());
-    for node in &graph.nodes {
-        se3::to_slice(&rigid_motion(&node.motion), &mut x);
-        nodes.push(problem.add_variable(&x, SE3)?);
-    }
-    let mut planes = Vec::with_capacity(points.len());
-    let mut point_ids = Vec::new();
-    let mut vars = Vec::with_capacity(MAX_NEIGHBOURS);
-    for (p, b) in points.iter().zip(bindings) {
-        vars.clear();
-        vars.extend(b.nodes[..b.count].iter().map(|&k| nodes[k as usize]));
-        let plane = WarpedPointToPlane {
-            point: *p,
-            weights: b.weights,
-            target: *p,
-            normal: Vector3::z(),
-            scale: 0.0,
-        };
-        planes.push(problem.add_robust_residual(plane, Tukey(params.tukey), &vars)?);
-        if with_points {
-            let point = WarpedPointToPoint {
-                point: *p,
-                weights: b.weights,
-                target: *p,
-                scale: 0.0,
-            };
-            // scaled by √w, so the kernel's c is too: both terms give up at the same distance
-            let c = params.tukey * params.point_weight.sqrt();
-            point_ids.push(problem.add_robust_residual(point, Tukey(c), &vars)?);
-        }
-    }
-    let mut edges = Vec::new();
-    for (i, js) in graph.edges.iter().enumerate() {
-        for &j in js {
-            let r = AsRigidAsPossible {
-                position: graph.nodes[j as usize].position,
-                scale: 0.0,
-            };
-            edges.push((
-                i as u32,
-                j,
-                problem.add_residual(r, &[nodes[i], nodes[j as usize]])?,
-            ));
-        }
-    }
-    let mut priors = Vec::new();
-    if params.stay_weight > 0.0 {
-        for (node, &var) in graph.nodes.iter().zip(&nodes) {
-            let prior = stay_prior(node, params.stay_weight);
-            priors.push(problem.add_residual(prior, &[var])?);
-        }
-    }
-    Ok(Cached {
-        problem,
-        nodes,
-        planes,
-        points: point_ids,
-        edges,
-        bindings: bindings.to_vec(),
-        graph_edges: graph.edges.clone(),
-        priors,
-        kernels: (params.tukey, params.point_weight, params.stay_weight),
-    })
 }
 
 /// Starting motions for registering one whole shape onto another: the identity, and the four

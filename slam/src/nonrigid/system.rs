@@ -1,0 +1,786 @@
+//! The warp field's normal equations, assembled in the blend's eight coordinates, and the
+//! Levenberg-Marquardt loop that solves them on the solver's block-sparse Cholesky
+//! ([`BlockSystem`]).
+//!
+//! The data terms of a point bound to nodes k (thesis eq. 4.4, and the point-to-point term beside
+//! it) have Jacobian blocks `J_k = s_k w_k G P_k`: G = ∂r/∂b is the residual's derivative by the
+//! blended dual quaternion b (its 8 coordinates), `s_k w_k` the node's signed blend weight, and
+//! `P_k = ∂(q_k ⊗ e(δ))/∂δ` (8 × 6) depends on node k alone ([`right_perturbation`]). So
+//!
+//! ```text
+//! H_kl = Σ_points J_kᵀ J_l = P_kᵀ (Σ_points s_k w_k s_l w_l ρ' GᵀG) P_l,   g_k = P_kᵀ Σ_points s_k w_k ρ' Gᵀr
+//! ```
+//!
+//! Each point adds one symmetric 8 × 8 matrix (36 numbers) to each of its ten node pairs, and each
+//! pair is projected once per linearisation: about a quarter of the work of forming every 1 × 6
+//! and 3 × 6 block and multiplying them out (what the generic [`dynamap_solver::Problem`] path does
+//! with [`WarpedPointToPlane`](dynamap_residuals::deform::WarpedPointToPlane) and
+//! [`WarpedPointToPoint`](dynamap_residuals::deform::WarpedPointToPoint); the tests check that
+//! both give the same H and g). DynamicFusion (Newcombe et al. 2015) assembles its GPU system
+//! the same way. Robust kernels enter as iteratively reweighted least squares, weight ρ'(s), as on
+//! the solver's dense path. The as-rigid-as-possible terms (eq. 4.5-4.7) and the stay prior are
+//! added as 6 × 6 blocks.
+//!
+//! Points are summed in four fixed chunks, each into its own accumulator, and the chunks are added
+//! in order, so the bits do not depend on the thread count. The block structure (node pairs that
+//! share a point or an edge) is kept, with its symbolic factorisation, for as long as the points'
+//! pairs fit in it; when new pairs appear it is rebuilt as the union of old and new.
+
+use super::graph::{Binding, DeformationGraph};
+use dynamap_residuals::deform::{
+    as_rigid_as_possible, blend, right_perturbation, transform_point, transform_point_jacobian,
+    MAX_NEIGHBOURS,
+};
+use dynamap_solver::lie::se3;
+use dynamap_solver::robust::Tukey;
+use dynamap_solver::{BlockSystem, Damping, RobustKernel, SolveError};
+use nalgebra::{DualQuaternion, Isometry3, Matrix6, SMatrix, Vector3, Vector6};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Node pairs (k ≤ l) of one binding.
+const PAIRS: usize = MAX_NEIGHBOURS * (MAX_NEIGHBOURS + 1) / 2;
+/// Entries of a packed symmetric 8 × 8 matrix.
+const PACKED: usize = 36;
+/// Fixed number of point chunks (and accumulators).
+const CHUNKS: usize = 4;
+/// No entry.
+const NONE: u32 = u32::MAX;
+
+/// Index of (a, b), a ≤ b < 8, in a packed symmetric 8 × 8 matrix.
+#[inline(always)]
+const fn packed(a: usize, b: usize) -> usize {
+    b * (b + 1) / 2 + a
+}
+
+/// Binding slots (a, b), a ≤ b, in the order of a point's ten pair entries.
+const SLOT_PAIRS: [(usize, usize); PAIRS] = {
+    let mut out = [(0, 0); PAIRS];
+    let mut k = 0;
+    let mut b = 0;
+    while b < MAX_NEIGHBOURS {
+        let mut a = 0;
+        while a <= b {
+            out[k] = (a, b);
+            k += 1;
+            a += 1;
+        }
+        b += 1;
+    }
+    out
+};
+
+/// The matches and weights one round of Levenberg-Marquardt works with.
+pub(crate) struct WarpTerms<'a> {
+    /// Canonical points.
+    pub points: &'a [Vector3<f64>],
+    /// Their nodes and weights.
+    pub bindings: &'a [Binding],
+    /// Each point's partner (point, unit normal), if it has one.
+    pub matches: &'a [Option<(Vector3<f64>, Vector3<f64>)>],
+    /// Tukey's c of the point-to-plane term, metres.
+    pub tukey: f64,
+    /// Weight of the point-to-point term (0: none).
+    pub point_weight: f64,
+    /// Directed regulariser edges (i, j, g_j, λ φ_ij).
+    pub edges: &'a [(u32, u32, Vector3<f64>, f64)],
+    /// Stay priors: `A₀⁻¹` per node, and their weight (0: none).
+    pub anchors: &'a [Isometry3<f64>],
+    /// Weight of the stay priors.
+    pub stay_weight: f64,
+}
+
+/// Where a round's time went, seconds (the rest is factorising and solving).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct RoundTimes {
+    /// Linearisations and trial costs.
+    pub evaluate: f64,
+}
+
+/// The assembled system, its structure and the buffers reused across iterations and calls.
+#[derive(Default)]
+pub(crate) struct WarpSystem {
+    system: Option<BlockSystem>,
+    /// Regulariser pairs the structure was built with.
+    edge_pairs: Vec<(u32, u32)>,
+    /// Per point: the entry of each of its binding pairs ([`SLOT_PAIRS`] order).
+    slots: Vec<[u32; PAIRS]>,
+    /// CHUNKS accumulators, each `entries × 36` pair sums then `nodes × 8` gradient sums.
+    acc: Vec<f64>,
+    /// Projected 6 × 6 blocks, one per entry.
+    blocks: Vec<[f64; 36]>,
+    /// `P_k` of every node at the current motions.
+    perturb: Vec<SMatrix<f64, 8, 6>>,
+    /// Node motions and their dual quaternions: current and trial.
+    motions: Vec<Isometry3<f64>>,
+    dqs: Vec<DualQuaternion<f64>>,
+    trial: Vec<Isometry3<f64>>,
+    trial_dqs: Vec<DualQuaternion<f64>>,
+    step: Vec<f64>,
+}
+
+impl WarpSystem {
+    /// Readies the structure for `graph` and these bindings: kept when every pair fits,
+    /// otherwise rebuilt (with the old pairs kept, so that it settles over frames).
+    pub fn prepare(
+        &mut self,
+        graph: &DeformationGraph,
+        bindings: &[Binding],
+    ) -> Result<(), SolveError> {
+        let nodes = graph.nodes.len();
+        let edge_pairs: Vec<(u32, u32)> = graph
+            .edges
+            .iter()
+            .enumerate()
+            .flat_map(|(i, js)| {
+                js.iter()
+                    .map(move |&j| ((i as u32).min(j), (i as u32).max(j)))
+            })
+            .collect();
+        let same_graph = self
+            .system
+            .as_ref()
+            .is_some_and(|s| s.num_blocks() == nodes)
+            && self.edge_pairs == edge_pairs;
+        if !same_graph {
+            self.system = None;
+        }
+        self.slots.resize(bindings.len(), [NONE; PAIRS]);
+        let fits = self.system.as_ref().is_some_and(|s| {
+            self.slots
+                .par_iter_mut()
+                .zip(bindings)
+                .all(|(slots, b)| fill_slots(s, b, slots))
+        });
+        if !fits {
+            let mut pairs: Vec<(usize, usize)> = edge_pairs
+                .iter()
+                .map(|&(i, j)| (i as usize, j as usize))
+                .collect();
+            if let Some(old) = &self.system {
+                pairs.extend((0..old.num_entries()).map(|e| old.entry_blocks(e)));
+            }
+            for b in bindings {
+                for &(x, y) in &SLOT_PAIRS {
+                    if y < b.count && x != y {
+                        pairs.push((b.nodes[x] as usize, b.nodes[y] as usize));
+                    }
+                }
+            }
+            let system = BlockSystem::new(&vec![6; nodes], pairs)?;
+            for (slots, b) in self.slots.iter_mut().zip(bindings) {
+                let ok = fill_slots(&system, b, slots);
+                debug_assert!(ok, "every binding pair was given");
+            }
+            self.system = Some(system);
+            self.edge_pairs = edge_pairs;
+        }
+        let s = self.system.as_ref().expect("built above");
+        let stride = s.num_entries() * PACKED + nodes * 8;
+        self.acc.resize(CHUNKS * stride, 0.0);
+        self.blocks.resize(s.num_entries(), [0.0; 36]);
+        self.step.resize(s.dim(), 0.0);
+        Ok(())
+    }
+
+    /// Sets the node motions the next round starts from.
+    pub fn set_motions(&mut self, motions: impl Iterator<Item = Isometry3<f64>>) {
+        self.motions.clear();
+        self.motions.extend(motions);
+        self.dqs.clear();
+        self.dqs.extend(
+            self.motions
+                .iter()
+                .map(dynamap_residuals::deform::dual_quaternion),
+        );
+    }
+
+    /// The node motions.
+    pub fn motions(&self) -> &[Isometry3<f64>] {
+        &self.motions
+    }
+
+    /// The number of data pairs per point and accumulator stride (for the tests).
+    fn stride(&self) -> usize {
+        let s = self.system.as_ref().expect("prepared");
+        s.num_entries() * PACKED + s.num_blocks() * 8
+    }
+
+    /// Up to `iterations` Levenberg-Marquardt iterations from the current motions (Madsen, Nielsen
+    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken.
+    pub fn minimise(
+        &mut self,
+        terms: &WarpTerms<'_>,
+        iterations: usize,
+        damping: f64,
+        times: &mut RoundTimes,
+    ) -> Result<usize, SolveError> {
+        let clock = Instant::now();
+        let mut cost = self.linearise(terms);
+        times.evaluate += clock.elapsed().as_secs_f64();
+        if !cost.is_finite() {
+            return Err(SolveError::NonFiniteInitialCost(0));
+        }
+        let mut mu = damping * self.system().max_diagonal().max(f64::MIN_POSITIVE);
+        let mut nu = 2.0;
+        let mut done = 0;
+        while done < iterations {
+            done += 1;
+            let mut step = std::mem::take(&mut self.step);
+            let solved = self
+                .system
+                .as_mut()
+                .expect("prepared")
+                .solve(Damping::Identity(mu), &mut step);
+            if solved.is_err() {
+                self.step = step;
+                mu *= nu;
+                nu *= 2.0;
+                if !mu.is_finite() || mu > 1e300 {
+                    break;
+                }
+                continue;
+            }
+            let clock = Instant::now();
+            // for the exact solution of (H + μI)δ = −g: L(0) − L(δ) = ½ δᵀ(μδ − g)
+            let g = self.system().gradient();
+            let predicted: f64 = 0.5
+                * step
+                    .iter()
+                    .zip(g)
+                    .map(|(d, g)| mu * d * d - d * g)
+                    .sum::<f64>();
+            let step_norm = step.iter().map(|d| d * d).sum::<f64>().sqrt();
+            self.trial.clear();
+            self.trial.extend(
+                self.motions.iter().enumerate().map(|(k, m)| {
+                    m * se3::exp(&Vector6::from_column_slice(&step[6 * k..6 * k + 6]))
+                }),
+            );
+            self.step = step;
+            self.trial_dqs.clear();
+            self.trial_dqs.extend(
+                self.trial
+                    .iter()
+                    .map(dynamap_residuals::deform::dual_quaternion),
+            );
+            let new_cost = cost_at(terms, &self.trial, &self.trial_dqs);
+            let actual = cost - new_cost;
+            let gain = actual / predicted;
+            let accept = new_cost.is_finite() && predicted > 0.0 && gain > 0.0;
+            if accept {
+                std::mem::swap(&mut self.motions, &mut self.trial);
+                std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
+                let converged =
+                    actual.abs() < 1e-10 * cost.max(f64::MIN_POSITIVE) || step_norm < 1e-10;
+                if done < iterations && !converged {
+                    cost = self.linearise(terms);
+                } else {
+                    cost = new_cost;
+                }
+                mu *= (1.0f64 / 3.0).max(1.0 - (2.0 * gain - 1.0).powi(3));
+                nu = 2.0;
+                times.evaluate += clock.elapsed().as_secs_f64();
+                if converged {
+                    break;
+                }
+            } else {
+                times.evaluate += clock.elapsed().as_secs_f64();
+                mu *= nu;
+                nu *= 2.0;
+                if !mu.is_finite() || mu > 1e300 {
+                    break;
+                }
+            }
+        }
+        Ok(done)
+    }
+
+    fn system(&self) -> &BlockSystem {
+        self.system.as_ref().expect("prepared")
+    }
+
+    /// Fills H and g at the current motions and returns the cost ½Σρ.
+    pub fn linearise(&mut self, terms: &WarpTerms<'_>) -> f64 {
+        let stride = self.stride();
+        let system = self.system.as_mut().expect("prepared");
+        let entries = system.num_entries();
+        let n = terms.points.len();
+        let per = n.div_ceil(CHUNKS).max(1);
+        let (slots, dqs) = (&self.slots, &self.dqs);
+        let mut costs = [0.0; CHUNKS];
+        self.acc
+            .par_chunks_mut(stride)
+            .zip(costs.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, (acc, cost))| {
+                acc.fill(0.0);
+                let (pairs, grads) = acc.split_at_mut(entries * PACKED);
+                let range = (c * per).min(n)..((c + 1) * per).min(n);
+                *cost = range
+                    .map(|i| accumulate_point(terms, i, dqs, &slots[i], pairs, grads))
+                    .sum();
+            });
+        // add the chunks in order into the first
+        let (first, rest) = self.acc.split_at_mut(stride);
+        first.par_chunks_mut(4096).enumerate().for_each(|(k, out)| {
+            for c in 0..CHUNKS - 1 {
+                let src = &rest[c * stride + k * 4096..][..out.len()];
+                for (o, s) in out.iter_mut().zip(src) {
+                    *o += s;
+                }
+            }
+        });
+        // project every pair: H_e = P_iᵀ A_e P_j
+        self.perturb.clear();
+        self.perturb.extend(dqs.iter().map(right_perturbation));
+        let perturb = &self.perturb;
+        let (pairs, grads) = first.split_at(entries * PACKED);
+        let sys = &*system;
+        self.blocks
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(e, out)| {
+                let (i, j) = sys.entry_blocks(e);
+                let a = unpack(&pairs[e * PACKED..(e + 1) * PACKED]);
+                let h = perturb[i].transpose() * a * perturb[j];
+                out.copy_from_slice(h.as_slice());
+            });
+        system.clear();
+        for (e, b) in self.blocks.iter().enumerate() {
+            system.add_to_entry(e, b);
+        }
+        let gradient = system.gradient_mut();
+        for (k, p) in perturb.iter().enumerate() {
+            let g8 = SMatrix::<f64, 8, 1>::from_column_slice(&grads[k * 8..k * 8 + 8]);
+            gradient[6 * k..6 * k + 6].copy_from_slice((p.transpose() * g8).as_slice());
+        }
+        let mut cost: f64 = costs.iter().sum();
+        cost += add_regularisers(terms, &self.motions, Some(system));
+        cost
+    }
+}
+
+/// The entries of a binding's pairs; false when one is not stored.
+fn fill_slots(s: &BlockSystem, b: &Binding, slots: &mut [u32; PAIRS]) -> bool {
+    for (slot, &(x, y)) in slots.iter_mut().zip(&SLOT_PAIRS) {
+        *slot = if y < b.count {
+            match s.entry(b.nodes[x] as usize, b.nodes[y] as usize) {
+                Some(e) => e as u32,
+                None => return false,
+            }
+        } else {
+            NONE
+        };
+    }
+    true
+}
+
+fn unpack(p: &[f64]) -> SMatrix<f64, 8, 8> {
+    let mut a = SMatrix::<f64, 8, 8>::zeros();
+    for b in 0..8 {
+        for x in 0..=b {
+            let v = p[packed(x, b)];
+            a[(x, b)] = v;
+            a[(b, x)] = v;
+        }
+    }
+    a
+}
+
+/// The data terms of point i: ½ρ of point-to-plane and of point-to-point, and, with `acc`, their
+/// reweighted 8 × 8 Gauss-Newton matrix and gradient added to the point's pairs and nodes.
+#[inline]
+fn data_terms(
+    terms: &WarpTerms<'_>,
+    i: usize,
+    dqs: &[DualQuaternion<f64>],
+    acc: Option<(&[u32; PAIRS], &mut [f64], &mut [f64])>,
+) -> f64 {
+    let Some((q, n)) = terms.matches[i] else {
+        return 0.0;
+    };
+    let b = &terms.bindings[i];
+    let k = b.count;
+    let mut nodes = [DualQuaternion::identity(); MAX_NEIGHBOURS];
+    for (o, &id) in nodes.iter_mut().zip(&b.nodes[..k]) {
+        *o = dqs[id as usize];
+    }
+    let (blended, signs) = blend(&nodes[..k], &b.weights[..k]);
+    let v = &terms.points[i];
+    let plane = Tukey(terms.tukey);
+    let pw = terms.point_weight;
+    let point = Tukey(terms.tukey * pw.sqrt());
+    let Some((slots, pairs, grads)) = acc else {
+        let d = transform_point(&blended, v) - q;
+        let mut cost = 0.5 * plane.evaluate(n.dot(&d).powi(2))[0];
+        if pw > 0.0 {
+            cost += 0.5 * point.evaluate(pw * d.norm_squared())[0];
+        }
+        return cost;
+    };
+    let (p, dp) = transform_point_jacobian(&blended, v);
+    let d = p - q;
+    let r1 = n.dot(&d);
+    let [rho1, w1, _] = plane.evaluate(r1 * r1);
+    let mut cost = 0.5 * rho1;
+    // point-to-point: r = √pw d under Tukey(c√pw), so ρ' multiplies pw dpᵀdp
+    let w2 = if pw > 0.0 {
+        let [rho2, w2, _] = point.evaluate(pw * d.norm_squared());
+        cost += 0.5 * rho2;
+        w2 * pw
+    } else {
+        0.0
+    };
+    if w1 == 0.0 && w2 == 0.0 {
+        return cost;
+    }
+    let u = dp.transpose() * n;
+    let mut m = [0.0; PACKED];
+    for y in 0..8 {
+        let (uy, cy) = (u[y], dp.column(y));
+        for x in 0..=y {
+            m[packed(x, y)] = w1 * u[x] * uy + w2 * dp.column(x).dot(&cy);
+        }
+    }
+    let g8 = u * (w1 * r1) + dp.transpose() * d * w2;
+    let mut c = [0.0; MAX_NEIGHBOURS];
+    for a in 0..k {
+        c[a] = signs[a] * b.weights[a];
+    }
+    for (&slot, &(x, y)) in slots.iter().zip(&SLOT_PAIRS) {
+        if slot == NONE {
+            continue;
+        }
+        // the same node twice in a binding gives J_xᵀJ_y and J_yᵀJ_x in one diagonal block
+        let twice = if x != y && b.nodes[x] == b.nodes[y] {
+            2.0
+        } else {
+            1.0
+        };
+        let s = c[x] * c[y] * twice;
+        let out = &mut pairs[slot as usize * PACKED..][..PACKED];
+        for (o, v) in out.iter_mut().zip(&m) {
+            *o += s * v;
+        }
+    }
+    for a in 0..k {
+        let out = &mut grads[b.nodes[a] as usize * 8..][..8];
+        for (o, v) in out.iter_mut().zip(g8.iter()) {
+            *o += c[a] * v;
+        }
+    }
+    cost
+}
+
+#[inline]
+fn accumulate_point(
+    terms: &WarpTerms<'_>,
+    i: usize,
+    dqs: &[DualQuaternion<f64>],
+    slots: &[u32; PAIRS],
+    pairs: &mut [f64],
+    grads: &mut [f64],
+) -> f64 {
+    data_terms(terms, i, dqs, Some((slots, pairs, grads)))
+}
+
+/// The cost ½Σρ at `motions` (with their dual quaternions `dqs`), data summed in the same four
+/// chunks as [`WarpSystem::linearise`].
+pub(crate) fn cost_at(
+    terms: &WarpTerms<'_>,
+    motions: &[Isometry3<f64>],
+    dqs: &[DualQuaternion<f64>],
+) -> f64 {
+    let n = terms.points.len();
+    let per = n.div_ceil(CHUNKS).max(1);
+    let mut costs = [0.0; CHUNKS];
+    costs.par_iter_mut().enumerate().for_each(|(c, cost)| {
+        *cost = ((c * per).min(n)..((c + 1) * per).min(n))
+            .map(|i| data_terms(terms, i, dqs, None))
+            .sum();
+    });
+    costs.iter().sum::<f64>() + add_regularisers(terms, motions, None)
+}
+
+/// ½ Σ |r|² of the as-rigid-as-possible edges and the stay priors; with `system`, their 6 × 6
+/// Gauss-Newton blocks and gradients added to it.
+fn add_regularisers(
+    terms: &WarpTerms<'_>,
+    motions: &[Isometry3<f64>],
+    mut system: Option<&mut BlockSystem>,
+) -> f64 {
+    let mut cost = 0.0;
+    for &(i, j, gj, weight) in terms.edges {
+        let (i, j) = (i as usize, j as usize);
+        let (r, ji, jj) = as_rigid_as_possible(&motions[i], &motions[j], &gj);
+        cost += 0.5 * weight * r.norm_squared();
+        if let Some(s) = system.as_deref_mut() {
+            let (ji, jj) = (ji * weight.sqrt(), jj * weight.sqrt());
+            let r = r * weight.sqrt();
+            add_block(s, i, i, &(ji.transpose() * ji));
+            add_block(s, j, j, &(jj.transpose() * jj));
+            if i < j {
+                add_block(s, i, j, &(ji.transpose() * jj));
+            } else {
+                add_block(s, j, i, &(jj.transpose() * ji));
+            }
+            add_gradient(s, i, &(ji.transpose() * r));
+            add_gradient(s, j, &(jj.transpose() * r));
+        }
+    }
+    if terms.stay_weight > 0.0 {
+        let w = terms.stay_weight;
+        for (k, (anchor, motion)) in terms.anchors.iter().zip(motions).enumerate() {
+            let e = se3::log(&(anchor * motion));
+            cost += 0.5 * w * e.norm_squared();
+            if let Some(s) = system.as_deref_mut() {
+                let j = se3::right_jacobian_inv(&e);
+                add_block(s, k, k, &(j.transpose() * j * w));
+                add_gradient(s, k, &(j.transpose() * e * w));
+            }
+        }
+    }
+    cost
+}
+
+fn add_block(s: &mut BlockSystem, i: usize, j: usize, h: &Matrix6<f64>) {
+    let e = s
+        .entry(i, j)
+        .expect("regulariser pairs are in the structure");
+    s.add_to_entry(e, h.as_slice());
+}
+
+fn add_gradient(s: &mut BlockSystem, k: usize, g: &Vector6<f64>) {
+    for (o, v) in s.gradient_mut()[6 * k..6 * k + 6].iter_mut().zip(g.iter()) {
+        *o += v;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nonrigid::graph::{GraphParams, Node};
+    use dynamap_residuals::deform::{
+        dual_quaternion, AsRigidAsPossible, WarpedPointToPlane, WarpedPointToPoint,
+    };
+    use dynamap_residuals::pose_graph::Prior3;
+    use dynamap_solver::{Jacobians, Manifold, Residual, Var, SE3};
+    use nalgebra::DMatrix;
+
+    /// A graph over a wavy patch with nodes moved off the identity, points bound to it, and
+    /// partners near their warped positions (some beyond Tukey's c, some unmatched).
+    /// Each point's partner (point, unit normal), if any.
+    type Matches = Vec<Option<(Vector3<f64>, Vector3<f64>)>>;
+
+    fn scene() -> (DeformationGraph, Vec<Vector3<f64>>, Vec<Binding>, Matches) {
+        let points: Vec<Vector3<f64>> = (0..120)
+            .map(|i| {
+                let (x, y) = ((i % 12) as f64 * 0.02, (i / 12) as f64 * 0.02);
+                Vector3::new(x, y, 0.02 * (8.0 * x).sin())
+            })
+            .collect();
+        let mut graph = DeformationGraph::sample(
+            &points,
+            GraphParams {
+                spacing: 0.05,
+                ..GraphParams::default()
+            },
+        )
+        .unwrap();
+        for (k, node) in graph.nodes.iter_mut().enumerate() {
+            let a = k as f64;
+            let t = se3::exp(&Vector6::new(
+                0.1 * a.sin(),
+                0.2 * a.cos(),
+                -0.1,
+                0.01 * a,
+                0.02,
+                -0.01 * a.cos(),
+            ));
+            *node = Node {
+                motion: dual_quaternion(&t),
+                ..*node
+            };
+        }
+        let bindings = graph.bind_all(&points);
+        let matches = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let shift = 0.003 * (i as f64).sin() + if i % 17 == 0 { 0.2 } else { 0.0 };
+                (i % 13 != 5).then(|| {
+                    let n = Vector3::new(0.1 * (i as f64).cos(), 0.2, 1.0).normalize();
+                    (p + Vector3::new(0.01, -0.02, 0.03) + n * shift, n)
+                })
+            })
+            .collect();
+        (graph, points, bindings, matches)
+    }
+
+    /// H and g of the fused assembly against JᵀWJ and JᵀWr formed densely from the residual
+    /// types' own Jacobians (property-tested in `dynamap_residuals`), with the same IRLS weights.
+    #[test]
+    fn fused_assembly_matches_the_residual_types() {
+        let (graph, points, bindings, matches) = scene();
+        let motions: Vec<Isometry3<f64>> = graph
+            .nodes
+            .iter()
+            .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion))
+            .collect();
+        let edges: Vec<(u32, u32, Vector3<f64>, f64)> = graph
+            .edges
+            .iter()
+            .enumerate()
+            .flat_map(|(i, js)| {
+                let graph = &graph;
+                js.iter()
+                    .map(move |&j| (i as u32, j, graph.nodes[j as usize].position, 3.0))
+            })
+            .collect();
+        let anchors: Vec<Isometry3<f64>> = motions
+            .iter()
+            .map(|m| (m * se3::exp(&Vector6::new(0.01, 0.0, -0.02, 0.0, 0.01, 0.0))).inverse())
+            .collect();
+        let (tukey, pw, stay) = (0.05, 0.3, 0.2);
+        let terms = WarpTerms {
+            points: &points,
+            bindings: &bindings,
+            matches: &matches,
+            tukey,
+            point_weight: pw,
+            edges: &edges,
+            anchors: &anchors,
+            stay_weight: stay,
+        };
+        let mut ws = WarpSystem::default();
+        ws.prepare(&graph, &bindings).unwrap();
+        ws.set_motions(motions.iter().copied());
+        let cost = ws.linearise(&terms);
+        assert_eq!(cost, cost_at(&terms, &motions, &ws.dqs.clone()));
+
+        let nodes = graph.nodes.len();
+        let dim = 6 * nodes;
+        let (mut h, mut g) = (
+            DMatrix::<f64>::zeros(dim, dim),
+            DMatrix::<f64>::zeros(dim, 1),
+        );
+        let mut expect_cost = 0.0;
+        let xs: Vec<[f64; 7]> = motions
+            .iter()
+            .map(|m| {
+                let mut x = [0.0; 7];
+                se3::to_slice(m, &mut x);
+                x
+            })
+            .collect();
+        // adds one residual block, reweighted by ρ'(‖r‖²) of `kernel` (None: least squares)
+        let mut add = |res: &dyn Residual, ids: &[usize], kernel: Option<Tukey>| {
+            let m = res.dim();
+            let vars: Vec<Var> = ids
+                .iter()
+                .map(|&k| Var {
+                    value: &xs[k],
+                    manifold: &SE3 as &dyn Manifold,
+                })
+                .collect();
+            let cols = vec![6; ids.len()];
+            let mut r = vec![0.0; m];
+            let mut jac = vec![0.0; m * 6 * ids.len()];
+            res.evaluate(&vars, &mut r, Some(&mut Jacobians::new(&mut jac, m, &cols)));
+            let s: f64 = r.iter().map(|v| v * v).sum();
+            let [rho, w, _] = kernel.map_or([s, 1.0, 0.0], |k| k.evaluate(s));
+            expect_cost += 0.5 * rho;
+            let jm = DMatrix::from_fn(m, dim, |row, col| {
+                ids.iter()
+                    .position(|&k| k == col / 6)
+                    .map_or(0.0, |p| jac[p * m * 6 + (col % 6) * m + row])
+            });
+            h += jm.transpose() * &jm * w;
+            g += jm.transpose() * DMatrix::from_column_slice(m, 1, &r) * w;
+        };
+        for (i, m) in matches.iter().enumerate() {
+            let Some((q, n)) = m else { continue };
+            let b = &bindings[i];
+            let ids: Vec<usize> = b.nodes[..b.count].iter().map(|&k| k as usize).collect();
+            let plane = WarpedPointToPlane {
+                point: points[i],
+                weights: b.weights,
+                target: *q,
+                normal: *n,
+                scale: 1.0,
+            };
+            add(&plane, &ids, Some(Tukey(tukey)));
+            let point = WarpedPointToPoint {
+                point: points[i],
+                weights: b.weights,
+                target: *q,
+                scale: pw.sqrt(),
+            };
+            add(&point, &ids, Some(Tukey(tukey * pw.sqrt())));
+        }
+        for &(i, j, gj, w) in &edges {
+            let r = AsRigidAsPossible {
+                position: gj,
+                scale: w.sqrt(),
+            };
+            add(&r, &[i as usize, j as usize], None);
+        }
+        for (k, a) in anchors.iter().enumerate() {
+            let prior = Prior3::new(a.inverse(), Matrix6::identity() * stay.sqrt());
+            add(&prior, &[k], None);
+        }
+        assert!(
+            (cost - expect_cost).abs() < 1e-12 * expect_cost.max(1.0),
+            "{cost} {expect_cost}"
+        );
+        let s = ws.system();
+        let scale = h.amax();
+        for r in 0..dim {
+            for c in 0..dim {
+                let d = (s.get(r, c) - h[(r, c)]).abs();
+                assert!(
+                    d < 1e-10 * scale,
+                    "H({r}, {c}): {} vs {}",
+                    s.get(r, c),
+                    h[(r, c)]
+                );
+            }
+            assert!((s.gradient()[r] - g[r]).abs() < 1e-10 * g.amax(), "g({r})");
+        }
+    }
+
+    /// Levenberg-Marquardt lowers the cost, and the structure stays while the pairs fit.
+    #[test]
+    fn iterations_lower_the_cost_and_keep_the_structure() {
+        let (graph, points, bindings, matches) = scene();
+        let terms = WarpTerms {
+            points: &points,
+            bindings: &bindings,
+            matches: &matches,
+            tukey: 0.05,
+            point_weight: 0.1,
+            edges: &[],
+            anchors: &[],
+            stay_weight: 0.0,
+        };
+        let mut ws = WarpSystem::default();
+        ws.prepare(&graph, &bindings).unwrap();
+        ws.set_motions(
+            graph
+                .nodes
+                .iter()
+                .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion)),
+        );
+        let before = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
+        let mut times = RoundTimes::default();
+        let taken = ws.minimise(&terms, 5, 1e-4, &mut times).unwrap();
+        assert!(taken >= 1);
+        let after = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
+        assert!(after < 0.5 * before, "{before} -> {after}");
+        let entries = ws.system().num_entries();
+        ws.prepare(&graph, &bindings[..50]).unwrap();
+        assert_eq!(ws.system().num_entries(), entries);
+    }
+}
