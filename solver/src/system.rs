@@ -117,7 +117,8 @@ impl BlockSystem {
     }
 
     /// Adds `block` (dᵢ × dⱼ, column-major) to entry `e` = (i, j), i ≤ j. Of a diagonal block only
-    /// the upper triangle is read.
+    /// the upper triangle is read. Panics when `block` is not dᵢ × dⱼ long (a caller's bug, not
+    /// an input).
     pub fn add_to_entry(&mut self, e: usize, block: &[f64]) {
         let (i, j) = self.entry_blocks(e);
         let (di, dj) = (self.h.block_dim(i), self.h.block_dim(j));

@@ -200,7 +200,7 @@ impl WarpSystem {
         &self.motions
     }
 
-    /// The number of data pairs per point and accumulator stride (for the tests).
+    /// Length of one chunk's accumulator: 36 numbers per entry, then 8 per node.
     fn stride(&self) -> usize {
         let s = self.system.as_ref().expect("prepared");
         s.num_entries() * PACKED + s.num_blocks() * 8
