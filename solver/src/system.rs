@@ -13,10 +13,7 @@
 use crate::block::BlockSparse;
 use crate::error::SolveError;
 use crate::linear::{Cholesky, Damping};
-
-/// Systems up to this size are factorised dense (the [`Options`](crate::Options) default
-/// `dense_threshold`).
-const DENSE_THRESHOLD: usize = 200;
+use crate::Options;
 
 /// H (upper triangle, block-sparse), g, and a factorisation prepared for H's structure.
 pub struct BlockSystem {
@@ -68,7 +65,8 @@ impl BlockSystem {
         let entry_col = (0..n)
             .flat_map(|j| std::iter::repeat_n(j, h.entry_ptr[j + 1] - h.entry_ptr[j]))
             .collect();
-        let cholesky = Cholesky::new(&h, h.dim() <= DENSE_THRESHOLD)?;
+        // dense up to the solver's default threshold, as on its own sparse path
+        let cholesky = Cholesky::new(&h, h.dim() <= Options::default().dense_threshold)?;
         Ok(Self {
             gradient: vec![0.0; h.dim()],
             h,

@@ -14,7 +14,7 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::graph::{Binding, DeformationGraph};
-use super::system::{RoundTimes, WarpSystem, WarpTerms};
+use super::system::{match_terms, WarpSystem, WarpTerms};
 use crate::camera::Camera;
 use crate::image::{valid, NormalMap, VertexMap};
 use dynamap_residuals::deform::{
@@ -23,8 +23,8 @@ use dynamap_residuals::deform::{
 use dynamap_residuals::icp::{point_to_plane, RigidMotion};
 use dynamap_solver::dense::{self, DenseOptions, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
-use dynamap_solver::robust::{Huber, Tukey};
-use dynamap_solver::{RobustKernel, SolveError, SE3};
+use dynamap_solver::robust::Huber;
+use dynamap_solver::{SolveError, SE3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
@@ -322,17 +322,17 @@ impl WarpOptimiser {
                     anchors: &self.anchors,
                     stay_weight: self.params.stay_weight,
                 };
-                let mut round = RoundTimes::default();
+                let mut evaluate = 0.0;
                 iterations += self.system.minimise(
                     &terms,
                     self.params.iterations,
                     self.params.damping,
-                    &mut round,
+                    &mut evaluate,
                 )?;
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`
-                times.evaluate += round.evaluate;
-                times.linear -= round.evaluate;
+                times.evaluate += evaluate;
+                times.linear -= evaluate;
                 for (node, m) in graph.nodes.iter_mut().zip(self.system.motions()) {
                     node.motion = dual_quaternion(m);
                 }
@@ -386,18 +386,13 @@ impl WarpOptimiser {
 
     /// Σ ½ρ of the data terms at the current association, and the number matched.
     fn data_cost(&self) -> (f64, usize) {
-        // the point term's block is √w-scaled under Tukey(c√w), whose cost is w ρ_c(d²)
-        let kernel = Tukey(self.params.tukey);
         let mut cost = 0.0;
         let mut matched = 0;
         for (p, m) in self.warped.iter().zip(&self.matches) {
             if let Some((q, n)) = m {
                 matched += 1;
                 let d = p - q;
-                cost += 0.5 * kernel.evaluate(n.dot(&d).powi(2))[0];
-                if self.params.point_weight > 0.0 {
-                    cost += 0.5 * self.params.point_weight * kernel.evaluate(d.norm_squared())[0];
-                }
+                cost += match_terms(&d, n, self.params.tukey, self.params.point_weight).0;
             }
         }
         (cost, matched)

@@ -90,13 +90,6 @@ pub(crate) struct WarpTerms<'a> {
     pub stay_weight: f64,
 }
 
-/// Where a round's time went, seconds (the rest is factorising and solving).
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct RoundTimes {
-    /// Linearisations and trial costs.
-    pub evaluate: f64,
-}
-
 /// The assembled system, its structure and the buffers reused across iterations and calls.
 #[derive(Default)]
 pub(crate) struct WarpSystem {
@@ -175,8 +168,8 @@ impl WarpSystem {
             self.system = Some(system);
             self.edge_pairs = edge_pairs;
         }
+        let stride = self.stride();
         let s = self.system.as_ref().expect("built above");
-        let stride = s.num_entries() * PACKED + nodes * 8;
         self.acc.resize(CHUNKS * stride, 0.0);
         self.blocks.resize(s.num_entries(), [0.0; 36]);
         self.step.resize(s.dim(), 0.0);
@@ -207,17 +200,19 @@ impl WarpSystem {
     }
 
     /// Up to `iterations` Levenberg-Marquardt iterations from the current motions (Madsen, Nielsen
-    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken.
+    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken;
+    /// adds the seconds spent linearising and costing trial points to `evaluate_seconds` (the rest
+    /// is factorising and solving).
     pub fn minimise(
         &mut self,
         terms: &WarpTerms<'_>,
         iterations: usize,
         damping: f64,
-        times: &mut RoundTimes,
+        evaluate_seconds: &mut f64,
     ) -> Result<usize, SolveError> {
         let clock = Instant::now();
         let mut cost = self.linearise(terms);
-        times.evaluate += clock.elapsed().as_secs_f64();
+        *evaluate_seconds += clock.elapsed().as_secs_f64();
         if !cost.is_finite() {
             return Err(SolveError::NonFiniteInitialCost(0));
         }
@@ -232,68 +227,81 @@ impl WarpSystem {
                 .as_mut()
                 .expect("prepared")
                 .solve(Damping::Identity(mu), &mut step);
-            if solved.is_err() {
-                self.step = step;
-                mu *= nu;
-                nu *= 2.0;
-                if !mu.is_finite() || mu > 1e300 {
-                    break;
-                }
-                continue;
-            }
             let clock = Instant::now();
-            // for the exact solution of (H + μI)δ = −g: L(0) − L(δ) = ½ δᵀ(μδ − g)
-            let g = self.system().gradient();
-            let predicted: f64 = 0.5
-                * step
-                    .iter()
-                    .zip(g)
-                    .map(|(d, g)| mu * d * d - d * g)
-                    .sum::<f64>();
-            let step_norm = step.iter().map(|d| d * d).sum::<f64>().sqrt();
-            self.trial.clear();
-            self.trial.extend(
-                self.motions.iter().enumerate().map(|(k, m)| {
-                    m * se3::exp(&Vector6::from_column_slice(&step[6 * k..6 * k + 6]))
-                }),
-            );
+            // a failed factorisation is a rejected step
+            let trial = solved
+                .ok()
+                .and_then(|()| self.try_step(terms, &step, mu, cost));
             self.step = step;
-            self.trial_dqs.clear();
-            self.trial_dqs.extend(
-                self.trial
-                    .iter()
-                    .map(dynamap_residuals::deform::dual_quaternion),
-            );
-            let new_cost = cost_at(terms, &self.trial, &self.trial_dqs);
-            let actual = cost - new_cost;
-            let gain = actual / predicted;
-            let accept = new_cost.is_finite() && predicted > 0.0 && gain > 0.0;
-            if accept {
-                std::mem::swap(&mut self.motions, &mut self.trial);
-                std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
-                let converged =
-                    actual.abs() < 1e-10 * cost.max(f64::MIN_POSITIVE) || step_norm < 1e-10;
-                if done < iterations && !converged {
-                    cost = self.linearise(terms);
-                } else {
-                    cost = new_cost;
+            match trial {
+                Some((new_cost, gain, converged)) => {
+                    cost = if done < iterations && !converged {
+                        self.linearise(terms)
+                    } else {
+                        new_cost
+                    };
+                    mu *= (1.0f64 / 3.0).max(1.0 - (2.0 * gain - 1.0).powi(3));
+                    nu = 2.0;
+                    *evaluate_seconds += clock.elapsed().as_secs_f64();
+                    if converged {
+                        break;
+                    }
                 }
-                mu *= (1.0f64 / 3.0).max(1.0 - (2.0 * gain - 1.0).powi(3));
-                nu = 2.0;
-                times.evaluate += clock.elapsed().as_secs_f64();
-                if converged {
-                    break;
-                }
-            } else {
-                times.evaluate += clock.elapsed().as_secs_f64();
-                mu *= nu;
-                nu *= 2.0;
-                if !mu.is_finite() || mu > 1e300 {
-                    break;
+                None => {
+                    *evaluate_seconds += clock.elapsed().as_secs_f64();
+                    mu *= nu;
+                    nu *= 2.0;
+                    if !mu.is_finite() || mu > 1e300 {
+                        break;
+                    }
                 }
             }
         }
         Ok(done)
+    }
+
+    /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`) and takes them when
+    /// the cost falls: returns the new cost, the gain ratio and whether the change was below
+    /// tolerance, or None (motions unchanged) when the step is rejected.
+    fn try_step(
+        &mut self,
+        terms: &WarpTerms<'_>,
+        step: &[f64],
+        mu: f64,
+        cost: f64,
+    ) -> Option<(f64, f64, bool)> {
+        // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
+        let g = self.system().gradient();
+        let predicted: f64 = 0.5
+            * step
+                .iter()
+                .zip(g)
+                .map(|(d, g)| mu * d * d - d * g)
+                .sum::<f64>();
+        self.trial.clear();
+        self.trial.extend(
+            self.motions
+                .iter()
+                .enumerate()
+                .map(|(k, m)| m * se3::exp(&Vector6::from_column_slice(&step[6 * k..6 * k + 6]))),
+        );
+        self.trial_dqs.clear();
+        self.trial_dqs.extend(
+            self.trial
+                .iter()
+                .map(dynamap_residuals::deform::dual_quaternion),
+        );
+        let new_cost = cost_at(terms, &self.trial, &self.trial_dqs);
+        let actual = cost - new_cost;
+        let gain = actual / predicted;
+        if !(new_cost.is_finite() && predicted > 0.0 && gain > 0.0) {
+            return None;
+        }
+        std::mem::swap(&mut self.motions, &mut self.trial);
+        std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
+        let step_norm = step.iter().map(|d| d * d).sum::<f64>().sqrt();
+        let converged = actual.abs() < 1e-10 * cost.max(f64::MIN_POSITIVE) || step_norm < 1e-10;
+        Some((new_cost, gain, converged))
     }
 
     fn system(&self) -> &BlockSystem {
@@ -318,7 +326,7 @@ impl WarpSystem {
                 let (pairs, grads) = acc.split_at_mut(entries * PACKED);
                 let range = (c * per).min(n)..((c + 1) * per).min(n);
                 *cost = range
-                    .map(|i| accumulate_point(terms, i, dqs, &slots[i], pairs, grads))
+                    .map(|i| data_terms(terms, i, dqs, Some((&slots[i], &mut *pairs, &mut *grads))))
                     .sum();
             });
         // add the chunks in order into the first
@@ -389,6 +397,23 @@ fn unpack(p: &[f64]) -> SMatrix<f64, 8, 8> {
     a
 }
 
+/// The two data terms of a match at offset `d = W(v) − q` from a target point with unit normal `n`:
+/// ½ρ of point-to-plane (Tukey's c = `tukey`) plus ½ρ of point-to-point (`√pw d` under Tukey's
+/// `c √pw`), and the IRLS weights ρ' of the first and `pw ρ'` of the second.
+pub(crate) fn match_terms(
+    d: &Vector3<f64>,
+    n: &Vector3<f64>,
+    tukey: f64,
+    pw: f64,
+) -> (f64, f64, f64) {
+    let [rho1, w1, _] = Tukey(tukey).evaluate(n.dot(d).powi(2));
+    if pw <= 0.0 {
+        return (0.5 * rho1, w1, 0.0);
+    }
+    let [rho2, w2, _] = Tukey(tukey * pw.sqrt()).evaluate(pw * d.norm_squared());
+    (0.5 * rho1 + 0.5 * rho2, w1, w2 * pw)
+}
+
 /// The data terms of point i: ½ρ of point-to-plane and of point-to-point, and, with `acc`, their
 /// reweighted 8 × 8 Gauss-Newton matrix and gradient added to the point's pairs and nodes.
 #[inline]
@@ -409,33 +434,17 @@ fn data_terms(
     }
     let (blended, signs) = blend(&nodes[..k], &b.weights[..k]);
     let v = &terms.points[i];
-    let plane = Tukey(terms.tukey);
-    let pw = terms.point_weight;
-    let point = Tukey(terms.tukey * pw.sqrt());
     let Some((slots, pairs, grads)) = acc else {
         let d = transform_point(&blended, v) - q;
-        let mut cost = 0.5 * plane.evaluate(n.dot(&d).powi(2))[0];
-        if pw > 0.0 {
-            cost += 0.5 * point.evaluate(pw * d.norm_squared())[0];
-        }
-        return cost;
+        return match_terms(&d, &n, terms.tukey, terms.point_weight).0;
     };
     let (p, dp) = transform_point_jacobian(&blended, v);
     let d = p - q;
-    let r1 = n.dot(&d);
-    let [rho1, w1, _] = plane.evaluate(r1 * r1);
-    let mut cost = 0.5 * rho1;
-    // point-to-point: r = √pw d under Tukey(c√pw), so ρ' multiplies pw dpᵀdp
-    let w2 = if pw > 0.0 {
-        let [rho2, w2, _] = point.evaluate(pw * d.norm_squared());
-        cost += 0.5 * rho2;
-        w2 * pw
-    } else {
-        0.0
-    };
+    let (cost, w1, w2) = match_terms(&d, &n, terms.tukey, terms.point_weight);
     if w1 == 0.0 && w2 == 0.0 {
         return cost;
     }
+    let r1 = n.dot(&d);
     let u = dp.transpose() * n;
     let mut m = [0.0; PACKED];
     for y in 0..8 {
@@ -472,18 +481,6 @@ fn data_terms(
         }
     }
     cost
-}
-
-#[inline]
-fn accumulate_point(
-    terms: &WarpTerms<'_>,
-    i: usize,
-    dqs: &[DualQuaternion<f64>],
-    slots: &[u32; PAIRS],
-    pairs: &mut [f64],
-    grads: &mut [f64],
-) -> f64 {
-    data_terms(terms, i, dqs, Some((slots, pairs, grads)))
 }
 
 /// The cost ½Σρ at `motions` (with their dual quaternions `dqs`), data summed in the same four
@@ -774,8 +771,8 @@ mod tests {
                 .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion)),
         );
         let before = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
-        let mut times = RoundTimes::default();
-        let taken = ws.minimise(&terms, 5, 1e-4, &mut times).unwrap();
+        let mut seconds = 0.0;
+        let taken = ws.minimise(&terms, 5, 1e-4, &mut seconds).unwrap();
         assert!(taken >= 1);
         let after = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         assert!(after < 0.5 * before, "{before} -> {after}");
