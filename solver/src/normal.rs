@@ -235,15 +235,29 @@ impl NormalEquations {
         let diagonal = entry.row_block == jb;
         let c0 = hm.block_start[jb];
         let mut acc = [[0.0f64; DI]; DJ];
-        for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
+        let contribs = &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]];
+        for (x, k) in contribs.iter().enumerate() {
+            // A camera's residuals lie far apart in the Jacobian buffer (BAL lists observations
+            // point by point), so the hardware cannot guess the next one: ask for it early.
+            if let Some(ahead) = contribs.get(x + PREFETCH_AHEAD) {
+                prefetch(jac, ahead.ja, DI * ahead.m);
+                if ahead.jb != ahead.ja {
+                    prefetch(jac, ahead.jb, DJ * ahead.m);
+                }
+            }
             let m = k.m;
             let (a, b) = (&jac[k.ja..k.ja + DI * m], &jac[k.jb..k.jb + DJ * m]);
-            for i in 0..m {
-                let ar: [f64; DI] = std::array::from_fn(|r| a[r * m + i]);
-                let bc: [f64; DJ] = std::array::from_fn(|c| b[c * m + i]);
-                for (column, &bcv) in acc.iter_mut().zip(&bc) {
-                    for (o, &arv) in column.iter_mut().zip(&ar) {
-                        *o += arv * bcv;
+            // Residuals of one to three rows (reprojections, point-to-plane, 3D points) get
+            // their row count as a constant, so that every load below is at a fixed offset.
+            match m {
+                1 => add_rows::<DI, DJ, 1>(a, b, &mut acc),
+                2 => add_rows::<DI, DJ, 2>(a, b, &mut acc),
+                3 => add_rows::<DI, DJ, 3>(a, b, &mut acc),
+                _ => {
+                    for i in 0..m {
+                        let ar: [f64; DI] = std::array::from_fn(|r| a[r * m + i]);
+                        let bc: [f64; DJ] = std::array::from_fn(|c| b[c * m + i]);
+                        add_outer(&ar, &bc, &mut acc);
                     }
                 }
             }
@@ -304,6 +318,62 @@ impl NormalEquations {
             for (c, out) in gj.iter_mut().enumerate() {
                 *out += dot(&jac[k.j + c * k.m..k.j + (c + 1) * k.m], r);
             }
+        }
+    }
+}
+
+/// How many contributions ahead [`NormalEquations::assemble`] prefetches Jacobians.
+const PREFETCH_AHEAD: usize = 6;
+
+/// Hints the cache to load `data[start..start + len]` (a no-op off x86-64).
+#[inline(always)]
+fn prefetch(data: &[f64], start: usize, len: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let end = (start + len).min(data.len());
+        if start >= end {
+            return;
+        }
+        // One address per 64-byte line: every eighth element, and the last one.
+        for i in (start..end).step_by(8).chain([end - 1]) {
+            // SAFETY: the address lies inside `data`; a prefetch never faults or writes.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch(
+                    data.as_ptr().add(i) as *const i8,
+                    std::arch::x86_64::_MM_HINT_T0,
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (data, start, len);
+}
+
+/// acc += aᵀ b for column-major Jacobian blocks a (M × DI) and b (M × DJ), one row at a time.
+#[inline(always)]
+fn add_rows<const DI: usize, const DJ: usize, const M: usize>(
+    a: &[f64],
+    b: &[f64],
+    acc: &mut [[f64; DI]; DJ],
+) {
+    let (a, b) = (&a[..DI * M], &b[..DJ * M]);
+    for i in 0..M {
+        let ar: [f64; DI] = std::array::from_fn(|r| a[r * M + i]);
+        let bc: [f64; DJ] = std::array::from_fn(|c| b[c * M + i]);
+        add_outer(&ar, &bc, acc);
+    }
+}
+
+/// acc += a bᵀ (acc column-major, DI × DJ).
+#[inline(always)]
+fn add_outer<const DI: usize, const DJ: usize>(
+    a: &[f64; DI],
+    b: &[f64; DJ],
+    acc: &mut [[f64; DI]; DJ],
+) {
+    for (column, &bv) in acc.iter_mut().zip(b) {
+        for (o, &av) in column.iter_mut().zip(a) {
+            *o += av * bv;
         }
     }
 }

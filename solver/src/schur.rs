@@ -163,7 +163,10 @@ pub(crate) struct Schur {
     /// block q, the S entries of the blocks (a, b), a ≤ b over q's neighbours, b-major.
     pair_ptr: Vec<usize>,
     pair_entry: Vec<usize>,
-    /// Eliminated-block ranges of the chunks, and one private copy of S's values per chunk.
+    /// Offset of each S entry's block in a chunk's copy, where every block is stored whole and
+    /// contiguous (d_i × d_j, column-major), with the total last.
+    block_offset: Vec<usize>,
+    /// Eliminated-block ranges of the chunks, and one private copy of S's blocks per chunk.
     chunk_bounds: Vec<usize>,
     chunk_values: Vec<Vec<f64>>,
     /// One private reduced right-hand side per chunk.
@@ -327,7 +330,16 @@ impl Schur {
             }
             chunk_bounds.push(elim.len());
         }
-        let chunk_values = vec![vec![0.0; s.values.len()]; chunk_bounds.len() - 1];
+        let mut block_offset = vec![0];
+        if point_major {
+            for j in 0..kept.len() {
+                for e in &s.entries[s.entry_ptr[j]..s.entry_ptr[j + 1]] {
+                    let size = s.block_dim(e.row_block) * s.block_dim(j);
+                    block_offset.push(block_offset.last().unwrap() + size);
+                }
+            }
+        }
+        let chunk_values = vec![vec![0.0; *block_offset.last().unwrap()]; chunk_bounds.len() - 1];
         let chunk_rhs = vec![vec![0.0; s.dim()]; chunk_bounds.len() - 1];
         let mut touch_ptr = vec![0];
         let mut touch = Vec::new();
@@ -403,6 +415,7 @@ impl Schur {
             update,
             pair_ptr,
             pair_entry,
+            block_offset,
             chunk_bounds,
             chunk_values,
             chunk_rhs,
@@ -493,9 +506,12 @@ impl Schur {
         }
     }
 
-    /// Each chunk of eliminated blocks subtracts its H_ae H_ee⁻¹ H_beᵀ into its own copy of S,
-    /// streaming through H_ce once (H_ee⁻¹ H_beᵀ formed per block on the fly); the copies are then
-    /// summed in chunk order onto H_cc.
+    /// Each chunk of eliminated blocks subtracts its H_ae H_ee⁻¹ H_beᵀ into its own copy of S's
+    /// blocks, streaming through H_ce once (H_ee⁻¹ H_beᵀ formed per block on the fly); the copies
+    /// are then summed in chunk order onto H_cc.
+    ///
+    /// A chunk's copy stores every block whole and contiguous, diagonal blocks with both
+    /// triangles: the updates need no masked stores and a block is a few adjacent cache lines.
     fn assemble_by_points(&mut self, ne: &NormalEquations, damping: Damping) {
         let h = &ne.h;
         let mut chunks = std::mem::take(&mut self.chunk_values);
@@ -518,9 +534,9 @@ impl Schur {
                         let se = *entries.next().expect("one S entry per pair");
                         let di = s.block_dim(na.kept);
                         let hi = &this.hce[na.offset..][..di * de];
-                        let diagonal = na.kept == j;
-                        let starts = |c: usize| s.column_start(j, se, c);
-                        subtract_block(values, starts, hi, u, (di, dj, de), diagonal);
+                        let at = this.block_offset[se];
+                        let block = &mut values[at..at + di * dj];
+                        subtract_block(block, |c| c * di, hi, u, (di, dj, de), false);
                     }
                 }
             }
@@ -530,14 +546,27 @@ impl Schur {
         for j in 0..self.kept.len() {
             self.copy_direct(h, j, damping, |at, v| values[at] = v);
         }
-        values
-            .par_chunks_mut(4096)
-            .enumerate()
-            .for_each(|(c, out)| {
-                let (start, n) = (c * 4096, out.len());
-                for chunk in &chunks {
-                    for (o, v) in out.iter_mut().zip(&chunk[start..start + n]) {
-                        *o += v;
+        let out = SyncPtr::new(&mut values);
+        let (s, block_offset) = (&self.s, &self.block_offset);
+        (0..self.kept.len())
+            .into_par_iter()
+            .with_min_len(4)
+            .for_each(|j| {
+                let dj = s.block_dim(j);
+                let range = s.entry_ptr[j]..s.entry_ptr[j + 1];
+                for (se, &offset) in range.clone().zip(&block_offset[range]) {
+                    let i = s.entries[se].row_block;
+                    let di = s.block_dim(i);
+                    for c in 0..dj {
+                        let rows = if i == j { c + 1 } else { di };
+                        // SAFETY: the column segment belongs to S block column j only.
+                        let o = unsafe { out.slice(s.column_start(j, se, c), rows) };
+                        let from = offset + c * di;
+                        for chunk in &chunks {
+                            for (o, v) in o.iter_mut().zip(&chunk[from..from + rows]) {
+                                *o += v;
+                            }
+                        }
                     }
                 }
             });
