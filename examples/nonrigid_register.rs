@@ -6,8 +6,10 @@
 //! ```
 //! SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its vertices (in
 //! their order) and normals warped. Lengths default to fractions of the source's bounding-box
-//! diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. One JSON line last:
-//! nodes, iterations, seconds, final data and regulariser costs.
+//! diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes are registered
+//! in two passes, the second seeded by geodesic descriptors (`register_meshes`, NOTES 47);
+//! `--single-pass` registers by closest point alone. One JSON line last: nodes, iterations,
+//! seconds, final data and regulariser costs.
 //!
 //! Either may instead be an RGB-D frame, a depth PNG (`.png`) read with `--intrinsics fx fy cx cy
 //! --depth-scale S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its
@@ -37,8 +39,8 @@ use dynamap::slam::io::images::{read_color, read_depth, read_mask};
 use dynamap::slam::io::{meshes::read_mesh, ply};
 use dynamap::slam::mesh::Mesh;
 use dynamap::slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_surfaces,
-    FrameSettings, RegisterSummary, RgbdFrame,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_meshes,
+    register_surfaces, FrameSettings, RegisterSummary, RgbdFrame, Seeding, SurfaceMesh,
 };
 use dynamap::slam::synthetic::plate;
 use nalgebra::Vector3;
@@ -89,6 +91,12 @@ struct Args {
     /// Also start the rigid pre-alignment from the principal-axes alignments (for shapes far apart).
     #[arg(long)]
     principal_axes: bool,
+    /// Meshes: register in one pass by closest point only. By default a second pass starts from
+    /// geodesic-descriptor correspondences (anchors on the core placed by the first pass), which
+    /// keep parts that swing past each other apart (legs). Point clouds (no triangles) have no
+    /// surface distances and are always registered in one pass.
+    #[arg(long)]
+    single_pass: bool,
     /// A ground-truth vertex map (line k: the index on TARGET of SOURCE's vertex k, as in the camel
     /// data's maps/i_to_j): adds the mean and 95th percentile of |warped − partner| before and after,
     /// as fractions of TARGET's bounding-box diagonal, to the JSON. Entries pointing at a vertex that
@@ -274,6 +282,14 @@ fn read_frame(
     })
 }
 
+/// The first of `flags` given, as bad input: "FLAG applies to `applies_to`".
+fn refuse_flags(flags: &[(&str, bool)], applies_to: &str) -> Result<()> {
+    match flags.iter().find(|(_, given)| *given) {
+        Some((flag, _)) => Err(cli::bad_input(format!("{flag} applies to {applies_to}"))),
+        None => Ok(()),
+    }
+}
+
 /// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> Result<()> {
@@ -284,6 +300,14 @@ fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> R
             target_path.display()
         )));
     }
+    refuse_flags(
+        &[
+            ("--single-pass", args.single_pass),
+            ("--principal-axes", args.principal_axes),
+            ("--ground-truth", args.ground_truth.is_some()),
+        ],
+        "meshes, not RGB-D frames",
+    )?;
     let source =
         read_frame(args, source_path, args.color.as_ref(), args.mask.as_ref()).bad_input()?;
     let target = read_frame(
@@ -410,20 +434,17 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if is_frame(source_path) || is_frame(target_path) {
         return register_frame_pair(&args, source_path, target_path);
     }
-    for (flag, given) in [
-        ("--flow", args.flow.is_some()),
-        ("--flow-ground-truth", args.flow_ground_truth.is_some()),
-        ("--mask", args.mask.is_some()),
-        ("--target-mask", args.target_mask.is_some()),
-        ("--color", args.color.is_some()),
-        ("--target-color", args.target_color.is_some()),
-    ] {
-        if given {
-            return Err(cli::bad_input(format!(
-                "{flag} applies to RGB-D frames (depth .png), not meshes"
-            )));
-        }
-    }
+    refuse_flags(
+        &[
+            ("--flow", args.flow.is_some()),
+            ("--flow-ground-truth", args.flow_ground_truth.is_some()),
+            ("--mask", args.mask.is_some()),
+            ("--target-mask", args.target_mask.is_some()),
+            ("--color", args.color.is_some()),
+            ("--target-color", args.target_color.is_some()),
+        ],
+        "RGB-D frames (depth .png), not meshes",
+    )?;
     let source = read_mesh(source_path).bad_input()?;
     let target = read_mesh(target_path).bad_input()?;
     let (sp, sn) = mesh_points(&source);
@@ -434,8 +455,27 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Some(p) => Some(read_map(p, sp.len(), tp.len()).bad_input()?),
         None => None,
     };
-    let reg = register_surfaces((&sp, &sn), (&tp, &tn), graph, params, args.principal_axes)
-        .with_context(|| format!("registering {}", source_path.display()))?;
+    let reg = if args.single_pass || source.faces.is_empty() || target.faces.is_empty() {
+        register_surfaces((&sp, &sn), (&tp, &tn), graph, params, args.principal_axes)
+    } else {
+        register_meshes(
+            SurfaceMesh {
+                points: &sp,
+                normals: &sn,
+                faces: &source.faces,
+            },
+            SurfaceMesh {
+                points: &tp,
+                normals: &tn,
+                faces: &target.faces,
+            },
+            graph,
+            params,
+            args.principal_axes,
+            &Seeding::default(),
+        )
+    }
+    .with_context(|| format!("registering {}", source_path.display()))?;
     if let Some(out) = &args.output {
         let mut warped = source.clone();
         warped.vertices = reg.points.iter().map(|p| p.cast::<f32>().into()).collect();

@@ -8,10 +8,13 @@
 //!   block-sparse Cholesky from normal equations assembled in the blend's coordinates (`system`).
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
 //!   field tracked frame to frame against live depth, the graph grown with the surface.
-//! - [`surface`]: one whole surface registered onto another (meshes, clouds).
+//! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
+//!   apart in pose in two passes seeded by [`descriptors`]: geodesic descriptors that tell
+//!   apart parts closest point confuses.
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow.
 
+pub mod descriptors;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
@@ -19,14 +22,15 @@ pub mod register;
 pub mod surface;
 mod system;
 
+pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, RgbdFrame};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
-    RegisterSummary, RegisterTimes, Target, WarpOptimiser,
+    RegisterSummary, RegisterTimes, Seeds, Target, WarpOptimiser,
 };
 pub use surface::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_surfaces, SurfaceError,
-    SurfaceRegistration,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_meshes, register_surfaces,
+    Seeding, SurfaceError, SurfaceMesh, SurfaceRegistration,
 };

@@ -48,6 +48,14 @@ pub enum RegisterError {
         /// Nodes in the graph.
         nodes: usize,
     },
+    /// Seeds that are not one per point.
+    #[error("{seeds} seed correspondences for {points} points")]
+    Seeds {
+        /// Seeds given.
+        seeds: usize,
+        /// Points given.
+        points: usize,
+    },
 }
 
 /// Where warped points find their partners.
@@ -167,6 +175,20 @@ impl Default for RegisterParams {
     }
 }
 
+/// Correspondences given per point for the first stages of an optimisation, overriding
+/// association where the two disagree ([`WarpOptimiser::optimise_seeded`]): for parts that
+/// closest point would pull onto the wrong partner, such as legs that swing past each other.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Seeds {
+    /// One target point and unit normal per source point.
+    pub matches: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// How many stages of the schedule use them (the rest associate as usual).
+    pub stages: usize,
+    /// Tukey's c in those stages, as a multiple of [`RegisterParams::tukey`]: the seeds are far
+    /// from where the points start, and a narrow kernel would reject them.
+    pub tukey_scale: f64,
+}
+
 /// What one optimisation did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegisterSummary {
@@ -271,6 +293,31 @@ impl WarpOptimiser {
         target: &dyn Target,
         guesses: &[Isometry3<f64>],
     ) -> Result<RegisterSummary, RegisterError> {
+        self.optimise_seeded(graph, points, normals, bindings, target, guesses, None)
+    }
+
+    /// [`Self::optimise_from`] whose first `seeds.stages` stages, under a wider Tukey kernel,
+    /// give a point its seed wherever the seed lies farther than the distance gate from its
+    /// closest-point partner (or it has none); the later stages associate with `target` as
+    /// usual. Without seeds it is [`Self::optimise_from`]. Seeds that are not one per point are
+    /// an error.
+    #[allow(clippy::too_many_arguments)]
+    pub fn optimise_seeded(
+        &mut self,
+        graph: &mut DeformationGraph,
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        bindings: &[Binding],
+        target: &dyn Target,
+        guesses: &[Isometry3<f64>],
+        seeds: Option<&Seeds>,
+    ) -> Result<RegisterSummary, RegisterError> {
+        if let Some(s) = seeds.filter(|s| s.matches.len() != points.len()) {
+            return Err(RegisterError::Seeds {
+                seeds: s.matches.len(),
+                points: points.len(),
+            });
+        }
         let start = Instant::now();
         let nodes = graph.nodes.len();
         if points.len() != normals.len()
@@ -308,15 +355,19 @@ impl WarpOptimiser {
         for stage in 0..self.params.schedule.len() {
             lambda = self.params.schedule[stage];
             self.set_regulariser(graph, lambda);
+            let seeded = seeds.filter(|s| stage < s.stages);
             for _ in 0..self.params.rounds {
                 lap(&mut times.update);
                 self.associate(graph, points, normals, bindings, target);
+                if let Some(s) = seeded {
+                    self.take_seeds(s);
+                }
                 lap(&mut times.associate);
                 let terms = WarpTerms {
                     points,
                     bindings,
                     matches: &self.matches,
-                    tukey: self.params.tukey,
+                    tukey: self.params.tukey * seeded.map_or(1.0, |s| s.tukey_scale),
                     point_weight: self.params.point_weight,
                     edges: &self.edges,
                     anchors: &self.anchors,
@@ -382,6 +433,18 @@ impl WarpOptimiser {
                     .associate(p)
                     .filter(|(q, nq)| (q - p).norm_squared() <= d2 && nq.dot(n) >= min_cos);
             });
+    }
+
+    /// Replaces each point's association by its seed where the two disagree by more than the
+    /// distance gate (or the point found no partner): the seeds are coarse, closest point is
+    /// exact where it is right, and they disagree where closest point took the wrong part.
+    fn take_seeds(&mut self, seeds: &Seeds) {
+        let gate = self.params.max_distance * self.params.max_distance;
+        for (m, s) in self.matches.iter_mut().zip(&seeds.matches) {
+            if m.is_none_or(|(q, _)| (q - s.0).norm_squared() > gate) {
+                *m = Some(*s);
+            }
+        }
     }
 
     /// Σ ½ρ of the data terms at the current association, and the number matched.
@@ -637,6 +700,28 @@ impl DenseTerms<6> for RigidTerms<'_> {
 mod tests {
     use super::*;
     use crate::image::Image;
+
+    #[test]
+    fn a_seed_overrides_only_a_partner_beyond_the_gate_or_a_missing_one() {
+        let mut optimiser = WarpOptimiser::new(RegisterParams {
+            max_distance: 0.1,
+            ..RegisterParams::default()
+        });
+        let n = Vector3::z();
+        let at = |x: f64| (Vector3::new(x, 0.0, 0.0), n);
+        // near its seed, far from it, and unmatched
+        optimiser.matches = vec![Some(at(0.05)), Some(at(0.5)), None];
+        let seeds = Seeds {
+            matches: vec![at(0.0), at(0.0), at(0.0)],
+            stages: 1,
+            tukey_scale: 8.0,
+        };
+        optimiser.take_seeds(&seeds);
+        assert_eq!(
+            optimiser.matches,
+            vec![Some(at(0.05)), Some(at(0.0)), Some(at(0.0))]
+        );
+    }
 
     /// A depth frame of the plane z = 1 facing the camera.
     fn wall(camera: &Camera) -> (VertexMap, NormalMap) {

@@ -1,0 +1,348 @@
+//! Correspondences between two meshes of one shape in different poses, from geodesic descriptors.
+//!
+//! Closest point cannot tell apart two parts that swing past each other, such as a galloping
+//! animal's left and right legs: each is pulled onto the other. Distances along the surface do
+//! not change when a limb bends, so a vertex described by its surface distances to a few anchor
+//! points keeps its identity across poses (the intrinsic-distance idea of Elad & Kimmel, *On
+//! bending invariant signatures for surfaces*, 2003). Anchors off the shape's plane of symmetry
+//! also tell its two sides apart.
+//!
+//! The anchors are spread over the source's core by farthest-point sampling. Their partners must
+//! be known: [`descriptor_matches`] takes them from a registration of the whole shape (the core
+//! moves little, so closest point is right there). Surface distances are shortest paths along
+//! the mesh edges (Dijkstra), not along a nearest-neighbour graph, whose edges cut across
+//! nearby parts.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Vector3;
+use petgraph::graph::{NodeIndex, UnGraph};
+use rayon::prelude::*;
+
+/// Number of anchors, the length of a descriptor.
+pub const ANCHORS: usize = 16;
+
+/// A mesh's vertices and triangles.
+#[derive(Clone, Copy, Debug)]
+pub struct MeshRef<'a> {
+    /// Vertex positions.
+    pub points: &'a [Vector3<f64>],
+    /// Triangles as vertex indices.
+    pub faces: &'a [[u32; 3]],
+}
+
+/// Why descriptors could not be formed.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum DescriptorError {
+    /// Fewer vertices than anchors.
+    #[error("{0} vertices are too few for {ANCHORS} anchors")]
+    TooFewVertices(usize),
+    /// A face names a vertex that does not exist.
+    #[error("face {face} names vertex {vertex}, but the mesh has {vertices} vertices")]
+    BadFace {
+        /// Index of the face.
+        face: usize,
+        /// The vertex it names.
+        vertex: u32,
+        /// Vertices in the mesh.
+        vertices: usize,
+    },
+    /// A mesh without triangles (a point cloud) has no edges to measure along.
+    #[error("a mesh without triangles has no surface distances")]
+    NoFaces,
+    /// `warped` does not hold one point per source vertex.
+    #[error("{warped} warped points for {vertices} source vertices")]
+    Mismatch {
+        /// Warped points given.
+        warped: usize,
+        /// Source vertices.
+        vertices: usize,
+    },
+}
+
+/// `count` vertices spread over the `core_fraction` of `points` nearest their centroid, by
+/// farthest-point sampling from the core vertex of largest x.
+pub fn core_anchors(points: &[Vector3<f64>], count: usize, core_fraction: f64) -> Vec<usize> {
+    if points.is_empty() || count == 0 {
+        return Vec::new();
+    }
+    let centre = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_by(|&a, &b| {
+        (points[a] - centre)
+            .norm_squared()
+            .total_cmp(&(points[b] - centre).norm_squared())
+    });
+    let keep = ((points.len() as f64 * core_fraction).ceil() as usize)
+        .clamp(count.min(points.len()), points.len());
+    let core = &order[..keep];
+    let first = *core
+        .iter()
+        .max_by(|&&a, &&b| points[a].x.total_cmp(&points[b].x))
+        .expect("the core is not empty");
+    let mut anchors = vec![first];
+    let mut nearest: Vec<f64> = core
+        .iter()
+        .map(|&v| (points[v] - points[first]).norm())
+        .collect();
+    while anchors.len() < count.min(core.len()) {
+        let (k, _) = nearest
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("the core is not empty");
+        let next = core[k];
+        anchors.push(next);
+        for (d, &v) in nearest.iter_mut().zip(core) {
+            *d = d.min((points[v] - points[next]).norm());
+        }
+    }
+    anchors
+}
+
+/// Each vertex's shortest-path distances along the mesh edges to the `ANCHORS` anchors. A vertex
+/// the anchor cannot reach (another component) gets twice the largest distance found, so that it
+/// stays far from every reachable one.
+pub fn geodesic_descriptors(
+    mesh: MeshRef<'_>,
+    anchors: &[usize; ANCHORS],
+) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
+    let n = mesh.points.len();
+    let mut edges = Vec::with_capacity(mesh.faces.len() * 3);
+    for (face, f) in mesh.faces.iter().enumerate() {
+        if let Some(&vertex) = f.iter().find(|&&v| v as usize >= n) {
+            return Err(DescriptorError::BadFace {
+                face,
+                vertex,
+                vertices: n,
+            });
+        }
+        for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+            edges.push((a.min(b), a.max(b)));
+        }
+    }
+    // an edge between two triangles is listed by both
+    edges.sort_unstable();
+    edges.dedup();
+    let mut graph = UnGraph::<(), f64>::from_edges(edges.iter().map(|&(a, b)| {
+        let length = (mesh.points[a as usize] - mesh.points[b as usize]).norm();
+        (a, b, length)
+    }));
+    while graph.node_count() < n {
+        graph.add_node(());
+    }
+    let columns: Vec<Vec<f64>> = anchors
+        .par_iter()
+        .map(|&a| {
+            let reached =
+                petgraph::algo::dijkstra(&graph, NodeIndex::new(a), None, |e| *e.weight());
+            let far = 2.0 * reached.values().copied().fold(0.0, f64::max);
+            (0..n)
+                .map(|v| reached.get(&NodeIndex::new(v)).copied().unwrap_or(far))
+                .collect()
+        })
+        .collect();
+    Ok((0..n)
+        .map(|v| std::array::from_fn(|k| columns[k][v]))
+        .collect())
+}
+
+/// For every source vertex, the target vertex whose geodesic descriptor is nearest its own.
+/// The anchors are [`core_anchors`] of the source (the `core_fraction` nearest its centroid);
+/// each anchor's partner is the target vertex nearest its position in `warped`, the source
+/// registered onto the target as a whole.
+pub fn descriptor_matches(
+    source: MeshRef<'_>,
+    warped: &[Vector3<f64>],
+    target: MeshRef<'_>,
+    core_fraction: f64,
+) -> Result<Vec<usize>, DescriptorError> {
+    if warped.len() != source.points.len() {
+        return Err(DescriptorError::Mismatch {
+            warped: warped.len(),
+            vertices: source.points.len(),
+        });
+    }
+    for mesh in [source, target] {
+        if mesh.points.len() < ANCHORS {
+            return Err(DescriptorError::TooFewVertices(mesh.points.len()));
+        }
+        if mesh.faces.is_empty() {
+            return Err(DescriptorError::NoFaces);
+        }
+    }
+    let anchors = core_anchors(source.points, ANCHORS, core_fraction);
+    let anchors: [usize; ANCHORS] = anchors
+        .try_into()
+        .map_err(|_| DescriptorError::TooFewVertices(source.points.len()))?;
+    let coords: Vec<[f64; 3]> = target.points.iter().map(|p| (*p).into()).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let partners: [usize; ANCHORS] = std::array::from_fn(|k| {
+        tree.nearest_one::<SquaredEuclidean>(&warped[anchors[k]].into())
+            .item as usize
+    });
+    let from = geodesic_descriptors(source, &anchors)?;
+    let to = geodesic_descriptors(target, &partners)?;
+    let tree: ImmutableKdTree<f64, ANCHORS> = ImmutableKdTree::new_from_slice(&to);
+    Ok(from
+        .par_iter()
+        .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
+        .collect())
+}
+
+/// A test surface (also used by `surface`'s tests): an open tube of `rings` × `around` vertices, radius 0.2 and length 2 along z, whose
+/// centre line is bent into a circular arc through `bend` radians (0: straight).
+#[cfg(test)]
+pub(crate) fn tube(rings: usize, around: usize, bend: f64) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+    let mut points = Vec::new();
+    for r in 0..rings {
+        let s = 2.0 * r as f64 / (rings - 1) as f64;
+        let (turn, centre) = if bend == 0.0 {
+            (nalgebra::Rotation3::identity(), Vector3::new(0.0, 0.0, s))
+        } else {
+            let (radius, angle) = (2.0 / bend, bend * s / 2.0);
+            (
+                nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), -angle),
+                Vector3::new(0.0, radius * (1.0 - angle.cos()), radius * angle.sin()),
+            )
+        };
+        for a in 0..around {
+            let t = std::f64::consts::TAU * a as f64 / around as f64;
+            points.push(centre + turn * Vector3::new(0.2 * t.cos(), 0.2 * t.sin(), 0.0));
+        }
+    }
+    let mut faces = Vec::new();
+    for r in 0..rings - 1 {
+        for a in 0..around {
+            let (i, j) = (
+                (r * around + a) as u32,
+                (r * around + (a + 1) % around) as u32,
+            );
+            let (k, l) = (i + around as u32, j + around as u32);
+            faces.push([i, j, k]);
+            faces.push([j, l, k]);
+        }
+    }
+    (points, faces)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+
+    /// Matches of the straight tube onto a copy bent by `bend` radians, moved rigidly and
+    /// renumbered. Returns how many vertices found their own copy, the largest distance (on the
+    /// straight tube) between a vertex and the vertex whose copy it found, and the count.
+    fn match_bent_copy(bend: f64) -> (usize, f64, usize) {
+        let (points, faces) = tube(24, 16, 0.0);
+        let (bent, bent_faces) = tube(24, 16, bend);
+        let n = bent.len();
+        let new_of = |v: usize| (v * 7 + 3) % n; // 7 is prime to n = 384
+        let motion = Rotation3::from_euler_angles(0.3, -0.2, 0.5);
+        let moved: Vec<Vector3<f64>> = bent
+            .iter()
+            .map(|p| motion * p + Vector3::new(1.0, -2.0, 0.5))
+            .collect();
+        let mut target = vec![Vector3::zeros(); n];
+        let mut old_of = vec![0; n];
+        for (v, p) in moved.iter().enumerate() {
+            target[new_of(v)] = *p;
+            old_of[new_of(v)] = v;
+        }
+        let target_faces: Vec<[u32; 3]> = bent_faces
+            .iter()
+            .map(|f| f.map(|v| new_of(v as usize) as u32))
+            .collect();
+        // the whole-shape registration that places the anchors: the moved bent tube itself
+        let matches = descriptor_matches(
+            MeshRef {
+                points: &points,
+                faces: &faces,
+            },
+            &moved,
+            MeshRef {
+                points: &target,
+                faces: &target_faces,
+            },
+            0.5,
+        )
+        .unwrap();
+        let right = (0..n).filter(|&v| matches[v] == new_of(v)).count();
+        let worst = (0..n)
+            .map(|v| (points[old_of[matches[v]]] - points[v]).norm())
+            .fold(0.0, f64::max);
+        (right, worst, n)
+    }
+
+    #[test]
+    fn a_moved_and_renumbered_copy_is_matched_vertex_for_vertex() {
+        let (right, _, n) = match_bent_copy(0.0);
+        assert_eq!(
+            right, n,
+            "{right} of {n} vertices matched to their own copy"
+        );
+    }
+
+    #[test]
+    fn a_bent_copy_is_matched_within_a_ring() {
+        // bending through 0.6 rad stretches the outer side's edges by 6 %, so a few vertices
+        // slip to a neighbour, but none farther than the ring spacing (2 / 23)
+        let (right, worst, n) = match_bent_copy(0.6);
+        assert!(right * 10 >= n * 9, "{right} of {n} exact");
+        assert!(worst <= 2.0 / 23.0 + 1e-9, "worst slip {worst}");
+    }
+
+    #[test]
+    fn shortest_paths_follow_the_edges() {
+        let (points, faces) = tube(5, 8, 0.0);
+        let anchors = [0; ANCHORS];
+        let d = geodesic_descriptors(
+            MeshRef {
+                points: &points,
+                faces: &faces,
+            },
+            &anchors,
+        )
+        .unwrap();
+        // straight up the tube: four ring spacings of 0.5
+        assert!((d[4 * 8][0] - 2.0).abs() < 1e-12, "{}", d[4 * 8][0]);
+        // half way round a ring: four chords of the octagon
+        let chord = 2.0 * 0.2 * (std::f64::consts::PI / 8.0).sin();
+        assert!((d[4][0] - 4.0 * chord).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_faces_and_short_inputs_are_errors() {
+        let (points, mut faces) = tube(5, 8, 0.0);
+        faces.push([0, 1, 99]);
+        let mesh = MeshRef {
+            points: &points,
+            faces: &faces,
+        };
+        assert!(matches!(
+            geodesic_descriptors(mesh, &[0; ANCHORS]),
+            Err(DescriptorError::BadFace { vertex: 99, .. })
+        ));
+        let cloud = MeshRef {
+            points: &points,
+            faces: &[],
+        };
+        assert_eq!(
+            descriptor_matches(cloud, &points, cloud, 0.5),
+            Err(DescriptorError::NoFaces)
+        );
+        let few = &points[..4];
+        let small = MeshRef {
+            points: few,
+            faces: &[],
+        };
+        assert_eq!(
+            descriptor_matches(small, few, small, 0.5),
+            Err(DescriptorError::TooFewVertices(4))
+        );
+        assert!(matches!(
+            descriptor_matches(mesh, &points[..3], mesh, 0.5),
+            Err(DescriptorError::Mismatch { .. })
+        ));
+    }
+}
