@@ -10,7 +10,9 @@ fn v_matrix(theta: f64) -> Matrix2<f64> {
     let (a, b) = if theta.abs() < 1e-4 {
         (1.0 - t2 / 6.0, theta / 2.0 - theta * t2 / 24.0)
     } else {
-        (theta.sin() / theta, (1.0 - theta.cos()) / theta)
+        // 1 − cos θ = 2 sin²(θ/2), which keeps its digits where θ is small.
+        let h = (0.5 * theta).sin();
+        (theta.sin() / theta, 2.0 * h * h / theta)
     };
     Matrix2::new(a, -b, b, a)
 }
@@ -74,8 +76,10 @@ pub fn right_jacobian_inv(tau: &Vector3<f64>) -> Matrix3<f64> {
             0.5 - t2 / 24.0,
         )
     } else {
-        let (s, c) = t.sin_cos();
-        (s / t, (1.0 - c) / t, (t - s) / t2, (1.0 - c) / t2)
+        let s = t.sin();
+        let h = (0.5 * t).sin();
+        let one_minus_c = 2.0 * h * h;
+        (s / t, one_minus_c / t, (t - s) / t2, one_minus_c / t2)
     };
     let b = Vector2::new(r1 * d1 - r2 * d2, r1 * d2 + r2 * d1);
     let m = Matrix2::new(a, c1, -c1, a);
