@@ -3,10 +3,12 @@
 
 usage (numpy and scipy, e.g. the peers' venv):
   ~/.cache/dynamap-peers/bin/python bench/camel_descriptors.py I J WARPED.ply [--anchors 16] [--core 15]
+      [--map MAP]
 
 I, J: camel poses (map I_to_J of ../shared/data/nonrigid/camel_gallop); WARPED.ply: the output of
-`nonrigid_register camel-gallop-0I.off camel-gallop-0J.off --single-pass --output WARPED.ply`
-(the one-pass registration, whose result places the anchors, as in `register_meshes`).
+`nonrigid_register camel-gallop-0I.off camel-gallop-0J.off --seeded-passes 0 --output WARPED.ply`
+(the one-pass registration, whose result places the anchors, as in `register_meshes`). MAP: a
+ground-truth map other than the data's maps/I_to_J (e.g. a chained one from camel_heldout.py).
 
 Anchors: farthest-point samples over the source's most central CORE % of vertices. Each anchor's
 partner is the target vertex closest to its warped position. Every vertex is described by its
@@ -53,11 +55,12 @@ def main():
     ap.add_argument("warped")
     ap.add_argument("--anchors", type=int, default=16)
     ap.add_argument("--core", type=float, default=15.0)
+    ap.add_argument("--map", help="ground-truth map (default: the data's maps/I_to_J)")
     a = ap.parse_args()
     s, sf = read_off(os.path.join(DATA, f"camel-gallop-{a.i:02d}.off"))
     t, tf = read_off(os.path.join(DATA, f"camel-gallop-{a.j:02d}.off"))
     w = read_ply_vertices(a.warped, len(s))
-    partner = np.array([int(x) for x in open(os.path.join(DATA, "maps", f"{a.i}_to_{a.j}")).read().split()])
+    partner = np.array([int(x) for x in open(a.map or os.path.join(DATA, "maps", f"{a.i}_to_{a.j}")).read().split()])
     scored = partner != np.argmax(np.bincount(partner, minlength=len(t)))  # the placeholder vertex
     diag = np.linalg.norm(t.max(0) - t.min(0))
     legs = scored & (s[:, 1] < 0.25)

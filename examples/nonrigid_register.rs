@@ -7,9 +7,9 @@
 //! SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its vertices (in
 //! their order) and normals warped. Lengths default to fractions of the source's bounding-box
 //! diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes are registered
-//! in two passes, the second seeded by geodesic descriptors (`register_meshes`, NOTES 47);
-//! `--single-pass` registers by closest point alone. One JSON line last: nodes, iterations,
-//! seconds, final data and regulariser costs.
+//! in a first pass by closest point and then in passes seeded by geodesic descriptors
+//! (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest point alone. One
+//! JSON line last: nodes, iterations, seconds, final data and regulariser costs.
 //!
 //! Either may instead be an RGB-D frame, a depth PNG (`.png`) read with `--intrinsics fx fy cx cy
 //! --depth-scale S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its
@@ -91,12 +91,12 @@ struct Args {
     /// Also start the rigid pre-alignment from the principal-axes alignments (for shapes far apart).
     #[arg(long)]
     principal_axes: bool,
-    /// Meshes: register in one pass by closest point only. By default a second pass starts from
-    /// geodesic-descriptor correspondences (anchors on the core placed by the first pass), which
-    /// keep parts that swing past each other apart (legs). Point clouds (no triangles) have no
-    /// surface distances and are always registered in one pass.
-    #[arg(long)]
-    single_pass: bool,
+    /// Meshes: passes after the first that start from geodesic-descriptor correspondences
+    /// (anchors on the core placed by the pass before), which keep parts that swing past each
+    /// other apart (legs); 0 registers in one pass by closest point only. Point clouds (no
+    /// triangles) have no surface distances and are always registered in one pass.
+    #[arg(long, value_name = "N")]
+    seeded_passes: Option<usize>,
     /// A ground-truth vertex map (line k: the index on TARGET of SOURCE's vertex k, as in the camel
     /// data's maps/i_to_j): adds the mean and 95th percentile of |warped − partner| before and after,
     /// as fractions of TARGET's bounding-box diagonal, to the JSON. Entries pointing at a vertex that
@@ -302,7 +302,7 @@ fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> R
     }
     refuse_flags(
         &[
-            ("--single-pass", args.single_pass),
+            ("--seeded-passes", args.seeded_passes.is_some()),
             ("--principal-axes", args.principal_axes),
             ("--ground-truth", args.ground_truth.is_some()),
         ],
@@ -417,6 +417,10 @@ fn main() -> ExitCode {
                 (&meshes.0, &meshes.1),
                 (&frames.graph, &frames.register),
             )
+            .mut_arg("seeded_passes", |a| {
+                let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
+                a.help(format!("{help} [default: {}]", Seeding::default().passes))
+            })
         },
         run,
     )
@@ -455,7 +459,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Some(p) => Some(read_map(p, sp.len(), tp.len()).bad_input()?),
         None => None,
     };
-    let reg = if args.single_pass || source.faces.is_empty() || target.faces.is_empty() {
+    let seeding = Seeding {
+        passes: args.seeded_passes.unwrap_or(Seeding::default().passes),
+        ..Seeding::default()
+    };
+    let reg = if seeding.passes == 0 || source.faces.is_empty() || target.faces.is_empty() {
         register_surfaces((&sp, &sn), (&tp, &tn), graph, params, args.principal_axes)
     } else {
         register_meshes(
@@ -472,7 +480,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             graph,
             params,
             args.principal_axes,
-            &Seeding::default(),
+            &seeding,
         )
     }
     .with_context(|| format!("registering {}", source_path.display()))?;

@@ -9,7 +9,7 @@
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
 //!   field tracked frame to frame against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
-//!   apart in pose in two passes seeded by [`descriptors`]: geodesic descriptors that tell
+//!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
 //!   apart parts closest point confuses.
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow.

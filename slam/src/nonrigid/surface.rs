@@ -1,7 +1,7 @@
 //! Registering one whole surface (mesh or cloud with normals) onto another: graph sampling over the
 //! source, binding, principal-axes starting guesses, and the warp-field optimiser against the target
-//! by closest point ([`register_surfaces`]); for meshes, also in two passes, the second seeded by
-//! geodesic descriptors ([`register_meshes`]). The source's points keep their order in the result,
+//! by closest point ([`register_surfaces`]); for meshes, also in further passes seeded by geodesic
+//! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
 use super::descriptors::{descriptor_matches, DescriptorError, MeshRef};
@@ -38,10 +38,13 @@ pub struct SurfaceMesh<'a> {
     pub faces: &'a [[u32; 3]],
 }
 
-/// Settings of [`register_meshes`]' second pass.
+/// Settings of [`register_meshes`]' seeded passes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Seeding {
-    /// Stages of the second pass that take the descriptor correspondences (default 1: λ = 100
+    /// Seeded passes after the first, unseeded one (default 2); each places its anchors with the
+    /// pass before it. 0 is [`register_surfaces`] alone.
+    pub passes: usize,
+    /// Stages of a seeded pass that take the descriptor correspondences (default 1: λ = 100
     /// of [`clean_surface_settings`]).
     pub stages: usize,
     /// Tukey's c in those stages, as a multiple of the usual one (default 8).
@@ -54,6 +57,7 @@ pub struct Seeding {
 impl Default for Seeding {
     fn default() -> Self {
         Self {
+            passes: 2,
             stages: 1,
             tukey_scale: 8.0,
             core_fraction: 0.15,
@@ -200,19 +204,21 @@ impl<'a> Passes<'a> {
     }
 }
 
-/// Registers one mesh onto another in two passes, for poses far apart whose parts swing past
-/// each other (a galloping animal's legs), where closest point pulls a part onto its neighbour.
+/// Registers one mesh onto another in several passes, for poses far apart whose parts swing
+/// past each other (a galloping animal's legs), where closest point pulls a part onto its
+/// neighbour.
 ///
 /// 1. [`register_surfaces`] aligns the whole shape; its core lands where it belongs.
 /// 2. Every source vertex is matched to the target vertex of nearest geodesic descriptor, with
-///    anchors on the source's core and their partners from pass 1
+///    anchors on the source's core and their partners from the pass before
 ///    ([`descriptor_matches`]).
 /// 3. The registration runs again from the start. In its first `seeding.stages` stages a
 ///    point takes its descriptor match wherever that lies farther than the association gate
 ///    from its closest-point match ([`WarpOptimiser::optimise_seeded`]); later stages
 ///    associate by closest point alone.
 ///
-/// The summary is the second pass's, with the iterations, seconds and stage times of both.
+/// Steps 2 and 3 repeat `seeding.passes` times: a better pass places the anchors better. The
+/// summary is the last pass's, with the iterations, seconds and stage times of all.
 pub fn register_meshes(
     source: SurfaceMesh<'_>,
     target: SurfaceMesh<'_>,
@@ -229,32 +235,37 @@ pub fn register_meshes(
         params,
         principal_axes,
     )?;
-    let first = passes.run(None)?;
-    let partner = descriptor_matches(
-        MeshRef {
-            points: source.points,
-            faces: source.faces,
-        },
-        &first.points,
-        MeshRef {
-            points: target.points,
-            faces: target.faces,
-        },
-        seeding.core_fraction,
-    )?;
-    let seeds = Seeds {
-        matches: partner
-            .iter()
-            .map(|&k| (target.points[k], target.normals[k]))
-            .collect(),
-        stages: seeding.stages,
-        tukey_scale: seeding.tukey_scale,
-    };
-    let mut second = passes.run(Some(&seeds))?;
-    second.summary.iterations += first.summary.iterations;
-    second.summary.times.add(&first.summary.times);
-    second.summary.seconds = start.elapsed().as_secs_f64();
-    Ok(second)
+    let mut last = passes.run(None)?;
+    let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
+    for _ in 0..seeding.passes {
+        let partner = descriptor_matches(
+            MeshRef {
+                points: source.points,
+                faces: source.faces,
+            },
+            &last.points,
+            MeshRef {
+                points: target.points,
+                faces: target.faces,
+            },
+            seeding.core_fraction,
+        )?;
+        let seeds = Seeds {
+            matches: partner
+                .iter()
+                .map(|&k| (target.points[k], target.normals[k]))
+                .collect(),
+            stages: seeding.stages,
+            tukey_scale: seeding.tukey_scale,
+        };
+        last = passes.run(Some(&seeds))?;
+        iterations += last.summary.iterations;
+        times.add(&last.summary.times);
+    }
+    last.summary.iterations = iterations;
+    last.summary.times = times;
+    last.summary.seconds = start.elapsed().as_secs_f64();
+    Ok(last)
 }
 
 #[cfg(test)]
@@ -276,39 +287,88 @@ mod tests {
         mesh_points(&mesh).1
     }
 
+    /// A tube and its copy bent by `bend` radians, with normals.
+    struct TubePair {
+        source: (Vec<Vector3<f64>>, Vec<Vector3<f64>>),
+        target: (Vec<Vector3<f64>>, Vec<Vector3<f64>>),
+        faces: Vec<[u32; 3]>,
+    }
+
+    impl TubePair {
+        fn new(rings: usize, sides: usize, bend: f64) -> Self {
+            let (sp, faces) = tube(rings, sides, 0.0);
+            let (tp, _) = tube(rings, sides, bend);
+            let (sn, tn) = (with_normals(&sp, &faces), with_normals(&tp, &faces));
+            Self {
+                source: (sp, sn),
+                target: (tp, tn),
+                faces,
+            }
+        }
+
+        fn settings(&self) -> (GraphParams, RegisterParams) {
+            clean_surface_settings(bounding_diagonal(&self.source.0))
+        }
+
+        fn register<'a>(&'a self, passes: usize) -> SurfaceRegistration {
+            let (graph, params) = self.settings();
+            let mesh =
+                |(points, normals): &'a (Vec<Vector3<f64>>, Vec<Vector3<f64>>)| SurfaceMesh {
+                    points,
+                    normals,
+                    faces: &self.faces,
+                };
+            let seeding = Seeding {
+                passes,
+                ..Seeding::default()
+            };
+            register_meshes(
+                mesh(&self.source),
+                mesh(&self.target),
+                graph,
+                params,
+                false,
+                &seeding,
+            )
+            .unwrap()
+        }
+
+        /// Mean distance from `points` to their partners: vertex k of the bent tube is vertex
+        /// k's partner.
+        fn error(&self, points: &[Vector3<f64>]) -> f64 {
+            let target = &self.target.0;
+            let sum: f64 = points.iter().zip(target).map(|(a, b)| (a - b).norm()).sum();
+            sum / target.len() as f64
+        }
+    }
+
     #[test]
-    fn two_passes_carry_a_tube_onto_its_bent_copy() {
-        let (sp, faces) = tube(24, 16, 0.0);
-        let (tp, _) = tube(24, 16, 0.6);
-        let (sn, tn) = (with_normals(&sp, &faces), with_normals(&tp, &faces));
-        let (graph, params) = clean_surface_settings(bounding_diagonal(&sp));
-        let mesh = |p, n| SurfaceMesh {
-            points: p,
-            normals: n,
-            faces: &faces,
-        };
-        let reg = register_meshes(
-            mesh(&sp, &sn),
-            mesh(&tp, &tn),
-            graph,
-            params,
-            false,
-            &Seeding::default(),
-        )
-        .unwrap();
-        // vertex k of the bent tube is vertex k's partner
-        let mean = reg
-            .points
-            .iter()
-            .zip(&tp)
-            .map(|(a, b)| (a - b).norm())
-            .sum::<f64>()
-            / tp.len() as f64;
-        let before = sp.iter().zip(&tp).map(|(a, b)| (a - b).norm()).sum::<f64>() / tp.len() as f64;
-        assert!(
-            mean < 0.01 && before > 0.1,
-            "mean error {mean} (before {before})"
-        );
+    fn seeded_passes_carry_a_tube_onto_its_bent_copy() {
+        let pair = TubePair::new(24, 16, 0.6);
+        let before = pair.error(&pair.source.0);
+        let one = pair.register(1);
+        let two = pair.register(2);
+        for (passes, reg) in [(1, &one), (2, &two)] {
+            let mean = pair.error(&reg.points);
+            assert!(
+                mean < 0.01 && before > 0.1,
+                "{passes} seeded passes: mean error {mean} (before {before})"
+            );
+        }
+        // Each pass starts from the graph at rest: the second seeded pass is a whole registration
+        // of its own, and the summary counts the iterations of all three.
+        assert!(two.summary.iterations > one.summary.iterations);
+    }
+
+    #[test]
+    fn no_seeded_pass_is_the_one_pass_registration() {
+        let pair = TubePair::new(12, 8, 0.4);
+        let meshes = pair.register(0);
+        let (graph, params) = pair.settings();
+        let (s, t) = (&pair.source, &pair.target);
+        let surfaces = register_surfaces((&s.0, &s.1), (&t.0, &t.1), graph, params, false).unwrap();
+        assert_eq!(meshes.points, surfaces.points);
+        assert_eq!(meshes.summary.iterations, surfaces.summary.iterations);
     }
 
     #[test]
