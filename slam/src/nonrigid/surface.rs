@@ -235,19 +235,23 @@ pub fn register_meshes(
         params,
         principal_axes,
     )?;
+    let (source_mesh, target_mesh) = (
+        MeshRef {
+            points: source.points,
+            faces: source.faces,
+        },
+        MeshRef {
+            points: target.points,
+            faces: target.faces,
+        },
+    );
     let mut last = passes.run(None)?;
     let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
     for _ in 0..seeding.passes {
         let partner = descriptor_matches(
-            MeshRef {
-                points: source.points,
-                faces: source.faces,
-            },
+            source_mesh,
             &last.points,
-            MeshRef {
-                points: target.points,
-                faces: target.faces,
-            },
+            target_mesh,
             seeding.core_fraction,
         )?;
         let seeds = Seeds {
