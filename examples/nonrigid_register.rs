@@ -412,15 +412,13 @@ fn main() -> ExitCode {
     let frames = FrameSettings::default();
     cli::run_with(
         |cmd| {
-            WarpFlags::describe_defaults(
+            let cmd = WarpFlags::describe_defaults(
                 cmd,
                 (&meshes.0, &meshes.1),
                 (&frames.graph, &frames.register),
-            )
-            .mut_arg("seeded_passes", |a| {
-                let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
-                a.help(format!("{help} [default: {}]", Seeding::default().passes))
-            })
+            );
+            let passes = format!("[default: {}]", Seeding::default().passes);
+            warp_flags::append_help(cmd, "seeded_passes", &passes)
         },
         run,
     )

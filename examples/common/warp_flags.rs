@@ -87,12 +87,11 @@ impl WarpFlags {
         let f = Self::values(frames.0, frames.1);
         m.into_iter().zip(f).fold(cmd, |cmd, ((id, mv), (_, fv))| {
             let unit = if lengths.contains(&id) { " D" } else { "" };
-            cmd.mut_arg(id, |a| {
-                let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
-                a.help(format!(
-                    "{help} [default: {mv}{unit} for meshes, {fv} for frames]"
-                ))
-            })
+            append_help(
+                cmd,
+                id,
+                &format!("[default: {mv}{unit} for meshes, {fv} for frames]"),
+            )
         })
     }
 
@@ -126,4 +125,13 @@ impl WarpFlags {
         }
         Ok(())
     }
+}
+
+/// `cmd` with `text` appended to the help of its argument `id` (for defaults known only at run
+/// time).
+pub fn append_help(cmd: clap::Command, id: &'static str, text: &str) -> clap::Command {
+    cmd.mut_arg(id, |a| {
+        let help = a.get_help().map(|h| h.to_string()).unwrap_or_default();
+        a.help(format!("{help} {text}"))
+    })
 }

@@ -287,6 +287,7 @@ pub fn register_frames(
         &data_bindings,
         &depth_target,
         &[start],
+        None,
     )?;
     let (mut warped, mut warped_normals) = (Vec::new(), Vec::new());
     graph.warp_all(

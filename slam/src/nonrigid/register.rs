@@ -176,7 +176,7 @@ impl Default for RegisterParams {
 }
 
 /// Correspondences given per point for the first stages of an optimisation, overriding
-/// association where the two disagree ([`WarpOptimiser::optimise_seeded`]): for parts that
+/// association where the two disagree ([`WarpOptimiser::optimise_from`]): for parts that
 /// closest point would pull onto the wrong partner, such as legs that swing past each other.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Seeds {
@@ -279,30 +279,19 @@ impl WarpOptimiser {
             bindings,
             target,
             &[Isometry3::identity()],
+            None,
         )
     }
 
     /// [`Self::optimise`] with the rigid pre-alignment started from each of `guesses` (see
     /// [`principal_axes_guesses`] for whole shapes far apart); the closest fit is kept.
-    pub fn optimise_from(
-        &mut self,
-        graph: &mut DeformationGraph,
-        points: &[Vector3<f64>],
-        normals: &[Vector3<f64>],
-        bindings: &[Binding],
-        target: &dyn Target,
-        guesses: &[Isometry3<f64>],
-    ) -> Result<RegisterSummary, RegisterError> {
-        self.optimise_seeded(graph, points, normals, bindings, target, guesses, None)
-    }
-
-    /// [`Self::optimise_from`] whose first `seeds.stages` stages, under a wider Tukey kernel,
-    /// give a point its seed wherever the seed lies farther than the distance gate from its
-    /// closest-point partner (or it has none); the later stages associate with `target` as
-    /// usual. Without seeds it is [`Self::optimise_from`]. Seeds that are not one per point are
-    /// an error.
+    ///
+    /// With `seeds`, the first `seeds.stages` stages, under a wider Tukey kernel, give a point its
+    /// seed wherever the seed lies farther than the distance gate from its closest-point partner
+    /// (or it has none); the later stages associate with `target` as usual. Seeds that are not
+    /// one per point are an error.
     #[allow(clippy::too_many_arguments)]
-    pub fn optimise_seeded(
+    pub fn optimise_from(
         &mut self,
         graph: &mut DeformationGraph,
         points: &[Vector3<f64>],

@@ -184,7 +184,7 @@ impl<'a> Passes<'a> {
     fn run(&self, seeds: Option<&Seeds>) -> Result<SurfaceRegistration, SurfaceError> {
         let (sp, sn) = self.source;
         let mut graph = self.rest.clone();
-        let summary = WarpOptimiser::new(self.params.clone()).optimise_seeded(
+        let summary = WarpOptimiser::new(self.params.clone()).optimise_from(
             &mut graph,
             sp,
             sn,
@@ -214,7 +214,7 @@ impl<'a> Passes<'a> {
 ///    ([`descriptor_matches`]).
 /// 3. The registration runs again from the start. In its first `seeding.stages` stages a
 ///    point takes its descriptor match wherever that lies farther than the association gate
-///    from its closest-point match ([`WarpOptimiser::optimise_seeded`]); later stages
+///    from its closest-point match ([`WarpOptimiser::optimise_from`]); later stages
 ///    associate by closest point alone.
 ///
 /// Steps 2 and 3 repeat `seeding.passes` times: a better pass places the anchors better. The
@@ -387,7 +387,7 @@ mod tests {
             stages: 1,
             tukey_scale: 8.0,
         };
-        let result = WarpOptimiser::new(params).optimise_seeded(
+        let result = WarpOptimiser::new(params).optimise_from(
             &mut graph,
             &sp,
             &sn,
