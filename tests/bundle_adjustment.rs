@@ -4,6 +4,7 @@ use dynamap::residuals::bal::{
     synthetic::{self, SyntheticOptions},
     BalProblem, SnavelyReprojection,
 };
+use dynamap::solver::robust::NamedKernel;
 use dynamap::solver::{
     AutoDiff, CostFunctor, DampingKind, Elimination, Euclidean, IterationSummary, LinearSolverKind,
     Options, Problem, Real, SolveError, Solver,
@@ -180,11 +181,13 @@ fn huber_lowers_the_inlier_cost_when_a_tenth_of_the_observations_are_corrupt() {
     });
     let outliers = s.outlier.iter().filter(|&&b| b).count();
     assert!(outliers > s.outlier.len() / 20, "{outliers} outliers");
-    let solve_with = |huber: Option<f64>| -> BalProblem {
+    let solve_with = |kernel: Option<NamedKernel>| -> BalProblem {
         let mut data = s.start.clone();
-        let mut solve = data.build(huber).unwrap();
+        let mut solve = data.build(kernel).unwrap();
+        // Reweighted least squares converges linearly once the outliers are down-weighted
+        // (NOTES 49): this one takes 110 iterations to a relative change of 1e-10.
         let summary = Solver::new(Options {
-            max_iterations: 100,
+            max_iterations: 400,
             ..options(LinearSolverKind::SchurDense)
         })
         .solve(&mut solve.problem)
@@ -195,7 +198,7 @@ fn huber_lowers_the_inlier_cost_when_a_tenth_of_the_observations_are_corrupt() {
     };
     let inlier_cost = |d: &BalProblem| d.cost_where(|k| !s.outlier[k]);
     let plain = inlier_cost(&solve_with(None));
-    let robust = inlier_cost(&solve_with(Some(1.0)));
+    let robust = inlier_cost(&solve_with(Some(NamedKernel::Huber(1.0))));
     let truth = inlier_cost(&s.truth);
     assert!(
         robust < 0.8 * plain,

@@ -8,7 +8,7 @@ use common::examples::{result_json, run, scratch, text};
 use std::path::Path;
 use std::process::Output;
 
-const BINARIES: [&str; 11] = [
+const BINARIES: [&str; 12] = [
     "rigid_slam",
     "nonrigid_slam",
     "nonrigid_register",
@@ -20,6 +20,7 @@ const BINARIES: [&str; 11] = [
     "preprocess_bench",
     "tsdf_bench",
     "long_run",
+    "generate_problem",
 ];
 
 #[test]
@@ -29,6 +30,7 @@ fn every_binary_has_help_with_defaults_and_the_shared_flags() {
         let args: &[&str] = match name {
             "generate" => &["rigid", "--help"],
             "evaluate" => &["ate", "--help"],
+            "generate_problem" => &["bal", "--help"],
             _ => &["--help"],
         };
         let out = run(name, args);
@@ -211,6 +213,78 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
         &run("pose_graph", &["--output", &unwritable, "-q"]),
         1,
         &["out.g2o"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn robust_kernels_from_the_command_line_and_generated_problems() {
+    let dir = scratch("robust");
+    let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    // a bundle adjustment with outliers, written as BAL, solved under Cauchy
+    let bal = path("bal.txt");
+    let gen = run(
+        "generate_problem",
+        &[
+            "bal",
+            &bal,
+            "--cameras",
+            "8",
+            "--points-per-camera",
+            "10",
+            "--views",
+            "3:6",
+            "-q",
+        ],
+    );
+    assert!(gen.status.success(), "{}", text(&gen.stderr));
+    let solved = run("bundle_adjustment", &[&bal, "--kernel", "cauchy:2", "-q"]);
+    assert!(solved.status.success(), "{}", text(&solved.stderr));
+    let d = result_json(&solved);
+    assert_eq!(d["kernel"], "cauchy:2");
+    let costs = d["costs"].as_array().unwrap();
+    assert_eq!(costs.len(), d["iterations"].as_u64().unwrap() as usize + 1);
+    assert!(d["cost_final"].as_f64().unwrap() < d["cost_initial"].as_f64().unwrap());
+    // a pose graph with wrong loops under DCS converges
+    let g2o = path("pg.g2o");
+    let gen = run(
+        "generate_problem",
+        &[
+            "pose-graph",
+            &g2o,
+            "--rings",
+            "3",
+            "--per-ring",
+            "20",
+            "--false-loops",
+            "5",
+            "-q",
+        ],
+    );
+    assert!(gen.status.success(), "{}", text(&gen.stderr));
+    let solved = run("pose_graph", &[&g2o, "--kernel", "dcs:1", "-q"]);
+    assert!(solved.status.success(), "{}", text(&solved.stderr));
+    assert_eq!(result_json(&solved)["converged"], true);
+    // bad kernels and counts are refused with the flag named
+    assert_exit(
+        &run("bundle_adjustment", &[&bal, "--kernel", "l2:1"]),
+        2,
+        &["unknown robust kernel 'l2'"],
+    );
+    assert_exit(
+        &run("pose_graph", &[&g2o, "--kernel", "dcs:-1"]),
+        2,
+        &["positive finite"],
+    );
+    assert_exit(
+        &run("generate_problem", &["bal", &bal, "--cameras", "1"]),
+        2,
+        &["--cameras"],
+    );
+    assert_exit(
+        &run("generate_problem", &["bal", &bal, "--views", "5:2"]),
+        2,
+        &["LO <= HI"],
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

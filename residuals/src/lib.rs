@@ -39,6 +39,7 @@
 
 #![warn(missing_docs)]
 
+pub mod atomic;
 pub mod bal;
 pub mod deform;
 pub mod icp;

@@ -20,6 +20,7 @@
 //!   or sparse Cholesky, or by conjugate gradients with implicit products.
 //! - [`Problem::set_bounds`]: box constraints on Euclidean variables, honoured at every iterate.
 //! - [`covariance()`]: marginal covariances, blocks of H⁻¹ at the solution.
+//! - [`linearize()`]: the kernel-corrected H and g the solver steps from, written out densely.
 //! - [`BlockSystem`]: block-sparse normal equations the caller assembles itself (terms that share
 //!   work the residual interface cannot see), solved by the sparse path's Cholesky.
 //! - [`dense`]: the dense path for one variable with many scalar terms (trackers), reduced
@@ -85,6 +86,7 @@ mod error;
 mod jet;
 pub mod lie;
 mod linear;
+mod linearize;
 mod manifold;
 mod minimizer;
 mod normal;
@@ -101,6 +103,7 @@ pub use covariance::covariance;
 pub use error::{ProblemError, SolveError};
 pub use jet::Jet;
 pub use linear::{Damping, LinearSolverKind};
+pub use linearize::{linearize, Linearization};
 pub use manifold::{Euclidean, EuclideanDyn, Manifold, UnitQuaternionManifold, SE2, SE3, SO2, SO3};
 pub use minimizer::{
     Algorithm, DampingKind, Elimination, IterationSummary, Observer, Options, Solver, Summary,

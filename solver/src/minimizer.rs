@@ -436,6 +436,8 @@ impl Solver {
         // non-finite trial points: in all, in a row, and the last block that gave one
         let (mut non_finite_steps, mut non_finite_run, mut non_finite_block) =
             (0usize, 0usize, None);
+        // LM: factorisations of H + μD that failed and were retried with more damping
+        let mut factor_retries = 0usize;
         while !stop && termination == Termination::MaxIterations && iteration < opts.max_iterations
         {
             iteration += 1;
@@ -472,20 +474,27 @@ impl Solver {
                     (pred, 0.0)
                 }
                 Algorithm::LevenbergMarquardt => {
-                    let d = match opts.damping {
-                        DampingKind::Identity => Damping::Identity(mu),
-                        DampingKind::Diagonal => Damping::Diagonal(mu),
-                    };
-                    if linear.factor(ne, d).is_err() {
+                    // H + μD that is not numerically positive definite (a gauge direction under
+                    // tiny damping) yields no step to try: raise μ as a rejection would, within
+                    // this iteration, since nothing was evaluated (NOTES 49).
+                    let d = loop {
+                        let d = match opts.damping {
+                            DampingKind::Identity => Damping::Identity(mu),
+                            DampingKind::Diagonal => Damping::Diagonal(mu),
+                        };
+                        if linear.factor(ne, d).is_ok() || !mu.is_finite() || mu > 1e300 {
+                            break d;
+                        }
+                        factor_retries += 1;
                         mu *= nu;
                         nu *= 2.0;
+                    };
+                    if !mu.is_finite() || mu > 1e300 {
+                        termination = Termination::NoProgress;
                         stop = self.notify(
                             &rejected(iteration, cost, gnorm, mu, t_solve, start),
                             &mut log,
                         );
-                        if !mu.is_finite() || mu > 1e300 {
-                            termination = Termination::NoProgress;
-                        }
                         continue;
                     }
                     negate_into(&ne.gradient, step);
@@ -631,6 +640,12 @@ impl Solver {
         }
         if stop && termination == Termination::MaxIterations {
             termination = Termination::UserStopped;
+        }
+        if factor_retries > 0 {
+            tracing::debug!(
+                factor_retries,
+                "damped normal equations not positive definite; retried with more damping"
+            );
         }
         if non_finite_run > 0 && termination.converged() {
             // the step shrank only because every trial point was non-finite: not a convergence

@@ -150,21 +150,148 @@ impl RobustKernel for Barron {
     }
 }
 
+/// A built-in kernel chosen by name and scale, as a command line or a file gives it:
+/// `huber:1`, `cauchy:0.5`, `tukey:4.7`, `geman-mcclure:1`, `welsch:1`, `fair:1`, `dcs:1`
+/// ([`FromStr`](std::str::FromStr) reads that form, [`Display`](std::fmt::Display) writes it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NamedKernel {
+    /// [`Huber`] with this scale.
+    Huber(f64),
+    /// [`Cauchy`] with this scale.
+    Cauchy(f64),
+    /// [`Tukey`] with this scale.
+    Tukey(f64),
+    /// [`GemanMcClure`] with this scale.
+    GemanMcClure(f64),
+    /// [`Welsch`] with this scale.
+    Welsch(f64),
+    /// [`Fair`] with this scale.
+    Fair(f64),
+    /// [`Dcs`] with this Φ.
+    Dcs(f64),
+}
+
+/// Why a kernel's name and scale could not be read.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum KernelParseError {
+    /// The name is none of the built-in kernels.
+    #[error("unknown robust kernel '{0}' (expected huber, cauchy, tukey, geman-mcclure, welsch, fair or dcs, as NAME:SCALE)")]
+    UnknownName(String),
+    /// The text after the colon is missing, not a number, not finite or not positive.
+    #[error("robust kernel '{0}': the scale must be a positive finite number, as NAME:SCALE")]
+    BadScale(String),
+}
+
+impl NamedKernel {
+    const NAMES: [&'static str; 7] = [
+        "huber",
+        "cauchy",
+        "tukey",
+        "geman-mcclure",
+        "welsch",
+        "fair",
+        "dcs",
+    ];
+
+    /// The kernel's name, as [`FromStr`](std::str::FromStr) reads it.
+    pub fn name(&self) -> &'static str {
+        Self::NAMES[self.index()]
+    }
+
+    /// The scale c (Φ for DCS).
+    pub fn scale(&self) -> f64 {
+        match *self {
+            Self::Huber(c)
+            | Self::Cauchy(c)
+            | Self::Tukey(c)
+            | Self::GemanMcClure(c)
+            | Self::Welsch(c)
+            | Self::Fair(c)
+            | Self::Dcs(c) => c,
+        }
+    }
+
+    fn index(&self) -> usize {
+        match self {
+            Self::Huber(_) => 0,
+            Self::Cauchy(_) => 1,
+            Self::Tukey(_) => 2,
+            Self::GemanMcClure(_) => 3,
+            Self::Welsch(_) => 4,
+            Self::Fair(_) => 5,
+            Self::Dcs(_) => 6,
+        }
+    }
+}
+
+impl std::str::FromStr for NamedKernel {
+    type Err = KernelParseError;
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let (name, scale) = text.split_once(':').unwrap_or((text, ""));
+        let name = name.trim().to_ascii_lowercase();
+        let kind = Self::NAMES
+            .iter()
+            .position(|&n| n == name)
+            .ok_or_else(|| KernelParseError::UnknownName(name.clone()))?;
+        let c: f64 = scale
+            .trim()
+            .parse()
+            .ok()
+            .filter(|c: &f64| c.is_finite() && *c > 0.0)
+            .ok_or_else(|| KernelParseError::BadScale(text.to_string()))?;
+        Ok([
+            Self::Huber,
+            Self::Cauchy,
+            Self::Tukey,
+            Self::GemanMcClure,
+            Self::Welsch,
+            Self::Fair,
+            Self::Dcs,
+        ][kind](c))
+    }
+}
+
+impl std::fmt::Display for NamedKernel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}:{}", self.name(), self.scale())
+    }
+}
+
+impl RobustKernel for NamedKernel {
+    fn evaluate(&self, s: f64) -> [f64; 3] {
+        match *self {
+            Self::Huber(c) => Huber(c).evaluate(s),
+            Self::Cauchy(c) => Cauchy(c).evaluate(s),
+            Self::Tukey(c) => Tukey(c).evaluate(s),
+            Self::GemanMcClure(c) => GemanMcClure(c).evaluate(s),
+            Self::Welsch(c) => Welsch(c).evaluate(s),
+            Self::Fair(c) => Fair(c).evaluate(s),
+            Self::Dcs(c) => Dcs(c).evaluate(s),
+        }
+    }
+}
+
 /// Applies the Triggs correction for kernel values `[ρ, ρ', ρ'']` at s = ‖r‖² to a residual and its
 /// Jacobian (m rows, column-major), so that plain Gauss-Newton on the corrected pair has the
-/// robustified cost's gradient and the Hessian approximation ρ' JᵀJ + 2ρ'' Jᵀr rᵀJ (clamped to stay
-/// positive semi-definite).
+/// robustified cost's gradient ρ' Jᵀr (Triggs et al. 2000, sec. 4.3).
+///
+/// Where ρ'' > 0 the corrected Hessian approximation is ρ' JᵀJ + 2ρ'' Jᵀr rᵀJ, the second-order
+/// model of ½ρ(‖r‖²). Where ρ'' ≤ 0, which is everywhere for the outlier-robust kernels
+/// (Huber, Cauchy, Tukey, DCS, ...), it is ρ' JᵀJ alone: iteratively reweighted least squares, as
+/// Ceres' `Corrector` does. Keeping the negative term there would remove the curvature along r,
+/// all of it for Huber beyond its kink (2sρ''/ρ' = −1), so an outlier would leave its variables
+/// almost unconstrained and LM would spend its iterations on rejected steps (NOTES 49).
 pub fn triggs_correct(rho: [f64; 3], residual: &mut [f64], jacobian: Option<&mut [f64]>) {
     let m = residual.len();
     let s: f64 = residual.iter().map(|v| v * v).sum();
     let sqrt_rho1 = rho[1].max(0.0).sqrt();
-    let (residual_scale, alpha_sq_norm) = if s == 0.0 || rho[2] == 0.0 || rho[1] <= 0.0 {
+    let (residual_scale, alpha_sq_norm) = if s == 0.0 || rho[2] <= 0.0 || rho[1] <= 0.0 {
         (sqrt_rho1, 0.0)
     } else {
-        // α solves α² − 2α − 2sρ''/ρ' = 0, so that J̃ᵀJ̃ = ρ'JᵀJ + 2ρ''Jᵀr rᵀJ. Where that curvature
-        // turns negative (D < 0) it is clamped, keeping α ≤ 0.9 and the system positive.
+        // α solves ½α² − α − sρ''/ρ' = 0 (the smaller root), so that J̃ᵀJ̃ = ρ'JᵀJ + 2ρ''Jᵀr rᵀJ.
+        // With ρ'' > 0 the discriminant exceeds 1 and α < 0.
         let d = 1.0 + 2.0 * s * rho[2] / rho[1];
-        let alpha = 1.0 - d.max(0.01).sqrt();
+        let alpha = 1.0 - d.sqrt();
         (sqrt_rho1 / (1.0 - alpha), alpha / s)
     };
     if let Some(j) = jacobian {
@@ -272,6 +399,45 @@ mod tests {
                     prop_assert!((corrected - expected).abs() < 1e-9 * (1.0 + expected.abs()), "{k:?}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn named_kernels_round_trip_and_bad_names_are_refused() {
+        for k in [
+            NamedKernel::Huber(1.0),
+            NamedKernel::Cauchy(0.5),
+            NamedKernel::Tukey(4.685),
+            NamedKernel::GemanMcClure(2.0),
+            NamedKernel::Welsch(1.5),
+            NamedKernel::Fair(0.25),
+            NamedKernel::Dcs(3.0),
+        ] {
+            let back: NamedKernel = k.to_string().parse().unwrap();
+            assert_eq!(back, k);
+            assert_eq!(back.evaluate(7.0), k.evaluate(7.0));
+        }
+        assert_eq!("Huber:2".parse(), Ok(NamedKernel::Huber(2.0)));
+        assert!(matches!(
+            "l2:1".parse::<NamedKernel>(),
+            Err(KernelParseError::UnknownName(_))
+        ));
+        for bad in [
+            "huber",
+            "huber:",
+            "huber:0",
+            "huber:-1",
+            "huber:nan",
+            "huber:inf",
+            "huber:x",
+        ] {
+            assert!(
+                matches!(
+                    bad.parse::<NamedKernel>(),
+                    Err(KernelParseError::BadScale(_))
+                ),
+                "{bad}"
+            );
         }
     }
 

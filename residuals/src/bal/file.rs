@@ -18,6 +18,44 @@ pub struct BalError {
     pub message: String,
 }
 
+/// The problem in BAL's text form: the header, one observation a line, then the cameras'
+/// parameters and the points' coordinates one number a line, as the published files are laid
+/// out. Numbers are written to round-trip exactly (`{:?}`), so a problem read back is the same.
+pub fn format(problem: &BalProblem) -> String {
+    use std::fmt::Write as _;
+    let mut s =
+        String::with_capacity(48 * problem.observations.len() + 26 * 9 * problem.cameras.len());
+    let _ = writeln!(
+        s,
+        "{} {} {}",
+        problem.cameras.len(),
+        problem.points.len(),
+        problem.observations.len()
+    );
+    for o in &problem.observations {
+        let _ = writeln!(s, "{} {} {:?} {:?}", o.camera, o.point, o.uv[0], o.uv[1]);
+    }
+    for v in problem
+        .cameras
+        .iter()
+        .flatten()
+        .chain(problem.points.iter().flatten())
+    {
+        let _ = writeln!(s, "{v:?}");
+    }
+    s
+}
+
+/// Writes a BAL problem to `path` (through a temporary file renamed into place).
+pub fn write(path: impl AsRef<Path>, problem: &BalProblem) -> Result<(), BalError> {
+    let path = path.as_ref();
+    crate::atomic::write(path, format(problem).as_bytes()).map_err(|e| BalError {
+        path: path.display().to_string(),
+        line: 0,
+        message: format!("cannot write: {e}"),
+    })
+}
+
 /// Reads a BAL problem from a file.
 pub fn read(path: impl AsRef<Path>) -> Result<BalProblem, BalError> {
     let path = path.as_ref();
@@ -180,6 +218,49 @@ mod tests {
         0.1\n0.2\n0.3\n1\n2\n3\n500\n0\n0\n\
         0\n0\n0\n0\n0\n0\n400\n0.01\n0\n\
         1 2 -10\n";
+
+    #[test]
+    fn a_written_problem_reads_back_the_same() {
+        use crate::bal::synthetic::{generate, SyntheticOptions};
+        let s = generate(&SyntheticOptions {
+            cameras: 30,
+            points: 200,
+            pixel_noise: 0.7,
+            outlier_fraction: 0.05,
+            views: Some((2, 6)),
+            ..SyntheticOptions::default()
+        });
+        let back = parse(&format(&s.start), "written.txt").unwrap();
+        assert_eq!(back, s.start);
+        let dir = std::env::temp_dir().join(format!("dynamap-bal-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("p.txt");
+        write(&path, &s.start).unwrap();
+        assert_eq!(read(&path).unwrap(), s.start);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn local_visibility_gives_each_point_a_run_of_neighbouring_cameras() {
+        use crate::bal::synthetic::{generate, SyntheticOptions};
+        let n = 40;
+        let s = generate(&SyntheticOptions {
+            cameras: n,
+            points: 300,
+            views: Some((3, 5)),
+            ..SyntheticOptions::default()
+        });
+        let mut seen = vec![Vec::new(); 300];
+        for o in &s.start.observations {
+            seen[o.point].push(o.camera);
+        }
+        for cams in &seen {
+            assert!((3..=5).contains(&cams.len()), "{cams:?}");
+            // a run of consecutive cameras on the ring: every gap but one (the wrap) is 1
+            let gaps = cams.windows(2).filter(|w| w[1] - w[0] != 1).count();
+            assert!(gaps <= 1, "{cams:?}");
+        }
+    }
 
     #[test]
     fn reads_header_observations_cameras_and_points() {

@@ -13,7 +13,7 @@ pub mod synthetic;
 pub use file::BalError;
 pub use snavely::{reprojection, rotate, SnavelyReprojection};
 
-use dynamap_solver::robust::Huber;
+use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{
     Algorithm, DampingKind, Euclidean, LinearSolverKind, Options, Problem, ProblemError, VarId,
 };
@@ -91,8 +91,8 @@ impl BalProblem {
     }
 
     /// A solver problem with the cameras added first, then the points, then one
-    /// [`SnavelyReprojection`] per observation, under a Huber kernel of width `huber` if given.
-    pub fn build(&self, huber: Option<f64>) -> Result<BalSolve, ProblemError> {
+    /// [`SnavelyReprojection`] per observation, under `kernel` if given (Ceres' `loss_function`).
+    pub fn build(&self, kernel: Option<NamedKernel>) -> Result<BalSolve, ProblemError> {
         let mut problem = Problem::new();
         let cameras = self
             .cameras
@@ -107,8 +107,8 @@ impl BalProblem {
         for o in &self.observations {
             let r = SnavelyReprojection::new(o.uv[0], o.uv[1]);
             let vars = [cameras[o.camera], points[o.point]];
-            match huber {
-                Some(delta) => problem.add_robust_residual(r, Huber(delta), &vars)?,
+            match kernel {
+                Some(k) => problem.add_robust_residual(r, k, &vars)?,
                 None => problem.add_residual(r, &vars)?,
             };
         }

@@ -28,6 +28,11 @@ pub struct SyntheticOptions {
     pub rotation_noise: f64,
     /// Standard deviation of the start's camera-translation and point noise.
     pub position_noise: f64,
+    /// How many cameras see each point. `None`: each camera with probability ½ (at least three),
+    /// which suits a dozen cameras. `Some((lo, hi))`: a run of between `lo` and `hi` neighbouring
+    /// cameras on the ring, so that each camera sees only the points near its part of the ring,
+    /// as in BAL's Venice and Final sets; this scales to thousands of cameras.
+    pub views: Option<(usize, usize)>,
     /// Random seed.
     pub seed: u64,
 }
@@ -41,6 +46,7 @@ impl Default for SyntheticOptions {
             outlier_fraction: 0.0,
             rotation_noise: 0.01,
             position_noise: 0.05,
+            views: None,
             seed: 11,
         }
     }
@@ -54,6 +60,31 @@ pub struct Synthetic {
     pub truth: BalProblem,
     /// Which observations are outliers.
     pub outlier: Vec<bool>,
+}
+
+/// The cameras that see one point, in increasing order.
+fn seen_by(o: &SyntheticOptions, rng: &mut ChaCha8Rng) -> Vec<usize> {
+    let n = o.cameras;
+    let mut seen: Vec<usize> = match o.views {
+        None => {
+            let mut seen: Vec<usize> = (0..n).filter(|_| rng.random_bool(0.5)).collect();
+            while seen.len() < 3.min(n) {
+                let c = rng.random_range(0..n);
+                if !seen.contains(&c) {
+                    seen.push(c);
+                }
+            }
+            seen
+        }
+        Some((lo, hi)) => {
+            let (lo, hi) = (lo.clamp(1, n.max(1)), hi.clamp(1, n.max(1)));
+            let k = rng.random_range(lo.min(hi)..=hi.max(lo));
+            let first = rng.random_range(0..n.max(1));
+            (0..k).map(|i| (first + i) % n).collect()
+        }
+    };
+    seen.sort_unstable();
+    seen
 }
 
 /// Generates a problem (see the module documentation).
@@ -91,15 +122,7 @@ pub fn generate(o: &SyntheticOptions) -> Synthetic {
     let mut observations = Vec::new();
     let mut outlier = Vec::new();
     for (p, point) in points.iter().enumerate() {
-        let mut seen: Vec<usize> = (0..o.cameras).filter(|_| rng.random_bool(0.5)).collect();
-        while seen.len() < 3.min(o.cameras) {
-            let c = rng.random_range(0..o.cameras);
-            if !seen.contains(&c) {
-                seen.push(c);
-            }
-        }
-        seen.sort_unstable();
-        for c in seen {
+        for c in seen_by(o, &mut rng) {
             let cam = &cameras[c];
             let pc = rotate(
                 &Vector3::new(cam[0], cam[1], cam[2]),

@@ -10,7 +10,6 @@ use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::Path;
 use thiserror::Error;
 
@@ -362,19 +361,7 @@ pub fn write(
         line: 0,
         message: format!("cannot write: {e}"),
     };
-    let tmp = path.with_extension(format!(
-        "{}.tmp{}",
-        path.extension().and_then(|e| e.to_str()).unwrap_or("g2o"),
-        std::process::id()
-    ));
-    let mut f = std::fs::File::create(&tmp).map_err(err)?;
-    f.write_all(format(graph, poses).as_bytes()).map_err(err)?;
-    f.sync_all().map_err(err)?;
-    drop(f);
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        err(e)
-    })
+    crate::atomic::write(path, format(graph, poses).as_bytes()).map_err(err)
 }
 
 #[cfg(test)]

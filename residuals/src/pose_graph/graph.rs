@@ -2,7 +2,8 @@
 
 use super::factors::{sqrt_information, Between2, Between3};
 use dynamap_solver::lie::{se2, se3};
-use dynamap_solver::{Problem, VarId, SE2, SE3};
+use dynamap_solver::robust::NamedKernel;
+use dynamap_solver::{Problem, RobustKernel, VarId, SE2, SE3};
 use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6};
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -219,6 +220,16 @@ impl PoseGraph {
 
     /// Builds the least-squares problem from `poses` (one per vertex), anchors held fixed.
     pub fn build_problem(&self, poses: &BTreeMap<usize, Pose>) -> Result<PoseGraphProblem, String> {
+        self.build_robust_problem(poses, None)
+    }
+
+    /// As [`Self::build_problem`], with `kernel` on every edge if given (cost ½ Σ ρ(eᵀΩe), as g2o's
+    /// `-robustKernel` and a Ceres `LossFunction` on every residual block give it).
+    pub fn build_robust_problem(
+        &self,
+        poses: &BTreeMap<usize, Pose>,
+        kernel: Option<NamedKernel>,
+    ) -> Result<PoseGraphProblem, String> {
         if let Some((line, v)) = self.missing_in(poses).first() {
             return Err(format!(
                 "{}:{line}: the edge refers to vertex {v}, which has no pose \
@@ -255,7 +266,8 @@ impl PoseGraph {
                             self.source, e.line
                         )
                     })?;
-                    problem.add_residual(Between2::new(*z, u), &pair)
+                    let r = Box::new(Between2::new(*z, u));
+                    problem.add_block(r, kernel.map(boxed), &pair)
                 }
                 Measurement::Se3 { z, information } => {
                     let u = sqrt_information(information).ok_or_else(|| {
@@ -264,7 +276,8 @@ impl PoseGraph {
                             self.source, e.line
                         )
                     })?;
-                    problem.add_residual(Between3::new(*z, u), &pair)
+                    let r = Box::new(Between3::new(*z, u));
+                    problem.add_block(r, kernel.map(boxed), &pair)
                 }
             };
             added.map_err(|err| format!("{}:{}: {err}", self.source, e.line))?;
@@ -276,4 +289,8 @@ impl PoseGraph {
             dimension: self.dimension,
         })
     }
+}
+
+fn boxed(kernel: NamedKernel) -> Box<dyn RobustKernel> {
+    Box::new(kernel)
 }

@@ -11,7 +11,6 @@ pub mod ply;
 pub mod trajectory;
 pub mod tum;
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
@@ -67,23 +66,8 @@ pub fn read_text(path: impl AsRef<Path>) -> Result<String, IoError> {
 /// failure leaves any previous file intact and no partial one.
 pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<(), IoError> {
     let path = path.as_ref();
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
-    let err = |e: std::io::Error| IoError::file(path, format!("cannot write: {e}"));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(err(e));
-    }
-    Ok(())
+    dynamap_residuals::atomic::write(path, bytes)
+        .map_err(|e| IoError::file(path, format!("cannot write: {e}")))
 }
 
 /// Splits a text into (line number, fields) for its non-empty, non-comment lines.
