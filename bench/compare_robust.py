@@ -96,6 +96,23 @@ def run_case(kind, path, kernel, cap, ceres):
     return ours, labels, theirs
 
 
+def print_curves(curves, columns):
+    """The cost after selected iterations, ours over Ceres', a row per problem and kernel (the first
+    of our variants); a solve that stopped earlier shows its last cost."""
+    shown = {}
+    for c in curves:
+        shown.setdefault((c["problem"], c["kernel"]), c)
+    print()
+    print("| problem | kernel | " + " | ".join(f"it {i}" for i in columns) + " |")
+    print("|---|---|" + "---|" * len(columns))
+    for (problem, kernel), c in shown.items():
+        cells = []
+        for i in columns:
+            o, t = c["ours_costs"], c["ceres_costs"]
+            cells.append(f"{o[min(i, len(o) - 1)]:.8g} / {t[min(i, len(t) - 1)]:.8g}")
+        print(f"| {problem} | {kernel} | " + " | ".join(cells) + " |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=3)
@@ -125,6 +142,7 @@ def main():
         sys.stdout.flush()
     if args.curves:
         args.curves.write_text(json.dumps(curves))
+    print_curves(curves, [0, 1, 2, 5, 10, 20, 30, 40, args.max_iterations])
     print(f"robust: {passed} passed, {failed} failed")
     return 0 if failed == 0 else 1
 
