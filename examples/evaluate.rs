@@ -44,8 +44,8 @@ enum Metric {
         /// Alignment of the estimate onto the ground truth.
         #[arg(long, value_enum, default_value = "se3")]
         align: Align,
-        /// Largest stamp difference for associating poses, seconds.
-        #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
+        /// Largest stamp difference for associating poses, seconds (evo's --t_max_diff).
+        #[arg(long, visible_alias = "t-max-diff", default_value_t = MAX_STAMP_DIFFERENCE)]
         max_difference: f64,
         /// A folder for pictures: both trajectories from above, the per-frame error.
         #[arg(long, value_name = "DIR")]
@@ -63,8 +63,8 @@ enum Metric {
         /// What --delta counts.
         #[arg(long, value_enum, default_value = "frames")]
         delta_unit: Unit,
-        /// Largest stamp difference for associating poses, seconds.
-        #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
+        /// Largest stamp difference for associating poses, seconds (evo's --t_max_diff).
+        #[arg(long, visible_alias = "t-max-diff", default_value_t = MAX_STAMP_DIFFERENCE)]
         max_difference: f64,
     },
 }

@@ -74,6 +74,10 @@ struct SequenceFlags {
     /// Exact depth (quantised only) and colour.
     #[arg(long)]
     no_noise: bool,
+    /// Amplitude of a drifting auto-exposure gain on the colour, 1 + a sin(2π k / 150) for frame
+    /// k (0.15: a consumer sensor's drift over seconds).
+    #[arg(long, default_value_t = 0.0)]
+    gain_drift: f32,
     /// Frames per second.
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
@@ -145,11 +149,15 @@ impl SequenceFlags {
 
     /// Creates the output folder and returns the sensor model the flags ask for.
     fn prepare(&self) -> Result<SensorNoise> {
+        if !(0.0..1.0).contains(&self.gain_drift) {
+            return Err(cli::bad_input("--gain-drift must lie in [0, 1)"));
+        }
         std::fs::create_dir_all(&self.out)
             .with_context(|| format!("creating {}", self.out.display()))?;
         Ok(SensorNoise {
             enabled: !self.no_noise,
             seed: self.seed,
+            gain_drift: self.gain_drift,
             ..SensorNoise::default()
         })
     }

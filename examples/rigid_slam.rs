@@ -20,10 +20,11 @@ mod preview;
 #[path = "common/rerun_log.rs"]
 mod rerun_log;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::Parser;
 use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
+use dynamap::slam::distortion::TumSensor;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
 use dynamap::slam::io::folder::FolderSequence;
 use dynamap::slam::io::ply;
@@ -113,6 +114,18 @@ struct Args {
     /// Frames to process at most [default: all].
     #[arg(long)]
     max_frames: Option<usize>,
+    /// Do not fit the live exposure to the model's (TrackerParams::affine_brightness).
+    #[arg(long)]
+    no_exposure_fit: bool,
+    /// TUM layout: read the frames through TUM's published calibration of this sensor (fr1, fr2
+    /// or fr3: intrinsics and lens distortion; the frames are undistorted) instead of the
+    /// folder's intrinsics.
+    #[arg(long, value_name = "fr1|fr2|fr3")]
+    calibration: Option<String>,
+    /// TUM layout: pair a depth and a colour frame only when their stamps are less than this many
+    /// seconds apart (associate.py's --max_difference).
+    #[arg(long, default_value_t = dynamap::slam::io::tum::MAX_DIFFERENCE)]
+    max_difference: f64,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -126,9 +139,21 @@ enum Source {
 }
 
 impl Source {
-    fn open(dir: &std::path::Path) -> Result<Self> {
+    fn open(dir: &std::path::Path, max_difference: f64, sensor: Option<TumSensor>) -> Result<Self> {
         if dir.join("rgb.txt").exists() {
-            Ok(Source::Tum(TumSequence::open(dir)?))
+            let seq = TumSequence::open_with(dir, max_difference)?;
+            Ok(Source::Tum(match sensor {
+                Some(s) => {
+                    let (camera, distortion) = s.calibration();
+                    seq.with_calibration(camera, &distortion)?
+                }
+                None => seq,
+            }))
+        } else if sensor.is_some() {
+            bail!(
+                "{}: --calibration applies to TUM-layout folders (rgb.txt, depth.txt)",
+                dir.display()
+            )
         } else {
             let f = FolderSequence::open(dir, None)?;
             let c = f.camera;
@@ -177,6 +202,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.lambda_photometric = args.lambda;
     p.tracker.iterations = args.iterations.clone();
     p.tracker.strides = args.strides.clone();
+    p.tracker.affine_brightness = !args.no_exposure_fit;
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
     p.relocalise.enabled = !args.no_relocalise;
@@ -272,7 +298,21 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Some(d) => (d.clone(), false),
         None => (default_sequence()?, true),
     };
-    let mut seq = Source::open(&dir).bad_input()?;
+    if !(args.max_difference >= 0.0 && args.max_difference.is_finite()) {
+        return Err(cli::bad_input(format!(
+            "--max-difference must be a finite non-negative number of seconds, got {}",
+            args.max_difference
+        )));
+    }
+    let sensor = match &args.calibration {
+        Some(name) => Some(TumSensor::from_name(name).ok_or_else(|| {
+            cli::bad_input(format!(
+                "--calibration {name}: not a TUM sensor (fr1, fr2 or fr3)"
+            ))
+        })?),
+        None => None,
+    };
+    let mut seq = Source::open(&dir, args.max_difference, sensor).bad_input()?;
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);

@@ -55,6 +55,7 @@
 #![warn(missing_docs)]
 
 pub mod camera;
+pub mod distortion;
 pub mod eval;
 pub mod features;
 pub mod image;

@@ -3,9 +3,10 @@
 //! (`camera_*.json`: `width`, `height`, column-major `intrinsic_matrix`; depth in millimetres).
 
 use super::images::{read_color, read_depth};
-use super::tum::{read_intrinsics, RgbdFrame};
+use super::tum::{check_size, read_calibration, undistorted, undistorter_for, RgbdFrame};
 use super::{read_text, IoError};
 use crate::camera::Camera;
+use crate::distortion::{Distortion, Undistorter};
 use std::path::{Path, PathBuf};
 
 /// A folder sequence on disk.
@@ -13,10 +14,13 @@ use std::path::{Path, PathBuf};
 pub struct FolderSequence {
     /// Its folder.
     pub root: PathBuf,
-    /// Intrinsics.
+    /// Intrinsics of the frames [`Self::load`] delivers (undistorted where `intrinsics.txt`
+    /// gives lens distortion).
     pub camera: Camera,
     /// (depth, colour) file pairs in name order.
     pub frames: Vec<(PathBuf, PathBuf)>,
+    /// The remap applied to every frame when `intrinsics.txt` gives lens distortion.
+    pub undistorter: Option<Undistorter>,
 }
 
 fn sorted_files(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
@@ -96,10 +100,10 @@ impl FolderSequence {
                     && p.file_name()
                         .is_some_and(|n| n.to_string_lossy().starts_with("camera"))
             });
-        let mut camera = if txt.exists() {
-            read_intrinsics(&txt, first.width, first.height)?
+        let (mut camera, distortion) = if txt.exists() {
+            read_calibration(&txt, first.width, first.height)?
         } else if let Some(j) = json {
-            read_open3d_camera(&j)?
+            (read_open3d_camera(&j)?, Distortion::default())
         } else {
             return Err(IoError::file(&root, "no intrinsics.txt or camera_*.json"));
         };
@@ -117,6 +121,7 @@ impl FolderSequence {
         }
         Ok(Self {
             root,
+            undistorter: undistorter_for(&camera, &distortion),
             camera,
             frames: depth.into_iter().zip(color).collect(),
         })
@@ -139,11 +144,22 @@ impl FolderSequence {
             .get(i)
             .ok_or_else(|| IoError::no_frame(&self.root, i, self.frames.len()))?;
         let frame_err = |e: IoError| e.in_frame(i);
-        Ok(RgbdFrame {
+        let frame = RgbdFrame {
             index: i,
             timestamp: i as f64 / 30.0,
             depth: read_depth(d).map_err(frame_err)?,
             color: Some(read_color(c).map_err(frame_err)?),
-        })
+        };
+        check_size(
+            i,
+            &self.camera,
+            "depth",
+            (frame.depth.width, frame.depth.height),
+            d,
+        )?;
+        if let Some(color) = &frame.color {
+            check_size(i, &self.camera, "colour", (color.width, color.height), c)?;
+        }
+        Ok(undistorted(frame, self.undistorter.as_ref()))
     }
 }

@@ -8,6 +8,7 @@ use super::images::{read_color, read_depth};
 use super::trajectory::Trajectory;
 use super::{data_lines, number, read_text, IoError};
 use crate::camera::Camera;
+use crate::distortion::{Distortion, Undistorter};
 use crate::image::{ColorImage, Image};
 use std::path::{Path, PathBuf};
 
@@ -43,12 +44,15 @@ pub struct FrameFiles {
 pub struct TumSequence {
     /// Its folder.
     pub root: PathBuf,
-    /// Intrinsics.
+    /// Intrinsics of the frames [`Self::load`] delivers (undistorted where the sequence's
+    /// calibration has lens distortion).
     pub camera: Camera,
     /// Associated frames in time order.
     pub frames: Vec<FrameFiles>,
     /// The ground truth, when `groundtruth.txt` exists.
     pub groundtruth: Option<Trajectory>,
+    /// The remap applied to every frame when `intrinsics.txt` gives lens distortion.
+    pub undistorter: Option<Undistorter>,
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -110,7 +114,8 @@ pub fn associate(first: &[f64], second: &[f64], max_difference: f64) -> Vec<(usi
 }
 
 /// Reads `intrinsics.txt`: `fx fy cx cy depth_scale` on one line; the image size comes from `width`,
-/// `height`.
+/// `height`. A file that also gives distortion coefficients is refused here: read it with
+/// [`read_calibration`], which returns them.
 pub fn read_intrinsics(path: &Path, width: usize, height: usize) -> Result<Camera, IoError> {
     parse_intrinsics(&read_text(path)?, path, width, height)
 }
@@ -122,14 +127,62 @@ pub fn parse_intrinsics(
     width: usize,
     height: usize,
 ) -> Result<Camera, IoError> {
+    let (camera, distortion) = parse_calibration(text, path, width, height)?;
+    if !distortion.is_zero() {
+        return Err(IoError::file(
+            path,
+            "the file gives lens distortion; read it as a calibration (parse_calibration)",
+        ));
+    }
+    Ok(camera)
+}
+
+/// Reads `intrinsics.txt` with optional Brown–Conrady coefficients:
+/// `fx fy cx cy depth_scale [k1 k2 p1 p2 k3]` on one line (OpenCV's order).
+pub fn read_calibration(
+    path: &Path,
+    width: usize,
+    height: usize,
+) -> Result<(Camera, Distortion), IoError> {
+    parse_calibration(&read_text(path)?, path, width, height)
+}
+
+/// Parses the text of an intrinsics file (see [`read_calibration`]); `path` names it in errors.
+pub fn parse_calibration(
+    text: &str,
+    path: &Path,
+    width: usize,
+    height: usize,
+) -> Result<(Camera, Distortion), IoError> {
     let (line, f) = data_lines(text).next().ok_or_else(|| {
         IoError::file(
             path,
-            "no intrinsics line (expected 'fx fy cx cy depth_scale')",
+            "no intrinsics line (expected 'fx fy cx cy depth_scale [k1 k2 p1 p2 k3]')",
         )
     })?;
-    let names = ["fx", "fy", "cx", "cy", "depth_scale"];
-    let v: Vec<f64> = (0..5)
+    if f.len() != 5 && f.len() != 10 {
+        return Err(IoError::line(
+            path,
+            line,
+            format!(
+                "{} numbers; expected 5 (fx fy cx cy depth_scale) or 10 (and k1 k2 p1 p2 k3)",
+                f.len()
+            ),
+        ));
+    }
+    let names = [
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "depth_scale",
+        "k1",
+        "k2",
+        "p1",
+        "p2",
+        "k3",
+    ];
+    let v: Vec<f64> = (0..f.len())
         .map(|k| number(path, line, &f, k, names[k]))
         .collect::<Result<_, _>>()?;
     if v[0] == 0.0 || v[1] == 0.0 || v[4] <= 0.0 {
@@ -141,7 +194,11 @@ pub fn parse_intrinsics(
     }
     let mut c = Camera::new(v[0], v[1], v[2], v[3], width, height);
     c.depth_scale = v[4];
-    Ok(c)
+    let d = match v.get(5..10) {
+        Some(k) => Distortion::from_array([k[0], k[1], k[2], k[3], k[4]]),
+        None => Distortion::default(),
+    };
+    Ok((c, d))
 }
 
 /// The intrinsics TUM publishes for its three sensors, chosen by the folder name.
@@ -163,18 +220,24 @@ impl TumSequence {
     /// Opens a sequence folder: reads the lists, associates colour and depth, the ground truth and the
     /// intrinsics (the size is taken from the first depth image).
     pub fn open(root: impl AsRef<Path>) -> Result<Self, IoError> {
+        Self::open_with(root, MAX_DIFFERENCE)
+    }
+
+    /// As [`Self::open`], pairing a depth and a colour frame only when their stamps are less than
+    /// `max_difference` seconds apart (`associate.py --max_difference`).
+    pub fn open_with(root: impl AsRef<Path>, max_difference: f64) -> Result<Self, IoError> {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
         let pairs = associate(
             &depth.iter().map(|d| d.0).collect::<Vec<_>>(),
             &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
-            MAX_DIFFERENCE,
+            max_difference,
         );
         if pairs.is_empty() {
             return Err(IoError::file(
                 root.join("depth.txt"),
-                "no depth frame has a colour frame within 0.02 s",
+                format!("no depth frame has a colour frame within {max_difference} s"),
             ));
         }
         let frames: Vec<FrameFiles> = pairs
@@ -208,21 +271,50 @@ impl TumSequence {
                 IoError::file(&root, format!("no depth image can be read; the first: {e}"))
             })?;
         let intr = root.join("intrinsics.txt");
-        let camera = if intr.exists() {
-            read_intrinsics(&intr, first.width, first.height)?
+        let (camera, distortion) = if intr.exists() {
+            read_calibration(&intr, first.width, first.height)?
         } else {
-            Camera {
+            let c = Camera {
                 width: first.width,
                 height: first.height,
                 ..known_intrinsics(&root)
-            }
+            };
+            (c, Distortion::default())
         };
         Ok(Self {
             root,
             camera,
             frames,
             groundtruth,
+            undistorter: undistorter_for(&camera, &distortion),
         })
+    }
+
+    /// The sequence read through another calibration (for example a [`TumSensor`]'s published
+    /// one): its frames are undistorted with `distortion` and delivered with `camera`'s
+    /// intrinsics; the depth scale stays the sequence's. Refused when the image sizes differ.
+    ///
+    /// [`TumSensor`]: crate::distortion::TumSensor
+    pub fn with_calibration(
+        mut self,
+        camera: Camera,
+        distortion: &Distortion,
+    ) -> Result<Self, IoError> {
+        if (camera.width, camera.height) != (self.camera.width, self.camera.height) {
+            return Err(IoError::file(
+                &self.root,
+                format!(
+                    "the calibration is for {}x{} images, the sequence's are {}x{}",
+                    camera.width, camera.height, self.camera.width, self.camera.height
+                ),
+            ));
+        }
+        self.camera = Camera {
+            depth_scale: self.camera.depth_scale,
+            ..camera
+        };
+        self.undistorter = undistorter_for(&self.camera, distortion);
+        Ok(self)
     }
 
     /// Number of associated frames.
@@ -244,27 +336,70 @@ impl TumSequence {
         let frame_err = |e: IoError| e.in_frame(i);
         let depth = read_depth(&f.depth).map_err(frame_err)?;
         let color = read_color(&f.rgb).map_err(frame_err)?;
-        for (what, w, h, path) in [
-            ("depth", depth.width, depth.height, &f.depth),
-            ("colour", color.width, color.height, &f.rgb),
-        ] {
-            if (w, h) != (self.camera.width, self.camera.height) {
-                return Err(IoError::file(
-                    path,
-                    format!(
-                        "frame {i}: {what} is {w}x{h}, the sequence is {}x{}",
-                        self.camera.width, self.camera.height
-                    ),
-                ));
-            }
-        }
-        Ok(RgbdFrame {
-            index: i,
-            timestamp: f.timestamp,
-            depth,
-            color: Some(color),
-        })
+        check_size(
+            i,
+            &self.camera,
+            "depth",
+            (depth.width, depth.height),
+            &f.depth,
+        )?;
+        check_size(
+            i,
+            &self.camera,
+            "colour",
+            (color.width, color.height),
+            &f.rgb,
+        )?;
+        Ok(undistorted(
+            RgbdFrame {
+                index: i,
+                timestamp: f.timestamp,
+                depth,
+                color: Some(color),
+            },
+            self.undistorter.as_ref(),
+        ))
     }
+}
+
+/// An error naming frame `i`'s file when its image is not the sequence's size.
+pub(crate) fn check_size(
+    i: usize,
+    camera: &Camera,
+    what: &str,
+    (w, h): (usize, usize),
+    path: &Path,
+) -> Result<(), IoError> {
+    if (w, h) == (camera.width, camera.height) {
+        return Ok(());
+    }
+    Err(IoError::file(
+        path,
+        format!(
+            "frame {i}: {what} is {w}x{h}, the sequence is {}x{}",
+            camera.width, camera.height
+        ),
+    ))
+}
+
+/// The remap for a camera whose calibration has lens distortion, `None` without.
+pub(crate) fn undistorter_for(camera: &Camera, distortion: &Distortion) -> Option<Undistorter> {
+    (!distortion.is_zero()).then(|| Undistorter::new(camera, distortion))
+}
+
+/// `frame` with both images undistorted by `undistorter`, if any.
+pub(crate) fn undistorted(mut frame: RgbdFrame, undistorter: Option<&Undistorter>) -> RgbdFrame {
+    if let Some(u) = undistorter {
+        let mut depth = Image::new(0, 0);
+        u.depth(&frame.depth, &mut depth);
+        frame.depth = depth;
+        if let Some(color) = &frame.color {
+            let mut out = ColorImage::new(0, 0);
+            u.color(color, &mut out);
+            frame.color = Some(out);
+        }
+    }
+    frame
 }
 
 #[cfg(test)]
@@ -292,5 +427,101 @@ mod tests {
             associate(&[1.066, 1.062], &[1.060, 1.070], 0.02),
             vec![(1, 0), (0, 1)]
         );
+    }
+
+    #[test]
+    fn calibration_files_carry_distortion_or_are_refused() {
+        use crate::distortion::TumSensor;
+        let p = Path::new("intrinsics.txt");
+        let fr1 = "517.3 516.5 318.6 255.3 5000 0.2624 -0.9531 -0.0054 0.0026 1.1633\n";
+        let (c, d) = parse_calibration(fr1, p, 640, 480).unwrap();
+        assert_eq!(d, TumSensor::Freiburg1.calibration().1);
+        assert_eq!((c.fx, c.cy, c.depth_scale), (517.3, 255.3, 5000.0));
+        let (_, none) = parse_calibration("525 525 319.5 239.5 5000", p, 640, 480).unwrap();
+        assert!(none.is_zero());
+        let e = parse_calibration("525 525 319.5 239.5 5000 0.1 0.2", p, 640, 480)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("intrinsics.txt:1") && e.contains("7 numbers"),
+            "{e}"
+        );
+        // the camera-only reader does not drop coefficients silently
+        assert!(parse_intrinsics(fr1, p, 640, 480).is_err());
+    }
+
+    #[test]
+    fn a_sequence_with_distortion_delivers_undistorted_frames() {
+        use super::super::images::{write_color, write_depth};
+        let dir = std::env::temp_dir().join(format!("dynamap-undistort-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        std::fs::create_dir_all(dir.join("depth")).unwrap();
+        let (w, h) = (64, 48);
+        // depth encodes its own pixel: 100 u + v
+        let depth = Image::from_vec(
+            w,
+            h,
+            (0..w * h).map(|k| (100 * (k % w) + k / w) as u16).collect(),
+        )
+        .unwrap();
+        write_depth(dir.join("depth/0.png"), &depth).unwrap();
+        write_color(
+            dir.join("rgb/0.png"),
+            &ColorImage::filled(w, h, [90, 120, 200]),
+        )
+        .unwrap();
+        std::fs::write(dir.join("depth.txt"), "0.000 depth/0.png\n").unwrap();
+        std::fs::write(dir.join("rgb.txt"), "0.004 rgb/0.png\n").unwrap();
+        std::fs::write(
+            dir.join("intrinsics.txt"),
+            "52.5 52.5 31.5 23.5 5000 -0.25 0.05 0.001 0.0 0.0\n",
+        )
+        .unwrap();
+        let seq = TumSequence::open(&dir).unwrap();
+        let u = seq.undistorter.as_ref().expect("a remap");
+        let frame = seq.load(0).unwrap();
+        // every ideal pixel holds the recorded pixel nearest its source point
+        for (x, y) in [(5, 5), (31, 23), (60, 40), (10, 44)] {
+            let Some((us, vs)) = u.source_of(x, y) else {
+                continue;
+            };
+            let code = frame.depth.at(x, y) as f32;
+            let (ru, rv) = ((code / 100.0).floor(), code % 100.0);
+            assert!(
+                (ru - us).abs() <= 0.5 + 1e-4 && (rv - vs).abs() <= 0.5 + 1e-4,
+                "({x}, {y})"
+            );
+        }
+        // barrel distortion pulls the corners in: the ideal corner has no recorded source
+        assert!(u.source_of(0, 0).is_none() || u.source_of(0, 0) != Some((0.0, 0.0)));
+        assert_eq!(frame.color.unwrap().at(31, 23), [90, 120, 200]);
+        // a stricter association than the stamps allow finds no pair, and says so
+        let e = TumSequence::open_with(&dir, 0.001).unwrap_err().to_string();
+        assert!(e.contains("within 0.001 s"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn association_respects_the_maximum_difference(
+            a in proptest::collection::vec(0.0f64..2.0, 0..40),
+            b in proptest::collection::vec(0.0f64..2.0, 0..40),
+            max in 0.0f64..0.05,
+        ) {
+            let pairs = associate(&a, &b, max);
+            let (mut used_a, mut used_b) = (vec![false; a.len()], vec![false; b.len()]);
+            for &(i, j) in &pairs {
+                proptest::prop_assert!((a[i] - b[j]).abs() < max, "{} and {} paired", a[i], b[j]);
+                proptest::prop_assert!(!used_a[i] && !used_b[j], "a frame used twice");
+                used_a[i] = true;
+                used_b[j] = true;
+            }
+            // maximal: no two frames left unpaired are within the limit of each other
+            for (i, &x) in a.iter().enumerate().filter(|&(i, _)| !used_a[i]) {
+                for (j, &y) in b.iter().enumerate().filter(|&(j, _)| !used_b[j]) {
+                    proptest::prop_assert!((x - y).abs() >= max, "{i} and {j} left apart");
+                }
+            }
+        }
     }
 }

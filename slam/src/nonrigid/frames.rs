@@ -49,7 +49,7 @@ impl Default for FrameSettings {
     /// feature-matched start; λ from 100 to 1 over three stages; association within 10 cm and 45°;
     /// Tukey's c 8 cm (a tighter c rejects the parts that deform most from the rigid start before
     /// the field can reach them: 3 cm left 2.7 cm of error on the generated pair of
-    /// `tests/nonrigid.rs`, 8 cm 0.8 cm); a weak stay prior for what depth cannot see.
+    /// `tests/integration/nonrigid.rs`, 8 cm 0.8 cm); a weak stay prior for what depth cannot see.
     fn default() -> Self {
         Self {
             graph: GraphParams {

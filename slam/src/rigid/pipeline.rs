@@ -9,6 +9,7 @@ use crate::image::{ColorImage, DepthImage, Image};
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// How a lost track is found again (see [`RigidSlam::process`]).
@@ -147,6 +148,8 @@ pub struct RigidSlam {
     /// The last fused frame (filtered depth, colour) for feature relocalisation.
     key_depth: DepthImage,
     key_color: ColorImage,
+    /// The frame's colour mapped into the model's exposure before it is fused.
+    exposed_color: ColorImage,
 }
 
 impl RigidSlam {
@@ -171,6 +174,7 @@ impl RigidSlam {
             lost: false,
             key_depth: DepthImage::new(0, 0),
             key_color: ColorImage::new(0, 0),
+            exposed_color: ColorImage::new(0, 0),
         }
     }
 
@@ -219,6 +223,7 @@ impl RigidSlam {
         self.frames += 1;
         let (mut failure, mut inliers, mut relocalised) = (None, 0, false);
         let (mut conditioning, mut texture) = (0.0, 0.0);
+        let mut brightness = (1.0, 0.0);
         if self.has_model {
             let t = Instant::now();
             // degeneracy does not depend on the pose: checked once, before any start is tried
@@ -254,6 +259,7 @@ impl RigidSlam {
             self.lost = outcome.failure.is_some();
             failure = outcome.failure;
             inliers = outcome.inliers;
+            brightness = outcome.brightness;
             self.pose = outcome.pose;
         } else {
             let max = self.params.tsdf.max_depth;
@@ -269,6 +275,14 @@ impl RigidSlam {
                 ));
             }
         }
+        // fuse the colour in the model's exposure, so that the model stays one brightness
+        let color = match color {
+            Some(c) if failure.is_none() && brightness != (1.0, 0.0) => {
+                expose(c, brightness, &mut self.exposed_color);
+                Some(&self.exposed_color)
+            }
+            other => other,
+        };
         if failure.is_none() {
             let t = Instant::now();
             let level = &self.pre.levels[0];
@@ -406,4 +420,16 @@ impl RigidSlam {
         };
         (o.failure.is_none() && fraction >= strict).then_some(o)
     }
+}
+
+/// `out` = a c + 255 b per channel of `c`, rounded and clamped to 8 bits: a colour image mapped
+/// by the exposure fit (a, b) of intensities in [0, 1].
+fn expose(c: &ColorImage, (a, b): (f64, f64), out: &mut ColorImage) {
+    out.reset(c.width, c.height, [0; 3]);
+    let (a, b) = (a as f32, 255.0 * b as f32);
+    out.data.par_iter_mut().zip(&c.data).for_each(|(o, p)| {
+        for (oc, &pc) in o.iter_mut().zip(p) {
+            *oc = (a * pc as f32 + b).round().clamp(0.0, 255.0) as u8;
+        }
+    });
 }

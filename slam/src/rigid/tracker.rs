@@ -63,6 +63,11 @@ pub struct TrackerParams {
     /// (default 0.01; a plain wall under sensor noise gives about 0.001, the rendered room
     /// 0.04–0.06).
     pub min_texture: f64,
+    /// Compensate exposure: before each level, fit the live intensities to the model's by an
+    /// affine map I ↦ aI + b over the associated pixels, and compare aI + b (default true; the
+    /// brightness model of Engel et al., *Direct Sparse Odometry*, 2018, fitted in closed form
+    /// rather than optimised with the pose).
+    pub affine_brightness: bool,
 }
 
 impl Default for TrackerParams {
@@ -81,6 +86,7 @@ impl Default for TrackerParams {
             max_rotation_deg: 30.0,
             min_conditioning: 1e-3,
             min_texture: 0.01,
+            affine_brightness: true,
         }
     }
 }
@@ -265,6 +271,8 @@ struct IcpTerms<'a> {
     max_distance: f64,
     min_cos: f64,
     photometric: bool,
+    /// (a, b): the live intensity I enters the photometric residual as aI + b.
+    brightness: (f64, f64),
     /// The live pixels taken.
     grid: Grid,
 }
@@ -333,46 +341,127 @@ impl DenseTerms<6> for IcpTerms<'_> {
         lin: &Linearisation,
         emit: &mut E,
     ) {
-        let i = self.grid.pixel(i);
+        let Some(a) = self.associate(i, lin) else {
+            return;
+        };
+        let (r, jac) = point_to_plane(&lin.t, &a.p, &a.q, &a.nq);
+        emit(r, &jac, 0);
+        if self.photometric {
+            let (ga, gb) = self.brightness;
+            let live_i = ga * self.live.intensity.data[a.pixel] as f64 + gb;
+            if let Some((r, jac)) = photometric_at(
+                &a.x,
+                &lin.rel.rt,
+                &self.intrinsics,
+                &self.field,
+                &a.p,
+                live_i,
+            ) {
+                emit(r, &jac, 1);
+            }
+        }
+    }
+}
+
+/// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_brightness`]).
+const BRIGHTNESS_SAMPLES: usize = 2000;
+
+/// A live point associated with a model point.
+struct Association {
+    /// The live pixel.
+    pixel: usize,
+    /// Live point, camera frame.
+    p: Vector3<f64>,
+    /// Its projection into the reference camera.
+    x: Projected,
+    /// Model point and normal, world frame.
+    q: Vector3<f64>,
+    nq: Vector3<f64>,
+}
+
+impl IcpTerms<'_> {
+    /// Grid point `k`'s live point, associated projectively with the model at the estimate `lin`
+    /// and kept when it passes the distance and normal tests.
+    #[inline]
+    fn associate(&self, k: usize, lin: &Linearisation) -> Option<Association> {
+        let i = self.grid.pixel(k);
         let v = self.live.vertices.data[i];
         let n = self.live.normals.data[i];
         if !valid(&v) || !valid(&n) {
-            return;
+            return None;
         }
         let p = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         // the live point in the reference camera, projected once for association and photometry
-        let Some(x) = Projected::new(lin.rel.apply(&p), &self.intrinsics) else {
-            return;
-        };
+        let x = Projected::new(lin.rel.apply(&p), &self.intrinsics)?;
         let cam = &self.model.camera;
         let (ur, vr) = (x.u + 0.5, x.v + 0.5);
         if !(ur >= 0.0 && vr >= 0.0 && ur < cam.width as f64 && vr < cam.height as f64) {
-            return;
+            return None;
         }
         let j = vr as usize * cam.width + ur as usize;
         let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         if !valid(&m) || !valid(&nm) {
-            return;
+            return None;
         }
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
         let t = &lin.t;
         if (t.apply(&p) - q).norm_squared() > self.max_distance * self.max_distance {
-            return;
+            return None;
         }
         let nl = t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
         if nl.dot(&nq) < self.min_cos {
-            return;
+            return None;
         }
-        let (r, jac) = point_to_plane(t, &p, &q, &nq);
-        emit(r, &jac, 0);
-        if self.photometric {
-            let live_i = self.live.intensity.data[i] as f64;
-            if let Some((r, jac)) =
-                photometric_at(&x, &lin.rel.rt, &self.intrinsics, &self.field, &p, live_i)
-            {
-                emit(r, &jac, 1);
+        Some(Association {
+            pixel: i,
+            p,
+            x,
+            q,
+            nq,
+        })
+    }
+
+    /// The affine map (a, b) that best takes the live intensities onto the model's over the
+    /// pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them, evenly spread): least
+    /// squares, then once more without the pairs farther than `trim` from the first fit
+    /// (speculars, occlusions). (1, 0) when fewer than 100 pairs agree, or when the fit is
+    /// implausible (a outside [0.5, 2]).
+    fn fit_brightness(&self, x: &[f64], trim: f64) -> (f64, f64) {
+        let lin = self.prepare(x);
+        let mut fit = (1.0, 0.0);
+        // two numbers need far fewer pairs than the level has: about BRIGHTNESS_SAMPLES grid
+        // points, spread evenly
+        let step = (self.grid.len() / BRIGHTNESS_SAMPLES).max(1);
+        for round in 0..2 {
+            let mut sums = [0.0f64; 5]; // n, Σl, Σm, Σl², Σlm
+            for k in (0..self.grid.len()).step_by(step) {
+                let Some(a) = self.associate(k, &lin) else {
+                    continue;
+                };
+                let Some((m, _)) = self.field.sample(a.x.u, a.x.v) else {
+                    continue;
+                };
+                let l = self.live.intensity.data[a.pixel] as f64;
+                if round == 1 && (fit.0 * l + fit.1 - m).abs() > trim {
+                    continue;
+                }
+                for (s, v) in sums.iter_mut().zip([1.0, l, m, l * l, l * m]) {
+                    *s += v;
+                }
             }
+            let [n, sl, sm, sll, slm] = sums;
+            let var = n * sll - sl * sl;
+            if n < 100.0 || var <= 1e-9 * n * n {
+                return (1.0, 0.0);
+            }
+            let a = (n * slm - sl * sm) / var;
+            fit = (a, (sm - a * sl) / n);
+        }
+        if (0.5..=2.0).contains(&fit.0) && fit.1.is_finite() {
+            fit
+        } else {
+            (1.0, 0.0)
         }
     }
 }
@@ -388,6 +477,9 @@ pub struct TrackOutcome {
     pub inliers: usize,
     /// Valid live pixels at the finest level that ran (on its strided grid).
     pub valid_pixels: usize,
+    /// (a, b) of the exposure fit on the finest level that ran: the model's intensity is about
+    /// a I + b for the live intensity I ((1, 0) when not fitted).
+    pub brightness: (f64, f64),
 }
 
 impl TrackOutcome {
@@ -398,6 +490,7 @@ impl TrackOutcome {
             failure: Some(why),
             inliers: 0,
             valid_pixels: 0,
+            brightness: (1.0, 0.0),
         }
     }
 }
@@ -490,6 +583,7 @@ impl Tracker {
         };
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let mut inliers = 0;
+        let mut brightness = None;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = p.iterations.get(l).copied().unwrap_or(0);
@@ -513,7 +607,17 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
+                brightness: (1.0, 0.0),
                 grid: Grid::new(&live[l], stride_of(l)),
+            };
+            // the exposure is the frame's, but each level's start pose is better than the last
+            // one's, and with it the association the fit rests on: refitted per level
+            if terms.photometric && p.affine_brightness {
+                brightness = Some(terms.fit_brightness(&x, 3.0 * p.huber_photometric));
+            }
+            let terms = IcpTerms {
+                brightness: brightness.unwrap_or((1.0, 0.0)),
+                ..terms
             };
             let options = DenseOptions {
                 groups: &groups,
@@ -562,6 +666,7 @@ impl Tracker {
             failure,
             inliers,
             valid_pixels,
+            brightness: brightness.unwrap_or((1.0, 0.0)),
         }
     }
 }

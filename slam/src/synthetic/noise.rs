@@ -21,7 +21,14 @@ pub struct SensorNoise {
     pub hole_fraction: f64,
     /// Colour noise standard deviation in 8-bit steps (default 2).
     pub color_sigma: f32,
+    /// Amplitude of a drifting auto-exposure gain on the colour: frame k is scaled by
+    /// 1 + a sin(2π k / [`GAIN_PERIOD`]) before its noise (default 0: a fixed exposure). 0.15 is
+    /// the drift of a consumer sensor's auto-exposure over a few seconds.
+    pub gain_drift: f32,
 }
+
+/// Frames per period of the exposure drift (5 s at 30 Hz).
+pub const GAIN_PERIOD: f64 = 150.0;
 
 impl Default for SensorNoise {
     fn default() -> Self {
@@ -31,6 +38,7 @@ impl Default for SensorNoise {
             grazing_cos: 80f32.to_radians().cos(),
             hole_fraction: 0.005,
             color_sigma: 2.0,
+            gain_drift: 0.0,
         }
     }
 }
@@ -41,6 +49,12 @@ pub fn depth_sigma(z: f64) -> f64 {
 }
 
 impl SensorNoise {
+    /// The exposure gain of frame `frame` (see [`Self::gain_drift`]).
+    pub fn gain(&self, frame: u64) -> f64 {
+        1.0 + self.gain_drift as f64
+            * (2.0 * std::f64::consts::PI * frame as f64 / GAIN_PERIOD).sin()
+    }
+
     /// [`Self::apply`] to a whole rendering: its colour made noisy in place, its raw depth
     /// returned.
     pub fn apply_to(
@@ -82,6 +96,14 @@ impl SensorNoise {
             let q = (z * depth_scale).round();
             if q >= 1.0 && q <= u16::MAX as f64 {
                 raw.data[i] = q as u16;
+            }
+        }
+        let gain = self.gain(frame);
+        if gain != 1.0 {
+            for px in color.data.iter_mut() {
+                for c in px.iter_mut() {
+                    *c = (*c as f64 * gain).round().clamp(0.0, 255.0) as u8;
+                }
             }
         }
         if self.enabled {

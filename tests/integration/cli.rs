@@ -2,9 +2,7 @@
 //! (`--print-config` then `--config` gives the same run), quiet output off a terminal, and the exit
 //! codes (0 ok, 1 runtime failure, 2 bad input). Runs the binaries `cargo test` builds.
 
-mod common;
-
-use common::examples::{result_json, run, scratch, text};
+use crate::common::examples::{result_json, run, scratch, text};
 use std::path::Path;
 use std::process::Output;
 
@@ -285,6 +283,50 @@ fn robust_kernels_from_the_command_line_and_generated_problems() {
         &run("generate_problem", &["bal", &bal, "--views", "5:2"]),
         2,
         &["LO <= HI"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn tum_calibrations_by_name_and_the_association_limit() {
+    let dir = scratch("calibration");
+    let seq = dir.join("seq");
+    let seq = seq.to_str().unwrap();
+    let gen = run(
+        "generate",
+        &["rigid", seq, "--frames", "3", "--gain-drift", "0.15", "-q"],
+    );
+    assert!(gen.status.success(), "{}", text(&gen.stderr));
+    // fr1's published calibration, lens distortion included: the frames are undistorted and run
+    let out = run("rigid_slam", &[seq, "--calibration", "fr1", "-q"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(result_json(&out)["frames"], 3);
+    assert_exit(
+        &run("rigid_slam", &[seq, "--calibration", "fr9"]),
+        2,
+        &["fr9"],
+    );
+    assert_exit(
+        &run("rigid_slam", &[seq, "--max-difference=-1"]),
+        2,
+        &["--max-difference"],
+    );
+    // pairs must be strictly closer than the limit (associate.py): 0 pairs nothing, and says so
+    assert_exit(
+        &run("rigid_slam", &[seq, "--max-difference", "0"]),
+        2,
+        &["depth.txt", "within 0 s"],
+    );
+    let loose = run("rigid_slam", &[seq, "--max-difference", "0.001", "-q"]);
+    assert!(loose.status.success(), "{}", text(&loose.stderr));
+    // evo's name for the stamp limit
+    let gt = format!("{seq}/groundtruth.txt");
+    let ev = run("evaluate", &["ate", &gt, &gt, "--t-max-diff", "0.01", "-q"]);
+    assert!(ev.status.success(), "{}", text(&ev.stderr));
+    assert_exit(
+        &run("generate", &["rigid", seq, "--gain-drift", "1.5"]),
+        2,
+        &["--gain-drift"],
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

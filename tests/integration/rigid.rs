@@ -27,13 +27,24 @@ fn run_with(
     blank: std::ops::Range<usize>,
     params: SlamParams,
 ) -> (Trajectory, Trajectory, Vec<usize>) {
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let gt = motion::procedural(m, frames, 30.0);
-    let scene = Scene::room(7);
     let noise = SensorNoise {
         seed: 3,
         ..SensorNoise::default()
     };
+    run_sensor(m, frames, blank, params, noise)
+}
+
+/// [`run_with`] through a given sensor model.
+fn run_sensor(
+    m: Motion,
+    frames: usize,
+    blank: std::ops::Range<usize>,
+    params: SlamParams,
+    noise: SensorNoise,
+) -> (Trajectory, Trajectory, Vec<usize>) {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let gt = motion::procedural(m, frames, 30.0);
+    let scene = Scene::room(7);
     let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
     let mut est = Trajectory::default();
     let mut failed = Vec::new();
@@ -65,6 +76,41 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
     assert!(failed.is_empty(), "frames {failed:?} failed");
     let a = ate(&gt, &est, Alignment::Se3, 1e-3).unwrap();
     assert!(a.stats.max < 0.01, "ATE {:?}", a.stats);
+}
+
+/// A 15 % auto-exposure drift (issue 23): with the affine brightness fit the ATE stays within
+/// 10 % of the same sequence at a fixed exposure, on two motions; without the fit it is worse.
+#[test]
+fn an_exposure_drift_costs_no_accuracy() {
+    let frames = 75; // the gain climbs to 1.15 at frame 37 and is back to 1 at 75
+    for m in [Motion::Orbit, Motion::Shake] {
+        let ate_of = |gain_drift: f32, affine: bool| {
+            let mut params = SlamParams::default();
+            params.tracker.affine_brightness = affine;
+            let noise = SensorNoise {
+                seed: 3,
+                gain_drift,
+                ..SensorNoise::default()
+            };
+            let (gt, est, failed) = run_sensor(m, frames, 0..0, params, noise);
+            assert!(failed.is_empty(), "{m:?}: frames {failed:?} failed");
+            ate(&gt, &est, Alignment::Se3, 1e-3).unwrap().stats.rmse
+        };
+        let fixed = ate_of(0.0, true);
+        let drifting = ate_of(0.15, true);
+        let uncompensated = ate_of(0.15, false);
+        eprintln!(
+            "{m:?}: ATE fixed exposure {fixed:.6} m, drifting {drifting:.6}, drifting without the fit {uncompensated:.6}"
+        );
+        assert!(
+            drifting <= 1.1 * fixed,
+            "{m:?}: ATE {drifting} with the drift, {fixed} without"
+        );
+        assert!(
+            uncompensated > drifting,
+            "{m:?}: the fit made no difference"
+        );
+    }
 }
 
 /// With the finest level switched off (0 iterations), inliers are counted on the finest level that

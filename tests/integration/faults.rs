@@ -2,9 +2,7 @@
 //! of the camera, a stretch at a wall without texture, missing or cut depth files, and Ctrl-C.
 //! Each runs `rigid_slam` as a user would, on a sequence rendered at 320×240.
 
-mod common;
-
-use common::examples::{example, result_json, run, scratch, text};
+use crate::common::examples::{example, result_json, run, scratch, text};
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
 use dynamap::slam::io::trajectory::Trajectory;

@@ -1,0 +1,371 @@
+//! Brown–Conrady lens distortion (Brown 1966; OpenCV's and ROS' `plumb_bob`) and the precomputed
+//! remap that undistorts whole images.
+//!
+//! For normalised image coordinates (x, y) = ((u − cx)/fx, (v − cy)/fy) and r² = x² + y²,
+//!
+//! ```text
+//! x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2x²)
+//! y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2y²) + 2 p2 x y
+//! ```
+//!
+//! The sensor records the distorted point. [`Undistorter`] stores, once per camera, where each
+//! pixel of the ideal (pinhole) image falls in the recorded one, so that undistorting a frame is a
+//! lookup and an interpolation per pixel, with no equation solved per pixel.
+
+use crate::camera::Camera;
+use crate::image::{ColorImage, Image};
+use rayon::prelude::*;
+
+/// Brown–Conrady coefficients, in OpenCV's order (k1, k2, p1, p2, k3).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Distortion {
+    /// Radial, r².
+    pub k1: f64,
+    /// Radial, r⁴.
+    pub k2: f64,
+    /// Tangential.
+    pub p1: f64,
+    /// Tangential.
+    pub p2: f64,
+    /// Radial, r⁶.
+    pub k3: f64,
+}
+
+impl Distortion {
+    /// The coefficients in OpenCV's order `[k1, k2, p1, p2, k3]`.
+    pub fn from_array(c: [f64; 5]) -> Self {
+        Self {
+            k1: c[0],
+            k2: c[1],
+            p1: c[2],
+            p2: c[3],
+            k3: c[4],
+        }
+    }
+
+    /// `[k1, k2, p1, p2, k3]`.
+    pub fn to_array(&self) -> [f64; 5] {
+        [self.k1, self.k2, self.p1, self.p2, self.k3]
+    }
+
+    /// No distortion at all.
+    pub fn is_zero(&self) -> bool {
+        self.to_array().iter().all(|&c| c == 0.0)
+    }
+
+    /// The recorded (distorted) normalised coordinates of the ideal point (x, y).
+    #[inline]
+    pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        (
+            x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+            y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+        )
+    }
+
+    /// The ideal point whose distortion is (xd, yd), by Newton's method on the 2 × 2 system
+    /// (converges in a few steps over the field of view of a real lens); `None` where it does not
+    /// converge (outside the region where the model is invertible).
+    pub fn undistort(&self, xd: f64, yd: f64) -> Option<(f64, f64)> {
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..30 {
+            let (fx, fy) = self.distort(x, y);
+            let (ex, ey) = (fx - xd, fy - yd);
+            if ex.abs() < 1e-13 && ey.abs() < 1e-13 {
+                return Some((x, y));
+            }
+            let j = self.jacobian(x, y);
+            let det = j[0] * j[3] - j[1] * j[2];
+            if det.abs() < 1e-12 {
+                return None;
+            }
+            x -= (j[3] * ex - j[1] * ey) / det;
+            y -= (-j[2] * ex + j[0] * ey) / det;
+        }
+        let (fx, fy) = self.distort(x, y);
+        ((fx - xd).abs() < 1e-9 && (fy - yd).abs() < 1e-9).then_some((x, y))
+    }
+
+    /// ∂(x_d, y_d)/∂(x, y), row-major.
+    fn jacobian(&self, x: f64, y: f64) -> [f64; 4] {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        // d radial / d r²
+        let dr = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3);
+        [
+            radial + 2.0 * x * x * dr + 2.0 * self.p1 * y + 6.0 * self.p2 * x,
+            2.0 * x * y * dr + 2.0 * self.p1 * x + 2.0 * self.p2 * y,
+            2.0 * x * y * dr + 2.0 * self.p1 * x + 2.0 * self.p2 * y,
+            radial + 2.0 * y * y * dr + 6.0 * self.p1 * y + 2.0 * self.p2 * x,
+        ]
+    }
+}
+
+/// Where every pixel of the ideal image lies in the recorded one, for one camera: computed once,
+/// applied to every frame.
+#[derive(Clone, Debug)]
+pub struct Undistorter {
+    width: usize,
+    height: usize,
+    /// Source pixel coordinates (u, v) per ideal pixel, row-major; NaN where it falls outside.
+    map: Vec<[f32; 2]>,
+}
+
+impl Undistorter {
+    /// The remap of `camera` (its intrinsics and image size) with `distortion`: the ideal image
+    /// has the same intrinsics, without distortion.
+    pub fn new(camera: &Camera, distortion: &Distortion) -> Self {
+        let (w, h) = (camera.width, camera.height);
+        let mut map = vec![[f32::NAN; 2]; w * h];
+        map.par_chunks_mut(w.max(1))
+            .enumerate()
+            .for_each(|(v, row)| {
+                for (u, m) in row.iter_mut().enumerate() {
+                    let x = (u as f64 - camera.cx) / camera.fx;
+                    let y = (v as f64 - camera.cy) / camera.fy;
+                    let (xd, yd) = distortion.distort(x, y);
+                    let (us, vs) = (camera.fx * xd + camera.cx, camera.fy * yd + camera.cy);
+                    if us > -0.5 && vs > -0.5 && us < w as f64 - 0.5 && vs < h as f64 - 0.5 {
+                        *m = [us as f32, vs as f32];
+                    }
+                }
+            });
+        Self {
+            width: w,
+            height: h,
+            map,
+        }
+    }
+
+    /// Image size the remap was made for.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Undistorts a raw depth image by nearest neighbour (depth is not interpolated across a
+    /// discontinuity); pixels that fall outside the recorded image get 0 (no measurement).
+    /// Panics if the size differs from the camera's (a caller's bug: frames are checked on load).
+    pub fn depth(&self, src: &Image<u16>, out: &mut Image<u16>) {
+        assert_eq!((src.width, src.height), self.size(), "depth size");
+        let (w, h) = (self.width, self.height);
+        self.remap(out, 0, |x, y| {
+            src.data[((y + 0.5) as usize).min(h - 1) * w + ((x + 0.5) as usize).min(w - 1)]
+        });
+    }
+
+    /// Undistorts a colour image by bilinear interpolation; pixels that fall outside get black.
+    pub fn color(&self, src: &ColorImage, out: &mut ColorImage) {
+        assert_eq!((src.width, src.height), self.size(), "colour size");
+        let (w, h) = (self.width, self.height);
+        self.remap(out, [0; 3], |x, y| {
+            let (x, y) = (x.clamp(0.0, (w - 1) as f32), y.clamp(0.0, (h - 1) as f32));
+            let (x0, y0) = (x as usize, y as usize);
+            let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+            let (ax, ay) = (x - x0 as f32, y - y0 as f32);
+            let at = |xx: usize, yy: usize| src.data[yy * w + xx];
+            let (p00, p10, p01, p11) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+            std::array::from_fn(|c| {
+                let top = p00[c] as f32 * (1.0 - ax) + p10[c] as f32 * ax;
+                let bottom = p01[c] as f32 * (1.0 - ax) + p11[c] as f32 * ax;
+                (top * (1.0 - ay) + bottom * ay).round() as u8
+            })
+        });
+    }
+
+    /// `out` at the remap's size, each ideal pixel set to `sample` at its source point, or to
+    /// `outside` where it has none; rows in parallel.
+    fn remap<T: Copy + Send + Sync>(
+        &self,
+        out: &mut Image<T>,
+        outside: T,
+        sample: impl Fn(f32, f32) -> T + Sync,
+    ) {
+        out.reset(self.width, self.height, outside);
+        let w = self.width.max(1);
+        out.data
+            .par_chunks_mut(w)
+            .zip(self.map.par_chunks(w))
+            .for_each(|(row, map)| {
+                for (o, m) in row.iter_mut().zip(map) {
+                    if !m[0].is_nan() {
+                        *o = sample(m[0], m[1]);
+                    }
+                }
+            });
+    }
+
+    /// The source coordinates of ideal pixel (u, v), if it falls inside the recorded image.
+    pub fn source_of(&self, u: usize, v: usize) -> Option<(f32, f32)> {
+        let m = self.map[v * self.width + u];
+        (!m[0].is_nan()).then_some((m[0], m[1]))
+    }
+}
+
+/// The sensors of the TUM RGB-D benchmark (Sturm et al. 2012).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TumSensor {
+    /// freiburg1 (a Kinect).
+    Freiburg1,
+    /// freiburg2 (a Kinect).
+    Freiburg2,
+    /// freiburg3 (an Asus Xtion; its images are published undistorted).
+    Freiburg3,
+}
+
+impl TumSensor {
+    /// The sensor named `fr1`, `fr2`, `fr3` (or `freiburg1` ...).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "fr1" | "freiburg1" => Some(Self::Freiburg1),
+            "fr2" | "freiburg2" => Some(Self::Freiburg2),
+            "fr3" | "freiburg3" => Some(Self::Freiburg3),
+            _ => None,
+        }
+    }
+
+    /// The colour camera's published calibration at 640×480: intrinsics and Brown–Conrady
+    /// coefficients, depth scale 5000.
+    pub fn calibration(self) -> (Camera, Distortion) {
+        let (k, d) = match self {
+            Self::Freiburg1 => (
+                [517.3, 516.5, 318.6, 255.3],
+                [0.2624, -0.9531, -0.0054, 0.0026, 1.1633],
+            ),
+            Self::Freiburg2 => (
+                [520.9, 521.0, 325.1, 249.7],
+                [0.2312, -0.7849, -0.0033, -0.0001, 0.9172],
+            ),
+            Self::Freiburg3 => ([535.4, 539.2, 320.1, 247.6], [0.0; 5]),
+        };
+        (
+            Camera::new(k[0], k[1], k[2], k[3], 640, 480),
+            Distortion::from_array(d),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn fr1() -> Distortion {
+        TumSensor::Freiburg1.calibration().1
+    }
+
+    proptest! {
+        #[test]
+        fn undistort_inverts_distort(x in -0.6f64..0.6, y in -0.45f64..0.45) {
+            for d in [fr1(), TumSensor::Freiburg2.calibration().1,
+                      Distortion::from_array([-0.3, 0.1, 0.001, -0.002, 0.0])] {
+                let (xd, yd) = d.distort(x, y);
+                let (bx, by) = d.undistort(xd, yd).expect("converges");
+                prop_assert!((bx - x).abs() < 1e-10 && (by - y).abs() < 1e-10);
+            }
+        }
+
+        #[test]
+        fn the_jacobian_matches_central_differences(x in -0.6f64..0.6, y in -0.45f64..0.45) {
+            let d = fr1();
+            let j = d.jacobian(x, y);
+            let h = 1e-6;
+            let (px, py) = d.distort(x + h, y);
+            let (mx, my) = d.distort(x - h, y);
+            let (qx, qy) = d.distort(x, y + h);
+            let (nx, ny) = d.distort(x, y - h);
+            let numeric = [(px - mx) / (2.0 * h), (qx - nx) / (2.0 * h), (py - my) / (2.0 * h), (qy - ny) / (2.0 * h)];
+            for k in 0..4 {
+                prop_assert!((j[k] - numeric[k]).abs() < 1e-6, "{k}: {} vs {}", j[k], numeric[k]);
+            }
+        }
+    }
+
+    /// A distorted render of an image whose values are its own ideal coordinates, undistorted by
+    /// the remap, gives back each pixel's coordinates to a fraction of a pixel.
+    #[test]
+    fn undistorting_a_distorted_render_recovers_the_ideal_geometry() {
+        let (camera, d) = TumSensor::Freiburg1.calibration();
+        let (w, h) = (camera.width, camera.height);
+        // the recorded images: each pixel holds the ideal u (resp. v) of what it sees, scaled to u8
+        // range in two channels (u / 4, v / 4), computed by inverting the distortion per pixel
+        let mut recorded = ColorImage::new(w, h);
+        let mut depth = Image::<u16>::new(w, h);
+        for v in 0..h {
+            for u in 0..w {
+                let xd = (u as f64 - camera.cx) / camera.fx;
+                let yd = (v as f64 - camera.cy) / camera.fy;
+                let (x, y) = d.undistort(xd, yd).unwrap();
+                let (ui, vi) = (camera.fx * x + camera.cx, camera.fy * y + camera.cy);
+                recorded.set(
+                    u,
+                    v,
+                    [(ui / 4.0).round() as u8, (vi / 4.0).round() as u8, 0],
+                );
+                // depth: a code of the ideal pixel, exact in u16
+                depth.set(
+                    u,
+                    v,
+                    (ui.round().clamp(0.0, 639.0) as u16) * 100 + (vi / 5.0) as u16,
+                );
+            }
+        }
+        let undistorter = Undistorter::new(&camera, &d);
+        let mut ideal = ColorImage::new(w, h);
+        undistorter.color(&recorded, &mut ideal);
+        let mut ideal_depth = Image::<u16>::new(w, h);
+        undistorter.depth(&depth, &mut ideal_depth);
+        let (mut worst, mut covered, mut worst_depth) = (0.0f64, 0, 0i64);
+        for v in 8..h - 8 {
+            for u in 8..w - 8 {
+                if undistorter.source_of(u, v).is_none() {
+                    continue;
+                }
+                covered += 1;
+                let p = ideal.at(u, v);
+                // the u8 channels quantise to 4 px (±2), interpolation adds little
+                worst = worst
+                    .max((4.0 * p[0] as f64 - u as f64).abs())
+                    .max((4.0 * p[1] as f64 - v as f64).abs());
+                let code = ideal_depth.at(u, v) as i64;
+                worst_depth = worst_depth.max((code / 100 - u as i64).abs());
+            }
+        }
+        assert!(covered > w * h / 2, "{covered} pixels covered");
+        assert!(worst <= 2.5, "colour geometry off by {worst} px");
+        // nearest neighbour: the recorded pixel nearest the source point sees an ideal point within
+        // a pixel of this one
+        assert!(worst_depth <= 1, "depth geometry off by {worst_depth} px");
+    }
+
+    #[test]
+    fn precise_remap_lands_within_a_hundredth_of_a_pixel() {
+        // The remap itself, against the per-point inverse, everywhere it is defined.
+        let (camera, d) = TumSensor::Freiburg2.calibration();
+        let undistorter = Undistorter::new(&camera, &d);
+        let mut worst = 0.0f64;
+        for v in (0..camera.height).step_by(7) {
+            for u in (0..camera.width).step_by(7) {
+                let Some((us, vs)) = undistorter.source_of(u, v) else {
+                    continue;
+                };
+                let xd = (us as f64 - camera.cx) / camera.fx;
+                let yd = (vs as f64 - camera.cy) / camera.fy;
+                let (x, y) = d.undistort(xd, yd).unwrap();
+                let (ui, vi) = (camera.fx * x + camera.cx, camera.fy * y + camera.cy);
+                worst = worst.max((ui - u as f64).abs()).max((vi - v as f64).abs());
+            }
+        }
+        assert!(worst < 0.01, "remap off by {worst} px");
+    }
+
+    #[test]
+    fn no_distortion_is_the_identity() {
+        let c = Camera::tum_default();
+        let u = Undistorter::new(&c, &Distortion::default());
+        assert_eq!(u.source_of(10, 20), Some((10.0, 20.0)));
+        assert!(Distortion::default().is_zero() && !fr1().is_zero());
+        assert_eq!(TumSensor::from_name("FR2"), Some(TumSensor::Freiburg2));
+        assert_eq!(TumSensor::from_name("fr4"), None);
+    }
+}
