@@ -35,9 +35,10 @@
 //! solver linearises every block in the tangent spaces, `r_i(x ⊞ δ) ≈ r_i + J_i δ`, and solves the
 //! (damped) normal equations `(JᵀJ + μD) δ = −Jᵀr` block-sparse: each variable is one block row and
 //! column of `H = JᵀJ`, and each residual block adds to the blocks of the variables it touches.
-//! Robust kernels enter by Triggs' correction, so `H` stays the Gauss-Newton matrix of the
-//! reweighted problem. Gauss-Newton takes the step; Levenberg-Marquardt and dogleg accept it only
-//! when the cost falls as the model predicts.
+//! Robust kernels enter by Triggs' correction where ρ'' > 0 and as weights ρ' where ρ'' ≤ 0 (as
+//! Ceres' `Corrector`), so `H` stays positive semi-definite and `g` is the gradient of ½Σρ.
+//! Gauss-Newton takes the step; Levenberg-Marquardt and dogleg accept it only when the cost
+//! falls as the model predicts.
 //!
 //! ## A first solve
 //!
