@@ -477,19 +477,22 @@ impl Solver {
                     // H + μD that is not numerically positive definite (a gauge direction under
                     // tiny damping) yields no step to try: raise μ as a rejection would, within
                     // this iteration, since nothing was evaluated (NOTES 49).
-                    let d = loop {
+                    let (d, factored) = loop {
                         let d = match opts.damping {
                             DampingKind::Identity => Damping::Identity(mu),
                             DampingKind::Diagonal => Damping::Diagonal(mu),
                         };
-                        if linear.factor(ne, d).is_ok() || !mu.is_finite() || mu > 1e300 {
-                            break d;
+                        if linear.factor(ne, d).is_ok() {
+                            break (d, true);
+                        }
+                        if !mu.is_finite() || mu > 1e300 {
+                            break (d, false);
                         }
                         factor_retries += 1;
                         mu *= nu;
                         nu *= 2.0;
                     };
-                    if !mu.is_finite() || mu > 1e300 {
+                    if !factored {
                         termination = Termination::NoProgress;
                         stop = self.notify(
                             &rejected(iteration, cost, gnorm, mu, t_solve, start),
