@@ -423,9 +423,12 @@ impl IcpTerms<'_> {
     }
 
     /// The affine map (a, b) that best takes the live intensities onto the model's over the
-    /// pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them, evenly spread): least
-    /// squares, then once more without the pairs farther than `trim` from the first fit
-    /// (speculars, occlusions). (1, 0) when fewer than 100 pairs agree, or when the fit is
+    /// pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them, evenly spread): a
+    /// total-least-squares line through the (live, model) pairs, then once more without the
+    /// pairs farther than `trim` from the first fit (speculars, occlusions). Both intensities
+    /// carry noise, so an ordinary regression of one on the other would shrink a below 1 (and,
+    /// fused frame after frame, flatten the model's texture); the orthogonal fit does not.
+    /// (1, 0) when fewer than 100 pairs agree, when they span no contrast, or when the fit is
     /// implausible (a outside [0.5, 2]).
     fn fit_brightness(&self, x: &[f64], trim: f64) -> (f64, f64) {
         let lin = self.prepare(x);
@@ -434,7 +437,7 @@ impl IcpTerms<'_> {
         // points, spread evenly
         let step = (self.grid.len() / BRIGHTNESS_SAMPLES).max(1);
         for round in 0..2 {
-            let mut sums = [0.0f64; 5]; // n, Σl, Σm, Σl², Σlm
+            let mut sums = [0.0f64; 6]; // n, Σl, Σm, Σl², Σlm, Σm²
             for k in (0..self.grid.len()).step_by(step) {
                 let Some(a) = self.associate(k, &lin) else {
                     continue;
@@ -446,16 +449,22 @@ impl IcpTerms<'_> {
                 if round == 1 && (fit.0 * l + fit.1 - m).abs() > trim {
                     continue;
                 }
-                for (s, v) in sums.iter_mut().zip([1.0, l, m, l * l, l * m]) {
+                for (s, v) in sums.iter_mut().zip([1.0, l, m, l * l, l * m, m * m]) {
                     *s += v;
                 }
             }
-            let [n, sl, sm, sll, slm] = sums;
-            let var = n * sll - sl * sl;
-            if n < 100.0 || var <= 1e-9 * n * n {
+            let [n, sl, sm, sll, slm, smm] = sums;
+            if n < 100.0 {
                 return (1.0, 0.0);
             }
-            let a = (n * slm - sl * sm) / var;
+            // centred second moments
+            let (cll, clm, cmm) = (sll - sl * sl / n, slm - sl * sm / n, smm - sm * sm / n);
+            if clm <= 1e-9 * n {
+                return (1.0, 0.0);
+            }
+            // the major axis of the 2 × 2 scatter: slope (cmm − cll + √((cmm − cll)² + 4clm²)) / 2clm
+            let d = cmm - cll;
+            let a = (d + (d * d + 4.0 * clm * clm).sqrt()) / (2.0 * clm);
             fit = (a, (sm - a * sl) / n);
         }
         if (0.5..=2.0).contains(&fit.0) && fit.1.is_finite() {
