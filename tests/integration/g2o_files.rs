@@ -40,9 +40,25 @@ fn exercise(text: &str) {
         Err(e) => {
             assert_eq!(e.path, "f.g2o");
             assert!(e.line <= text.lines().count(), "{e}");
-            assert!(e.to_string().starts_with(&format!("f.g2o:{}: ", e.line)));
+            // a fault of the whole file (line 0, e.g. an empty one) is named without a line
+            let place = if e.line == 0 {
+                "f.g2o: ".to_string()
+            } else {
+                format!("f.g2o:{}: ", e.line)
+            };
+            assert!(e.to_string().starts_with(&place), "{e}");
         }
     }
+}
+
+/// The truncation at 0 bytes, which the property below draws only now and then (it failed CI's
+/// third run this session: the assertion expected `f.g2o:0: ` where the message, rightly, names
+/// no line).
+#[test]
+fn an_empty_file_is_refused_as_a_whole() {
+    exercise("");
+    let e = g2o::parse("", "f.g2o").unwrap_err();
+    assert_eq!(e.line, 0);
 }
 
 proptest! {
