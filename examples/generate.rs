@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation]
-//!                                            [--frames N] [--width W --height H] [--seed K] [--no-noise]
+//!                                            [--sensor kinect|ideal] [--frames N] [--width W --height H]
+//!                                            [--seed K] [--no-noise] [--gain-drift A]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
 //! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
@@ -25,6 +26,7 @@ use dynamap::slam::camera::Camera;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::synthetic::deform::{self, DeformingScene, Field, SurfaceKind};
 use dynamap::slam::synthetic::faults::{self, FaultPlan};
+use dynamap::slam::synthetic::kinect::KinectModel;
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::scene::Scene;
@@ -38,6 +40,12 @@ enum RigidMotion {
     Orbit,
     Shake,
     FastRotation,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SensorArg {
+    Kinect,
+    Ideal,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -74,10 +82,11 @@ struct SequenceFlags {
     /// Exact depth (quantised only) and colour.
     #[arg(long)]
     no_noise: bool,
-    /// Amplitude of a drifting auto-exposure gain on the colour, 1 + a sin(2π k / 150) for frame
-    /// k (0.15: a consumer sensor's drift over seconds).
-    #[arg(long, default_value_t = 0.0)]
-    gain_drift: f32,
+    /// Amplitude of a drifting auto-exposure gain on the colour (0.15: a consumer sensor's drift
+    /// over seconds). The ideal sensor's is 1 + a sin(2π k / 150) for frame k (default 0), the
+    /// Kinect's a sum of slow random sinusoids (default 0.15).
+    #[arg(long)]
+    gain_drift: Option<f32>,
     /// Frames per second.
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
@@ -95,6 +104,11 @@ enum Kind {
         /// A procedural motion.
         #[arg(long, value_enum, default_value = "orbit")]
         motion: RigidMotion,
+        /// The sensor: a structured-light Kinect (quantised disparity, shadows, flying pixels,
+        /// motion blur, exposure drift, vignetting, lens distortion, colour 10-20 ms after depth
+        /// with its own stamps) or the ideal render with simple axial noise.
+        #[arg(long, value_enum, default_value = "kinect")]
+        sensor: SensorArg,
     },
     /// A surface deforming in front of a static camera.
     Deforming {
@@ -149,7 +163,7 @@ impl SequenceFlags {
 
     /// Creates the output folder and returns the sensor model the flags ask for.
     fn prepare(&self) -> Result<SensorNoise> {
-        if !(0.0..1.0).contains(&self.gain_drift) {
+        if self.gain_drift.is_some_and(|g| !(0.0..1.0).contains(&g)) {
             return Err(cli::bad_input("--gain-drift must lie in [0, 1)"));
         }
         std::fs::create_dir_all(&self.out)
@@ -157,7 +171,7 @@ impl SequenceFlags {
         Ok(SensorNoise {
             enabled: !self.no_noise,
             seed: self.seed,
-            gain_drift: self.gain_drift,
+            gain_drift: self.gain_drift.unwrap_or(0.0),
             ..SensorNoise::default()
         })
     }
@@ -178,6 +192,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             sequence: common,
             trajectory,
             motion: m,
+            sensor,
         } => {
             let cam = common.camera()?;
             let (traj, to_room) = match trajectory {
@@ -202,13 +217,26 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 }
             };
             let noise = common.prepare()?;
+            let sensor = match sensor {
+                SensorArg::Kinect if common.no_noise => {
+                    return Err(cli::bad_input(
+                        "--no-noise is the ideal sensor's; add --sensor ideal",
+                    ))
+                }
+                SensorArg::Kinect => sequence::Sensor::Kinect(KinectModel {
+                    seed: common.seed,
+                    gain_drift: common.gain_drift.unwrap_or(0.15) as f64,
+                    ..KinectModel::default()
+                }),
+                SensorArg::Ideal => sequence::Sensor::Ideal(noise),
+            };
             sequence::write_rigid(
                 &common.out,
                 &Scene::room(common.seed),
                 &cam,
                 &traj,
                 &to_room,
-                &noise,
+                &sensor,
                 progress(traj.len()),
             )?;
             (common, "rigid", traj.len())

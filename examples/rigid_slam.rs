@@ -32,7 +32,7 @@ use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
 use dynamap::slam::rigid::{FrameReport, RigidSlam, SlamParams, StageTimes};
-use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
+use dynamap::slam::synthetic::{kinect::KinectModel, motion, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
 use nalgebra::Isometry3;
 use rerun_log::Recorder;
@@ -226,7 +226,8 @@ fn params(args: &Args) -> Result<SlamParams> {
     Ok(p)
 }
 
-/// Renders the default sequence (60 frames orbiting the room, 640×480, with noise) into a folder.
+/// Renders the default sequence (60 frames orbiting the room, 640×480, recorded by the
+/// structured-light sensor model with lens distortion) into a folder.
 fn default_sequence() -> Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("dynamap-rigid-default-{}", std::process::id()));
     let cam = Camera::tum_default();
@@ -238,7 +239,7 @@ fn default_sequence() -> Result<PathBuf> {
         &cam,
         &traj,
         &Isometry3::identity(),
-        &SensorNoise::default(),
+        &sequence::Sensor::Kinect(KinectModel::default()),
         |_| {},
     )?;
     Ok(dir)

@@ -320,7 +320,7 @@ fn a_sequence_rendered_along_fr1_xyz_keeps_its_ground_truth() {
         &cam,
         &traj,
         &motion::world_to_room(&gt),
-        &SensorNoise::default(),
+        &sequence::Sensor::Ideal(SensorNoise::default()),
         |_| {},
     )
     .unwrap();

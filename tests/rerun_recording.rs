@@ -45,7 +45,7 @@ fn rigid_slam_recording_reads_back_with_every_frame() {
         &camera,
         &trajectory,
         &Isometry3::identity(),
-        &SensorNoise::default(),
+        &sequence::Sensor::Ideal(SensorNoise::default()),
         |_| {},
     )
     .expect("the sequence is written");

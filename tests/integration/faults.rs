@@ -104,7 +104,7 @@ fn orbit(dir: &Path, frames: usize) {
         &camera(),
         &motion::procedural(Motion::Orbit, frames, 30.0),
         &Isometry3::identity(),
-        &SensorNoise::default(),
+        &sequence::Sensor::Ideal(SensorNoise::default()),
         |_| {},
     )
     .unwrap();

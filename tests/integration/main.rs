@@ -15,6 +15,7 @@ mod chi2_agreement;
 mod cli;
 mod faults;
 mod g2o_files;
+mod kinect;
 mod nonrigid;
 mod rigid;
 mod robust;

@@ -141,7 +141,7 @@ fn a_written_sequence_reads_back_and_a_damaged_frame_is_named() {
         &cam,
         &traj,
         &Isometry3::identity(),
-        &SensorNoise::default(),
+        &sequence::Sensor::Ideal(SensorNoise::default()),
         |_| {},
     )
     .unwrap();

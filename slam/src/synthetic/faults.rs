@@ -178,8 +178,11 @@ pub fn write_faulty(
         }
         listed.push(k);
     }
-    let stamps: Vec<f64> = listed.iter().map(|&k| truth.stamps[k]).collect();
-    write_index(dir, camera, &stamps, &truth)?;
+    let stamps: Vec<(f64, f64)> = listed
+        .iter()
+        .map(|&k| (truth.stamps[k], truth.stamps[k]))
+        .collect();
+    write_index(dir, camera, &Default::default(), &stamps, &truth)?;
     Ok(FaultManifest {
         listed,
         groundtruth: truth,

@@ -3,7 +3,9 @@
 //! - [`scene`]: primitives (planes, boxes, spheres, cylinders) and triangle meshes (through a
 //!   [`bvh`]), with procedural [`texture`] so the photometric term has gradients;
 //! - [`render`]: a ray caster producing depth, colour and normals at any resolution, and the
-//!   Kinect-like [`noise`] model;
+//!   simple Kinect-like [`noise`] model;
+//! - [`kinect`]: a structured-light sensor as hard as a real one (quantised disparity, shadows,
+//!   flying pixels, motion blur, exposure drift, distortion, colour captured after depth);
 //! - [`motion`]: camera trajectories, procedural (orbit, shake, fast rotation) or from a TUM file;
 //! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
 //!   per-pixel scene flow and the deformed mesh per frame;
@@ -17,6 +19,7 @@
 pub mod bvh;
 pub mod deform;
 pub mod faults;
+pub mod kinect;
 pub mod motion;
 pub mod noise;
 pub mod plate;

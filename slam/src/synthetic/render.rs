@@ -11,6 +11,12 @@ fn light() -> Vector3<f64> {
     Vector3::new(0.3, 0.5, 1.0).normalize()
 }
 
+/// The colour of a hit in [0, 1]³: albedo × (0.55 + 0.45 |n·l|) for the fixed world light l.
+pub(crate) fn shade(hit: &Hit) -> [f64; 3] {
+    let shade = 0.55 + 0.45 * hit.normal.dot(&light()).abs();
+    hit.albedo.map(|a| a * shade)
+}
+
 /// What one view of the scene looks like.
 #[derive(Clone, Debug)]
 pub struct Rendering {
@@ -30,7 +36,7 @@ pub struct Rendering {
 pub fn render(scene: &Scene, camera: &Camera, pose: &Isometry3<f64>) -> Rendering {
     let (w, h) = (camera.width, camera.height);
     let origin = Point3::from(pose.translation.vector);
-    let l = light();
+    let scene = scene.prepare();
     let hits: Vec<Option<Hit>> = (0..w * h)
         .into_par_iter()
         .with_min_len(256)
@@ -56,10 +62,7 @@ pub fn render(scene: &Scene, camera: &Camera, pose: &Isometry3<f64>) -> Renderin
         let (u, v) = ((i % w) as f64, (i / w) as f64);
         let dc = camera.ray(u, v);
         out.depth.data[i] = (hit.t * dc.z) as f32;
-        let shade = 0.55 + 0.45 * hit.normal.dot(&l).abs();
-        out.color.data[i] = hit
-            .albedo
-            .map(|a| (a * shade * 255.0).round().clamp(0.0, 255.0) as u8);
+        out.color.data[i] = shade(hit).map(|c| (c * 255.0).round().clamp(0.0, 255.0) as u8);
         let nc = inv_rot * hit.normal;
         out.normals.data[i] = [nc.x as f32, nc.y as f32, nc.z as f32];
         out.cos_incidence.data[i] = (-nc.dot(&dc)) as f32;

@@ -3,7 +3,7 @@
 use super::bvh::Bvh;
 use super::texture::Texture;
 use crate::mesh::Mesh;
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::sync::Arc;
 
 /// A triangle mesh ready for ray casting.
@@ -15,6 +15,8 @@ pub struct RayMesh {
     pub bvh: Bvh,
     /// Where each vertex's texture is looked up (the undeformed positions for deforming surfaces).
     pub texture_coords: Vec<Point3<f64>>,
+    /// The largest distance of a vertex from the mesh's origin (its bounding sphere's radius).
+    pub radius: f64,
 }
 
 impl RayMesh {
@@ -28,6 +30,7 @@ impl RayMesh {
         let v: Vec<Point3<f64>> = mesh.vertices.iter().map(|p| p.cast()).collect();
         Self {
             bvh: Bvh::new(&v, &mesh.faces),
+            radius: v.iter().map(|p| p.coords.norm()).fold(0.0, f64::max),
             mesh,
             texture_coords,
         }
@@ -65,6 +68,22 @@ pub enum Shape {
     Mesh(Arc<RayMesh>),
 }
 
+impl Shape {
+    /// The squared radius of a sphere about the shape's origin that holds all of it.
+    pub fn bounding_radius_squared(&self) -> f64 {
+        match self {
+            Shape::Plane { hx, hy } => hx * hx + hy * hy,
+            Shape::Cuboid { half } => half.norm_squared(),
+            Shape::Sphere { radius } => radius * radius,
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => radius * radius + half_height * half_height,
+            Shape::Mesh(m) => m.radius * m.radius,
+        }
+    }
+}
+
 /// A shape placed in the world with a texture.
 #[derive(Clone, Debug)]
 pub struct Object {
@@ -93,11 +112,100 @@ pub struct Hit {
     pub triangle: Option<(usize, [f64; 3])>,
 }
 
+/// The ray (origin, direction) in the frame of an object at `pose`.
+#[inline]
+fn to_local(
+    pose: &Isometry3<f64>,
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let inv = pose.inverse();
+    ((inv * origin).coords, inv.rotation * dir)
+}
+
+/// A [`Scene`] ready for casting many rays (see [`Scene::prepare`]); it borrows the scene, so the
+/// scene cannot change under it.
+#[derive(Clone, Debug)]
+pub struct PreparedScene<'a> {
+    scene: &'a Scene,
+    to_object: Vec<(Matrix3<f64>, Vector3<f64>)>,
+}
+
+impl PreparedScene<'_> {
+    #[inline]
+    fn local(
+        &self,
+        k: usize,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        let (r, t) = &self.to_object[k];
+        (r * origin.coords + t, r * dir)
+    }
+
+    /// As [`Scene::surface`].
+    pub fn surface(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+    ) -> Option<(f64, Point3<f64>, Vector3<f64>)> {
+        let n = self
+            .scene
+            .nearest_with(origin, dir, |k, _| self.local(k, origin, dir))?;
+        Some((n.t, self.scene.objects[n.object].pose * n.local, n.normal))
+    }
+
+    /// As [`Scene::intersect`].
+    pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
+        let n = self
+            .scene
+            .nearest_with(origin, dir, |k, _| self.local(k, origin, dir))?;
+        Some(self.scene.textured(n))
+    }
+
+    /// As [`Scene::blocked`].
+    pub fn blocked(&self, origin: &Point3<f64>, dir: &Vector3<f64>, t_max: f64) -> bool {
+        self.scene.objects.iter().enumerate().any(|(k, obj)| {
+            may_hit(obj, origin, dir, t_max) && {
+                let (o, d) = self.local(k, origin, dir);
+                intersect_local(&obj.shape, &o, &d, t_max).is_some()
+            }
+        })
+    }
+}
+
+/// The nearest hit before its texture is looked up.
+struct Nearest {
+    object: usize,
+    t: f64,
+    /// Local until [`Scene::nearest`] turns it into the world normal facing the ray.
+    normal: Vector3<f64>,
+    triangle: Option<(usize, [f64; 3])>,
+    /// The hit in the object's frame.
+    local: Point3<f64>,
+}
+
 /// A set of objects.
 #[derive(Clone, Debug, Default)]
 pub struct Scene {
     /// The objects.
     pub objects: Vec<Object>,
+}
+
+/// Whether the ray may meet the object before `t_max`: a test against its bounding sphere in the
+/// world frame, cheaper than moving the ray into the object's frame.
+#[inline]
+fn may_hit(obj: &Object, origin: &Point3<f64>, dir: &Vector3<f64>, t_max: f64) -> bool {
+    let r2 = obj.shape.bounding_radius_squared();
+    let oc = obj.pose.translation.vector - origin.coords;
+    let along = oc.dot(dir);
+    let off2 = oc.norm_squared() - along * along;
+    if off2 > r2 * (1.0 + 1e-9) + 1e-12 {
+        return false;
+    }
+    // within the sphere's extent along the ray: (along - t)² ≤ r² for some t in (0, t_max)
+    let before = along - t_max;
+    (along > 0.0 || along * along <= r2) && (before < 0.0 || before * before <= r2)
 }
 
 /// Ray–shape intersection in the shape's frame: (t, local normal, triangle).
@@ -227,41 +335,109 @@ impl Scene {
 
     /// The nearest hit of the ray from `origin` along the unit `dir` (world frame).
     pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
+        Some(self.textured(self.nearest(origin, dir)?))
+    }
+
+    /// The hit with its texture looked up.
+    fn textured(&self, n: Nearest) -> Hit {
+        let obj = &self.objects[n.object];
+        let tex_point = match (&obj.shape, n.triangle) {
+            (Shape::Mesh(m), Some((ti, w))) => {
+                let f = m.mesh.faces[ti];
+                Point3::from(
+                    f.iter()
+                        .zip(w)
+                        .map(|(&i, wi)| m.texture_coords[i as usize].coords * wi)
+                        .sum::<Vector3<f64>>(),
+                )
+            }
+            _ => n.local,
+        };
+        Hit {
+            t: n.t,
+            point: obj.pose * n.local,
+            normal: n.normal,
+            albedo: obj.texture.color(&tex_point),
+            object: n.object,
+            triangle: n.triangle,
+        }
+    }
+
+    /// The nearest hit's geometry only, (t, world point, world unit normal facing the ray): no
+    /// texture looked up.
+    pub fn surface(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+    ) -> Option<(f64, Point3<f64>, Vector3<f64>)> {
+        let n = self.nearest(origin, dir)?;
+        Some((n.t, self.objects[n.object].pose * n.local, n.normal))
+    }
+
+    fn nearest(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Nearest> {
+        self.nearest_with(origin, dir, |_, obj| to_local(&obj.pose, origin, dir))
+    }
+
+    /// [`Self::nearest`] with the ray moved into object k's frame by `local(k, object)`.
+    fn nearest_with(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        local: impl Fn(usize, &Object) -> (Vector3<f64>, Vector3<f64>),
+    ) -> Option<Nearest> {
+        let mut best: Option<Nearest> = None;
         for (k, obj) in self.objects.iter().enumerate() {
-            let inv = obj.pose.inverse();
-            let o = (inv * origin).coords;
-            let d = inv.rotation * dir;
-            let t_max = best.map_or(f64::INFINITY, |b| b.t);
-            if let Some((t, n_local, tri)) = intersect_local(&obj.shape, &o, &d, t_max) {
-                let local = Point3::from(o + d * t);
-                let mut normal = obj.pose.rotation * n_local;
-                if normal.dot(dir) > 0.0 {
-                    normal = -normal;
-                }
-                let tex_point = match (&obj.shape, tri) {
-                    (Shape::Mesh(m), Some((ti, w))) => {
-                        let f = m.mesh.faces[ti];
-                        Point3::from(
-                            f.iter()
-                                .zip(w)
-                                .map(|(&i, wi)| m.texture_coords[i as usize].coords * wi)
-                                .sum::<Vector3<f64>>(),
-                        )
-                    }
-                    _ => local,
-                };
-                best = Some(Hit {
-                    t,
-                    point: obj.pose * local,
-                    normal,
-                    albedo: obj.texture.color(&tex_point),
+            let t_max = best.as_ref().map_or(f64::INFINITY, |b| b.t);
+            if !may_hit(obj, origin, dir, t_max) {
+                continue;
+            }
+            let (o, d) = local(k, obj);
+            if let Some((t, normal, triangle)) = intersect_local(&obj.shape, &o, &d, t_max) {
+                best = Some(Nearest {
                     object: k,
-                    triangle: tri,
+                    t,
+                    normal,
+                    triangle,
+                    local: Point3::from(o + d * t),
                 });
             }
         }
-        best
+        let mut n = best?;
+        n.normal = self.objects[n.object].pose.rotation * n.normal;
+        if n.normal.dot(dir) > 0.0 {
+            n.normal = -n.normal;
+        }
+        Some(n)
+    }
+
+    /// Whether anything lies on the ray from `origin` along the unit `dir` before `t_max` (a
+    /// shadow ray: stops at the first hit, looks up no texture).
+    pub fn blocked(&self, origin: &Point3<f64>, dir: &Vector3<f64>, t_max: f64) -> bool {
+        self.objects.iter().any(|obj| {
+            may_hit(obj, origin, dir, t_max) && {
+                let (o, d) = to_local(&obj.pose, origin, dir);
+                intersect_local(&obj.shape, &o, &d, t_max).is_some()
+            }
+        })
+    }
+
+    /// The scene with every object's world-to-object transform computed once, for casting many
+    /// rays: the same answers as the scene's own methods, faster.
+    pub fn prepare(&self) -> PreparedScene<'_> {
+        PreparedScene {
+            scene: self,
+            to_object: self
+                .objects
+                .iter()
+                .map(|o| {
+                    let inv = o.pose.inverse();
+                    (
+                        inv.rotation.to_rotation_matrix().into_inner(),
+                        inv.translation.vector,
+                    )
+                })
+                .collect(),
+        }
     }
 
     /// A furnished room around the origin (z up): floor, walls, a table and objects on and around it,

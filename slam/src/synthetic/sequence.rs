@@ -1,17 +1,21 @@
 //! Writing rendered sequences in the TUM RGB-D layout, so every tool that reads TUM reads ours:
 //! `rgb/` and `depth/` PNGs (16-bit depth at the camera's depth scale), `rgb.txt`, `depth.txt`,
-//! `associations.txt`, `groundtruth.txt` (camera-to-world) and `intrinsics.txt`
-//! (`fx fy cx cy depth_scale`). Deforming sequences add `meshes/NNNNNN.ply` (the ground-truth surface
+//! `associations.txt`, `groundtruth.txt` (camera-to-world, at the depth stamps) and
+//! `intrinsics.txt` (`fx fy cx cy depth_scale`, followed by `k1 k2 p1 p2 k3` when the images are
+//! distorted). With the [`Sensor::Kinect`] model, colour is captured after depth and each has its
+//! own stamps in `rgb.txt` and `depth.txt`, as in TUM's recordings. Deforming sequences add `meshes/NNNNNN.ply` (the ground-truth surface
 //! at each frame, world frame) and `flow/NNNNNN.flow` (per-pixel scene flow to the next frame).
 //!
 //! A `.flow` file is the text line `FLOW3D <width> <height>\n` followed by width × height × 3
 //! little-endian f32 (world-frame displacement per pixel, row by row; NaN where unknown).
 
 use super::deform::DeformingScene;
+use super::kinect::{KinectModel, Recorder};
 use super::noise::SensorNoise;
 use super::render::{render, Rendering};
 use super::scene::Scene;
 use crate::camera::Camera;
+use crate::distortion::Distortion;
 use crate::image::Image;
 use crate::io::images::{write_color, write_depth};
 use crate::io::trajectory::Trajectory;
@@ -89,12 +93,36 @@ pub(crate) fn write_sensor_frame(
     write_color(dir.join("rgb").join(format!("{n}.png")), &r.color)
 }
 
+/// The sensor that records a rendered sequence.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Sensor {
+    /// The simple model: the render's own pixels with axial noise, holes at grazing angles, one
+    /// stamp for both images, no distortion.
+    Ideal(SensorNoise),
+    /// The structured-light sensor of [`super::kinect`].
+    Kinect(KinectModel),
+}
+
+impl Sensor {
+    /// The lens distortion the images carry.
+    pub fn distortion(&self) -> Distortion {
+        match self {
+            Sensor::Ideal(_) => Distortion::default(),
+            Sensor::Kinect(m) => m.distortion,
+        }
+    }
+}
+
+/// The stamps of one listed frame: (depth, colour).
+pub(crate) type Stamps = (f64, f64);
+
 /// Writes the image lists (the frames at `listed` stamps), the ground truth (all of `trajectory`)
-/// and the intrinsics.
+/// and the intrinsics with `distortion`.
 pub(crate) fn write_index(
     dir: &Path,
     camera: &Camera,
-    listed: &[f64],
+    distortion: &Distortion,
+    listed: &[Stamps],
     trajectory: &Trajectory,
 ) -> Result<(), IoError> {
     let (mut rgb, mut depth, mut assoc) = (
@@ -102,20 +130,26 @@ pub(crate) fn write_index(
         String::from("# depth maps\n# timestamp filename\n"),
         String::new(),
     );
-    for s in listed {
-        let n = stamp_name(*s);
-        let _ = writeln!(rgb, "{n} rgb/{n}.png");
-        let _ = writeln!(depth, "{n} depth/{n}.png");
-        let _ = writeln!(assoc, "{n} rgb/{n}.png {n} depth/{n}.png");
+    for (d, c) in listed {
+        let (d, c) = (stamp_name(*d), stamp_name(*c));
+        let _ = writeln!(rgb, "{c} rgb/{c}.png");
+        let _ = writeln!(depth, "{d} depth/{d}.png");
+        let _ = writeln!(assoc, "{c} rgb/{c}.png {d} depth/{d}.png");
     }
     write_atomic(dir.join("rgb.txt"), rgb.as_bytes())?;
     write_atomic(dir.join("depth.txt"), depth.as_bytes())?;
     write_atomic(dir.join("associations.txt"), assoc.as_bytes())?;
     trajectory.write_tum(dir.join("groundtruth.txt"))?;
-    let intr = format!(
-        "{:?} {:?} {:?} {:?} {:?}\n",
+    let mut intr = format!(
+        "{:?} {:?} {:?} {:?} {:?}",
         camera.fx, camera.fy, camera.cx, camera.cy, camera.depth_scale
     );
+    if !distortion.is_zero() {
+        for c in distortion.to_array() {
+            let _ = write!(intr, " {c:?}");
+        }
+    }
+    intr.push('\n');
     write_atomic(dir.join("intrinsics.txt"), intr.as_bytes())
 }
 
@@ -136,16 +170,65 @@ pub fn write_rigid(
     camera: &Camera,
     trajectory: &Trajectory,
     to_scene: &Isometry3<f64>,
-    noise: &SensorNoise,
+    sensor: &Sensor,
     mut progress: impl FnMut(usize),
 ) -> Result<(), IoError> {
     make_dirs(dir, &[])?;
+    let in_scene = Trajectory {
+        stamps: trajectory.stamps.clone(),
+        poses: trajectory.poses.iter().map(|p| to_scene * p).collect(),
+    };
+    let listed = match sensor {
+        Sensor::Ideal(noise) => record_ideal(dir, scene, camera, &in_scene, noise, &mut progress)?,
+        Sensor::Kinect(model) => record_kinect(
+            dir,
+            scene,
+            &model.recorder(camera),
+            &in_scene,
+            &mut progress,
+        )?,
+    };
+    write_index(dir, camera, &sensor.distortion(), &listed, trajectory)
+}
+
+/// Records every frame of `trajectory` (camera-to-scene) with the ideal sensor.
+fn record_ideal(
+    dir: &Path,
+    scene: &Scene,
+    camera: &Camera,
+    trajectory: &Trajectory,
+    noise: &SensorNoise,
+    progress: &mut impl FnMut(usize),
+) -> Result<Vec<Stamps>, IoError> {
+    let mut listed = Vec::with_capacity(trajectory.len());
     for (k, (stamp, pose)) in trajectory.stamps.iter().zip(&trajectory.poses).enumerate() {
-        let mut r = render(scene, camera, &(to_scene * pose));
+        let mut r = render(scene, camera, pose);
         write_sensor_frame(dir, *stamp, k, &mut r, noise, camera)?;
+        listed.push((*stamp, *stamp));
         progress(k);
     }
-    write_index(dir, camera, &trajectory.stamps, trajectory)
+    Ok(listed)
+}
+
+/// Records every frame of `trajectory` (camera-to-scene) with the Kinect model: depth at the
+/// trajectory's stamps, colour at its own.
+fn record_kinect(
+    dir: &Path,
+    scene: &Scene,
+    recorder: &Recorder,
+    trajectory: &Trajectory,
+    progress: &mut impl FnMut(usize),
+) -> Result<Vec<Stamps>, IoError> {
+    let mut listed = Vec::with_capacity(trajectory.len());
+    for (k, stamp) in trajectory.stamps.iter().enumerate() {
+        let f = recorder.capture(scene, trajectory, k);
+        let (d, c) = (stamp_name(*stamp), stamp_name(f.color_stamp));
+        write_depth(dir.join("depth").join(format!("{d}.png")), &f.depth)?;
+        write_color(dir.join("rgb").join(format!("{c}.png")), &f.color)?;
+        listed.push((*stamp, f.color_stamp));
+        progress(k);
+    }
+    Ok(listed)
 }
 
 /// Renders a deforming scene seen from `trajectory` and writes a TUM-layout sequence plus the
@@ -172,7 +255,8 @@ pub fn write_deforming(
         )?;
         progress(k);
     }
-    write_index(dir, camera, &trajectory.stamps, trajectory)
+    let listed: Vec<Stamps> = trajectory.stamps.iter().map(|&s| (s, s)).collect();
+    write_index(dir, camera, &Distortion::default(), &listed, trajectory)
 }
 
 /// A static camera 1.5 m from the deforming surface (world = camera frame), `frames` poses.

@@ -57,11 +57,12 @@ impl Texture {
     pub fn color(&self, p: &Point3<f64>) -> [f64; 3] {
         let mut f = [0.0; 3];
         for (w, phase, c) in &self.waves {
-            f[*c] += (w.dot(&p.coords) + phase).sin();
+            let s = (w.dot(&p.coords) + phase).sin();
+            f[*c] += s;
             // every wave touches every channel a little, for grey-level contrast
             for (k, v) in f.iter_mut().enumerate() {
                 if k != *c {
-                    *v += 0.3 * (w.dot(&p.coords) + phase).sin();
+                    *v += 0.3 * s;
                 }
             }
         }
