@@ -1,9 +1,9 @@
 //! Write a rendered RGB-D sequence with ground truth in the TUM layout.
 //!
 //! ```text
-//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation]
+//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep]
 //!                                            [--sensor kinect|ideal] [--frames N] [--width W --height H]
-//!                                            [--seed K] [--no-noise] [--gain-drift A]
+//!                                            [--layout room|bare|office] [--seed K] [--no-noise] [--gain-drift A]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
 //! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
@@ -27,9 +27,9 @@ use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::synthetic::deform::{self, DeformingScene, Field, SurfaceKind};
 use dynamap::slam::synthetic::faults::{self, FaultPlan};
 use dynamap::slam::synthetic::kinect::KinectModel;
+use dynamap::slam::synthetic::layouts::{self, Layout};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
-use dynamap::slam::synthetic::scene::Scene;
 use dynamap::slam::synthetic::sequence;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -40,6 +40,14 @@ enum RigidMotion {
     Orbit,
     Shake,
     FastRotation,
+    Sweep,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum LayoutArg {
+    Room,
+    Bare,
+    Office,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -109,6 +117,10 @@ enum Kind {
         /// with its own stamps) or the ideal render with simple axial noise.
         #[arg(long, value_enum, default_value = "kinect")]
         sensor: SensorArg,
+        /// The scene: the furnished room, the same room with plain floor and walls, or an office
+        /// drawn from the seed.
+        #[arg(long, value_enum, default_value = "room")]
+        layout: LayoutArg,
     },
     /// A surface deforming in front of a static camera.
     Deforming {
@@ -193,6 +205,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             trajectory,
             motion: m,
             sensor,
+            layout,
         } => {
             let cam = common.camera()?;
             let (traj, to_room) = match trajectory {
@@ -209,6 +222,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
                         RigidMotion::Orbit => Motion::Orbit,
                         RigidMotion::Shake => Motion::Shake,
                         RigidMotion::FastRotation => Motion::FastRotation,
+                        RigidMotion::Sweep => Motion::Sweep,
                     };
                     (
                         motion::procedural(m, common.frames, common.fps),
@@ -223,16 +237,23 @@ fn run(args: Args, session: &Session) -> Result<()> {
                         "--no-noise is the ideal sensor's; add --sensor ideal",
                     ))
                 }
-                SensorArg::Kinect => sequence::Sensor::Kinect(KinectModel {
+                SensorArg::Kinect => sequence::Sensor::Kinect(Box::new(KinectModel {
                     seed: common.seed,
                     gain_drift: common.gain_drift.unwrap_or(0.15) as f64,
                     ..KinectModel::default()
-                }),
+                })),
                 SensorArg::Ideal => sequence::Sensor::Ideal(noise),
             };
             sequence::write_rigid(
                 &common.out,
-                &Scene::room(common.seed),
+                &layouts::build(
+                    match layout {
+                        LayoutArg::Room => Layout::Room,
+                        LayoutArg::Bare => Layout::Bare,
+                        LayoutArg::Office => Layout::Office,
+                    },
+                    common.seed,
+                ),
                 &cam,
                 &traj,
                 &to_room,

@@ -32,7 +32,7 @@ use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
 use dynamap::slam::rigid::{FrameReport, RigidSlam, SlamParams, StageTimes};
-use dynamap::slam::synthetic::{kinect::KinectModel, motion, scene::Scene, sequence};
+use dynamap::slam::synthetic::{motion, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
 use nalgebra::Isometry3;
 use rerun_log::Recorder;
@@ -239,7 +239,7 @@ fn default_sequence() -> Result<PathBuf> {
         &cam,
         &traj,
         &Isometry3::identity(),
-        &sequence::Sensor::Kinect(KinectModel::default()),
+        &sequence::Sensor::Kinect(Box::default()),
         |_| {},
     )?;
     Ok(dir)

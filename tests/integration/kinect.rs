@@ -193,7 +193,7 @@ fn a_kinect_sequence_reads_back_with_its_own_stamps_and_is_tracked() {
         &cam,
         &traj,
         &Isometry3::identity(),
-        &Sensor::Kinect(model.clone()),
+        &Sensor::Kinect(Box::new(model.clone())),
         |_| {},
     )
     .unwrap();

@@ -2,6 +2,7 @@
 //!
 //! - [`scene`]: primitives (planes, boxes, spheres, cylinders) and triangle meshes (through a
 //!   [`bvh`]), with procedural [`texture`] so the photometric term has gradients;
+//! - [`layouts`]: the room, a bare room without texture on its walls, a random office;
 //! - [`render`]: a ray caster producing depth, colour and normals at any resolution, and the
 //!   simple Kinect-like [`noise`] model;
 //! - [`kinect`]: a structured-light sensor as hard as a real one (quantised disparity, shadows,
@@ -20,6 +21,7 @@ pub mod bvh;
 pub mod deform;
 pub mod faults;
 pub mod kinect;
+pub mod layouts;
 pub mod motion;
 pub mod noise;
 pub mod plate;

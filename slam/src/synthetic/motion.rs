@@ -13,6 +13,9 @@ pub enum Motion {
     Shake,
     /// Turning on the spot at 3° per frame.
     FastRotation,
+    /// A fast hand-held sweep in front of the table: sideways at up to 0.9 m/s and shaking at up
+    /// to about 100°/s (at 30 Hz).
+    Sweep,
 }
 
 /// The point the room's objects are arranged around (the table top).
@@ -58,6 +61,21 @@ pub fn procedural(motion: Motion, frames: usize, fps: f64) -> Trajectory {
                     Vector3::new(s(4.3, 0.5), s(3.1, 1.5), s(5.3, 2.5)) * 2f64.to_radians(),
                 );
                 Isometry3::from_parts(base.translation, base.rotation * wobble)
+            }
+            Motion::Sweep => {
+                let t = f / fps;
+                let s = |hz: f64, p: f64| (std::f64::consts::TAU * hz * t + p).sin();
+                let eye = Point3::new(
+                    1.8 + 0.15 * s(0.3, 0.4),
+                    0.36 * s(0.4, 0.0),
+                    1.4 + 0.1 * s(0.5, 1.0),
+                );
+                let base = look_at(&eye, &TARGET, &up);
+                let shake = UnitQuaternion::from_scaled_axis(
+                    Vector3::new(0.4 * s(0.9, 0.3), s(1.2, 1.1), 0.3 * s(0.7, 2.0))
+                        * 12f64.to_radians(),
+                );
+                Isometry3::from_parts(base.translation, base.rotation * shake)
             }
             Motion::FastRotation => {
                 let a = (3.0 * f).to_radians();

@@ -1,6 +1,6 @@
 //! Writing rendered sequences in the TUM RGB-D layout, so every tool that reads TUM reads ours:
 //! `rgb/` and `depth/` PNGs (16-bit depth at the camera's depth scale), `rgb.txt`, `depth.txt`,
-//! `associations.txt`, `groundtruth.txt` (camera-to-world, at the depth stamps) and
+//! `associations.txt`, `groundtruth.txt` (camera-to-world, at the depth and the colour stamps) and
 //! `intrinsics.txt` (`fx fy cx cy depth_scale`, followed by `k1 k2 p1 p2 k3` when the images are
 //! distorted). With the [`Sensor::Kinect`] model, colour is captured after depth and each has its
 //! own stamps in `rgb.txt` and `depth.txt`, as in TUM's recordings. Deforming sequences add `meshes/NNNNNN.ply` (the ground-truth surface
@@ -10,7 +10,7 @@
 //! little-endian f32 (world-frame displacement per pixel, row by row; NaN where unknown).
 
 use super::deform::DeformingScene;
-use super::kinect::{KinectModel, Recorder};
+use super::kinect::{pose_at, KinectModel, Recorder};
 use super::noise::SensorNoise;
 use super::render::{render, Rendering};
 use super::scene::Scene;
@@ -100,7 +100,7 @@ pub enum Sensor {
     /// stamp for both images, no distortion.
     Ideal(SensorNoise),
     /// The structured-light sensor of [`super::kinect`].
-    Kinect(KinectModel),
+    Kinect(Box<KinectModel>),
 }
 
 impl Sensor {
@@ -188,7 +188,24 @@ pub fn write_rigid(
             &mut progress,
         )?,
     };
-    write_index(dir, camera, &sensor.distortion(), &listed, trajectory)
+    // the truth at the colour stamps too, so that an evaluation keyed to either image matches
+    let mut truth: Vec<(f64, Isometry3<f64>)> = trajectory
+        .stamps
+        .iter()
+        .copied()
+        .zip(trajectory.poses.iter().copied())
+        .collect();
+    for &(d, c) in &listed {
+        if c != d {
+            truth.push((c, pose_at(trajectory, c)));
+        }
+    }
+    truth.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut gt = Trajectory::default();
+    for (s, p) in truth {
+        gt.push(s, p);
+    }
+    write_index(dir, camera, &sensor.distortion(), &listed, &gt)
 }
 
 /// Records every frame of `trajectory` (camera-to-scene) with the ideal sensor.
