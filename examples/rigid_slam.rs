@@ -31,7 +31,7 @@ use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
-use dynamap::slam::rigid::{FrameReport, RigidSlam, SlamParams, StageTimes};
+use dynamap::slam::rigid::{FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes};
 use dynamap::slam::synthetic::{motion, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
 use nalgebra::Isometry3;
@@ -117,6 +117,12 @@ struct Args {
     /// Do not fit the live exposure to the model's (TrackerParams::affine_brightness).
     #[arg(long)]
     no_exposure_fit: bool,
+    /// Start each frame's tracking from the last pose, not from the constant-velocity prediction.
+    #[arg(long)]
+    no_motion_prediction: bool,
+    /// Use the colour as it is, not brought to the depth's instant (when their stamps differ).
+    #[arg(long)]
+    no_color_registration: bool,
     /// TUM layout: read the frames through TUM's published calibration of this sensor (fr1, fr2
     /// or fr3: intrinsics and lens distortion; the frames are undistorted) instead of the
     /// folder's intrinsics.
@@ -203,6 +209,8 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.iterations = args.iterations.clone();
     p.tracker.strides = args.strides.clone();
     p.tracker.affine_brightness = !args.no_exposure_fit;
+    p.predict_motion = !args.no_motion_prediction;
+    p.register_color = !args.no_color_registration;
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
     p.relocalise.enabled = !args.no_relocalise;
@@ -384,7 +392,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
                     continue;
                 }
             };
-            let report = slam.process(&frame.depth, frame.color.as_ref());
+            let stamps = FrameStamps {
+                depth: frame.timestamp,
+                color: frame.color_timestamp,
+            };
+            let report = slam.process_timed(&frame.depth, frame.color.as_ref(), stamps);
             totals.add(&report.times);
             if let Some(why) = &report.failure {
                 failures += 1;

@@ -147,6 +147,7 @@ impl FolderSequence {
         let frame = RgbdFrame {
             index: i,
             timestamp: i as f64 / 30.0,
+            color_timestamp: i as f64 / 30.0,
             depth: read_depth(d).map_err(frame_err)?,
             color: Some(read_color(c).map_err(frame_err)?),
         };

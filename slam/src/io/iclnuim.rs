@@ -93,6 +93,7 @@ impl IclNuimSequence {
         Ok(RgbdFrame {
             index: i,
             timestamp: i as f64 / 30.0,
+            color_timestamp: i as f64 / 30.0,
             depth,
             color: Some(color),
         })

@@ -22,6 +22,9 @@ pub struct RgbdFrame {
     pub index: usize,
     /// Seconds (the depth image's stamp).
     pub timestamp: f64,
+    /// Seconds: the colour image's own stamp (equal to `timestamp` where the source has one stamp
+    /// for both).
+    pub color_timestamp: f64,
     /// Raw depth (sensor units).
     pub depth: Image<u16>,
     /// Colour, when the sequence has it.
@@ -33,6 +36,8 @@ pub struct RgbdFrame {
 pub struct FrameFiles {
     /// Depth timestamp, seconds.
     pub timestamp: f64,
+    /// Colour timestamp, seconds.
+    pub color_timestamp: f64,
     /// Depth image.
     pub depth: PathBuf,
     /// Colour image.
@@ -244,6 +249,7 @@ impl TumSequence {
             .iter()
             .map(|&(d, r)| FrameFiles {
                 timestamp: depth[d].0,
+                color_timestamp: rgb[r].0,
                 depth: root.join(&depth[d].1),
                 rgb: root.join(&rgb[r].1),
             })
@@ -354,6 +360,7 @@ impl TumSequence {
             RgbdFrame {
                 index: i,
                 timestamp: f.timestamp,
+                color_timestamp: f.color_timestamp,
                 depth,
                 color: Some(color),
             },

@@ -2,6 +2,8 @@
 //! pose → fuse at the new pose → raycast the model for the next frame. A frame that fails to track
 //! is reported and not fused; the next frame starts from the last good pose.
 
+use super::color_timing;
+use super::motion_model::MotionModel;
 use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams};
@@ -62,6 +64,12 @@ pub struct SlamParams {
     pub raycast_max_width: usize,
     /// Relocalisation after a tracking failure.
     pub relocalise: RelocaliseParams,
+    /// Start tracking from the pose extrapolated at constant velocity from the last two tracked
+    /// frames, rather than from the last pose.
+    pub predict_motion: bool,
+    /// Bring colour captured at another instant than depth (stamps given to
+    /// [`RigidSlam::process_timed`]) to the depth's instant with the constant-velocity motion.
+    pub register_color: bool,
 }
 
 impl Default for SlamParams {
@@ -72,6 +80,8 @@ impl Default for SlamParams {
             tsdf: TsdfParams::default(),
             raycast_max_width: 160,
             relocalise: RelocaliseParams::default(),
+            predict_motion: true,
+            register_color: true,
         }
     }
 }
@@ -150,6 +160,19 @@ pub struct RigidSlam {
     key_color: ColorImage,
     /// The frame's colour mapped into the model's exposure before it is fused.
     exposed_color: ColorImage,
+    /// The frame's colour brought to its depth's instant with the predicted motion.
+    registered_color: ColorImage,
+    /// The last tracked poses, for the start of the next track and the colour's instant.
+    motion: MotionModel,
+}
+
+/// When a frame's two images were captured, seconds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameStamps {
+    /// The depth image's instant.
+    pub depth: f64,
+    /// The colour image's instant.
+    pub color: f64,
 }
 
 impl RigidSlam {
@@ -175,6 +198,8 @@ impl RigidSlam {
             key_depth: DepthImage::new(0, 0),
             key_color: ColorImage::new(0, 0),
             exposed_color: ColorImage::new(0, 0),
+            registered_color: ColorImage::new(0, 0),
+            motion: MotionModel::default(),
         }
     }
 
@@ -198,9 +223,60 @@ impl RigidSlam {
         &self.raycast
     }
 
-    /// Processes one frame (raw depth in sensor units, optional colour). Never fails on bad input: a
-    /// frame that cannot be tracked or fused is reported in [`FrameReport::failure`].
+    /// Processes one frame (raw depth in sensor units, optional colour) whose images were taken
+    /// at the same instant, one frame interval after the last. Never fails on bad input: a frame
+    /// that cannot be tracked or fused is reported in [`FrameReport::failure`].
     pub fn process(&mut self, depth_raw: &Image<u16>, color: Option<&ColorImage>) -> FrameReport {
+        let t = self.motion.last_time().map_or(0.0, |t| t + 1.0);
+        self.process_timed(depth_raw, color, FrameStamps { depth: t, color: t })
+    }
+
+    /// [`Self::process`] for images taken at the given instants: the motion is extrapolated by
+    /// time, and colour taken at another instant than depth is brought to the depth's
+    /// ([`SlamParams::register_color`]).
+    pub fn process_timed(
+        &mut self,
+        depth_raw: &Image<u16>,
+        color: Option<&ColorImage>,
+        stamps: FrameStamps,
+    ) -> FrameReport {
+        let step = |tau: f64| self.motion.step(tau);
+        let start = match self.motion.last_time() {
+            Some(last) if self.params.predict_motion => {
+                step(stamps.depth - last).map_or(self.pose, |s| self.pose * s)
+            }
+            _ => self.pose,
+        };
+        let delay = stamps.color - stamps.depth;
+        let sized = |c: &ColorImage| (c.width, c.height) == (depth_raw.width, depth_raw.height);
+        let shift = step(delay).filter(|_| self.params.register_color && delay.abs() > 1e-6);
+        let mut registered = std::mem::replace(&mut self.registered_color, ColorImage::new(0, 0));
+        let color = match (color, shift) {
+            (Some(c), Some(s))
+                if sized(c) && (c.width, c.height) == (self.camera.width, self.camera.height) =>
+            {
+                color_timing::register(depth_raw, c, &self.camera, &s, &mut registered);
+                Some(&registered)
+            }
+            (c, _) => c,
+        };
+        let report = self.process_frame(depth_raw, color, start);
+        self.registered_color = registered;
+        if report.failure.is_none() {
+            self.motion.push(stamps.depth, report.pose);
+        } else {
+            self.motion.reset();
+        }
+        report
+    }
+
+    /// Tracks from `start` and fuses.
+    fn process_frame(
+        &mut self,
+        depth_raw: &Image<u16>,
+        color: Option<&ColorImage>,
+        start: Isometry3<f64>,
+    ) -> FrameReport {
         let mut times = StageTimes::default();
         if (depth_raw.width, depth_raw.height) != (self.camera.width, self.camera.height)
             || color.is_some_and(|c| (c.width, c.height) != (self.camera.width, self.camera.height))
@@ -244,9 +320,7 @@ impl RigidSlam {
                     )
                 })
             } else {
-                let tracked = self
-                    .tracker
-                    .track(&self.pre.levels, &self.model, &self.pose);
+                let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
                 let retry = tracked.failure.is_some() && enabled && tracked.valid_pixels > 0;
                 let found = if retry { self.relocalise(color) } else { None };
                 relocalised = found.is_some();

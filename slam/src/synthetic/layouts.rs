@@ -52,10 +52,11 @@ fn office(seed: u64) -> Scene {
     let mut s = Scene::default();
     let tex =
         |k: u64, lo: f64, hi: f64| Texture::random(seed.wrapping_mul(7919).wrapping_add(k), lo, hi);
+    // walls within the fusion range (4 m) of a camera near the desk, as in an office
     let (hx, hy, h) = (
-        rng.random_range(2.6..3.6),
-        rng.random_range(2.3..3.2),
-        rng.random_range(2.6..3.2),
+        rng.random_range(2.2..3.0),
+        rng.random_range(2.0..2.7),
+        rng.random_range(2.5..3.0),
     );
     let turn = |x: f64, y: f64, z: f64, axis: Vector3<f64>, a: f64| {
         Isometry3::from_parts(

@@ -112,7 +112,7 @@ impl Default for KinectModel {
             range_limit: 8.0,
             grazing: (70.0, 82.0),
             hole_fraction: 0.01,
-            flying_probability: 0.05,
+            flying_probability: 0.01,
             window_fill: 4.0,
             dead_border: [10.0, 24.0, 10.0, 10.0],
             millimetres: true,
