@@ -92,6 +92,10 @@ struct Args {
     /// Association normal-angle threshold, degrees.
     #[arg(long, default_value_t = SlamParams::default().tracker.max_normal_angle_deg)]
     max_angle: f64,
+    /// Weigh point-to-plane residuals by (mean depth / depth)^k (0: off; 2 follows a
+    /// structured-light sensor's noise).
+    #[arg(long, default_value_t = SlamParams::default().tracker.depth_weight_power)]
+    depth_weight_power: i32,
     /// Focal length x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     fx: Option<f64>,
@@ -213,6 +217,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.register_color = !args.no_color_registration;
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
+    p.tracker.depth_weight_power = args.depth_weight_power;
     p.relocalise.enabled = !args.no_relocalise;
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
     if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {

@@ -79,10 +79,13 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
 }
 
 /// A 15 % auto-exposure drift (issue 23): with the affine brightness fit the ATE stays within
-/// 10 % of the same sequence at a fixed exposure, on two motions; without the fit it is worse.
+/// 10 % of the same sequence at a fixed exposure, on two motions; without the fit it is worse on
+/// at least one (since residuals are weighed by depth noise, NOTES 54, the shake is held by its
+/// geometry and the drift no longer moves its ATE either way).
 #[test]
 fn an_exposure_drift_costs_no_accuracy() {
     let frames = 75; // the gain climbs to 1.15 at frame 37 and is back to 1 at 75
+    let mut fit_mattered = false;
     for m in [Motion::Orbit, Motion::Shake] {
         let ate_of = |gain_drift: f32, affine: bool| {
             let mut params = SlamParams::default();
@@ -106,11 +109,12 @@ fn an_exposure_drift_costs_no_accuracy() {
             drifting <= 1.1 * fixed,
             "{m:?}: ATE {drifting} with the drift, {fixed} without"
         );
-        assert!(
-            uncompensated > drifting,
-            "{m:?}: the fit made no difference"
-        );
+        fit_mattered |= uncompensated > 1.1 * drifting;
     }
+    assert!(
+        fit_mattered,
+        "the brightness fit made no difference on either motion"
+    );
 }
 
 /// With the finest level switched off (0 iterations), inliers are counted on the finest level that
