@@ -96,6 +96,10 @@ struct Args {
     /// structured-light sensor's noise).
     #[arg(long, default_value_t = SlamParams::default().tracker.depth_weight_power)]
     depth_weight_power: i32,
+    /// Weight of the prior holding each frame's pose to the constant-velocity prediction, relative
+    /// to the frame's points (TrackerParams::motion_prior; 0 turns it off).
+    #[arg(long, default_value_t = SlamParams::default().tracker.motion_prior)]
+    motion_prior: f64,
     /// Focal length x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     fx: Option<f64>,
@@ -218,6 +222,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.max_distance = args.max_distance;
     p.tracker.max_normal_angle_deg = args.max_angle;
     p.tracker.depth_weight_power = args.depth_weight_power;
+    p.tracker.motion_prior = args.motion_prior;
     p.relocalise.enabled = !args.no_relocalise;
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
     if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {

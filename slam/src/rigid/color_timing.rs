@@ -8,7 +8,7 @@
 
 use crate::camera::Camera;
 use crate::image::{ColorImage, Image};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 /// Writes into `out` the colour registered to the depth's instant: for each pixel with depth
@@ -24,59 +24,126 @@ pub(crate) fn register(
     if (out.width, out.height) != (w, h) {
         *out = Image::filled(w, h, [0, 0, 0]);
     }
-    let to_color = step.inverse();
-    let scale = 1.0 / camera.depth_scale;
-    out.data.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-        let depth = &depth_raw.data[v * w..(v + 1) * w];
-        for (u, px) in row.iter_mut().enumerate() {
-            *px = color.data[v * w + u];
-            let Some(d) = depth_at(depth, u) else {
-                continue;
-            };
-            let x = camera.back_project(u as f64, v as f64, d as f64 * scale);
-            let p: Point3<f64> = to_color * x;
-            if let Some((cu, cv)) = camera.project(&p) {
-                if let Some(c) = bilinear(color, cu, cv) {
+    let to_color = Warp::new(&step.inverse(), camera);
+    out.data
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each_init(Vec::new, |filled, (v, row)| {
+            fill_row(&depth_raw.data[v * w..(v + 1) * w], filled);
+            for (u, (px, &d)) in row.iter_mut().zip(filled.iter()).enumerate() {
+                *px = color.data[v * w + u];
+                if d == 0 {
+                    continue;
+                }
+                if let Some(c) = to_color
+                    .apply(u as f32, v as f32, d as f32)
+                    .and_then(|(cu, cv)| bilinear(color, cu, cv))
+                {
                     *px = c;
                 }
             }
-        }
-    });
+        });
 }
 
-/// The row's depth at u or, in a hole, the farther of the nearest measurements left and right of
-/// it (holes are mostly shadows cast on the far surface): the colour then moves with its
-/// surroundings instead of staying put between shifted neighbours. `None` for an empty row.
-fn depth_at(row: &[u16], u: usize) -> Option<u16> {
-    if row[u] > 0 {
-        return Some(row[u]);
+/// Pixel (u, v) at raw depth d, back-projected, moved by a rigid motion and projected again
+/// (eqs. 2.1, 2.2), in `f32` with the camera's constants folded in.
+struct Warp {
+    rotation: [[f32; 3]; 3],
+    translation: [f32; 3],
+    inv_f: [f32; 2],
+    f: [f32; 2],
+    c: [f32; 2],
+    scale: f32,
+}
+
+impl Warp {
+    fn new(motion: &Isometry3<f64>, camera: &Camera) -> Self {
+        let r = motion.rotation.to_rotation_matrix();
+        let t = motion.translation.vector;
+        Self {
+            rotation: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)] as f32)),
+            translation: std::array::from_fn(|i| t[i] as f32),
+            inv_f: [1.0 / camera.fx as f32, 1.0 / camera.fy as f32],
+            f: [camera.fx as f32, camera.fy as f32],
+            c: [camera.cx as f32, camera.cy as f32],
+            scale: 1.0 / camera.depth_scale as f32,
+        }
     }
-    let left = row[..u].iter().rev().find(|&&d| d > 0);
-    let right = row[u + 1..].iter().find(|&&d| d > 0);
-    left.into_iter().chain(right).max().copied()
+
+    /// The pixel where (u, v) at raw depth `d` lands; `None` behind the camera.
+    #[inline]
+    fn apply(&self, u: f32, v: f32, d: f32) -> Option<(f32, f32)> {
+        let z = d * self.scale;
+        let x = [
+            (u - self.c[0]) * self.inv_f[0] * z,
+            (v - self.c[1]) * self.inv_f[1] * z,
+            z,
+        ];
+        let p: [f32; 3] = std::array::from_fn(|i| {
+            let r = &self.rotation[i];
+            r[0] * x[0] + r[1] * x[1] + r[2] * x[2] + self.translation[i]
+        });
+        (p[2] > 0.0).then(|| {
+            (
+                self.f[0] * p[0] / p[2] + self.c[0],
+                self.f[1] * p[1] / p[2] + self.c[1],
+            )
+        })
+    }
+}
+
+/// Writes into `filled` the row's depth with each hole given the farther of the nearest
+/// measurements left and right of it (holes are mostly shadows cast on the far surface): the
+/// colour then moves with its surroundings instead of staying put between shifted neighbours. An
+/// empty row stays empty. Two passes, O(width).
+fn fill_row(row: &[u16], filled: &mut Vec<u16>) {
+    filled.clear();
+    let mut left = 0;
+    filled.extend(row.iter().map(|&d| {
+        if d > 0 {
+            left = d;
+        }
+        left
+    }));
+    let mut right = 0;
+    for (f, &d) in filled.iter_mut().zip(row).rev() {
+        if d > 0 {
+            right = d;
+        } else {
+            *f = (*f).max(right);
+        }
+    }
 }
 
 /// The colour at (x, y) interpolated between the four pixels around it; `None` outside.
-fn bilinear(img: &ColorImage, x: f64, y: f64) -> Option<[u8; 3]> {
-    if !(x >= 0.0 && y >= 0.0 && x <= (img.width - 1) as f64 && y <= (img.height - 1) as f64) {
+fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
+    if !(x >= 0.0 && y >= 0.0 && x <= (img.width - 1) as f32 && y <= (img.height - 1) as f32) {
         return None;
     }
     let (x0, y0) = (x as usize, y as usize);
     let (x1, y1) = ((x0 + 1).min(img.width - 1), (y0 + 1).min(img.height - 1));
-    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
     let at = |x: usize, y: usize| img.data[y * img.width + x];
-    let mut out = [0u8; 3];
-    for (c, o) in out.iter_mut().enumerate() {
-        let top = at(x0, y0)[c] as f64 * (1.0 - fx) + at(x1, y0)[c] as f64 * fx;
-        let bottom = at(x0, y1)[c] as f64 * (1.0 - fx) + at(x1, y1)[c] as f64 * fx;
-        *o = (top * (1.0 - fy) + bottom * fy).round() as u8;
-    }
-    Some(out)
+    let (p00, p10, p01, p11) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+    Some(std::array::from_fn(|c| {
+        let top = p00[c] as f32 + (p10[c] as f32 - p00[c] as f32) * fx;
+        let bottom = p01[c] as f32 + (p11[c] as f32 - p01[c] as f32) * fx;
+        (top + (bottom - top) * fy + 0.5) as u8
+    }))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn holes_take_the_farther_of_their_nearest_measurements() {
+        let mut filled = Vec::new();
+        fill_row(&[0, 0, 5, 0, 0, 9, 0, 3, 0], &mut filled);
+        assert_eq!(filled, [5, 5, 5, 9, 9, 9, 9, 3, 3]);
+        fill_row(&[0, 0, 0], &mut filled);
+        assert_eq!(filled, [0, 0, 0]);
+    }
 
     #[test]
     fn a_shifted_colour_image_is_brought_back_over_its_depth() {

@@ -251,6 +251,7 @@ impl RigidSlam {
         let sized = |c: &ColorImage| (c.width, c.height) == (depth_raw.width, depth_raw.height);
         let shift = step(delay).filter(|_| self.params.register_color && delay.abs() > 1e-6);
         let mut registered = std::mem::replace(&mut self.registered_color, ColorImage::new(0, 0));
+        let t_register = Instant::now();
         let color = match (color, shift) {
             (Some(c), Some(s))
                 if sized(c) && (c.width, c.height) == (self.camera.width, self.camera.height) =>
@@ -260,7 +261,10 @@ impl RigidSlam {
             }
             (c, _) => c,
         };
-        let report = self.process_frame(depth_raw, color, start);
+        let register_seconds = t_register.elapsed().as_secs_f64();
+        let mut report = self.process_frame(depth_raw, color, start);
+        // the colour's registration is part of the frame's preprocessing
+        report.times.preprocess += register_seconds;
         self.registered_color = registered;
         if report.failure.is_none() {
             self.motion.push(stamps.depth, report.pose);
