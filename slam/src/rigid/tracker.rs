@@ -823,3 +823,49 @@ fn texture(level: &Level) -> f64 {
     }
     (sum / n.max(1) as f64).sqrt()
 }
+
+#[cfg(test)]
+mod prior_tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector6};
+
+    /// The prior's residuals and Jacobian rows at `pose`.
+    fn rows(start_inv: &Isometry3<f64>, pose: &Isometry3<f64>) -> Vec<(f64, [f64; 6])> {
+        let mut out = Vec::new();
+        emit_prior(start_inv, 1.7, pose, &mut |r, j, g| {
+            assert_eq!(g, 2);
+            out.push((r, *j));
+        });
+        out
+    }
+
+    #[test]
+    fn the_motion_priors_jacobian_matches_central_differences() {
+        let start = Isometry3::from_parts(
+            Translation3::new(0.3, -0.2, 1.1),
+            UnitQuaternion::from_euler_angles(0.2, -0.4, 0.9),
+        );
+        let pose = start * se3::exp(&Vector6::new(0.05, -0.08, 0.12, 0.04, 0.02, -0.06));
+        let start_inv = start.inverse();
+        let at = rows(&start_inv, &pose);
+        let h = 1e-6;
+        for c in 0..6 {
+            let mut d = Vector6::zeros();
+            d[c] = h;
+            let plus = rows(&start_inv, &(pose * se3::exp(&d)));
+            let minus = rows(&start_inv, &(pose * se3::exp(&-d)));
+            for k in 0..6 {
+                let numeric = (plus[k].0 - minus[k].0) / (2.0 * h);
+                assert!(
+                    (numeric - at[k].1[c]).abs() < 1e-6,
+                    "row {k} col {c}: {numeric} vs {}",
+                    at[k].1[c]
+                );
+            }
+        }
+        // at the start the residual vanishes
+        assert!(rows(&start_inv, &start)
+            .iter()
+            .all(|(r, _)| r.abs() < 1e-12));
+    }
+}
