@@ -12,7 +12,9 @@ use crate::tsdf::RaycastMaps;
 use dynamap_residuals::icp::{
     photometric_at, point_to_plane, IntensityField, Intrinsics, Projected, RigidMotion,
 };
-use dynamap_solver::dense::{solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group};
+use dynamap_solver::dense::{
+    reduce, solve, DenseOptions, DenseStop, DenseTerms, DenseWorkspace, Group, Reduced,
+};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
 use dynamap_solver::SE3;
@@ -599,6 +601,8 @@ pub struct Tracker {
     /// Its settings.
     pub params: TrackerParams,
     ws: DenseWorkspace<6>,
+    /// Per-chunk sums of the data-only check after the prior (kept between frames).
+    partials: Vec<Reduced<6>>,
 }
 
 impl Tracker {
@@ -607,6 +611,7 @@ impl Tracker {
         Self {
             params,
             ws: DenseWorkspace::default(),
+            partials: Vec::new(),
         }
     }
 
@@ -688,7 +693,14 @@ impl Tracker {
                 depth_weight: (z_mean, p.depth_weight_power),
                 prior,
             };
-            groups[2].weight = p.motion_prior * terms.grid.valid_points(&live[l]) as f64;
+            if prior.is_some() {
+                let points = if l == finest {
+                    valid_pixels
+                } else {
+                    terms.grid.valid_points(&live[l])
+                };
+                groups[2].weight = p.motion_prior * points as f64;
+            }
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
             if terms.photometric && p.affine_brightness {
@@ -714,6 +726,15 @@ impl Tracker {
             if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
+                // the prior makes every system solvable: geometry that cannot fix the pose on
+                // its own is still reported, from the data's own normal equations at the result
+                if prior.is_some() && !matches!(stop, DenseStop::NoTerms) {
+                    groups[2].weight = 0.0;
+                    let data = reduce(&terms, &x, &groups, &mut self.partials);
+                    if data.h.cholesky().is_none() {
+                        stop = DenseStop::Singular;
+                    }
+                }
             }
             if matches!(stop, DenseStop::Singular | DenseStop::NoTerms) {
                 break;
@@ -867,5 +888,43 @@ mod prior_tests {
         assert!(rows(&start_inv, &start)
             .iter()
             .all(|(r, _)| r.abs() < 1e-12));
+    }
+}
+
+#[cfg(test)]
+mod degenerate_tests {
+    use super::*;
+    use crate::image::DepthImage;
+    use crate::preprocess::{PreprocessParams, Preprocessor};
+
+    /// A textureless wall seen square on, against a model of the same wall: three motions are
+    /// free, and the prior (which alone makes the system solvable) must not hide it.
+    #[test]
+    fn a_bare_wall_is_reported_singular_with_and_without_the_prior() {
+        let cam = Camera::scaled_default(160, 120);
+        let mut maps = RaycastMaps::new();
+        maps.vertices.resize(160, 120, [0.0; 3]);
+        maps.normals.resize(160, 120, [0.0, 0.0, -1.0]);
+        maps.depth.resize(160, 120, 1.0);
+        maps.colors.resize(160, 120, [0; 3]);
+        for v in 0..120 {
+            for u in 0..160 {
+                let p = cam.back_project(u as f64, v as f64, 1.0);
+                maps.vertices.data[v * 160 + u] = [p.x as f32, p.y as f32, p.z as f32];
+            }
+        }
+        let mut model = ModelPyramid::new(&cam, 3, 0);
+        model.update(&maps, &Isometry3::identity());
+        let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+        let live = pre.process_metres(&DepthImage::filled(160, 120, 1.0), None);
+        for prior in [0.0, 1e-4] {
+            let mut tracker = Tracker::new(TrackerParams {
+                motion_prior: prior,
+                ..TrackerParams::default()
+            });
+            let out = tracker.track(live, &model, &Isometry3::identity());
+            let why = out.failure.unwrap_or_default();
+            assert!(why.contains("singular"), "prior {prior}: {why:?}");
+        }
     }
 }
