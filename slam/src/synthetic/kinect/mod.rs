@@ -69,6 +69,9 @@ pub struct KinectModel {
     /// Fraction of pixels lost in random blobs.
     pub hole_fraction: f64,
     /// Probability that a pixel at a depth discontinuity gets a depth between the two sides.
+    /// OpenNI's firmware suppresses most mixed returns: on TUM's and PrimeSense frames a jump
+    /// without a hole has an isolated in-between pixel 0–0.16 % of the time (`bench/edge_holes.py`,
+    /// NOTES 56), which 0.001 reproduces.
     pub flying_probability: f64,
     /// Holes along a row narrower than this (pixels at 640 wide) are filled with the nearer depth
     /// at their ends: the matching window sees across them (edge fattening).
@@ -112,7 +115,7 @@ impl Default for KinectModel {
             range_limit: 8.0,
             grazing: (70.0, 82.0),
             hole_fraction: 0.01,
-            flying_probability: 0.01,
+            flying_probability: 0.001,
             window_fill: 4.0,
             dead_border: [10.0, 24.0, 10.0, 10.0],
             millimetres: true,
