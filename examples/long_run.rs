@@ -125,7 +125,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         let raw = noise.apply_to(k as u64, &mut r, camera.depth_scale);
         let report = slam.process(&raw, Some(&r.color));
         let stamp = k as f64 / 30.0;
-        match &report.failure {
+        match report.failure() {
             Some(why) => {
                 failures += 1;
                 tracing::warn!("frame {k}: not tracked: {why}");

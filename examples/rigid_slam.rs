@@ -31,7 +31,9 @@ use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
-use dynamap::slam::rigid::{FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes};
+use dynamap::slam::rigid::{
+    FrameOutcome, FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes,
+};
 use dynamap::slam::synthetic::{motion, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
 use nalgebra::Isometry3;
@@ -291,7 +293,7 @@ fn record(
         [220, 40, 40],
     )?;
     rec.scalar("tracking/inliers", report.inliers as f64)?;
-    rec.scalar("tracking/failed", report.failure.is_some() as u8 as f64)?;
+    rec.scalar("tracking/failed", report.failure().is_some() as u8 as f64)?;
     let t = &report.times;
     for (name, s) in [
         ("preprocess", t.preprocess),
@@ -408,19 +410,21 @@ fn run(args: Args, session: &Session) -> Result<()> {
             };
             let report = slam.process_timed(&frame.depth, frame.color.as_ref(), stamps);
             totals.add(&report.times);
-            if let Some(why) = &report.failure {
+            if let Some(why) = report.failure() {
                 failures += 1;
                 tracing::warn!(
                     "frame {i} ({:.6}): not tracked, not fused: {why}",
                     frame.timestamp
                 );
             } else {
-                if report.relocalised {
+                if report.outcome == FrameOutcome::Relocalised {
                     relocalised += 1;
+                    let previous = last_good
+                        .map_or(String::new(), |g| format!(" (previous frame located: {g})"));
                     tracing::info!(
-                        "frame {i} ({:.6}): relocalised after losing track{}",
+                        "frame {i} ({:.6}): relocalised: a break in the stream, a lost track or \
+                         a doubtful one{previous}",
                         frame.timestamp,
-                        last_good.map_or(String::new(), |g| format!(" (last tracked: frame {g})"))
                     );
                 }
                 last_good = Some(i);

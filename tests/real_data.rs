@@ -374,7 +374,7 @@ fn primesense_frames_track_like_open3d() {
     for i in 0..seq.len() {
         let f = seq.load(i).unwrap();
         let r = slam.process(&f.depth, f.color.as_ref());
-        assert!(r.failure.is_none(), "frame {i}: {:?}", r.failure);
+        assert!(r.failure().is_none(), "frame {i}: {:?}", r.outcome);
         ours.push(r.pose.to_homogeneous());
     }
     for i in 0..seq.len() - 1 {
@@ -471,7 +471,7 @@ fn tum_fr2_frames_track() {
         let d = read_depth(data(&format!("rgbd/tum_fr2_2frames/{k}_depth.png"))).unwrap();
         let c = read_color(data(&format!("rgbd/tum_fr2_2frames/{k}.png"))).unwrap();
         let r = slam.process(&d, Some(&c));
-        assert!(r.failure.is_none(), "frame {k}: {:?}", r.failure);
+        assert!(r.failure().is_none(), "frame {k}: {:?}", r.outcome);
         eprintln!("fr2 frame {k}: pose {:?}", r.pose.translation.vector);
     }
 }

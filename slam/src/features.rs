@@ -104,6 +104,23 @@ impl Keypoints {
     pub fn is_empty(&self) -> bool {
         self.pixels.is_empty()
     }
+
+    /// Frees the arrays' spare capacity (for keypoints kept long).
+    pub fn shrink_to_fit(&mut self) {
+        self.pixels.shrink_to_fit();
+        self.points.shrink_to_fit();
+        self.descriptors.shrink_to_fit();
+    }
+
+    /// Bytes held: the three arrays as allocated plus each descriptor's bit block.
+    pub fn bytes(&self) -> usize {
+        use std::mem::size_of;
+        let bits: usize = self.descriptors.iter().map(|d| d.bits.capacity()).sum();
+        self.pixels.capacity() * size_of::<(u32, u32)>()
+            + self.points.capacity() * size_of::<Vector3<f64>>()
+            + self.descriptors.capacity() * size_of::<BriefDescriptor>()
+            + bits * size_of::<u128>()
+    }
 }
 
 /// The fixed BRIEF test pattern of a seed: pairs within the 31 × 31 patch, each coordinate drawn

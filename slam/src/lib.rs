@@ -46,7 +46,7 @@
 //!     let noise = SensorNoise { enabled: false, ..SensorNoise::default() };
 //!     let depth = noise.apply(k as u64, &frame.depth, &frame.cos_incidence, &mut frame.color, camera.depth_scale);
 //!     let report = slam.process(&depth, Some(&frame.color));
-//!     assert!(report.failure.is_none(), "frame {k}: {:?}", report.failure);
+//!     assert!(report.failure().is_none(), "frame {k}: {:?}", report.outcome);
 //! }
 //! let error = (slam.pose().translation.vector - truth.poses[3].translation.vector).norm();
 //! assert!(error < 0.01, "{error} m");

@@ -17,6 +17,7 @@ mod faults;
 mod g2o_files;
 mod kinect;
 mod nonrigid;
+mod relocalise;
 mod rigid;
 mod robust;
 mod sensor;

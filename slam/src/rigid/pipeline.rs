@@ -1,51 +1,23 @@
-//! The rigid SLAM loop of one frame: preprocess → track against the model raycast at the previous
-//! pose → fuse at the new pose → raycast the model for the next frame. A frame that fails to track
-//! is reported and not fused; the next frame starts from the last good pose.
+//! The rigid SLAM loop of one frame, in its steps: preprocess → start the map (first frame) or
+//! locate the frame (track against the model raycast at the predicted pose, or relocalise) →
+//! fuse at the new pose → raycast the model for the next frame. A frame that is not tracked is
+//! reported with a typed reason ([`FrameOutcome::NotTracked`]) and not fused; the next frame
+//! starts from the last good pose.
 
 use super::color_timing;
+use super::health::{Fit, Health};
+use super::keyframes::{Candidate, Keyframes};
 use super::motion_model::MotionModel;
+use super::outcome::{FrameOutcome, TrackFailure};
+use super::relocalise::{Floors, LiveFrame, RelocaliseParams, Relocaliser};
 use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
-use crate::features::{match_frames, FeatureFrame, FeatureParams};
-use crate::image::{ColorImage, DepthImage, Image};
+use crate::image::{ColorImage, Image};
 use crate::preprocess::{PreprocessParams, Preprocessor};
-use crate::tsdf::{RaycastMaps, TsdfParams, TsdfVolume};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use crate::tsdf::{RaycastMaps, TsdfError, TsdfParams, TsdfVolume};
+use nalgebra::Isometry3;
 use rayon::prelude::*;
 use std::time::Instant;
-
-/// How a lost track is found again (see [`RigidSlam::process`]).
-#[derive(Clone, Debug, PartialEq)]
-pub struct RelocaliseParams {
-    /// Try at all (default true).
-    pub enabled: bool,
-    /// Start poses tried around the last good pose: shifts of these lengths along each world
-    /// axis, metres (default 0.15 and 0.3).
-    pub shifts: Vec<f64>,
-    /// … and turns by this angle about the camera's x and y axes, degrees (default 10).
-    pub turn_deg: f64,
-    /// A frame relocalised away from the last pose must have at least this fraction of its valid
-    /// pixels as inliers (default 0.25, stricter than tracking's, as a false relocalisation
-    /// corrupts the map; when the last pose itself wins, tracking's own tests apply).
-    pub min_inlier_fraction: f64,
-    /// Sparse features matched against the last fused frame give one more start pose.
-    pub features: FeatureParams,
-}
-
-impl Default for RelocaliseParams {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            shifts: vec![0.15, 0.3],
-            turn_deg: 10.0,
-            min_inlier_fraction: 0.25,
-            features: FeatureParams {
-                ransac_iterations: 500,
-                ..FeatureParams::default()
-            },
-        }
-    }
-}
 
 /// Settings of the whole pipeline.
 #[derive(Clone, Debug, PartialEq)]
@@ -127,17 +99,27 @@ impl StageTimes {
 pub struct FrameReport {
     /// The camera-to-world pose (the last good pose if tracking failed).
     pub pose: Isometry3<f64>,
-    /// Why the frame was not fused, if it was not.
-    pub failure: Option<String>,
+    /// Whether the frame was fused, and how its pose was found or why it was not.
+    pub outcome: FrameOutcome,
     /// Stage times.
     pub times: StageTimes,
     /// Inlier point-to-plane associations at the finest tracking level (0 when not tracked).
     pub inliers: usize,
-    /// The frame was tracked only after relocalisation (tracking from the last pose failed).
-    pub relocalised: bool,
+    /// … as a fraction of the valid pixels on that level's tracking grid.
+    pub inlier_fraction: f64,
+    /// Of those pixels that land on the model, the share that agree with it (see
+    /// [`TrackOutcome::agreement`]).
+    pub agreement: f64,
     /// λ_min / λ_max of the frame's geometry (see [`TrackerParams::min_conditioning`]; 0 for
     /// the first frame).
     pub conditioning: f64,
+}
+
+impl FrameReport {
+    /// Why the frame was not tracked, if it was not.
+    pub fn failure(&self) -> Option<&TrackFailure> {
+        self.outcome.failure()
+    }
 }
 
 /// Dense rigid SLAM: a TSDF map and a frame-to-model tracker.
@@ -155,9 +137,12 @@ pub struct RigidSlam {
     has_model: bool,
     /// The last tracked frame failed: the next is relocalised.
     lost: bool,
-    /// The last fused frame (filtered depth, colour) for feature relocalisation.
-    key_depth: DepthImage,
-    key_color: ColorImage,
+    /// Finds a lost track again.
+    relocaliser: Relocaliser,
+    /// The recent frames' agreements with the model and stamps.
+    health: Health,
+    /// Frames given to [`Self::process`] and [`Self::process_timed`].
+    calls: usize,
     /// The frame's colour mapped into the model's exposure before it is fused.
     exposed_color: ColorImage,
     /// The frame's colour brought to its depth's instant with the predicted motion.
@@ -179,6 +164,7 @@ impl RigidSlam {
     /// A pipeline for images from `camera`, starting at `initial_pose`.
     pub fn new(camera: Camera, params: SlamParams, initial_pose: Isometry3<f64>) -> Self {
         let raycast_level = params.raycast_level(&camera);
+        let relocaliser = Relocaliser::new(&params.relocalise);
         Self {
             pre: Preprocessor::new(camera, params.preprocess),
             tracker: Tracker::new(params.tracker.clone()),
@@ -195,8 +181,9 @@ impl RigidSlam {
             frames: 0,
             has_model: false,
             lost: false,
-            key_depth: DepthImage::new(0, 0),
-            key_color: ColorImage::new(0, 0),
+            relocaliser,
+            health: Health::default(),
+            calls: 0,
             exposed_color: ColorImage::new(0, 0),
             registered_color: ColorImage::new(0, 0),
             motion: MotionModel::default(),
@@ -218,6 +205,11 @@ impl RigidSlam {
         &self.volume
     }
 
+    /// The keyframes kept for relocalisation.
+    pub fn keyframes(&self) -> &Keyframes {
+        self.relocaliser.keyframes()
+    }
+
     /// The last model raycast (at the current pose).
     pub fn model_maps(&self) -> &RaycastMaps {
         &self.raycast
@@ -225,9 +217,9 @@ impl RigidSlam {
 
     /// Processes one frame (raw depth in sensor units, optional colour) whose images were taken
     /// at the same instant, one frame interval after the last. Never fails on bad input: a frame
-    /// that cannot be tracked or fused is reported in [`FrameReport::failure`].
+    /// that cannot be tracked or fused is reported in [`FrameReport::outcome`].
     pub fn process(&mut self, depth_raw: &Image<u16>, color: Option<&ColorImage>) -> FrameReport {
-        let t = self.motion.last_time().map_or(0.0, |t| t + 1.0);
+        let t = self.calls as f64;
         self.process_timed(depth_raw, color, FrameStamps { depth: t, color: t })
     }
 
@@ -240,6 +232,7 @@ impl RigidSlam {
         color: Option<&ColorImage>,
         stamps: FrameStamps,
     ) -> FrameReport {
+        self.calls += 1;
         let step = |tau: f64| self.motion.step(tau);
         let start = match self.motion.last_time() {
             Some(last) if self.params.predict_motion => {
@@ -262,242 +255,290 @@ impl RigidSlam {
             (c, _) => c,
         };
         let register_seconds = t_register.elapsed().as_secs_f64();
-        let mut report = self.process_frame(depth_raw, color, start);
+        let mut report = self.process_frame(depth_raw, color, start, stamps.depth);
         // the colour's registration is part of the frame's preprocessing
         report.times.preprocess += register_seconds;
         self.registered_color = registered;
-        if report.failure.is_none() {
-            self.motion.push(stamps.depth, report.pose);
-        } else {
+        // a relocalised pose starts a new motion: the jump to it is no velocity
+        if !report.outcome.is_fused() || report.outcome == FrameOutcome::Relocalised {
             self.motion.reset();
+        }
+        if report.outcome.is_fused() {
+            self.motion.push(stamps.depth, report.pose);
         }
         report
     }
 
-    /// Tracks from `start` and fuses.
+    /// One frame's steps from the predicted pose `start`: preprocess, start the map or locate
+    /// the frame, fuse, raycast.
     fn process_frame(
         &mut self,
         depth_raw: &Image<u16>,
         color: Option<&ColorImage>,
         start: Isometry3<f64>,
+        stamp: f64,
     ) -> FrameReport {
-        let mut times = StageTimes::default();
-        if (depth_raw.width, depth_raw.height) != (self.camera.width, self.camera.height)
-            || color.is_some_and(|c| (c.width, c.height) != (self.camera.width, self.camera.height))
-        {
-            return FrameReport {
-                pose: self.pose,
-                failure: Some(format!(
-                    "image size {}x{} does not match the camera's {}x{}",
-                    depth_raw.width, depth_raw.height, self.camera.width, self.camera.height
-                )),
-                times,
-                inliers: 0,
-                relocalised: false,
-                conditioning: 0.0,
-            };
+        let mut report = FrameReport {
+            pose: self.pose,
+            outcome: if self.has_model {
+                FrameOutcome::Tracked
+            } else {
+                FrameOutcome::Started
+            },
+            times: StageTimes::default(),
+            inliers: 0,
+            inlier_fraction: 0.0,
+            agreement: 0.0,
+            conditioning: 0.0,
+        };
+        if let Err(why) = self.check_size(depth_raw, color) {
+            report.outcome = FrameOutcome::NotTracked(why);
+            return report;
         }
         let t = Instant::now();
         self.pre.process(depth_raw, color);
-        times.preprocess = t.elapsed().as_secs_f64();
+        report.times.preprocess = t.elapsed().as_secs_f64();
         self.frames += 1;
-        let (mut failure, mut inliers, mut relocalised) = (None, 0, false);
-        let (mut conditioning, mut texture) = (0.0, 0.0);
-        let mut brightness = (1.0, 0.0);
-        if self.has_model {
+        let located = if self.has_model {
             let t = Instant::now();
-            // degeneracy does not depend on the pose: checked once, before any start is tried
-            let constraint = FrameConstraint::of(&self.pre.levels);
-            (conditioning, texture) = (constraint.conditioning, constraint.texture);
-            let enabled = self.params.relocalise.enabled;
-            let outcome = if let Some(why) = constraint.degeneracy(&self.tracker.params) {
-                TrackOutcome::failed(self.pose, why)
-            } else if self.lost && enabled {
-                // after a failure the last pose is only one start among the relocaliser's: a
-                // track that converges from it is not trusted over a better one
-                let found = self.relocalise(color);
-                relocalised = found.is_some();
-                found.unwrap_or_else(|| {
-                    TrackOutcome::failed(
-                        self.pose,
-                        "lost, and no start pose relocalised the frame".into(),
-                    )
-                })
-            } else {
-                let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
-                let retry = tracked.failure.is_some() && enabled && tracked.valid_pixels > 0;
-                let found = if retry { self.relocalise(color) } else { None };
-                relocalised = found.is_some();
-                found.unwrap_or(tracked)
-            };
-            if relocalised {
-                tracing::debug!(frame = self.frames, "relocalised");
-            }
-            times.track = t.elapsed().as_secs_f64();
-            self.lost = outcome.failure.is_some();
-            failure = outcome.failure;
-            inliers = outcome.inliers;
-            brightness = outcome.brightness;
-            self.pose = outcome.pose;
+            let located = self.locate(color, start, stamp, &mut report);
+            report.times.track = t.elapsed().as_secs_f64();
+            located
         } else {
-            let max = self.params.tsdf.max_depth;
-            let valid = self.pre.levels[0]
-                .depth
-                .data
-                .iter()
-                .filter(|d| **d > 0.0 && **d <= max)
-                .count();
-            if valid < 1000 {
-                failure = Some(format!(
-                    "only {valid} depth pixels within the fusion range (0, {max} m] to start the map"
-                ));
+            self.can_start().map(|()| (1.0, 0.0))
+        };
+        let fit = (report.outcome != FrameOutcome::Started).then_some(Fit {
+            fraction: report.inlier_fraction,
+            agreement: report.agreement,
+        });
+        let agreement = fit.map(|f| f.agreement);
+        let fused = located.and_then(|brightness| {
+            let t = Instant::now();
+            let fused = self.fuse(color, brightness, agreement);
+            report.times.integrate = t.elapsed().as_secs_f64();
+            fused.map_err(TrackFailure::from)
+        });
+        match fused {
+            Ok(()) => {
+                self.health.push(stamp, fit);
+                if let (FrameOutcome::Relocalised, Some(fit)) = (&report.outcome, fit) {
+                    self.health.restart(fit);
+                }
+                let t = Instant::now();
+                self.raycast();
+                report.times.raycast = t.elapsed().as_secs_f64();
             }
+            Err(why) => report.outcome = FrameOutcome::NotTracked(why),
         }
-        // fuse the colour in the model's exposure, so that the model stays one brightness
+        report.pose = self.pose;
+        self.log(&report);
+        report
+    }
+
+    /// The frame's images must be the camera's size.
+    fn check_size(
+        &self,
+        depth_raw: &Image<u16>,
+        color: Option<&ColorImage>,
+    ) -> Result<(), TrackFailure> {
+        let (width, height) = (self.camera.width, self.camera.height);
+        let wrong = |w: usize, h: usize| (w, h) != (width, height);
+        let (got_width, got_height) = match color {
+            _ if wrong(depth_raw.width, depth_raw.height) => (depth_raw.width, depth_raw.height),
+            Some(c) if wrong(c.width, c.height) => (c.width, c.height),
+            _ => return Ok(()),
+        };
+        Err(TrackFailure::ImageSize {
+            got_width,
+            got_height,
+            width,
+            height,
+        })
+    }
+
+    /// The first frame starts the map if enough of its depth lies in the fusion range.
+    fn can_start(&self) -> Result<(), TrackFailure> {
+        let max_depth = self.params.tsdf.max_depth;
+        let depth = &self.pre.levels[0].depth.data;
+        let valid = depth
+            .iter()
+            .filter(|d| **d > 0.0 && **d <= max_depth)
+            .count();
+        if valid < 1000 {
+            return Err(TrackFailure::TooLittleDepthToStart { valid, max_depth });
+        }
+        Ok(())
+    }
+
+    /// Finds the frame's pose. After a break in the stream (the track was lost, or the stamps
+    /// skip more than [`RelocaliseParams::gap_intervals`] frame intervals) every start of the
+    /// relocaliser competes and the winner must look like the recent frames (an agreement with
+    /// the model of [`RelocaliseParams::min_agreement_ratio`] × theirs); otherwise the frame is
+    /// tracked from `start`, and a track that fails or falls below that agreement faces the
+    /// relocaliser, the higher inlier fraction kept. Sets the pose, the report's outcome, inliers and
+    /// conditioning; on success, the exposure fit (a, b) to fuse the colour with.
+    fn locate(
+        &mut self,
+        color: Option<&ColorImage>,
+        start: Isometry3<f64>,
+        stamp: f64,
+        report: &mut FrameReport,
+    ) -> Result<(f64, f64), TrackFailure> {
+        // degeneracy does not depend on the pose: checked once, before any start is tried
+        let constraint = FrameConstraint::of(&self.pre.levels);
+        report.conditioning = constraint.conditioning;
+        let p = &self.params.relocalise;
+        let enabled = p.enabled;
+        let expected = self
+            .health
+            .expected()
+            .map_or(Fit::default(), |e| e.scaled(p.min_fit_ratio));
+        let broken = self.lost || self.health.is_gap(stamp, p.gap_intervals);
+        let floors = Floors {
+            local: expected,
+            keyframe_ratio: p.min_fit_ratio,
+        };
+        let (outcome, relocalised) = if let Some(why) = constraint.degeneracy(&self.tracker.params)
+        {
+            (TrackOutcome::failed(self.pose, why), false)
+        } else if broken && enabled {
+            match self.relocalise(color, floors) {
+                Some(found) => (found, true),
+                None => (
+                    TrackOutcome::failed(self.pose, TrackFailure::NotRelocalised),
+                    false,
+                ),
+            }
+        } else {
+            let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
+            let fraction = fraction_of(&tracked);
+            let doubtful = tracked.failure.is_some()
+                || tracked.agreement < expected.agreement
+                || fraction < expected.fraction;
+            let retry = doubtful && enabled && tracked.valid_pixels > 0;
+            match retry
+                .then(|| self.relocalise(color, Floors::default()))
+                .flatten()
+            {
+                Some(found) if tracked.failure.is_some() || fraction_of(&found) > fraction => {
+                    (found, true)
+                }
+                _ => (tracked, false),
+            }
+        };
+        self.lost = outcome.failure.is_some();
+        self.pose = outcome.pose;
+        report.inliers = outcome.inliers;
+        report.inlier_fraction = fraction_of(&outcome);
+        report.agreement = outcome.agreement;
+        if relocalised {
+            report.outcome = FrameOutcome::Relocalised;
+        }
+        match outcome.failure {
+            Some(why) => Err(why),
+            None => Ok(outcome.brightness),
+        }
+    }
+
+    /// The relocaliser's pose for the live frame, if it finds one.
+    fn relocalise(&mut self, color: Option<&ColorImage>, floors: Floors) -> Option<TrackOutcome> {
+        let live = LiveFrame {
+            levels: &self.pre.levels,
+            color,
+            camera: &self.camera,
+            model_template: &self.model,
+        };
+        let found = self.relocaliser.relocalise(
+            &self.params.relocalise,
+            &mut self.tracker,
+            (&self.volume, &self.model),
+            &live,
+            self.pose,
+            floors,
+            self.frames,
+        );
+        if found.is_some() {
+            tracing::debug!(frame = self.frames, "relocalised");
+        }
+        found
+    }
+
+    /// Fuses the frame at the current pose, its colour mapped into the model's exposure by the
+    /// fit (a, b) so that the model stays one brightness; the relocaliser keeps it (with the
+    /// agreement it was tracked with).
+    fn fuse(
+        &mut self,
+        color: Option<&ColorImage>,
+        brightness: (f64, f64),
+        agreement: Option<f64>,
+    ) -> Result<(), TsdfError> {
         let color = match color {
-            Some(c) if failure.is_none() && brightness != (1.0, 0.0) => {
+            Some(c) if brightness != (1.0, 0.0) => {
                 expose(c, brightness, &mut self.exposed_color);
                 Some(&self.exposed_color)
             }
             other => other,
         };
-        if failure.is_none() {
-            let t = Instant::now();
-            let level = &self.pre.levels[0];
-            match self.volume.integrate(
-                &level.depth,
-                &level.normals,
+        let level = &self.pre.levels[0];
+        self.volume.integrate(
+            &level.depth,
+            &level.normals,
+            color,
+            &self.camera,
+            &self.pose,
+        )?;
+        if self.params.relocalise.enabled {
+            let frame = Candidate {
+                frame: self.frames,
+                pose: self.pose,
+                agreement,
                 color,
-                &self.camera,
-                &self.pose,
-            ) {
-                Ok(_) => {}
-                Err(e) => failure = Some(e.to_string()),
-            }
-            times.integrate = t.elapsed().as_secs_f64();
-            if failure.is_none() && self.params.relocalise.enabled {
-                self.key_depth.clone_from(&level.depth);
-                if let Some(c) = color {
-                    self.key_color.clone_from(c);
-                }
-            }
-            if failure.is_none() {
-                let t = Instant::now();
-                let r = self.model.offset;
-                let hint = &self.pre.levels[r].depth;
-                self.volume.raycast_with_hint(
-                    &self.camera.level(r),
-                    &self.pose,
-                    Some(hint),
-                    &mut self.raycast,
-                );
-                self.model.update(&self.raycast, &self.pose);
-                self.has_model = true;
-                times.raycast = t.elapsed().as_secs_f64();
-            }
+                depth: &level.depth,
+                camera: &self.camera,
+            };
+            let max_depth = self.params.tsdf.max_depth;
+            self.relocaliser
+                .remember(&frame, &self.params.relocalise, max_depth);
         }
+        Ok(())
+    }
+
+    /// Raycasts the model at the current pose for the next frame's tracking.
+    fn raycast(&mut self) {
+        let r = self.model.offset;
+        let hint = &self.pre.levels[r].depth;
+        self.volume.raycast_with_hint(
+            &self.camera.level(r),
+            &self.pose,
+            Some(hint),
+            &mut self.raycast,
+        );
+        self.model.update(&self.raycast, &self.pose);
+        self.has_model = true;
+    }
+
+    /// Logs the frame's report at debug level.
+    fn log(&self, report: &FrameReport) {
+        let times = &report.times;
         tracing::debug!(
             frame = self.frames,
-            inliers,
-            conditioning,
-            texture,
-            relocalised,
+            outcome = ?report.outcome,
+            inliers = report.inliers,
+            fraction = report.inlier_fraction,
+            agreement = report.agreement,
+            conditioning = report.conditioning,
             preprocess_ms = 1e3 * times.preprocess,
             track_ms = 1e3 * times.track,
             integrate_ms = 1e3 * times.integrate,
             raycast_ms = 1e3 * times.raycast,
             "rigid frame"
         );
-        FrameReport {
-            pose: self.pose,
-            failure,
-            times,
-            inliers,
-            relocalised,
-            conditioning,
-        }
     }
+}
 
-    /// Tries to find the live frame's pose after tracking from the last pose failed: start poses
-    /// around the last good pose (shifted along each axis, turned about the camera's x and y), and
-    /// the motion that sparse features matched against the last fused frame give, are each tracked
-    /// on the coarsest level; the best is refined on all levels and kept when it passes the
-    /// tracker's tests with [`RelocaliseParams::min_inlier_fraction`] inliers.
-    fn relocalise(&mut self, color: Option<&ColorImage>) -> Option<TrackOutcome> {
-        let p = &self.params.relocalise;
-        let last = self.pose;
-        let mut starts = vec![last];
-        if let Some(c) = color.filter(|_| !self.key_color.data.is_empty()) {
-            let live = FeatureFrame {
-                color: c,
-                depth: &self.pre.levels[0].depth,
-                camera: &self.camera,
-                mask: None,
-            };
-            let key = FeatureFrame {
-                color: &self.key_color,
-                depth: &self.key_depth,
-                camera: &self.camera,
-                mask: None,
-            };
-            if let Some(m) = match_frames(&live, &key, &p.features) {
-                // live points map into the key frame: T_live = T_key · M
-                starts.push(last * m.motion);
-            }
-        }
-        for &d in &p.shifts {
-            for axis in 0..3 {
-                for sign in [-1.0, 1.0] {
-                    let mut t = Vector3::zeros();
-                    t[axis] = sign * d;
-                    starts.push(Translation3::from(t) * last);
-                }
-            }
-        }
-        for axis in [Vector3::x(), Vector3::y()] {
-            for sign in [-1.0, 1.0] {
-                let turn = UnitQuaternion::from_scaled_axis(axis * sign * p.turn_deg.to_radians());
-                starts.push(last * turn);
-            }
-        }
-        // screen on the coarsest level only
-        let full = std::mem::take(&mut self.tracker.params.iterations);
-        let coarse = full.len().saturating_sub(1);
-        self.tracker.params.iterations = (0..full.len())
-            .map(|l| if l == coarse { full[l].max(4) } else { 0 })
-            .collect();
-        let mut best: Option<(f64, usize)> = None;
-        for (k, start) in starts.iter().enumerate() {
-            let o = self.tracker.track(&self.pre.levels, &self.model, start);
-            let fraction = o.inliers as f64 / o.valid_pixels.max(1) as f64;
-            if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
-                best = Some((fraction, k));
-            }
-        }
-        self.tracker.params.iterations = full;
-        let (screened, k) = best?;
-        let o = self
-            .tracker
-            .track(&self.pre.levels, &self.model, &starts[k]);
-        let fraction = o.inliers as f64 / o.valid_pixels.max(1) as f64;
-        tracing::debug!(
-            frame = self.frames,
-            candidates = starts.len(),
-            best = k,
-            screened,
-            fraction,
-            failure = o.failure.as_deref().unwrap_or_default(),
-            "relocalisation"
-        );
-        // the last pose winning is ordinary tracking, held to its tests; a jump elsewhere must
-        // also have the stricter inlier fraction
-        let strict = if k == 0 {
-            0.0
-        } else {
-            self.params.relocalise.min_inlier_fraction
-        };
-        (o.failure.is_none() && fraction >= strict).then_some(o)
-    }
+/// Inliers over valid pixels of a track.
+fn fraction_of(o: &TrackOutcome) -> f64 {
+    o.inliers as f64 / o.valid_pixels.max(1) as f64
 }
 
 /// `out` = a c + 255 b per channel of `c`, rounded and clamped to 8 bits: a colour image mapped

@@ -3,6 +3,7 @@
 //! λ·photometric residuals (eq. 3.1, 3.2, 3.14) under Huber kernels, coarse to fine over the pyramid,
 //! solved by the solver's dense 6-DoF path with exact SE(3) updates.
 
+use super::outcome::TrackFailure;
 use crate::camera::Camera;
 use crate::image::{
     downsample_gray, gradients, intensity, valid, GrayImage, Image, NormalMap, VertexMap, INVALID,
@@ -439,14 +440,17 @@ struct Association {
 }
 
 impl IcpTerms<'_> {
-    /// Grid point `k`'s live point, associated projectively with the model at the estimate `lin`
-    /// and kept when it passes the distance and normal tests.
+    /// Grid point `k`'s live point and where it lands on the model at the estimate `lin`: (live
+    /// pixel, live point, its projection, model pixel), when both points are valid.
     #[inline]
-    fn associate(&self, k: usize, lin: &Linearisation) -> Option<Association> {
+    fn project(
+        &self,
+        k: usize,
+        lin: &Linearisation,
+    ) -> Option<(usize, Vector3<f64>, Projected, usize)> {
         let i = self.grid.pixel(k);
         let v = self.live.vertices.data[i];
-        let n = self.live.normals.data[i];
-        if !valid(&v) || !valid(&n) {
+        if !valid(&v) || !valid(&self.live.normals.data[i]) {
             return None;
         }
         let p = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
@@ -458,16 +462,25 @@ impl IcpTerms<'_> {
             return None;
         }
         let j = vr as usize * cam.width + ur as usize;
-        let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
-        if !valid(&m) || !valid(&nm) {
+        if !valid(&self.model.vertices.data[j]) || !valid(&self.model.normals.data[j]) {
             return None;
         }
+        Some((i, p, x, j))
+    }
+
+    /// Grid point `k`'s live point, associated projectively with the model at the estimate `lin`
+    /// and kept when it passes the distance and normal tests.
+    #[inline]
+    fn associate(&self, k: usize, lin: &Linearisation) -> Option<Association> {
+        let (i, p, x, j) = self.project(k, lin)?;
+        let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
         let t = &lin.t;
         if (t.apply(&p) - q).norm_squared() > self.max_distance * self.max_distance {
             return None;
         }
+        let n = self.live.normals.data[i];
         let nl = t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
         if nl.dot(&nq) < self.min_cos {
             return None;
@@ -479,6 +492,28 @@ impl IcpTerms<'_> {
             q,
             nq,
         })
+    }
+
+    /// The share of the grid points landing on the model at `x` that pass the association's
+    /// normal test and lie within [`agreement_tolerance`] of their model point. Where the camera
+    /// sees what the model has not, points land nowhere and the share stays; at a wrong pose
+    /// they land on surfaces they do not match and it falls.
+    fn agreement(&self, x: &[f64]) -> f64 {
+        let lin = self.prepare(x);
+        let slack = 0.1 * self.max_distance;
+        let (hits, agree) = (0..self.grid.len())
+            .into_par_iter()
+            .map(|k| {
+                let hit = self.project(k, &lin).is_some();
+                let near = |a: Association| {
+                    let tol = agreement_tolerance(a.p.z, slack);
+                    (lin.t.apply(&a.p) - a.q).norm_squared() <= tol * tol
+                };
+                let agrees = hit && self.associate(k, &lin).is_some_and(near);
+                (hit as usize, agrees as usize)
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        agree as f64 / hits.max(1) as f64
     }
 
     /// The affine map (a, b) that best takes the live intensities onto the model's over the
@@ -534,17 +569,29 @@ impl IcpTerms<'_> {
     }
 }
 
+/// How far a live point at depth `z` may lie from its model point and still agree with it: three
+/// standard deviations of a structured-light sensor's axial noise, σ(z) = 0.0012 + 0.0019 (z −
+/// 0.4)² m (Nguyen, Izadi & Lovell, *Modeling Kinect sensor noise for improved 3D
+/// reconstruction and tracking*, 3DIMPVT 2012), plus `slack` for the model's own error.
+fn agreement_tolerance(z: f64, slack: f64) -> f64 {
+    3.0 * (0.0012 + 0.0019 * (z - 0.4).powi(2)) + slack
+}
+
 /// The result of tracking one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackOutcome {
     /// The estimated camera-to-world pose (the start pose on failure).
     pub pose: Isometry3<f64>,
     /// Why the frame was rejected, if it was.
-    pub failure: Option<String>,
+    pub failure: Option<TrackFailure>,
     /// Inlier point-to-plane associations at the finest level that ran.
     pub inliers: usize,
     /// Valid live pixels at the finest level that ran (on its strided grid).
     pub valid_pixels: usize,
+    /// Of the finest level's grid points that land on the model at the result, the share that
+    /// agree with it: the normal test passed and within three noise deviations of the model
+    /// point (0 when not tracked).
+    pub agreement: f64,
     /// (a, b) of the exposure fit on the finest level that ran: the model's intensity is about
     /// a I + b for the live intensity I ((1, 0) when not fitted).
     pub brightness: (f64, f64),
@@ -552,12 +599,13 @@ pub struct TrackOutcome {
 
 impl TrackOutcome {
     /// A frame that was not tracked, for `why`: the pose stays `pose`.
-    pub fn failed(pose: Isometry3<f64>, why: String) -> Self {
+    pub fn failed(pose: Isometry3<f64>, why: TrackFailure) -> Self {
         Self {
             pose,
             failure: Some(why),
             inliers: 0,
             valid_pixels: 0,
+            agreement: 0.0,
             brightness: (1.0, 0.0),
         }
     }
@@ -585,13 +633,13 @@ impl FrameConstraint {
 
     /// Why the frame is degenerate under `p`, if it is: a plane without texture leaves motions
     /// that no start pose can fix.
-    pub fn degeneracy(&self, p: &TrackerParams) -> Option<String> {
-        (self.conditioning < p.min_conditioning && self.texture < p.min_texture).then(|| {
-            format!(
-                "degenerate: geometry conditioning {:.1e} and texture {:.3} (a plain wall?)",
-                self.conditioning, self.texture
-            )
-        })
+    pub fn degeneracy(&self, p: &TrackerParams) -> Option<TrackFailure> {
+        (self.conditioning < p.min_conditioning && self.texture < p.min_texture).then_some(
+            TrackFailure::Degenerate {
+                conditioning: self.conditioning,
+                texture: self.texture,
+            },
+        )
     }
 }
 
@@ -664,6 +712,7 @@ impl Tracker {
         };
         let prior = (p.motion_prior > 0.0).then(|| (start.inverse(), z_mean));
         let mut inliers = 0;
+        let mut agreement = 0.0;
         let mut brightness = None;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
@@ -726,6 +775,7 @@ impl Tracker {
             if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
+                agreement = terms.agreement(&x);
                 // the prior makes every system solvable: geometry that cannot fix the pose on
                 // its own is still reported, from the data's own normal equations at the result
                 if prior.is_some() && !matches!(stop, DenseStop::NoTerms) {
@@ -742,27 +792,23 @@ impl Tracker {
         }
         let pose = se3::from_slice(&x);
         let motion = start.inverse() * pose;
+        let (metres, degrees) = (
+            motion.translation.vector.norm(),
+            motion.rotation.angle().to_degrees(),
+        );
         let failure = if matches!(stop, DenseStop::NoTerms) {
-            Some(
-                "no associations with the model (blank depth, or a view the model has not seen)"
-                    .to_string(),
-            )
+            Some(TrackFailure::NoAssociations)
         } else if matches!(stop, DenseStop::Singular) {
-            Some("singular system (degenerate geometry)".to_string())
+            Some(TrackFailure::Singular)
         } else if (inliers as f64) < p.min_inlier_fraction * valid_pixels.max(1) as f64 {
-            Some(format!(
-                "too few inliers: {inliers} of {valid_pixels} valid pixels"
-            ))
-        } else if motion.translation.vector.norm() > p.max_translation
-            || motion.rotation.angle().to_degrees() > p.max_rotation_deg
-        {
-            Some(format!(
-                "implausible motion: {:.3} m, {:.1}°",
-                motion.translation.vector.norm(),
-                motion.rotation.angle().to_degrees()
-            ))
+            Some(TrackFailure::TooFewInliers {
+                inliers,
+                valid_pixels,
+            })
+        } else if metres > p.max_translation || degrees > p.max_rotation_deg {
+            Some(TrackFailure::ImplausibleMotion { metres, degrees })
         } else if !x.iter().all(|v| v.is_finite()) {
-            Some("non-finite pose".to_string())
+            Some(TrackFailure::NonFinite)
         } else {
             None
         };
@@ -771,6 +817,7 @@ impl Tracker {
             failure,
             inliers,
             valid_pixels,
+            agreement,
             brightness: brightness.unwrap_or((1.0, 0.0)),
         }
     }
@@ -923,8 +970,8 @@ mod degenerate_tests {
                 ..TrackerParams::default()
             });
             let out = tracker.track(live, &model, &Isometry3::identity());
-            let why = out.failure.unwrap_or_default();
-            assert!(why.contains("singular"), "prior {prior}: {why:?}");
+            let why = out.failure;
+            assert_eq!(why, Some(TrackFailure::Singular), "prior {prior}");
         }
     }
 }

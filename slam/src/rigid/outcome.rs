@@ -1,0 +1,104 @@
+//! What happened to a frame, as types: [`FrameOutcome`] says whether it was fused and how its
+//! pose was found, [`TrackFailure`] why a frame was not tracked.
+
+use crate::tsdf::TsdfError;
+
+/// Why a frame was not tracked (and so not fused).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum TrackFailure {
+    /// The frame's images are not the camera's size.
+    #[error("image size {got_width}x{got_height} does not match the camera's {width}x{height}")]
+    ImageSize {
+        /// The frame's size.
+        got_width: usize,
+        /// The frame's size.
+        got_height: usize,
+        /// The camera's size.
+        width: usize,
+        /// The camera's size.
+        height: usize,
+    },
+    /// The first frames have too little depth in the fusion range to start the map.
+    #[error(
+        "only {valid} depth pixels within the fusion range (0, {max_depth} m] to start the map"
+    )]
+    TooLittleDepthToStart {
+        /// Pixels with depth in range.
+        valid: usize,
+        /// The fusion range's far end, metres.
+        max_depth: f32,
+    },
+    /// Geometry and texture leave motions that no start pose can fix (a plain wall).
+    #[error(
+        "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.3} (a plain wall?)"
+    )]
+    Degenerate {
+        /// λ_min / λ_max of the depth-scaled point-to-plane covariance.
+        conditioning: f64,
+        /// RMS intensity gradient.
+        texture: f64,
+    },
+    /// No live point found a model point (blank depth, or a view the model has not seen).
+    #[error("no associations with the model (blank depth, or a view the model has not seen)")]
+    NoAssociations,
+    /// The normal equations of the data are singular at the result (degenerate geometry).
+    #[error("singular system (degenerate geometry)")]
+    Singular,
+    /// Too few of the valid pixels are inliers at the finest level.
+    #[error("too few inliers: {inliers} of {valid_pixels} valid pixels")]
+    TooFewInliers {
+        /// Inlier associations.
+        inliers: usize,
+        /// Valid live pixels on the tracking grid.
+        valid_pixels: usize,
+    },
+    /// The motion from the start pose is larger than a frame interval allows.
+    #[error("implausible motion: {metres:.3} m, {degrees:.1}°")]
+    ImplausibleMotion {
+        /// Translation from the start, metres.
+        metres: f64,
+        /// Rotation from the start, degrees.
+        degrees: f64,
+    },
+    /// The solve produced a non-finite pose.
+    #[error("non-finite pose")]
+    NonFinite,
+    /// Tracking was lost and no start pose of the relocaliser passed its tests.
+    #[error("lost, and no start pose relocalised the frame")]
+    NotRelocalised,
+    /// The tracked frame could not be fused.
+    #[error("fusion failed: {0}")]
+    Fusion(#[from] TsdfError),
+}
+
+/// How a frame ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FrameOutcome {
+    /// The first fused frame: it started the map at the initial pose.
+    Started,
+    /// Tracked from the predicted pose and fused.
+    Tracked,
+    /// Tracking from the predicted pose failed or the track was lost; the relocaliser found the
+    /// pose, and the frame was fused.
+    Relocalised,
+    /// Not tracked and not fused; the pose stays the last good one.
+    NotTracked(TrackFailure),
+    /// The frame was not given to the pipeline (an application's outcome: its files could not
+    /// be read); the reason names the file.
+    Skipped(String),
+}
+
+impl FrameOutcome {
+    /// The frame was fused into the map (started it, tracked or relocalised).
+    pub fn is_fused(&self) -> bool {
+        matches!(self, Self::Started | Self::Tracked | Self::Relocalised)
+    }
+
+    /// Why the frame was not tracked, if that is what happened.
+    pub fn failure(&self) -> Option<&TrackFailure> {
+        match self {
+            Self::NotTracked(why) => Some(why),
+            _ => None,
+        }
+    }
+}

@@ -1,0 +1,369 @@
+//! Finding a lost track again, in two rounds:
+//! - local: start poses around the last good pose (shifted along each world axis, turned about
+//!   the camera's x and y) and the motion that sparse features matched against the last fused
+//!   frame give (FAST/BRIEF and RANSAC, [`crate::features`]) are each tracked on the coarsest
+//!   level against the model raycast at the last pose; the best is refined on all levels;
+//! - global (after a gap the camera may be anywhere it has been): the keyframes whose fern codes
+//!   are nearest the frame's ([`super::keyframes`]) are matched by features, a rigid motion
+//!   fitted by RANSAC on the 3-D matches gives a pose, and the model raycast at that pose
+//!   verifies it by dense tracking.
+//!
+//! Both rounds run and the higher inlier fraction wins. A pose is kept only when it passes the
+//! tracker's tests and, away from the last pose, a stricter inlier fraction
+//! ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also the floors of
+//! [`Floors`] on the agreement with the model ([`super::health`]): the recent frames' (local)
+//! and the keyframe's own (global).
+
+use super::health::Fit;
+use super::keyframes::{Candidate, KeyframeParams, Keyframes};
+use super::tracker::{ModelPyramid, TrackOutcome, Tracker};
+use crate::camera::Camera;
+use crate::features::{
+    detect, match_frames, match_keypoints, ransac_rigid, FeatureFrame, FeatureParams,
+};
+use crate::image::{ColorImage, DepthImage};
+use crate::preprocess::Level;
+use crate::tsdf::{RaycastMaps, TsdfVolume};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+/// How a lost track is found again.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RelocaliseParams {
+    /// Try at all (default true).
+    pub enabled: bool,
+    /// Start poses tried around the last good pose: shifts of these lengths along each world
+    /// axis, metres (default 0.15 and 0.3).
+    pub shifts: Vec<f64>,
+    /// … and turns by this angle about the camera's x and y axes, degrees (default 10).
+    pub turn_deg: f64,
+    /// A frame relocalised away from the last pose must have at least this fraction of its valid
+    /// pixels as inliers (default 0.25, stricter than tracking's, as a false relocalisation
+    /// corrupts the map; when the last pose itself wins, tracking's own tests apply).
+    pub min_inlier_fraction: f64,
+    /// Sparse features matched against the last fused frame give one more start pose.
+    pub features: FeatureParams,
+    /// Keyframes for the global round.
+    pub keyframes: KeyframeParams,
+    /// Keyframes whose fern codes are nearest the frame's that the global round tries
+    /// (default 5).
+    pub candidates: usize,
+    /// After a break in the stream, and for a track to be kept without facing the
+    /// relocaliser, the agreement with the model and the inlier fraction must be at least this
+    /// share of the recent frames' medians (default 0.85; [`super::health`]).
+    pub min_fit_ratio: f64,
+    /// Stamps further apart than this many typical frame intervals since the last fused frame
+    /// are a break in the stream (default 3).
+    pub gap_intervals: f64,
+}
+
+impl Default for RelocaliseParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            shifts: vec![0.15, 0.3],
+            turn_deg: 10.0,
+            min_inlier_fraction: 0.25,
+            features: FeatureParams {
+                ransac_iterations: 500,
+                ..FeatureParams::default()
+            },
+            keyframes: KeyframeParams::default(),
+            candidates: 5,
+            min_fit_ratio: 0.85,
+            gap_intervals: 3.0,
+        }
+    }
+}
+
+/// The live frame as the relocaliser sees it.
+pub(crate) struct LiveFrame<'a> {
+    /// The live pyramid.
+    pub levels: &'a [Level],
+    /// Its colour, if any.
+    pub color: Option<&'a ColorImage>,
+    /// The sensor.
+    pub camera: &'a Camera,
+    /// A model pyramid of the pipeline's shape, copied once for raycasts at candidate poses.
+    pub model_template: &'a ModelPyramid,
+}
+
+/// What a relocalised pose must reach, beyond the tracker's tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Floors {
+    /// For a pose near the last one (the local round): its agreement with the model, and also
+    /// its inlier fraction unless the sparse features' motion led to it.
+    pub local: Fit,
+    /// For a pose found from a keyframe: this share of the agreement the keyframe was tracked
+    /// with (the same view should match about as well as it did then).
+    pub keyframe_ratio: f64,
+}
+
+/// The relocaliser's memory: the last fused frame, the keyframes, and buffers for raycasting
+/// the model at a candidate pose.
+#[derive(Debug)]
+pub(crate) struct Relocaliser {
+    key_depth: DepthImage,
+    key_color: ColorImage,
+    keyframes: Keyframes,
+    maps: RaycastMaps,
+    model: Option<ModelPyramid>,
+}
+
+impl Relocaliser {
+    /// A relocaliser that has seen no frame yet.
+    pub fn new(params: &RelocaliseParams) -> Self {
+        Self {
+            key_depth: DepthImage::new(0, 0),
+            key_color: ColorImage::new(0, 0),
+            keyframes: Keyframes::new(params.keyframes.clone()),
+            maps: RaycastMaps::new(),
+            model: None,
+        }
+    }
+
+    /// The keyframes kept so far.
+    pub fn keyframes(&self) -> &Keyframes {
+        &self.keyframes
+    }
+
+    /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and
+    /// offers it as a keyframe.
+    pub fn remember(&mut self, frame: &Candidate<'_>, params: &RelocaliseParams, max_depth: f32) {
+        self.key_depth.clone_from(frame.depth);
+        if let Some(c) = frame.color {
+            self.key_color.clone_from(c);
+        }
+        self.keyframes.offer(frame, &params.features, max_depth);
+    }
+
+    /// The live frame's pose: the better of the local and the global rounds' results that pass
+    /// the tests (see the module's documentation) and reach the `floors`; `frame` only labels
+    /// the log.
+    #[allow(clippy::too_many_arguments)]
+    pub fn relocalise(
+        &mut self,
+        params: &RelocaliseParams,
+        tracker: &mut Tracker,
+        map: (&TsdfVolume, &ModelPyramid),
+        live: &LiveFrame<'_>,
+        last: Isometry3<f64>,
+        floors: Floors,
+        frame: usize,
+    ) -> Option<TrackOutcome> {
+        let local = self.local(params, tracker, map, live, last, floors.local, frame);
+        let global = self.global(params, tracker, map.0, live, floors.keyframe_ratio, frame);
+        match (local, global) {
+            (Some(a), Some(b)) => Some(if inlier_fraction(&b) > inlier_fraction(&a) {
+                b
+            } else {
+                a
+            }),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// The local round (see the module's documentation): the best start, screened against the
+    /// model at the last pose, is tracked against the model raycast at its screened pose.
+    #[allow(clippy::too_many_arguments)]
+    fn local(
+        &mut self,
+        params: &RelocaliseParams,
+        tracker: &mut Tracker,
+        (volume, model): (&TsdfVolume, &ModelPyramid),
+        live: &LiveFrame<'_>,
+        last: Isometry3<f64>,
+        floor: Fit,
+        frame: usize,
+    ) -> Option<TrackOutcome> {
+        let (starts, from_features) = self.starts(params, live, last);
+        let (screened, k, pose) = screen(tracker, model, live.levels, &starts)?;
+        let o = self.verify(tracker, volume, live, &pose);
+        let fraction = inlier_fraction(&o);
+        tracing::debug!(
+            frame,
+            candidates = starts.len(),
+            best = k,
+            screened,
+            fraction,
+            agreement = o.agreement,
+            floor = ?floor,
+            failure = o.failure.as_ref().map(ToString::to_string),
+            "local relocalisation"
+        );
+        // the last pose winning is ordinary tracking, held to its tests; a jump elsewhere must
+        // also have the stricter inlier fraction
+        let strict = if k == 0 {
+            0.0
+        } else {
+            params.min_inlier_fraction
+        };
+        // a dense pose the sparse features led to has both kinds of support; any other must
+        // also see as much of the model as the recent frames did
+        let supported = from_features == Some(k);
+        let fits = o.agreement >= floor.agreement && (supported || fraction >= floor.fraction);
+        (o.failure.is_none() && fraction >= strict && fits).then_some(o)
+    }
+
+    /// The global round (see the module's documentation): the best verified keyframe pose.
+    fn global(
+        &mut self,
+        params: &RelocaliseParams,
+        tracker: &mut Tracker,
+        volume: &TsdfVolume,
+        live: &LiveFrame<'_>,
+        ratio: f64,
+        frame: usize,
+    ) -> Option<TrackOutcome> {
+        let color = live.color?;
+        let depth = &live.levels[0].depth;
+        let nearest = self
+            .keyframes
+            .nearest(Some(color), depth, params.candidates);
+        if nearest.is_empty() {
+            return None;
+        }
+        let now = FeatureFrame {
+            color,
+            depth,
+            camera: live.camera,
+            mask: None,
+        };
+        let keypoints = detect(&now, &params.features);
+        let mut best: Option<(f64, TrackOutcome)> = None;
+        for k in nearest {
+            let key = &self.keyframes.frames()[k];
+            let pairs = match_keypoints(&keypoints, &key.keypoints, &params.features);
+            let src: Vec<Vector3<f64>> = pairs.iter().map(|&(i, _)| keypoints.points[i]).collect();
+            let dst: Vec<Vector3<f64>> = pairs
+                .iter()
+                .map(|&(_, j)| key.keypoints.points[j])
+                .collect();
+            let Some(fit) = ransac_rigid(&src, &dst, &params.features) else {
+                continue;
+            };
+            // live points map into the keyframe: T_live = T_key · M
+            let start = key.pose * fit.motion;
+            let keyframe = key.frame;
+            let floor = ratio * key.agreement.unwrap_or(0.0);
+            let o = self.verify(tracker, volume, live, &start);
+            let fraction = inlier_fraction(&o);
+            tracing::debug!(
+                frame,
+                keyframe,
+                matches = pairs.len(),
+                inliers = fit.inlier_count(),
+                fraction,
+                agreement = o.agreement,
+                floor,
+                failure = o.failure.as_ref().map(ToString::to_string),
+                "global relocalisation candidate"
+            );
+            let passes = o.failure.is_none()
+                && fraction >= params.min_inlier_fraction
+                && o.agreement >= floor;
+            if passes && best.as_ref().is_none_or(|b| fraction > b.0) {
+                best = Some((fraction, o));
+            }
+        }
+        best.map(|b| b.1)
+    }
+
+    /// Tracks the live frame from `start` against the model raycast at `start`.
+    fn verify(
+        &mut self,
+        tracker: &mut Tracker,
+        volume: &TsdfVolume,
+        live: &LiveFrame<'_>,
+        start: &Isometry3<f64>,
+    ) -> TrackOutcome {
+        let model = self
+            .model
+            .get_or_insert_with(|| live.model_template.clone());
+        let r = model.offset;
+        volume.raycast_with_hint(
+            &live.camera.level(r),
+            start,
+            Some(&live.levels[r].depth),
+            &mut self.maps,
+        );
+        model.update(&self.maps, start);
+        tracker.track(live.levels, model, start)
+    }
+
+    /// The start poses: the last pose first, the features' motion, then the shifts and turns;
+    /// and the index of the features' start, if they gave one.
+    fn starts(
+        &self,
+        p: &RelocaliseParams,
+        live: &LiveFrame<'_>,
+        last: Isometry3<f64>,
+    ) -> (Vec<Isometry3<f64>>, Option<usize>) {
+        let mut starts = vec![last];
+        let mut from_features = None;
+        if let Some(c) = live.color.filter(|_| !self.key_color.data.is_empty()) {
+            let now = FeatureFrame {
+                color: c,
+                depth: &live.levels[0].depth,
+                camera: live.camera,
+                mask: None,
+            };
+            let key = FeatureFrame {
+                color: &self.key_color,
+                depth: &self.key_depth,
+                camera: live.camera,
+                mask: None,
+            };
+            if let Some(m) = match_frames(&now, &key, &p.features) {
+                // live points map into the key frame: T_live = T_key · M
+                from_features = Some(starts.len());
+                starts.push(last * m.motion);
+            }
+        }
+        for &d in &p.shifts {
+            for axis in 0..3 {
+                for sign in [-1.0, 1.0] {
+                    let mut t = Vector3::zeros();
+                    t[axis] = sign * d;
+                    starts.push(Translation3::from(t) * last);
+                }
+            }
+        }
+        for axis in [Vector3::x(), Vector3::y()] {
+            for sign in [-1.0, 1.0] {
+                let turn = UnitQuaternion::from_scaled_axis(axis * sign * p.turn_deg.to_radians());
+                starts.push(last * turn);
+            }
+        }
+        (starts, from_features)
+    }
+}
+
+/// Inliers over valid pixels of a track.
+fn inlier_fraction(o: &TrackOutcome) -> f64 {
+    o.inliers as f64 / o.valid_pixels.max(1) as f64
+}
+
+/// Tracks every start on the coarsest level only; the best inlier fraction among the tracks that
+/// pass, its start's index and the pose it reached.
+fn screen(
+    tracker: &mut Tracker,
+    model: &ModelPyramid,
+    levels: &[Level],
+    starts: &[Isometry3<f64>],
+) -> Option<(f64, usize, Isometry3<f64>)> {
+    let full = std::mem::take(&mut tracker.params.iterations);
+    let coarse = full.len().saturating_sub(1);
+    tracker.params.iterations = (0..full.len())
+        .map(|l| if l == coarse { full[l].max(4) } else { 0 })
+        .collect();
+    let mut best: Option<(f64, usize, Isometry3<f64>)> = None;
+    for (k, start) in starts.iter().enumerate() {
+        let o = tracker.track(levels, model, start);
+        let fraction = inlier_fraction(&o);
+        if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
+            best = Some((fraction, k, o.pose));
+        }
+    }
+    tracker.params.iterations = full;
+    best
+}

@@ -1,0 +1,118 @@
+//! Relocalisation from keyframes (issue 24): a camera that returns to a place it has seen, with
+//! a gap in the stream on the way back, is found again from the keyframes and reported as
+//! relocalised; without the keyframe round it is reported as not tracked, never as tracked
+//! somewhere wrong.
+
+use dynamap::slam::camera::Camera;
+use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RelocaliseParams, RigidSlam, SlamParams};
+use dynamap::slam::synthetic::motion::{self, Motion};
+use dynamap::slam::synthetic::noise::SensorNoise;
+use dynamap::slam::synthetic::render::render;
+use dynamap::slam::synthetic::scene::Scene;
+use nalgebra::Isometry3;
+
+/// Orbit frames 0..100 and back to 0, with the frames between `gap.0` and `gap.1` (going back)
+/// dropped: the stream jumps from frame `gap.0` to frame `gap.1`.
+fn there_and_back(gap: (usize, usize)) -> Vec<usize> {
+    let out: Vec<usize> = (0..100).collect();
+    let back = (0..100).rev().filter(|&k| k >= gap.0 || k <= gap.1);
+    out.into_iter().chain(back).collect()
+}
+
+/// Runs the pipeline along `frames` of the orbit, with stamps at 30 Hz that skip the dropped
+/// frames when `skipped` is given as (first frame after the gap, frames dropped), without stamps
+/// otherwise; per frame: (orbit frame, outcome, position error m, rotation error deg).
+fn run(
+    frames: &[usize],
+    params: SlamParams,
+    skipped: Option<(usize, usize)>,
+) -> Vec<(usize, FrameOutcome, f64, f64)> {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let gt = motion::procedural(Motion::Orbit, 100, 30.0);
+    let scene = Scene::room(7);
+    let noise = SensorNoise {
+        seed: 5,
+        ..SensorNoise::default()
+    };
+    let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
+    let mut out = Vec::new();
+    for (n, &k) in frames.iter().enumerate() {
+        let pose: &Isometry3<f64> = &gt.poses[k];
+        let mut r = render(&scene, &cam, pose);
+        let raw = noise.apply(
+            n as u64,
+            &r.depth,
+            &r.cos_incidence,
+            &mut r.color,
+            cam.depth_scale,
+        );
+        let report = match skipped {
+            Some((after, dropped)) => {
+                let t = (n + if n >= after { dropped } else { 0 }) as f64 / 30.0;
+                let stamps = FrameStamps { depth: t, color: t };
+                slam.process_timed(&raw, Some(&r.color), stamps)
+            }
+            None => slam.process(&raw, Some(&r.color)),
+        };
+        let d = pose.inverse() * report.pose;
+        out.push((
+            k,
+            report.outcome,
+            d.translation.vector.norm(),
+            d.rotation.angle().to_degrees(),
+        ));
+    }
+    out
+}
+
+#[test]
+fn a_gap_on_the_way_back_is_relocalised_from_a_keyframe_or_reported() {
+    // 30 orbit frames (24°, 75 cm) are skipped on the way back
+    let frames = there_and_back((70, 40));
+    let after = frames.iter().rposition(|&k| k == 40).unwrap();
+    let without_keyframes = SlamParams {
+        relocalise: RelocaliseParams {
+            candidates: 0,
+            ..RelocaliseParams::default()
+        },
+        ..SlamParams::default()
+    };
+    let stamps = Some((after, 29));
+    for (what, params, skipped) in [
+        ("keyframes, stamps", SlamParams::default(), stamps),
+        ("keyframes, no stamps", SlamParams::default(), None),
+        ("no keyframes, stamps", without_keyframes, stamps),
+    ] {
+        let run = run(&frames, params, skipped);
+        for (n, (k, outcome, t, r)) in run.iter().enumerate() {
+            assert!(
+                !outcome.is_fused() || (*t < 0.1 && *r < 5.0),
+                "{what}: step {n} (orbit frame {k}): {outcome:?} but {t:.3} m, {r:.1}° off"
+            );
+            if n < after {
+                assert!(
+                    outcome.is_fused(),
+                    "{what}: step {n}: {outcome:?} before the gap"
+                );
+            }
+        }
+        let (_, outcome, t, r) = &run[after];
+        if what.starts_with("keyframes") {
+            assert_eq!(*outcome, FrameOutcome::Relocalised, "{what}: after the gap");
+            assert!(
+                *t < 0.03 && *r < 2.0,
+                "{what}: relocalised {t:.3} m, {r:.2}° off"
+            );
+            let fused = run[after..].iter().filter(|x| x.1.is_fused()).count();
+            assert!(
+                fused + 2 >= run.len() - after,
+                "{what}: {fused} fused after the gap"
+            );
+        } else {
+            assert!(
+                outcome.failure().is_some(),
+                "{what}: {outcome:?} after the gap"
+            );
+        }
+    }
+}
