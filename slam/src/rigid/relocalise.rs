@@ -10,9 +10,9 @@
 //!
 //! Both rounds run and the higher inlier fraction wins. A pose is kept only when it passes the
 //! tracker's tests and, away from the last pose, a stricter inlier fraction
-//! ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also the floors of
-//! [`Floors`] on the agreement with the model ([`super::health`]): the recent frames' (local)
-//! and the keyframe's own (global).
+//! ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also floors on its
+//! fit to the model ([`RelocaliseParams::min_fit_ratio`] × the recent frames' fit for the local
+//! round, × the keyframe's own agreement for the global one).
 
 use super::health::Fit;
 use super::keyframes::{Candidate, KeyframeParams, Keyframes};
@@ -49,7 +49,7 @@ pub struct RelocaliseParams {
     pub candidates: usize,
     /// After a break in the stream, and for a track to be kept without facing the
     /// relocaliser, the agreement with the model and the inlier fraction must be at least this
-    /// share of the recent frames' medians (default 0.85; [`super::health`]).
+    /// share of the recent frames' medians (default 0.85).
     pub min_fit_ratio: f64,
     /// Stamps further apart than this many typical frame intervals since the last fused frame
     /// are a break in the stream (default 3).
