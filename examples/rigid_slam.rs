@@ -31,6 +31,7 @@ use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
+use dynamap::slam::rigid::loops::KeyframeGraph;
 use dynamap::slam::rigid::{
     FrameOutcome, FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes,
 };
@@ -55,6 +56,10 @@ struct Args {
     /// Where to write the fused mesh (binary PLY).
     #[arg(long)]
     mesh: Option<PathBuf>,
+    /// Where to write the keyframes' pose graph (g2o text: odometry and the loops found, the
+    /// vertices at the graph's optimum, loops under DCS), solved after the run.
+    #[arg(long)]
+    graph: Option<PathBuf>,
     /// Where to write a PNG of the fused model raycast from the last pose (shaded by its normals).
     #[arg(long)]
     render: Option<PathBuf>,
@@ -453,6 +458,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(m) = &args.mesh {
         ply::write(m, &slam.volume().extract_mesh())?;
     }
+    if let Some(path) = &args.graph {
+        // the background solver's newest solution warm-starts the final solve
+        let warm = slam.finish_graph()?.map(|o| o.poses.clone());
+        write_graph(slam.keyframe_graph(), warm.as_ref(), path)?;
+    }
+    let graph = slam.keyframe_graph();
     if let Some(png) = &args.render {
         let mut maps = RaycastMaps::new();
         slam.volume().raycast(&camera, &slam.pose(), &mut maps);
@@ -504,6 +515,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         serde_json::json!({
             "frames": processed, "seconds": seconds, "fps": processed as f64 / seconds, "failures": failures,
             "skipped": skipped, "tracked": trajectory.len(), "relocalised": relocalised,
+            "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
             "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
             "ms_per_frame": {"read": k(read_seconds), "preprocess": k(totals.preprocess), "track": k(totals.track),
                              "integrate": k(totals.integrate), "raycast": k(totals.raycast)},
@@ -516,4 +528,35 @@ fn run(args: Args, session: &Session) -> Result<()> {
         return Err(cli::Interrupted.into());
     }
     logged
+}
+
+/// Solves the keyframes' pose graph and writes it as g2o; a solve that does not converge is
+/// written all the same (its poses are the last iterate) and said.
+fn write_graph(
+    graph: &KeyframeGraph,
+    warm: Option<&std::collections::BTreeMap<usize, Isometry3<f64>>>,
+    path: &std::path::Path,
+) -> Result<()> {
+    if graph.graph().vertices.is_empty() {
+        bail!(
+            "no keyframe was kept: no pose graph to write to {}",
+            path.display()
+        );
+    }
+    let solved = graph.optimise(warm)?;
+    if !solved.converged {
+        tracing::warn!(
+            "the keyframe graph did not converge in {} iterations; {} holds the last iterate",
+            solved.iterations,
+            path.display()
+        );
+    }
+    let off = solved.loop_weights.iter().filter(|w| w.2 < 0.5).count();
+    tracing::info!(
+        "keyframe graph: {} keyframes, {} loops ({off} switched off by DCS)",
+        solved.poses.len(),
+        solved.loop_weights.len()
+    );
+    graph.write_g2o(path, &solved.poses)?;
+    Ok(())
 }

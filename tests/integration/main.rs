@@ -16,6 +16,7 @@ mod cli;
 mod faults;
 mod g2o_files;
 mod kinect;
+mod loops;
 mod nonrigid;
 mod relocalise;
 mod rigid;

@@ -230,6 +230,17 @@ impl PoseGraph {
         poses: &BTreeMap<usize, Pose>,
         kernel: Option<NamedKernel>,
     ) -> Result<PoseGraphProblem, String> {
+        self.build_problem_with(poses, |_| kernel)
+    }
+
+    /// As [`Self::build_problem`], with the kernel `kernel_of(edge)` on each edge: e.g. plain
+    /// odometry beside loop closures under DCS (Agarwal et al. 2013), so that a wrong loop is
+    /// switched off without weakening the odometry.
+    pub fn build_problem_with(
+        &self,
+        poses: &BTreeMap<usize, Pose>,
+        kernel_of: impl Fn(&Edge) -> Option<NamedKernel>,
+    ) -> Result<PoseGraphProblem, String> {
         if let Some((line, v)) = self.missing_in(poses).first() {
             return Err(format!(
                 "{}:{line}: the edge refers to vertex {v}, which has no pose \
@@ -267,7 +278,7 @@ impl PoseGraph {
                         )
                     })?;
                     let r = Box::new(Between2::new(*z, u));
-                    problem.add_block(r, kernel.map(boxed), &pair)
+                    problem.add_block(r, kernel_of(e).map(boxed), &pair)
                 }
                 Measurement::Se3 { z, information } => {
                     let u = sqrt_information(information).ok_or_else(|| {
@@ -277,7 +288,7 @@ impl PoseGraph {
                         )
                     })?;
                     let r = Box::new(Between3::new(*z, u));
-                    problem.add_block(r, kernel.map(boxed), &pair)
+                    problem.add_block(r, kernel_of(e).map(boxed), &pair)
                 }
             };
             added.map_err(|err| format!("{}:{}: {err}", self.source, e.line))?;

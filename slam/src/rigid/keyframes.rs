@@ -284,12 +284,18 @@ impl Keyframes {
         let Some(ferns) = &self.ferns else {
             return Vec::new();
         };
-        let code = ferns.code(color, depth);
-        let mut ranked: Vec<(f64, usize)> = self
-            .frames
+        self.nearest_code(&ferns.code(color, depth), self.frames.len(), count)
+    }
+}
+
+impl Keyframes {
+    /// The indices of the `count` keyframes among the first `limit` whose codes are nearest
+    /// `code`, nearest first.
+    pub fn nearest_code(&self, code: &[u8], limit: usize, count: usize) -> Vec<usize> {
+        let mut ranked: Vec<(f64, usize)> = self.frames[..limit.min(self.frames.len())]
             .iter()
             .enumerate()
-            .map(|(k, f)| (dissimilarity(&code, &f.code), k))
+            .map(|(k, f)| (dissimilarity(code, &f.code), k))
             .collect();
         ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
         ranked.into_iter().take(count).map(|(_, k)| k).collect()

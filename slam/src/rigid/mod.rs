@@ -6,6 +6,7 @@
 mod color_timing;
 mod health;
 pub mod keyframes;
+pub mod loops;
 mod motion_model;
 pub mod outcome;
 pub mod pipeline;

@@ -7,6 +7,7 @@
 use super::color_timing;
 use super::health::{Fit, Health};
 use super::keyframes::{Candidate, Keyframes};
+use super::loops::{find_loop, BackgroundSolver, KeyframeGraph, LoopError, Optimised};
 use super::motion_model::MotionModel;
 use super::outcome::{FrameOutcome, TrackFailure};
 use super::relocalise::{Floors, LiveFrame, RelocaliseParams, Relocaliser};
@@ -139,6 +140,10 @@ pub struct RigidSlam {
     lost: bool,
     /// Finds a lost track again.
     relocaliser: Relocaliser,
+    /// The keyframes' pose graph with the loops found.
+    loops: KeyframeGraph,
+    /// Solves the graph off the tracking thread whenever a loop is added.
+    graph_solver: BackgroundSolver,
     /// The recent frames' agreements with the model and stamps.
     health: Health,
     /// Frames given to [`Self::process`] and [`Self::process_timed`].
@@ -165,6 +170,7 @@ impl RigidSlam {
     pub fn new(camera: Camera, params: SlamParams, initial_pose: Isometry3<f64>) -> Self {
         let raycast_level = params.raycast_level(&camera);
         let relocaliser = Relocaliser::new(&params.relocalise);
+        let loops = KeyframeGraph::new(params.relocalise.loops.clone());
         Self {
             pre: Preprocessor::new(camera, params.preprocess),
             tracker: Tracker::new(params.tracker.clone()),
@@ -181,6 +187,8 @@ impl RigidSlam {
             frames: 0,
             has_model: false,
             lost: false,
+            loops,
+            graph_solver: BackgroundSolver::new(),
             relocaliser,
             health: Health::default(),
             calls: 0,
@@ -203,6 +211,24 @@ impl RigidSlam {
     /// The map.
     pub fn volume(&self) -> &TsdfVolume {
         &self.volume
+    }
+
+    /// The keyframes' pose graph: odometry between consecutive keyframes and the loops found
+    /// ([`super::loops`]); [`KeyframeGraph::optimise`] solves it.
+    pub fn keyframe_graph(&self) -> &KeyframeGraph {
+        &self.loops
+    }
+
+    /// The newest solution of the keyframe graph that the background solver has finished,
+    /// without waiting for one under way (`None` before the first loop is solved).
+    pub fn graph_solution(&mut self) -> Result<Option<&Optimised>, LoopError> {
+        self.graph_solver.poll()
+    }
+
+    /// Waits for the background solver to finish the graphs handed to it and returns the
+    /// newest solution (`None` when no loop was found).
+    pub fn finish_graph(&mut self) -> Result<Option<&Optimised>, LoopError> {
+        self.graph_solver.finish()
     }
 
     /// The keyframes kept for relocalisation.
@@ -497,8 +523,17 @@ impl RigidSlam {
                 camera: &self.camera,
             };
             let max_depth = self.params.tsdf.max_depth;
-            self.relocaliser
-                .remember(&frame, &self.params.relocalise, max_depth);
+            let p = &self.params.relocalise;
+            if self.relocaliser.remember(&frame, p, max_depth) {
+                self.loops.add_keyframe(self.frames, self.pose);
+                let keys = self.relocaliser.keyframes();
+                if let Some(l) = find_loop(keys, &self.loops.params, &p.features) {
+                    tracing::debug!(from = l.from, to = l.to, inliers = l.inliers, "loop");
+                    if self.loops.add_loop(&l) {
+                        self.graph_solver.submit(&self.loops);
+                    }
+                }
+            }
         }
         Ok(())
     }

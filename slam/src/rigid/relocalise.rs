@@ -16,6 +16,7 @@
 
 use super::health::Fit;
 use super::keyframes::{Candidate, KeyframeParams, Keyframes};
+use super::loops::LoopParams;
 use super::tracker::{ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
 use crate::features::{
@@ -44,6 +45,8 @@ pub struct RelocaliseParams {
     pub features: FeatureParams,
     /// Keyframes for the global round.
     pub keyframes: KeyframeParams,
+    /// Loops between keyframes ([`super::loops`]).
+    pub loops: LoopParams,
     /// Keyframes whose fern codes are nearest the frame's that the global round tries
     /// (default 5).
     pub candidates: usize,
@@ -68,6 +71,7 @@ impl Default for RelocaliseParams {
                 ..FeatureParams::default()
             },
             keyframes: KeyframeParams::default(),
+            loops: LoopParams::default(),
             candidates: 5,
             min_fit_ratio: 0.85,
             gap_intervals: 3.0,
@@ -127,13 +131,18 @@ impl Relocaliser {
     }
 
     /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and
-    /// offers it as a keyframe.
-    pub fn remember(&mut self, frame: &Candidate<'_>, params: &RelocaliseParams, max_depth: f32) {
+    /// offers it as a keyframe; whether it became one.
+    pub fn remember(
+        &mut self,
+        frame: &Candidate<'_>,
+        params: &RelocaliseParams,
+        max_depth: f32,
+    ) -> bool {
         self.key_depth.clone_from(frame.depth);
         if let Some(c) = frame.color {
             self.key_color.clone_from(c);
         }
-        self.keyframes.offer(frame, &params.features, max_depth);
+        self.keyframes.offer(frame, &params.features, max_depth)
     }
 
     /// The live frame's pose: the better of the local and the global rounds' results that pass

@@ -1,0 +1,591 @@
+//! Loop closure over the keyframes: a pose graph whose vertices are the keyframes' poses, with
+//! an odometry edge between consecutive keyframes (the tracked relative pose) and a loop edge
+//! where a keyframe sees a place an older one saw ([`find_loop`]: the fern codes nearest the new
+//! keyframe's among the older ones, BRIEF matches, RANSAC on the 3-D matches).
+//!
+//! Loop edges carry dynamic covariance scaling (Agarwal, Tipaldi, Spinello, Stachniss & Burgard,
+//! *Robust map optimization using dynamic covariance scaling*, ICRA 2013): an edge whose χ² at
+//! the solution is s is weighed by min(1, 2Φ/(Φ + s)), so a wrong loop that the odometry and the
+//! other loops contradict is switched off instead of bending the map. The odometry edges are
+//! plain least squares. The graph is solved by `dynamap-solver` (Levenberg–Marquardt, the first
+//! keyframe held fixed).
+
+use super::keyframes::Keyframes;
+use crate::features::{match_keypoints, ransac_rigid, FeatureParams};
+use dynamap_residuals::pose_graph::{g2o, Dimension, Edge, Measurement, Pose, PoseGraph};
+use dynamap_solver::robust::NamedKernel;
+use dynamap_solver::{Options, Solver};
+use nalgebra::{Isometry3, Matrix6, Vector3};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::sync::mpsc;
+
+/// How loops are found and weighed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopParams {
+    /// A loop joins keyframes taken at least this many frames apart (default 300, 10 s at 30
+    /// Hz): nearer ones are the odometry's business.
+    pub min_frames_apart: usize,
+    /// Older keyframes, nearest by fern code, that a new keyframe is matched against (default 3).
+    pub candidates: usize,
+    /// RANSAC inliers a loop needs (default 30).
+    pub min_inliers: usize,
+    /// DCS's Φ (default 1, as Agarwal et al. recommend for χ² in units of the information).
+    pub dcs_phi: f64,
+    /// Odometry deviation per metre travelled and per radian turned between two keyframes
+    /// (default 0.02: 2 cm a metre, about 1° a radian), plus [`Self::odometry_floor`].
+    pub odometry_drift: f64,
+    /// The odometry deviation's floor: metres, and radians (default 0.002).
+    pub odometry_floor: f64,
+    /// A loop's deviation: this fraction of the keypoints' median depth in translation and as
+    /// radians in rotation (default 0.01: 1.5 cm at 1.5 m, 0.6°).
+    pub loop_deviation: f64,
+}
+
+impl Default for LoopParams {
+    fn default() -> Self {
+        Self {
+            min_frames_apart: 300,
+            candidates: 3,
+            min_inliers: 30,
+            dcs_phi: 1.0,
+            odometry_drift: 0.02,
+            odometry_floor: 0.002,
+            loop_deviation: 0.01,
+        }
+    }
+}
+
+/// A verified loop: keyframe `to` (a frame index) seen from keyframe `from`'s place.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopCandidate {
+    /// The older keyframe's frame index.
+    pub from: usize,
+    /// The newer keyframe's frame index.
+    pub to: usize,
+    /// X_from⁻¹ X_to as the features measured it.
+    pub relative: Isometry3<f64>,
+    /// RANSAC inliers.
+    pub inliers: usize,
+    /// Median depth of the newer keyframe's keypoints, metres.
+    pub depth: f64,
+}
+
+/// Why the graph could not be solved.
+#[derive(Debug, thiserror::Error)]
+pub enum LoopError {
+    /// The graph has no keyframe.
+    #[error("the keyframe graph is empty")]
+    Empty,
+    /// The graph could not be turned into a problem (an information matrix was not positive
+    /// definite, which the deviations above rule out unless they are set to 0).
+    #[error("the keyframe graph could not be built: {0}")]
+    Build(String),
+    /// The solver stopped with an error.
+    #[error("the keyframe graph could not be solved: {0}")]
+    Solve(#[from] dynamap_solver::SolveError),
+}
+
+/// The solved graph.
+#[derive(Clone, Debug)]
+pub struct Optimised {
+    /// Each keyframe's pose by frame index.
+    pub poses: BTreeMap<usize, Isometry3<f64>>,
+    /// Each loop edge (from, to) with its DCS weight at the solution: near 1 kept, near 0
+    /// switched off.
+    pub loop_weights: Vec<(usize, usize, f64)>,
+    /// Whether the solver met a convergence test (not the iteration or time limit).
+    pub converged: bool,
+    /// Iterations taken.
+    pub iterations: usize,
+}
+
+/// The keyframes' pose graph.
+#[derive(Clone, Debug)]
+pub struct KeyframeGraph {
+    /// Settings.
+    pub params: LoopParams,
+    graph: PoseGraph,
+    /// Index in `graph.edges` of each loop edge.
+    loops: Vec<usize>,
+    last: Option<(usize, Isometry3<f64>)>,
+}
+
+impl KeyframeGraph {
+    /// An empty graph.
+    pub fn new(params: LoopParams) -> Self {
+        let mut graph = PoseGraph::new(Dimension::Three);
+        graph.source = String::from("<keyframes>");
+        Self {
+            params,
+            graph,
+            loops: Vec::new(),
+            last: None,
+        }
+    }
+
+    /// The graph as the solver's pose-graph type (vertices at their tracked poses).
+    pub fn graph(&self) -> &PoseGraph {
+        &self.graph
+    }
+
+    /// Number of loop edges.
+    pub fn loop_count(&self) -> usize {
+        self.loops.len()
+    }
+
+    /// Adds keyframe `id` (its frame index) at its tracked pose, joined to the previous one by
+    /// the tracked relative pose. Ids must grow.
+    pub fn add_keyframe(&mut self, id: usize, pose: Isometry3<f64>) {
+        self.graph.vertices.insert(id, Pose::Se3(pose));
+        if let Some((prev, prev_pose)) = self.last {
+            let z = prev_pose.inverse() * pose;
+            let p = &self.params;
+            let sigma_t = p.odometry_drift * z.translation.vector.norm() + p.odometry_floor;
+            let sigma_r = p.odometry_drift * z.rotation.angle() + p.odometry_floor;
+            self.push_edge(prev, id, z, sigma_r, sigma_t);
+        }
+        self.last = Some((id, pose));
+    }
+
+    /// Adds a verified loop (both keyframes must be in the graph); whether it was added.
+    pub fn add_loop(&mut self, c: &LoopCandidate) -> bool {
+        let known = |id| self.graph.vertices.contains_key(&id);
+        let odometry = self
+            .graph
+            .edges
+            .iter()
+            .any(|e| (e.from, e.to) == (c.from, c.to) || (e.from, e.to) == (c.to, c.from));
+        if !known(c.from) || !known(c.to) || c.from == c.to || odometry {
+            return false;
+        }
+        let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
+        let sigma_r = self.params.loop_deviation;
+        self.push_edge(c.from, c.to, c.relative, sigma_r, sigma_t);
+        self.loops.push(self.graph.edges.len() - 1);
+        true
+    }
+
+    fn push_edge(&mut self, from: usize, to: usize, z: Isometry3<f64>, sr: f64, st: f64) {
+        let (wr, wt) = (1.0 / (sr * sr), 1.0 / (st * st));
+        let information = Matrix6::from_diagonal(&nalgebra::Vector6::new(wr, wr, wr, wt, wt, wt));
+        self.graph.edges.push(Edge {
+            from,
+            to,
+            measurement: Measurement::Se3 { z, information },
+            line: 0,
+        });
+    }
+
+    /// Solves the graph from `start` (the last solution, for a warm start; vertices it lacks
+    /// start at their tracked poses), loops under DCS.
+    pub fn optimise(
+        &self,
+        start: Option<&BTreeMap<usize, Isometry3<f64>>>,
+    ) -> Result<Optimised, LoopError> {
+        if self.graph.vertices.is_empty() {
+            return Err(LoopError::Empty);
+        }
+        let poses: BTreeMap<usize, Pose> = self
+            .graph
+            .vertices
+            .iter()
+            .map(|(&id, p)| match start.and_then(|s| s.get(&id)) {
+                Some(x) => (id, Pose::Se3(*x)),
+                None => (id, *p),
+            })
+            .collect();
+        // a loop never joins consecutive keyframes, so its ends tell it from the odometry
+        let loops: BTreeSet<(usize, usize)> = self
+            .loops
+            .iter()
+            .map(|&k| (self.graph.edges[k].from, self.graph.edges[k].to))
+            .collect();
+        let kernel = NamedKernel::Dcs(self.params.dcs_phi);
+        let mut pg = self
+            .graph
+            .build_problem_with(&poses, |e| {
+                loops.contains(&(e.from, e.to)).then_some(kernel)
+            })
+            .map_err(LoopError::Build)?;
+        let mut solver = Solver::new(Options {
+            max_iterations: 100,
+            ..Options::default()
+        });
+        let summary = solver.solve(&mut pg.problem)?;
+        let solved: BTreeMap<usize, Isometry3<f64>> = pg
+            .poses()
+            .into_iter()
+            .filter_map(|(id, p)| match p {
+                Pose::Se3(x) => Some((id, x)),
+                Pose::Se2(_) => None,
+            })
+            .collect();
+        let loop_weights = self.loop_weights(&solved);
+        Ok(Optimised {
+            poses: solved,
+            loop_weights,
+            converged: summary.termination.converged(),
+            iterations: summary.num_iterations(),
+        })
+    }
+
+    /// DCS's weight min(1, 2Φ/(Φ + χ²)) of each loop edge at `poses`.
+    fn loop_weights(&self, poses: &BTreeMap<usize, Isometry3<f64>>) -> Vec<(usize, usize, f64)> {
+        let phi = self.params.dcs_phi;
+        self.loops
+            .iter()
+            .map(|&k| {
+                let e = &self.graph.edges[k];
+                let Measurement::Se3 { z, information } = &e.measurement else {
+                    unreachable!("a keyframe graph holds SE(3) edges only")
+                };
+                let r = dynamap_solver::lie::se3::log(
+                    &(z.inverse() * poses[&e.from].inverse() * poses[&e.to]),
+                );
+                let chi2 = (r.transpose() * information * r)[0];
+                (e.from, e.to, (2.0 * phi / (phi + chi2)).min(1.0))
+            })
+            .collect()
+    }
+
+    /// Writes the graph as g2o text (VERTEX_SE3:QUAT at `poses`, EDGE_SE3:QUAT), through a
+    /// temporary file renamed into place.
+    pub fn write_g2o(
+        &self,
+        path: impl AsRef<Path>,
+        poses: &BTreeMap<usize, Isometry3<f64>>,
+    ) -> Result<(), g2o::G2oError> {
+        let poses = poses.iter().map(|(&id, x)| (id, Pose::Se3(*x))).collect();
+        g2o::write(path, &self.graph, &poses)
+    }
+}
+
+/// Solves keyframe graphs on a thread of its own, so that tracking never waits for a solve:
+/// [`Self::submit`] hands over a copy of the graph (a newer one supersedes those not yet
+/// started), [`Self::poll`] takes the newest solution without blocking, and each solve starts
+/// from the last solution (a warm start: keyframes it lacks start at their tracked poses).
+#[derive(Debug)]
+pub struct BackgroundSolver {
+    jobs: Option<mpsc::Sender<KeyframeGraph>>,
+    results: mpsc::Receiver<Solved>,
+    worker: Option<std::thread::JoinHandle<()>>,
+    /// Graphs submitted and not yet answered (superseded ones are answered as such).
+    pending: usize,
+    latest: Option<Optimised>,
+}
+
+/// What the worker sends back for each graph it took: the graphs it skipped for a newer one,
+/// and the newest one's solution.
+type Solved = (usize, Result<Optimised, LoopError>);
+
+impl Default for BackgroundSolver {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl BackgroundSolver {
+    /// Starts the worker thread.
+    pub fn new() -> Self {
+        let (jobs, inbox) = mpsc::channel::<KeyframeGraph>();
+        let (outbox, results) = mpsc::channel::<Solved>();
+        let worker = std::thread::spawn(move || {
+            let mut warm: Option<BTreeMap<usize, Isometry3<f64>>> = None;
+            while let Ok(mut graph) = inbox.recv() {
+                let mut skipped = 0;
+                while let Ok(newer) = inbox.try_recv() {
+                    graph = newer;
+                    skipped += 1;
+                }
+                let solved = graph.optimise(warm.as_ref());
+                if let Ok(o) = &solved {
+                    warm = Some(o.poses.clone());
+                }
+                if outbox.send((skipped, solved)).is_err() {
+                    break;
+                }
+            }
+        });
+        Self {
+            jobs: Some(jobs),
+            results,
+            worker: Some(worker),
+            pending: 0,
+            latest: None,
+        }
+    }
+
+    /// Hands a copy of `graph` to the worker.
+    pub fn submit(&mut self, graph: &KeyframeGraph) {
+        if let Some(jobs) = &self.jobs {
+            if jobs.send(graph.clone()).is_ok() {
+                self.pending += 1;
+            }
+        }
+    }
+
+    /// Takes what the worker has finished, without waiting; the newest solution so far. A
+    /// failed solve is returned as such and the last good solution kept.
+    pub fn poll(&mut self) -> Result<Option<&Optimised>, LoopError> {
+        let mut failure = None;
+        while let Ok(solved) = self.results.try_recv() {
+            failure = self.absorb(solved).or(failure);
+        }
+        self.answer(failure)
+    }
+
+    /// Waits for every submitted graph and returns the newest solution.
+    pub fn finish(&mut self) -> Result<Option<&Optimised>, LoopError> {
+        let mut failure = None;
+        while self.pending > 0 {
+            let Ok(solved) = self.results.recv() else {
+                break;
+            };
+            failure = self.absorb(solved).or(failure);
+        }
+        self.answer(failure)
+    }
+
+    /// Counts one answer off and keeps its solution; its error, if it failed.
+    fn absorb(&mut self, (skipped, solved): Solved) -> Option<LoopError> {
+        self.pending = self.pending.saturating_sub(skipped + 1);
+        match solved {
+            Ok(o) => {
+                self.latest = Some(o);
+                None
+            }
+            Err(e) => Some(e),
+        }
+    }
+
+    fn answer(&self, failure: Option<LoopError>) -> Result<Option<&Optimised>, LoopError> {
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(self.latest.as_ref()),
+        }
+    }
+
+    /// Graphs submitted and not yet solved.
+    pub fn pending(&self) -> usize {
+        self.pending
+    }
+}
+
+impl Drop for BackgroundSolver {
+    fn drop(&mut self) {
+        // closing the queue ends the worker's loop
+        self.jobs = None;
+        if let Some(w) = self.worker.take() {
+            let _ = w.join();
+        }
+    }
+}
+
+/// Looks for a loop from the newest keyframe to an older one at least
+/// [`LoopParams::min_frames_apart`] frames back: the [`LoopParams::candidates`] nearest by
+/// fern code are matched by features and the best RANSAC fit with enough inliers wins.
+pub fn find_loop(
+    keyframes: &Keyframes,
+    params: &LoopParams,
+    features: &FeatureParams,
+) -> Option<LoopCandidate> {
+    let frames = keyframes.frames();
+    let new = frames.last()?;
+    let apart = params.min_frames_apart.max(1);
+    let limit = frames.partition_point(|f| f.frame + apart <= new.frame);
+    let mut best: Option<LoopCandidate> = None;
+    for k in keyframes.nearest_code(&new.code, limit, params.candidates) {
+        let old = &frames[k];
+        let pairs = match_keypoints(&new.keypoints, &old.keypoints, features);
+        let src: Vec<Vector3<f64>> = pairs
+            .iter()
+            .map(|&(i, _)| new.keypoints.points[i])
+            .collect();
+        let dst: Vec<Vector3<f64>> = pairs
+            .iter()
+            .map(|&(_, j)| old.keypoints.points[j])
+            .collect();
+        let Some(fit) = ransac_rigid(&src, &dst, features) else {
+            continue;
+        };
+        let inliers = fit.inlier_count();
+        if inliers < params.min_inliers || best.as_ref().is_some_and(|b| b.inliers >= inliers) {
+            continue;
+        }
+        best = Some(LoopCandidate {
+            from: old.frame,
+            to: new.frame,
+            relative: fit.motion,
+            inliers,
+            depth: median_z(&src),
+        });
+    }
+    best
+}
+
+/// The median z of the points (0 when there are none).
+fn median_z(points: &[Vector3<f64>]) -> f64 {
+    let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
+    if z.is_empty() {
+        return 0.0;
+    }
+    let mid = z.len() / 2;
+    *z.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// `n` keyframes around a circle of radius 1.5 m, camera looking inwards.
+    fn circle(n: usize) -> Vec<Isometry3<f64>> {
+        (0..n)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / n as f64;
+                let at = Translation3::new(1.5 * a.cos(), 1.5 * a.sin(), 0.0);
+                at * UnitQuaternion::from_scaled_axis(Vector3::z() * (a + 1.0))
+            })
+            .collect()
+    }
+
+    /// The truth with a drift per step, a turn about z and a shift, of about an eighth of the
+    /// odometry deviation the defaults give a step of this circle (6.7 mm, 5 mrad), always the
+    /// same way: over the 39 steps about as far as the deviations' random walk (√39 ≈ 6 steps'
+    /// worth) reaches, so the chain's claimed uncertainty is honest and the loop must take the
+    /// drift out.
+    fn drifted(truth: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
+        let error = Isometry3::new(Vector3::new(0.0008, -0.0004, 0.0002), Vector3::z() * 0.0006);
+        let mut out = vec![truth[0]];
+        for w in truth.windows(2) {
+            let step = w[0].inverse() * w[1];
+            out.push(out.last().unwrap() * step * error);
+        }
+        out
+    }
+
+    fn worst(poses: &BTreeMap<usize, Isometry3<f64>>, truth: &[Isometry3<f64>]) -> f64 {
+        truth
+            .iter()
+            .enumerate()
+            .map(|(k, t)| (poses[&k].translation.vector - t.translation.vector).norm())
+            .fold(0.0, f64::max)
+    }
+
+    fn graph(truth: &[Isometry3<f64>], params: LoopParams) -> KeyframeGraph {
+        let mut g = KeyframeGraph::new(params);
+        for (k, x) in drifted(truth).into_iter().enumerate() {
+            g.add_keyframe(k, x);
+        }
+        g
+    }
+
+    fn true_loop(truth: &[Isometry3<f64>], from: usize, to: usize) -> LoopCandidate {
+        LoopCandidate {
+            from,
+            to,
+            relative: truth[from].inverse() * truth[to],
+            inliers: 100,
+            depth: 1.5,
+        }
+    }
+
+    #[test]
+    fn a_true_loop_takes_the_drift_out_of_a_circle() {
+        let truth = circle(40);
+        let mut g = graph(&truth, LoopParams::default());
+        let open = g.optimise(None).unwrap();
+        let before = worst(&open.poses, &truth);
+        assert!(g.add_loop(&true_loop(&truth, 0, 39)));
+        assert!(!g.add_loop(&true_loop(&truth, 38, 39)), "an odometry pair");
+        let closed = g.optimise(None).unwrap();
+        let after = worst(&closed.poses, &truth);
+        assert!(closed.converged, "{closed:?}");
+        assert!(before > 0.03 && after < 0.3 * before, "{before} → {after}");
+        assert!(closed.loop_weights[0].2 > 0.5, "{:?}", closed.loop_weights);
+        // a warm start from the solution ends where it starts
+        let again = g.optimise(Some(&closed.poses)).unwrap();
+        assert!(again.iterations <= 2, "{} iterations", again.iterations);
+    }
+
+    #[test]
+    fn a_false_loop_is_switched_off_and_does_not_bend_the_map() {
+        let truth = circle(40);
+        let solve = |params: LoopParams| {
+            let mut g = graph(&truth, params);
+            g.add_loop(&true_loop(&truth, 0, 39));
+            g.add_loop(&true_loop(&truth, 5, 30));
+            // keyframes 10 and 30 are 3 m apart; the loop says they coincide
+            g.add_loop(&LoopCandidate {
+                relative: Isometry3::identity(),
+                ..true_loop(&truth, 10, 30)
+            });
+            g.optimise(None).unwrap()
+        };
+        let dcs = solve(LoopParams::default());
+        let weights: Vec<f64> = dcs.loop_weights.iter().map(|w| w.2).collect();
+        assert!(
+            weights[0] > 0.5 && weights[1] > 0.5 && weights[2] < 0.01,
+            "{weights:?}"
+        );
+        assert!(
+            worst(&dcs.poses, &truth) < 0.02,
+            "{}",
+            worst(&dcs.poses, &truth)
+        );
+        // without the switch (Φ so large that every weight is 1) the false loop bends the map
+        let plain = solve(LoopParams {
+            dcs_phi: 1e12,
+            ..LoopParams::default()
+        });
+        assert!(
+            worst(&plain.poses, &truth) > 0.5,
+            "{}",
+            worst(&plain.poses, &truth)
+        );
+    }
+
+    #[test]
+    fn the_graph_is_written_as_g2o_and_read_back() {
+        let truth = circle(12);
+        let mut g = graph(&truth, LoopParams::default());
+        g.add_loop(&true_loop(&truth, 0, 11));
+        let solved = g.optimise(None).unwrap();
+        let path = std::env::temp_dir().join(format!("keyframes-{}.g2o", std::process::id()));
+        g.write_g2o(&path, &solved.poses).unwrap();
+        let back = g2o::read(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(back.vertices.len(), 12);
+        assert_eq!(back.edges.len(), 12);
+        let Pose::Se3(x) = &back.vertices[&7] else {
+            panic!("not SE(3)")
+        };
+        assert!((x.translation.vector - solved.poses[&7].translation.vector).norm() < 1e-6);
+    }
+
+    #[test]
+    fn the_background_solver_answers_the_newest_graph_and_warm_starts() {
+        let truth = circle(40);
+        let mut g = graph(&truth, LoopParams::default());
+        let mut worker = BackgroundSolver::new();
+        worker.submit(&g);
+        g.add_loop(&true_loop(&truth, 0, 39));
+        worker.submit(&g);
+        let solved = worker.finish().unwrap().unwrap().clone();
+        assert_eq!(worker.pending(), 0);
+        assert_eq!(solved.loop_weights.len(), 1, "the newest graph's solution");
+        assert!(worst(&solved.poses, &truth) < 0.02);
+        // the same graph again starts at its solution
+        worker.submit(&g);
+        let again = worker.finish().unwrap().unwrap();
+        assert!(again.iterations <= 2, "{} iterations", again.iterations);
+        assert!(worker.poll().unwrap().is_some());
+    }
+
+    #[test]
+    fn an_empty_graph_is_an_error() {
+        let g = KeyframeGraph::new(LoopParams::default());
+        assert!(matches!(g.optimise(None), Err(LoopError::Empty)));
+    }
+}
