@@ -458,10 +458,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(m) = &args.mesh {
         ply::write(m, &slam.volume().extract_mesh())?;
     }
+    let mut graph_converged = None;
     if let Some(path) = &args.graph {
         // the background solver's newest solution warm-starts the final solve
         let warm = slam.finish_graph()?.map(|o| o.poses.clone());
-        write_graph(slam.keyframe_graph(), warm.as_ref(), path)?;
+        graph_converged = Some(write_graph(slam.keyframe_graph(), warm.as_ref(), path)?);
     }
     let graph = slam.keyframe_graph();
     if let Some(png) = &args.render {
@@ -516,6 +517,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "frames": processed, "seconds": seconds, "fps": processed as f64 / seconds, "failures": failures,
             "skipped": skipped, "tracked": trajectory.len(), "relocalised": relocalised,
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
+            "graph_converged": graph_converged,
             "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
             "ms_per_frame": {"read": k(read_seconds), "preprocess": k(totals.preprocess), "track": k(totals.track),
                              "integrate": k(totals.integrate), "raycast": k(totals.raycast)},
@@ -530,13 +532,14 @@ fn run(args: Args, session: &Session) -> Result<()> {
     logged
 }
 
-/// Solves the keyframes' pose graph and writes it as g2o; a solve that does not converge is
-/// written all the same (its poses are the last iterate) and said.
+/// Solves the keyframes' pose graph and writes it as g2o; whether the solve converged. One that
+/// did not is written all the same (its poses are the last iterate), warned of, and reported as
+/// `graph_converged: false` in the JSON line.
 fn write_graph(
     graph: &KeyframeGraph,
     warm: Option<&std::collections::BTreeMap<usize, Isometry3<f64>>>,
     path: &std::path::Path,
-) -> Result<()> {
+) -> Result<bool> {
     if graph.graph().vertices.is_empty() {
         bail!(
             "no keyframe was kept: no pose graph to write to {}",
@@ -558,5 +561,5 @@ fn write_graph(
         solved.loop_weights.len()
     );
     graph.write_g2o(path, &solved.poses)?;
-    Ok(())
+    Ok(solved.converged)
 }

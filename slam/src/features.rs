@@ -321,6 +321,36 @@ pub struct FrameMatches {
     pub matches: usize,
 }
 
+/// The matches of two keypoint sets and the rigid motion RANSAC fits to them.
+#[derive(Clone, Debug)]
+pub struct KeypointFit {
+    /// Source points of every match (camera frame).
+    pub source: Vec<Vector3<f64>>,
+    /// Their partners in the target.
+    pub target: Vec<Vector3<f64>>,
+    /// The fit: motion from the source's camera frame to the target's, and each match's
+    /// inlier flag.
+    pub fit: RigidFit,
+}
+
+/// Matches `source`'s keypoints to `target`'s and fits a rigid motion to the 3D matches: `None`
+/// when too few matches agree on one.
+pub fn fit_keypoints(
+    source: &Keypoints,
+    target: &Keypoints,
+    params: &FeatureParams,
+) -> Option<KeypointFit> {
+    let pairs = match_keypoints(source, target, params);
+    let src: Vec<Vector3<f64>> = pairs.iter().map(|&(i, _)| source.points[i]).collect();
+    let dst: Vec<Vector3<f64>> = pairs.iter().map(|&(_, j)| target.points[j]).collect();
+    let fit = ransac_rigid(&src, &dst, params)?;
+    Some(KeypointFit {
+        source: src,
+        target: dst,
+        fit,
+    })
+}
+
 /// Detects, matches and fits: `None` when too few matches agree on a rigid motion.
 pub fn match_frames(
     source: &FeatureFrame<'_>,
@@ -328,23 +358,20 @@ pub fn match_frames(
     params: &FeatureParams,
 ) -> Option<FrameMatches> {
     let (ka, kb) = (detect(source, params), detect(target, params));
-    let pairs = match_keypoints(&ka, &kb, params);
-    let src: Vec<Vector3<f64>> = pairs.iter().map(|&(i, _)| ka.points[i]).collect();
-    let dst: Vec<Vector3<f64>> = pairs.iter().map(|&(_, j)| kb.points[j]).collect();
-    let fit = ransac_rigid(&src, &dst, params)?;
+    let m = fit_keypoints(&ka, &kb, params)?;
     let keep = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
         v.iter()
-            .zip(&fit.inliers)
+            .zip(&m.fit.inliers)
             .filter(|(_, &k)| k)
             .map(|(p, _)| *p)
             .collect()
     };
     Some(FrameMatches {
-        source: keep(&src),
-        target: keep(&dst),
-        motion: fit.motion,
+        source: keep(&m.source),
+        target: keep(&m.target),
+        motion: m.fit.motion,
         keypoints: (ka.len(), kb.len()),
-        matches: pairs.len(),
+        matches: m.source.len(),
     })
 }
 

@@ -84,6 +84,7 @@ fn rigid_slam_writes_its_keyframe_graph_as_g2o() {
     let loops = json["loops"].as_u64().unwrap() as usize;
     let graph = dynamap::residuals::pose_graph::g2o::read(&path).unwrap();
     assert!(keyframes >= 2, "{json}");
+    assert_eq!(json["graph_converged"], true, "{json}");
     assert_eq!(graph.vertices.len(), keyframes);
     assert_eq!(graph.edges.len(), keyframes - 1 + loops);
     let _ = std::fs::remove_dir_all(&dir);

@@ -103,7 +103,12 @@ fn median(q: &VecDeque<f64>) -> Option<f64> {
     if q.len() < MIN_FRAMES {
         return None;
     }
-    let mut v: Vec<f64> = q.iter().copied().collect();
+    // at most WINDOW values: sorted on the stack
+    let mut v = [0.0; WINDOW];
+    let v = &mut v[..q.len()];
+    for (slot, x) in v.iter_mut().zip(q) {
+        *slot = *x;
+    }
     let mid = v.len() / 2;
     Some(*v.select_nth_unstable_by(mid, f64::total_cmp).1)
 }

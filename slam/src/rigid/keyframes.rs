@@ -198,6 +198,8 @@ pub struct Keyframes {
     pub params: KeyframeParams,
     ferns: Option<Ferns>,
     frames: Vec<Keyframe>,
+    /// Depth samples of the offered frame, kept to spare an allocation per frame.
+    samples: Vec<f32>,
 }
 
 /// A fused frame offered as a keyframe.
@@ -223,6 +225,7 @@ impl Keyframes {
             params,
             ferns: None,
             frames: Vec::new(),
+            samples: Vec::new(),
         }
     }
 
@@ -235,7 +238,7 @@ impl Keyframes {
     /// [`KeyframeParams::min_shift`]) and has colour to describe it; whether it was kept.
     pub fn offer(&mut self, c: &Candidate<'_>, features: &FeatureParams, max_depth: f32) -> bool {
         let Some(color) = c.color else { return false };
-        let shift = self.params.min_shift * median_depth(c.depth);
+        let shift = self.params.min_shift * median_depth(c.depth, &mut self.samples);
         let turn = self.params.min_turn_deg.to_radians();
         let near = |k: &Keyframe| {
             let d = k.pose.inverse() * c.pose;
@@ -302,15 +305,18 @@ impl Keyframes {
     }
 }
 
-/// The median of a depth image's valid values (0 when there are none).
-fn median_depth(depth: &DepthImage) -> f64 {
-    let mut z: Vec<f32> = depth
-        .data
-        .iter()
-        .step_by(7)
-        .copied()
-        .filter(|d| *d > 0.0 && d.is_finite())
-        .collect();
+/// The median of a depth image's valid values, sampled every 7th pixel into `z` (0 when there
+/// are none).
+fn median_depth(depth: &DepthImage, z: &mut Vec<f32>) -> f64 {
+    z.clear();
+    z.extend(
+        depth
+            .data
+            .iter()
+            .step_by(7)
+            .copied()
+            .filter(|d| *d > 0.0 && d.is_finite()),
+    );
     if z.is_empty() {
         return 0.0;
     }

@@ -11,7 +11,7 @@
 //! keyframe held fixed).
 
 use super::keyframes::Keyframes;
-use crate::features::{match_keypoints, ransac_rigid, FeatureParams};
+use crate::features::{fit_keypoints, FeatureParams};
 use dynamap_residuals::pose_graph::{g2o, Dimension, Edge, Measurement, Pose, PoseGraph};
 use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{Options, Solver};
@@ -397,28 +397,19 @@ pub fn find_loop(
     let mut best: Option<LoopCandidate> = None;
     for k in keyframes.nearest_code(&new.code, limit, params.candidates) {
         let old = &frames[k];
-        let pairs = match_keypoints(&new.keypoints, &old.keypoints, features);
-        let src: Vec<Vector3<f64>> = pairs
-            .iter()
-            .map(|&(i, _)| new.keypoints.points[i])
-            .collect();
-        let dst: Vec<Vector3<f64>> = pairs
-            .iter()
-            .map(|&(_, j)| old.keypoints.points[j])
-            .collect();
-        let Some(fit) = ransac_rigid(&src, &dst, features) else {
+        let Some(m) = fit_keypoints(&new.keypoints, &old.keypoints, features) else {
             continue;
         };
-        let inliers = fit.inlier_count();
+        let inliers = m.fit.inlier_count();
         if inliers < params.min_inliers || best.as_ref().is_some_and(|b| b.inliers >= inliers) {
             continue;
         }
         best = Some(LoopCandidate {
             from: old.frame,
             to: new.frame,
-            relative: fit.motion,
+            relative: m.fit.motion,
             inliers,
-            depth: median_z(&src),
+            depth: median_z(&m.source),
         });
     }
     best

@@ -398,10 +398,10 @@ impl RigidSlam {
 
     /// Finds the frame's pose. After a break in the stream (the track was lost, or the stamps
     /// skip more than [`RelocaliseParams::gap_intervals`] frame intervals) every start of the
-    /// relocaliser competes and the winner must look like the recent frames (an agreement with
-    /// the model of [`RelocaliseParams::min_agreement_ratio`] × theirs); otherwise the frame is
-    /// tracked from `start`, and a track that fails or falls below that agreement faces the
-    /// relocaliser, the higher inlier fraction kept. Sets the pose, the report's outcome, inliers and
+    /// relocaliser competes and the winner must look like the recent frames (the floors of
+    /// [`RelocaliseParams::min_fit_ratio`] × their fit); otherwise the frame is tracked from
+    /// `start`, and a track that fails or falls below either floor faces the relocaliser, the
+    /// higher inlier fraction kept. Sets the pose, the report's outcome, inliers and
     /// conditioning; on success, the exposure fit (a, b) to fuse the colour with.
     fn locate(
         &mut self,
@@ -437,7 +437,7 @@ impl RigidSlam {
             }
         } else {
             let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
-            let fraction = fraction_of(&tracked);
+            let fraction = tracked.inlier_fraction();
             let doubtful = tracked.failure.is_some()
                 || tracked.agreement < expected.agreement
                 || fraction < expected.fraction;
@@ -446,7 +446,7 @@ impl RigidSlam {
                 .then(|| self.relocalise(color, Floors::default()))
                 .flatten()
             {
-                Some(found) if tracked.failure.is_some() || fraction_of(&found) > fraction => {
+                Some(found) if tracked.failure.is_some() || found.inlier_fraction() > fraction => {
                     (found, true)
                 }
                 _ => (tracked, false),
@@ -455,7 +455,7 @@ impl RigidSlam {
         self.lost = outcome.failure.is_some();
         self.pose = outcome.pose;
         report.inliers = outcome.inliers;
-        report.inlier_fraction = fraction_of(&outcome);
+        report.inlier_fraction = outcome.inlier_fraction();
         report.agreement = outcome.agreement;
         if relocalised {
             report.outcome = FrameOutcome::Relocalised;
@@ -569,11 +569,6 @@ impl RigidSlam {
             "rigid frame"
         );
     }
-}
-
-/// Inliers over valid pixels of a track.
-fn fraction_of(o: &TrackOutcome) -> f64 {
-    o.inliers as f64 / o.valid_pixels.max(1) as f64
 }
 
 /// `out` = a c + 255 b per channel of `c`, rounded and clamped to 8 bits: a colour image mapped

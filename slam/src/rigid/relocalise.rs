@@ -19,9 +19,7 @@ use super::keyframes::{Candidate, KeyframeParams, Keyframes};
 use super::loops::LoopParams;
 use super::tracker::{ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
-use crate::features::{
-    detect, match_frames, match_keypoints, ransac_rigid, FeatureFrame, FeatureParams,
-};
+use crate::features::{detect, fit_keypoints, FeatureFrame, FeatureParams, Keypoints};
 use crate::image::{ColorImage, DepthImage};
 use crate::preprocess::Level;
 use crate::tsdf::{RaycastMaps, TsdfVolume};
@@ -159,10 +157,30 @@ impl Relocaliser {
         floors: Floors,
         frame: usize,
     ) -> Option<TrackOutcome> {
-        let local = self.local(params, tracker, map, live, last, floors.local, frame);
-        let global = self.global(params, tracker, map.0, live, floors.keyframe_ratio, frame);
+        // the live frame's keypoints, detected once for both rounds
+        let keypoints = live.color.map(|color| {
+            let now = FeatureFrame {
+                color,
+                depth: &live.levels[0].depth,
+                camera: live.camera,
+                mask: None,
+            };
+            detect(&now, &params.features)
+        });
+        let keypoints = keypoints.as_ref();
+        let local = self.local(
+            params,
+            tracker,
+            map,
+            (live, keypoints),
+            last,
+            floors.local,
+            frame,
+        );
+        let ratio = floors.keyframe_ratio;
+        let global = self.global(params, tracker, map.0, (live, keypoints), ratio, frame);
         match (local, global) {
-            (Some(a), Some(b)) => Some(if inlier_fraction(&b) > inlier_fraction(&a) {
+            (Some(a), Some(b)) => Some(if b.inlier_fraction() > a.inlier_fraction() {
                 b
             } else {
                 a
@@ -179,15 +197,15 @@ impl Relocaliser {
         params: &RelocaliseParams,
         tracker: &mut Tracker,
         (volume, model): (&TsdfVolume, &ModelPyramid),
-        live: &LiveFrame<'_>,
+        (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
         last: Isometry3<f64>,
         floor: Fit,
         frame: usize,
     ) -> Option<TrackOutcome> {
-        let (starts, from_features) = self.starts(params, live, last);
+        let (starts, from_features) = self.starts(params, live.camera, keypoints, last);
         let (screened, k, pose) = screen(tracker, model, live.levels, &starts)?;
         let o = self.verify(tracker, volume, live, &pose);
-        let fraction = inlier_fraction(&o);
+        let fraction = o.inlier_fraction();
         tracing::debug!(
             frame,
             candidates = starts.len(),
@@ -219,47 +237,32 @@ impl Relocaliser {
         params: &RelocaliseParams,
         tracker: &mut Tracker,
         volume: &TsdfVolume,
-        live: &LiveFrame<'_>,
+        (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
         ratio: f64,
         frame: usize,
     ) -> Option<TrackOutcome> {
-        let color = live.color?;
+        let (color, keypoints) = live.color.zip(keypoints)?;
         let depth = &live.levels[0].depth;
         let nearest = self
             .keyframes
             .nearest(Some(color), depth, params.candidates);
-        if nearest.is_empty() {
-            return None;
-        }
-        let now = FeatureFrame {
-            color,
-            depth,
-            camera: live.camera,
-            mask: None,
-        };
-        let keypoints = detect(&now, &params.features);
         let mut best: Option<(f64, TrackOutcome)> = None;
         for k in nearest {
             let key = &self.keyframes.frames()[k];
-            let pairs = match_keypoints(&keypoints, &key.keypoints, &params.features);
-            let src: Vec<Vector3<f64>> = pairs.iter().map(|&(i, _)| keypoints.points[i]).collect();
-            let dst: Vec<Vector3<f64>> = pairs
-                .iter()
-                .map(|&(_, j)| key.keypoints.points[j])
-                .collect();
-            let Some(fit) = ransac_rigid(&src, &dst, &params.features) else {
+            let Some(m) = fit_keypoints(keypoints, &key.keypoints, &params.features) else {
                 continue;
             };
+            let fit = m.fit;
             // live points map into the keyframe: T_live = T_key · M
             let start = key.pose * fit.motion;
             let keyframe = key.frame;
             let floor = ratio * key.agreement.unwrap_or(0.0);
             let o = self.verify(tracker, volume, live, &start);
-            let fraction = inlier_fraction(&o);
+            let fraction = o.inlier_fraction();
             tracing::debug!(
                 frame,
                 keyframe,
-                matches = pairs.len(),
+                matches = m.source.len(),
                 inliers = fit.inlier_count(),
                 fraction,
                 agreement = o.agreement,
@@ -304,28 +307,24 @@ impl Relocaliser {
     fn starts(
         &self,
         p: &RelocaliseParams,
-        live: &LiveFrame<'_>,
+        camera: &Camera,
+        keypoints: Option<&Keypoints>,
         last: Isometry3<f64>,
     ) -> (Vec<Isometry3<f64>>, Option<usize>) {
         let mut starts = vec![last];
         let mut from_features = None;
-        if let Some(c) = live.color.filter(|_| !self.key_color.data.is_empty()) {
-            let now = FeatureFrame {
-                color: c,
-                depth: &live.levels[0].depth,
-                camera: live.camera,
-                mask: None,
-            };
+        if let Some(now) = keypoints.filter(|_| !self.key_color.data.is_empty()) {
             let key = FeatureFrame {
                 color: &self.key_color,
                 depth: &self.key_depth,
-                camera: live.camera,
+                camera,
                 mask: None,
             };
-            if let Some(m) = match_frames(&now, &key, &p.features) {
+            let key = detect(&key, &p.features);
+            if let Some(m) = fit_keypoints(now, &key, &p.features) {
                 // live points map into the key frame: T_live = T_key · M
                 from_features = Some(starts.len());
-                starts.push(last * m.motion);
+                starts.push(last * m.fit.motion);
             }
         }
         for &d in &p.shifts {
@@ -347,11 +346,6 @@ impl Relocaliser {
     }
 }
 
-/// Inliers over valid pixels of a track.
-fn inlier_fraction(o: &TrackOutcome) -> f64 {
-    o.inliers as f64 / o.valid_pixels.max(1) as f64
-}
-
 /// Tracks every start on the coarsest level only; the best inlier fraction among the tracks that
 /// pass, its start's index and the pose it reached.
 fn screen(
@@ -368,7 +362,7 @@ fn screen(
     let mut best: Option<(f64, usize, Isometry3<f64>)> = None;
     for (k, start) in starts.iter().enumerate() {
         let o = tracker.track(levels, model, start);
-        let fraction = inlier_fraction(&o);
+        let fraction = o.inlier_fraction();
         if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
             best = Some((fraction, k, o.pose));
         }

@@ -472,7 +472,17 @@ impl IcpTerms<'_> {
     /// and kept when it passes the distance and normal tests.
     #[inline]
     fn associate(&self, k: usize, lin: &Linearisation) -> Option<Association> {
-        let (i, p, x, j) = self.project(k, lin)?;
+        self.project(k, lin)
+            .and_then(|landed| self.test(landed, lin))
+    }
+
+    /// A projected point ([`Self::project`]) kept when it passes the distance and normal tests.
+    #[inline]
+    fn test(
+        &self,
+        (i, p, x, j): (usize, Vector3<f64>, Projected, usize),
+        lin: &Linearisation,
+    ) -> Option<Association> {
         let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
@@ -504,13 +514,14 @@ impl IcpTerms<'_> {
         let (hits, agree) = (0..self.grid.len())
             .into_par_iter()
             .map(|k| {
-                let hit = self.project(k, &lin).is_some();
+                let Some(landed) = self.project(k, &lin) else {
+                    return (0, 0);
+                };
                 let near = |a: Association| {
                     let tol = agreement_tolerance(a.p.z, slack);
                     (lin.t.apply(&a.p) - a.q).norm_squared() <= tol * tol
                 };
-                let agrees = hit && self.associate(k, &lin).is_some_and(near);
-                (hit as usize, agrees as usize)
+                (1, self.test(landed, &lin).is_some_and(near) as usize)
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         agree as f64 / hits.max(1) as f64
@@ -598,6 +609,11 @@ pub struct TrackOutcome {
 }
 
 impl TrackOutcome {
+    /// Inliers over valid pixels (0 when there were none).
+    pub fn inlier_fraction(&self) -> f64 {
+        self.inliers as f64 / self.valid_pixels.max(1) as f64
+    }
+
     /// A frame that was not tracked, for `why`: the pose stays `pose`.
     pub fn failed(pose: Isometry3<f64>, why: TrackFailure) -> Self {
         Self {
