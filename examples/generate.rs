@@ -1,9 +1,9 @@
 //! Write a rendered RGB-D sequence with ground truth in the TUM layout.
 //!
 //! ```text
-//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep]
+//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep|survey]
 //!                                            [--sensor kinect|ideal] [--frames N] [--width W --height H]
-//!                                            [--layout room|bare|office] [--seed K] [--no-noise] [--gain-drift A]
+//!                                            [--layout room|bare|office|twins] [--seed K] [--no-noise] [--gain-drift A]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
 //! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
@@ -41,6 +41,7 @@ enum RigidMotion {
     Shake,
     FastRotation,
     Sweep,
+    Survey,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -48,6 +49,7 @@ enum LayoutArg {
     Room,
     Bare,
     Office,
+    Twins,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -223,6 +225,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
                         RigidMotion::Shake => Motion::Shake,
                         RigidMotion::FastRotation => Motion::FastRotation,
                         RigidMotion::Sweep => Motion::Sweep,
+                        RigidMotion::Survey => Motion::Survey,
                     };
                     (
                         motion::procedural(m, common.frames, common.fps),
@@ -251,6 +254,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
                         LayoutArg::Room => Layout::Room,
                         LayoutArg::Bare => Layout::Bare,
                         LayoutArg::Office => Layout::Office,
+                        LayoutArg::Twins => Layout::Twins,
                     },
                     common.seed,
                 ),

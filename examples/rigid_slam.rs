@@ -23,6 +23,7 @@ mod rerun_log;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use cli::{InputError, Session};
+use dynamap::residuals::pose_graph::Pose;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::distortion::TumSensor;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
@@ -31,7 +32,8 @@ use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
 use dynamap::slam::io::IoError;
-use dynamap::slam::rigid::loops::KeyframeGraph;
+use dynamap::slam::rigid::loops::{KeyframeGraph, Optimised};
+use dynamap::slam::rigid::submaps::SubmapParams;
 use dynamap::slam::rigid::{
     FrameOutcome, FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes,
 };
@@ -39,6 +41,7 @@ use dynamap::slam::synthetic::{motion, scene::Scene, sequence};
 use dynamap::slam::tsdf::RaycastMaps;
 use nalgebra::Isometry3;
 use rerun_log::Recorder;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -50,7 +53,10 @@ struct Args {
     /// A TUM-layout sequence (rgb.txt, depth.txt) or a folder of numbered colour/depth frames.
     /// Without it, a 60-frame sequence is rendered and tracked.
     dir: Option<PathBuf>,
-    /// Where to write the estimated trajectory (TUM format).
+    /// Where to write the estimated trajectory (TUM format). With --submaps, each frame's
+    /// tracked pose is carried with its keyframe to the keyframe graph's solution when loops
+    /// were found (the JSON line's `ate_rmse` is this trajectory's, `ate_tracked` the poses' as
+    /// tracked).
     #[arg(long)]
     output: Option<PathBuf>,
     /// Where to write the fused mesh (binary PLY).
@@ -122,6 +128,22 @@ struct Args {
     /// Depth units per metre when DIR has no intrinsics.txt [default: 5000, TUM's].
     #[arg(long)]
     depth_scale: Option<f64>,
+    /// Split the map into sub-maps anchored to keyframes, track against the newest only and
+    /// close loops densely against the older ones; --mesh then writes the sub-maps moved with
+    /// their keyframes to the pose graph's solution.
+    #[arg(long)]
+    submaps: bool,
+    /// With --submaps: frames a sub-map fuses before the next keyframe starts a new one.
+    #[arg(long, default_value_t = SubmapParams::default().frames)]
+    submap_frames: usize,
+    /// A loop's deviation as a fraction of the scene's median depth (and radians), in the
+    /// keyframe graph (LoopParams::loop_deviation).
+    #[arg(long, default_value_t = SlamParams::default().relocalise.loops.loop_deviation)]
+    loop_deviation: f64,
+    /// The odometry's deviation per metre and per radian between keyframes, in the keyframe
+    /// graph (LoopParams::odometry_drift).
+    #[arg(long, default_value_t = SlamParams::default().relocalise.loops.odometry_drift)]
+    odometry_drift: f64,
     /// Do not relocalise after losing track (frames then fail until tracking from the last good
     /// pose works again).
     #[arg(long)]
@@ -231,6 +253,25 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.depth_weight_power = args.depth_weight_power;
     p.tracker.motion_prior = args.motion_prior;
     p.relocalise.enabled = !args.no_relocalise;
+    p.relocalise.loops.loop_deviation = args.loop_deviation;
+    p.relocalise.loops.odometry_drift = args.odometry_drift;
+    let deviations = [args.loop_deviation, args.odometry_drift];
+    if !deviations.iter().all(|d| d.is_finite() && *d > 0.0) {
+        return Err(cli::bad_input(
+            "--loop-deviation and --odometry-drift must be positive",
+        ));
+    }
+    if args.submaps {
+        if args.no_relocalise || args.submap_frames == 0 {
+            return Err(cli::bad_input(
+                "--submaps needs relocalisation (its keyframes anchor the sub-maps) and --submap-frames at least 1",
+            ));
+        }
+        p.submaps = Some(SubmapParams {
+            frames: args.submap_frames,
+            ..SubmapParams::default()
+        });
+    }
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
     if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {
         return Err(cli::bad_input(
@@ -314,6 +355,26 @@ fn record(
     Ok(())
 }
 
+/// Logs the loops found since the last call (`logged` of them were logged before), each as a
+/// segment between its keyframes' tracked poses, and the count so far.
+fn log_loops(rec: &Recorder, graph: &KeyframeGraph, logged: &mut usize) -> Result<()> {
+    let vertices = &graph.graph().vertices;
+    let pose = |id| match vertices.get(&id) {
+        Some(Pose::Se3(x)) => Some(*x),
+        _ => None,
+    };
+    for (k, l) in graph.loops().iter().enumerate().skip(*logged) {
+        if let (Some(from), Some(to)) = (pose(l.from), pose(l.to)) {
+            rec.path(&format!("world/loops/{k}"), &[from, to], [40, 200, 40])?;
+        }
+    }
+    if graph.loop_count() > *logged {
+        *logged = graph.loop_count();
+        rec.scalar("tracking/loops", *logged as f64)?;
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     cli::run(run)
 }
@@ -370,7 +431,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
         rec.path("world/trajectory/ground_truth", &gt.poses, [90, 90, 90])?;
     }
     let mut logged: Result<()> = Ok(());
+    let mut logged_loops = 0;
     let mut trajectory = Trajectory::default();
+    let mut anchors = Vec::new();
     let mut totals = StageTimes::default();
     let (mut failures, mut skipped, mut relocalised, mut read_seconds) =
         (0usize, 0usize, 0usize, 0.0);
@@ -434,9 +497,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 }
                 last_good = Some(i);
                 trajectory.push(frame.timestamp, report.pose);
+                anchors.push(report.anchor);
             }
             if rec.enabled() && logged.is_ok() {
-                logged = record(&rec, &args, i, &frame, &report, &slam, &trajectory);
+                logged = record(&rec, &args, i, &frame, &report, &slam, &trajectory)
+                    .and_then(|()| log_loops(&rec, slam.keyframe_graph(), &mut logged_loops));
             }
             bar.inc(1);
         }
@@ -452,18 +517,25 @@ fn run(args: Args, session: &Session) -> Result<()> {
     });
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
+    // the keyframe graph, solved once more from the background solver's newest solution; the
+    // frames follow their keyframes to it
+    let warm = slam.finish_graph()?.map(|o| o.poses.clone());
+    let solved = solve_graph(slam.keyframe_graph(), warm.as_ref(), args.graph.is_some())?;
+    let tracked = trajectory.clone();
+    // one volume cannot follow a loop: its poses stay as tracked (NOTES 59)
+    if let Some(o) = solved.as_ref().filter(|_| slam.submaps().is_some()) {
+        correct(&mut trajectory, &anchors, slam.keyframe_graph(), &o.poses);
+    }
     if let Some(out) = &args.output {
         trajectory.write_tum(out)?;
     }
     if let Some(m) = &args.mesh {
-        ply::write(m, &slam.volume().extract_mesh())?;
+        ply::write(m, &slam.map_mesh(solved.as_ref().map(|o| &o.poses)))?;
     }
-    let mut graph_converged = None;
-    if let Some(path) = &args.graph {
-        // the background solver's newest solution warm-starts the final solve
-        let warm = slam.finish_graph()?.map(|o| o.poses.clone());
-        graph_converged = Some(write_graph(slam.keyframe_graph(), warm.as_ref(), path)?);
+    if let (Some(path), Some(o)) = (&args.graph, &solved) {
+        slam.keyframe_graph().write_g2o(path, &o.poses)?;
     }
+    let graph_converged = solved.as_ref().map(|o| o.converged);
     let graph = slam.keyframe_graph();
     if let Some(png) = &args.render {
         let mut maps = RaycastMaps::new();
@@ -488,6 +560,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
         tracing::info!("pictures in {}", out.display());
     }
     let ate_rmse = ate_result.as_ref().map(|a| a.stats.rmse);
+    let ate_tracked = seq
+        .groundtruth()
+        .and_then(|gt| ate(gt, &tracked, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok())
+        .map(|a| a.stats.rmse);
     let k = |t: f64| 1e3 * t / processed.max(1) as f64;
     tracing::info!(
         "per frame: read {:.2} ms, preprocess {:.2} ms, track {:.2} ms, integrate {:.2} ms, raycast {:.2} ms; {} blocks ({:.0} MiB)",
@@ -517,6 +593,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "frames": processed, "seconds": seconds, "fps": processed as f64 / seconds, "failures": failures,
             "skipped": skipped, "tracked": trajectory.len(), "relocalised": relocalised,
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
+            "loop_events": loop_events(graph, solved.as_ref()), "ate_tracked": ate_tracked,
             "graph_converged": graph_converged,
             "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
             "ms_per_frame": {"read": k(read_seconds), "preprocess": k(totals.preprocess), "track": k(totals.track),
@@ -532,26 +609,28 @@ fn run(args: Args, session: &Session) -> Result<()> {
     logged
 }
 
-/// Solves the keyframes' pose graph and writes it as g2o; whether the solve converged. One that
-/// did not is written all the same (its poses are the last iterate), warned of, and reported as
-/// `graph_converged: false` in the JSON line.
-fn write_graph(
+/// Solves the keyframes' pose graph when it has a loop (or `always`, for `--graph`): `None`
+/// without keyframes or loops. A solve that did not converge is kept all the same (its poses are
+/// the last iterate), warned of, and reported as `graph_converged: false` in the JSON line.
+fn solve_graph(
     graph: &KeyframeGraph,
-    warm: Option<&std::collections::BTreeMap<usize, Isometry3<f64>>>,
-    path: &std::path::Path,
-) -> Result<bool> {
+    warm: Option<&BTreeMap<usize, Isometry3<f64>>>,
+    always: bool,
+) -> Result<Option<Optimised>> {
     if graph.graph().vertices.is_empty() {
-        bail!(
-            "no keyframe was kept: no pose graph to write to {}",
-            path.display()
-        );
+        if always {
+            bail!("no keyframe was kept: no pose graph to write");
+        }
+        return Ok(None);
+    }
+    if graph.loop_count() == 0 && !always {
+        return Ok(None);
     }
     let solved = graph.optimise(warm)?;
     if !solved.converged {
         tracing::warn!(
-            "the keyframe graph did not converge in {} iterations; {} holds the last iterate",
+            "the keyframe graph did not converge in {} iterations: its last iterate is used",
             solved.iterations,
-            path.display()
         );
     }
     let off = solved.loop_weights.iter().filter(|w| w.2 < 0.5).count();
@@ -560,6 +639,37 @@ fn write_graph(
         solved.poses.len(),
         solved.loop_weights.len()
     );
-    graph.write_g2o(path, &solved.poses)?;
-    Ok(solved.converged)
+    Ok(Some(solved))
+}
+
+/// Moves each tracked pose with its anchor keyframe to the graph's solution.
+fn correct(
+    trajectory: &mut Trajectory,
+    anchors: &[Option<usize>],
+    graph: &KeyframeGraph,
+    solution: &BTreeMap<usize, Isometry3<f64>>,
+) {
+    for (pose, anchor) in trajectory.poses.iter_mut().zip(anchors) {
+        if let Some(a) = anchor {
+            *pose = graph.corrected(solution, *a, pose);
+        }
+    }
+}
+
+/// The loops found, each with its keyframes, inliers and DCS weight at the solution, for the
+/// JSON line.
+fn loop_events(graph: &KeyframeGraph, solved: Option<&Optimised>) -> serde_json::Value {
+    let weight = |from, to| {
+        solved
+            .and_then(|o| o.loop_weights.iter().find(|w| (w.0, w.1) == (from, to)))
+            .map(|w| w.2)
+    };
+    graph
+        .loops()
+        .iter()
+        .map(|l| {
+            serde_json::json!({"from": l.from, "to": l.to, "inliers": l.inliers,
+                               "weight": weight(l.from, l.to)})
+        })
+        .collect()
 }

@@ -23,4 +23,5 @@ mod rigid;
 mod robust;
 mod sensor;
 mod solver;
+mod submaps;
 mod tsdf;

@@ -108,6 +108,8 @@ pub struct KeyframeGraph {
     graph: PoseGraph,
     /// Index in `graph.edges` of each loop edge.
     loops: Vec<usize>,
+    /// The loops as found, in the order they were added.
+    found: Vec<LoopCandidate>,
     last: Option<(usize, Isometry3<f64>)>,
 }
 
@@ -120,6 +122,7 @@ impl KeyframeGraph {
             params,
             graph,
             loops: Vec::new(),
+            found: Vec::new(),
             last: None,
         }
     }
@@ -132,6 +135,27 @@ impl KeyframeGraph {
     /// Number of loop edges.
     pub fn loop_count(&self) -> usize {
         self.loops.len()
+    }
+
+    /// The loops added, in order.
+    pub fn loops(&self) -> &[LoopCandidate] {
+        &self.found
+    }
+
+    /// The pose of a frame tracked at `pose` whose anchor is keyframe `anchor`, carried with
+    /// that keyframe to where `solution` puts it: X*_a X_a⁻¹ X (the frame keeps its tracked
+    /// pose relative to the keyframe). `pose` itself when `anchor` is not in both the graph and
+    /// the solution.
+    pub fn corrected(
+        &self,
+        solution: &BTreeMap<usize, Isometry3<f64>>,
+        anchor: usize,
+        pose: &Isometry3<f64>,
+    ) -> Isometry3<f64> {
+        match (self.graph.vertices.get(&anchor), solution.get(&anchor)) {
+            (Some(Pose::Se3(tracked)), Some(solved)) => solved * tracked.inverse() * pose,
+            _ => *pose,
+        }
     }
 
     /// Adds keyframe `id` (its frame index) at its tracked pose, joined to the previous one by
@@ -163,6 +187,7 @@ impl KeyframeGraph {
         let sigma_r = self.params.loop_deviation;
         self.push_edge(c.from, c.to, c.relative, sigma_r, sigma_t);
         self.loops.push(self.graph.edges.len() - 1);
+        self.found.push(c.clone());
         true
     }
 
@@ -428,6 +453,22 @@ fn median_z(points: &[Vector3<f64>]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_frame_moves_with_its_anchor_keyframe() {
+        let mut g = KeyframeGraph::new(LoopParams::default());
+        let tracked = Isometry3::new(Vector3::new(1.0, 0.0, 0.0), Vector3::z() * 0.3);
+        g.add_keyframe(4, tracked);
+        let solved = Isometry3::new(Vector3::new(1.1, -0.2, 0.0), Vector3::z() * 0.5);
+        let solution = BTreeMap::from([(4, solved)]);
+        let frame = tracked * Isometry3::new(Vector3::new(0.0, 0.1, 0.0), Vector3::x() * 0.1);
+        let moved = g.corrected(&solution, 4, &frame);
+        // the frame keeps its pose relative to the keyframe
+        let rel = (solved.inverse() * moved) * (tracked.inverse() * frame).inverse();
+        assert!(rel.translation.vector.norm() < 1e-12 && rel.rotation.angle() < 1e-12);
+        // an unknown anchor leaves the pose as tracked
+        assert_eq!(g.corrected(&solution, 5, &frame), frame);
+    }
     use nalgebra::{Translation3, UnitQuaternion};
 
     /// `n` keyframes around a circle of radius 1.5 m, camera looking inwards.

@@ -6,18 +6,23 @@
 
 use super::color_timing;
 use super::health::{Fit, Health};
+use super::keyframes::median_depth;
 use super::keyframes::{Candidate, Keyframes};
+use super::loops::LoopCandidate;
 use super::loops::{find_loop, BackgroundSolver, KeyframeGraph, LoopError, Optimised};
 use super::motion_model::MotionModel;
 use super::outcome::{FrameOutcome, TrackFailure};
 use super::relocalise::{Floors, LiveFrame, RelocaliseParams, Relocaliser};
+use super::submaps::{SubmapParams, Submaps};
 use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
 use crate::image::{ColorImage, Image};
+use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{RaycastMaps, TsdfError, TsdfParams, TsdfVolume};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 /// Settings of the whole pipeline.
@@ -43,6 +48,12 @@ pub struct SlamParams {
     /// Bring colour captured at another instant than depth (stamps given to
     /// [`RigidSlam::process_timed`]) to the depth's instant with the constant-velocity motion.
     pub register_color: bool,
+    /// Split the map into sub-maps anchored to keyframes ([`super::submaps`]), tracked against
+    /// the newest only, with loops measured densely against the older ones; `None` (the
+    /// default) keeps one volume and finds loops by features (written with the graph, but the
+    /// volume cannot follow them, so they correct nothing). Needs relocalisation enabled (its
+    /// keyframes anchor the sub-maps).
+    pub submaps: Option<SubmapParams>,
 }
 
 impl Default for SlamParams {
@@ -55,6 +66,7 @@ impl Default for SlamParams {
             relocalise: RelocaliseParams::default(),
             predict_motion: true,
             register_color: true,
+            submaps: None,
         }
     }
 }
@@ -114,6 +126,10 @@ pub struct FrameReport {
     /// λ_min / λ_max of the frame's geometry (see [`TrackerParams::min_conditioning`]; 0 for
     /// the first frame).
     pub conditioning: f64,
+    /// The keyframe (its frame index in the [`KeyframeGraph`]) whose pose this frame's hangs
+    /// from: the newest one when the frame was fused. [`KeyframeGraph::corrected`] carries the
+    /// pose along when a loop moves the keyframe. `None` before the first keyframe.
+    pub anchor: Option<usize>,
 }
 
 impl FrameReport {
@@ -154,6 +170,12 @@ pub struct RigidSlam {
     registered_color: ColorImage,
     /// The last tracked poses, for the start of the next track and the colour's instant.
     motion: MotionModel,
+    /// The newest keyframe in the graph.
+    anchor: Option<usize>,
+    /// The older sub-maps, when the map is split ([`SlamParams::submaps`]).
+    submaps: Option<Submaps>,
+    /// Depth samples for a loop's median depth.
+    samples: Vec<f32>,
 }
 
 /// When a frame's two images were captured, seconds.
@@ -167,10 +189,15 @@ pub struct FrameStamps {
 
 impl RigidSlam {
     /// A pipeline for images from `camera`, starting at `initial_pose`.
-    pub fn new(camera: Camera, params: SlamParams, initial_pose: Isometry3<f64>) -> Self {
+    pub fn new(camera: Camera, mut params: SlamParams, initial_pose: Isometry3<f64>) -> Self {
         let raycast_level = params.raycast_level(&camera);
+        let r = &mut params.relocalise;
+        if params.submaps.is_some() && r.keyframes.recent_frames == usize::MAX {
+            r.keyframes.recent_frames = r.loops.min_frames_apart;
+        }
         let relocaliser = Relocaliser::new(&params.relocalise);
         let loops = KeyframeGraph::new(params.relocalise.loops.clone());
+        let params_submaps = params.submaps;
         Self {
             pre: Preprocessor::new(camera, params.preprocess),
             tracker: Tracker::new(params.tracker.clone()),
@@ -195,6 +222,9 @@ impl RigidSlam {
             exposed_color: ColorImage::new(0, 0),
             registered_color: ColorImage::new(0, 0),
             motion: MotionModel::default(),
+            anchor: None,
+            submaps: params_submaps.map(Submaps::new),
+            samples: Vec::new(),
         }
     }
 
@@ -229,6 +259,24 @@ impl RigidSlam {
     /// newest solution (`None` when no loop was found).
     pub fn finish_graph(&mut self) -> Result<Option<&Optimised>, LoopError> {
         self.graph_solver.finish()
+    }
+
+    /// The older sub-maps, when the map is split ([`SlamParams::submaps`]).
+    pub fn submaps(&self) -> Option<&Submaps> {
+        self.submaps.as_ref()
+    }
+
+    /// The map's surface in the frame of the graph's `solution` (when there is one): with
+    /// sub-maps, each moved with its anchor keyframe ([`Submaps::mesh`]); a single volume
+    /// cannot follow and is meshed as fused.
+    pub fn map_mesh(&self, solution: Option<&BTreeMap<usize, Isometry3<f64>>>) -> Mesh {
+        match (&self.submaps, solution) {
+            (Some(s), Some(x)) => s.mesh(&self.volume, |a| {
+                self.loops.corrected(x, a, &Isometry3::identity())
+            }),
+            (Some(s), None) => s.mesh(&self.volume, |_| Isometry3::identity()),
+            (None, _) => self.volume.extract_mesh(),
+        }
     }
 
     /// The keyframes kept for relocalisation.
@@ -316,6 +364,7 @@ impl RigidSlam {
             inlier_fraction: 0.0,
             agreement: 0.0,
             conditioning: 0.0,
+            anchor: None,
         };
         if let Err(why) = self.check_size(depth_raw, color) {
             report.outcome = FrameOutcome::NotTracked(why);
@@ -357,6 +406,7 @@ impl RigidSlam {
             Err(why) => report.outcome = FrameOutcome::NotTracked(why),
         }
         report.pose = self.pose;
+        report.anchor = self.anchor;
         self.log(&report);
         report
     }
@@ -498,21 +548,34 @@ impl RigidSlam {
         brightness: (f64, f64),
         agreement: Option<f64>,
     ) -> Result<(), TsdfError> {
+        let mut exposed = std::mem::replace(&mut self.exposed_color, ColorImage::new(0, 0));
         let color = match color {
             Some(c) if brightness != (1.0, 0.0) => {
-                expose(c, brightness, &mut self.exposed_color);
-                Some(&self.exposed_color)
+                expose(c, brightness, &mut exposed);
+                Some(&exposed)
             }
             other => other,
         };
+        let fused = self.fuse_exposed(color, agreement);
+        self.exposed_color = exposed;
+        fused
+    }
+
+    /// [`Self::fuse`] once the colour is in the model's exposure.
+    fn fuse_exposed(
+        &mut self,
+        color: Option<&ColorImage>,
+        agreement: Option<f64>,
+    ) -> Result<(), TsdfError> {
         let level = &self.pre.levels[0];
-        self.volume.integrate(
-            &level.depth,
-            &level.normals,
-            color,
-            &self.camera,
-            &self.pose,
-        )?;
+        let view = (&self.camera, &self.pose);
+        integrate(&mut self.volume, level, color, view)?;
+        if let Some(next) = self.submaps.as_mut().and_then(Submaps::next_volume) {
+            integrate(next, level, color, view)?;
+        }
+        if let Some(s) = self.submaps.as_mut() {
+            s.fused(self.frames, &mut self.volume);
+        }
         if self.params.relocalise.enabled {
             let frame = Candidate {
                 frame: self.frames,
@@ -525,17 +588,101 @@ impl RigidSlam {
             let max_depth = self.params.tsdf.max_depth;
             let p = &self.params.relocalise;
             if self.relocaliser.remember(&frame, p, max_depth) {
-                self.loops.add_keyframe(self.frames, self.pose);
-                let keys = self.relocaliser.keyframes();
-                if let Some(l) = find_loop(keys, &self.loops.params, &p.features) {
-                    tracing::debug!(from = l.from, to = l.to, inliers = l.inliers, "loop");
-                    if self.loops.add_loop(&l) {
-                        self.graph_solver.submit(&self.loops);
-                    }
-                }
+                self.keyframe_added(color);
             }
         }
         Ok(())
+    }
+
+    /// The frame just became a keyframe: it joins the graph, may anchor a sub-map, and is
+    /// matched against the older keyframes for a loop (densely against the older sub-maps when
+    /// the map is split, by features otherwise); a loop found sends the graph to the solver.
+    fn keyframe_added(&mut self, color: Option<&ColorImage>) {
+        self.loops.add_keyframe(self.frames, self.pose);
+        self.anchor = Some(self.frames);
+        let tsdf = self.params.tsdf;
+        if let Some(s) = self.submaps.as_mut().filter(|s| s.wants_anchor()) {
+            s.anchor(self.frames, tsdf);
+            if let Some(next) = s.next_volume() {
+                // the anchor's own frame starts the new sub-map (errors are the budget's, met
+                // again by the active volume on the next frame)
+                let view = (&self.camera, &self.pose);
+                let _ = integrate(next, &self.pre.levels[0], color, view);
+            }
+        }
+        let found = if self.submaps.is_some() {
+            self.dense_loop(color)
+        } else {
+            let p = &self.params.relocalise;
+            find_loop(
+                self.relocaliser.keyframes(),
+                &self.loops.params,
+                &p.features,
+            )
+        };
+        if let Some(l) = found {
+            tracing::debug!(from = l.from, to = l.to, inliers = l.inliers, "loop");
+            if self.loops.add_loop(&l) {
+                self.graph_solver.submit(&self.loops);
+            }
+        }
+    }
+
+    /// A loop from the new keyframe (the current frame) to an older keyframe in a frozen
+    /// sub-map: the older keyframes nearest by fern code, at least
+    /// [`super::loops::LoopParams::min_frames_apart`] frames back, are each tried as the start of
+    /// a dense track against their sub-map raycast from their pose; the best track that passes
+    /// the tracker's tests and reaches the relocaliser's floors on the recent fit is the loop.
+    fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
+        let submaps = self.submaps.as_ref()?;
+        let until = submaps.frozen_until()?;
+        let p = &self.params.relocalise;
+        let apart = self.loops.params.min_frames_apart.max(1);
+        let keys = self.relocaliser.keyframes();
+        let frames = keys.frames();
+        let newest = frames.last()?;
+        let limit = frames.partition_point(|f| f.frame + apart <= self.frames && f.frame <= until);
+        let floor = self
+            .health
+            .expected()
+            .map_or(Fit::default(), |e| e.scaled(p.min_fit_ratio));
+        let candidates: Vec<(usize, Isometry3<f64>)> = keys
+            .nearest_code(&newest.code, limit, self.loops.params.candidates)
+            .into_iter()
+            .map(|k| (frames[k].frame, frames[k].pose))
+            .collect();
+        let live = LiveFrame {
+            levels: &self.pre.levels,
+            color,
+            camera: &self.camera,
+            model_template: &self.model,
+        };
+        let mut best: Option<(f64, LoopCandidate)> = None;
+        for (frame, pose) in candidates {
+            let Some(map) = submaps.containing(frame) else {
+                continue;
+            };
+            let o = self
+                .relocaliser
+                .verify(&mut self.tracker, &map.volume, &live, &pose);
+            let fraction = o.inlier_fraction();
+            let fits = fraction >= floor.fraction.max(p.min_inlier_fraction)
+                && o.agreement >= floor.agreement;
+            if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= fraction) {
+                continue;
+            }
+            let depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
+            let relative = pose.inverse() * o.pose;
+            let found = LoopCandidate {
+                from: frame,
+                to: self.frames,
+                relative,
+                inliers: o.inliers,
+                depth,
+            };
+            best = Some((fraction, found));
+        }
+        best.map(|b| b.1)
     }
 
     /// Raycasts the model at the current pose for the next frame's tracking.
@@ -569,6 +716,18 @@ impl RigidSlam {
             "rigid frame"
         );
     }
+}
+
+/// Fuses a pyramid level's depth and normals (and the colour) seen from `camera` at `pose`.
+fn integrate(
+    volume: &mut TsdfVolume,
+    level: &crate::preprocess::Level,
+    color: Option<&ColorImage>,
+    (camera, pose): (&Camera, &Isometry3<f64>),
+) -> Result<(), TsdfError> {
+    volume
+        .integrate(&level.depth, &level.normals, color, camera, pose)
+        .map(|_| ())
 }
 
 /// `out` = a c + 255 b per channel of `c`, rounded and clamped to 8 bits: a colour image mapped

@@ -281,7 +281,7 @@ impl Relocaliser {
     }
 
     /// Tracks the live frame from `start` against the model raycast at `start`.
-    fn verify(
+    pub(super) fn verify(
         &mut self,
         tracker: &mut Tracker,
         volume: &TsdfVolume,

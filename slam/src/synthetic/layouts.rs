@@ -4,7 +4,10 @@
 //! - [`Layout::Bare`]: the same room with plain floor, walls, ceiling and table (no texture: the
 //!   photometric term has nothing to hold on to over most of the image);
 //! - [`Layout::Office`]: a different room whose size, furniture and objects are drawn from the
-//!   seed.
+//!   seed;
+//! - [`Layout::Twins`]: a room made of two identical halves, each the other turned half a turn
+//!   about the room's vertical axis, so that opposite places look alike (a trap for loop
+//!   closure).
 
 use super::motion::TARGET;
 use super::scene::{Scene, Shape};
@@ -23,6 +26,8 @@ pub enum Layout {
     Bare,
     /// A room drawn from the seed.
     Office,
+    /// Two identical halves, half a turn apart.
+    Twins,
 }
 
 /// The scene of `layout` with textures (and, for [`Layout::Office`], geometry) from `seed`.
@@ -31,6 +36,7 @@ pub fn build(layout: Layout, seed: u64) -> Scene {
         Layout::Room => Scene::room(seed),
         Layout::Bare => bare(seed),
         Layout::Office => office(seed),
+        Layout::Twins => twins(seed),
     }
 }
 
@@ -131,4 +137,116 @@ fn office(seed: u64) -> Scene {
         s.add(Shape::Cuboid { half }, at, tex(20 + k, 3.0, 25.0));
     }
     s
+}
+
+/// A room whose half at x < 0 is the half at x > 0 turned by π about the vertical axis through
+/// the room's middle: floor, ceiling, walls and furniture of one half are drawn from the seed and
+/// copied, textures included (they live in each object's own frame), so a camera at p looking
+/// along d sees what one at R p looking along R d sees.
+fn twins(seed: u64) -> Scene {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7411);
+    let tex =
+        |k: u64, lo: f64, hi: f64| Texture::random(seed.wrapping_mul(4099).wrapping_add(k), lo, hi);
+    let (hx, hy, h) = (2.8, 2.4, 2.8);
+    let turn = |x: f64, y: f64, z: f64, axis: Vector3<f64>, a: f64| {
+        Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_scaled_axis(axis * a),
+        )
+    };
+    let mut half = Scene::default();
+    let strip = Shape::Plane { hx: hx / 2.0, hy };
+    half.add(
+        strip.clone(),
+        Isometry3::translation(hx / 2.0, 0.0, 0.0),
+        tex(1, 3.0, 15.0),
+    );
+    half.add(
+        strip,
+        Isometry3::translation(hx / 2.0, 0.0, h),
+        tex(2, 2.0, 8.0),
+    );
+    let end = turn(hx, 0.0, h / 2.0, Vector3::y(), FRAC_PI_2);
+    half.add(Shape::Plane { hx: h / 2.0, hy }, end, tex(3, 2.0, 12.0));
+    for (k, sign) in [(4u64, 1.0), (5, -1.0)] {
+        let side = turn(hx / 2.0, sign * hy, h / 2.0, Vector3::x(), FRAC_PI_2);
+        let shape = Shape::Plane {
+            hx: hx / 2.0,
+            hy: h / 2.0,
+        };
+        half.add(shape, side, tex(k, 2.0, 12.0));
+    }
+    for k in 0..3u64 {
+        let a: f64 = rng.random_range(-1.2..1.2);
+        let (x, y) = ((hx - 0.5) * a.cos(), (hy - 0.5) * a.sin());
+        let half_size = Vector3::new(
+            rng.random_range(0.2..0.4),
+            rng.random_range(0.2..0.4),
+            rng.random_range(0.3..0.8),
+        );
+        let at = turn(x, y, half_size.z, Vector3::z(), rng.random_range(0.0..1.5));
+        half.add(
+            Shape::Cuboid { half: half_size },
+            at,
+            tex(10 + k, 3.0, 25.0),
+        );
+    }
+    let mut s = half.clone();
+    let flip = Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+    for obj in half.objects {
+        s.add(obj.shape, flip * obj.pose, obj.texture);
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+    use crate::synthetic::motion::{procedural, Motion};
+    use crate::synthetic::render::render;
+
+    #[test]
+    fn the_twins_halves_look_the_same_from_opposite_places() {
+        let cam = Camera::new(131.25, 131.25, 79.5, 59.5, 160, 120);
+        let scene = build(Layout::Twins, 5);
+        let flip = Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+        let pose = procedural(Motion::Survey, 1, 30.0).poses[0];
+        let (a, b) = (
+            render(&scene, &cam, &pose),
+            render(&scene, &cam, &(flip * pose)),
+        );
+        let valid = a.depth.data.iter().filter(|d| **d > 0.0).count();
+        assert!(valid > 150 * 110, "{valid} valid pixels");
+        let depth_off = a
+            .depth
+            .data
+            .iter()
+            .zip(&b.depth.data)
+            .filter(|(x, y)| (*x - *y).abs() > 1e-4)
+            .count();
+        let color_off = a
+            .color
+            .data
+            .iter()
+            .zip(&b.color.data)
+            .filter(|(x, y)| x.iter().zip(y.iter()).any(|(p, q)| p.abs_diff(*q) > 1))
+            .count();
+        assert!(depth_off * 100 < valid, "{depth_off} depths differ");
+        assert!(color_off * 100 < valid, "{color_off} colours differ");
+        // and another layout is not symmetric
+        let room = build(Layout::Room, 5);
+        let (c, d) = (
+            render(&room, &cam, &pose),
+            render(&room, &cam, &(flip * pose)),
+        );
+        let differ = c
+            .color
+            .data
+            .iter()
+            .zip(&d.color.data)
+            .filter(|(x, y)| x != y)
+            .count();
+        assert!(differ * 2 > valid, "{differ}");
+    }
 }

@@ -16,6 +16,11 @@ pub enum Motion {
     /// A fast hand-held sweep in front of the table: sideways at up to 0.9 m/s and shaking at up
     /// to about 100°/s (at 30 Hz).
     Sweep,
+    /// A survey of the room's walls: walking an ellipse (1.0 × 0.8 m) about the room's middle
+    /// once every 30 s (at 30 Hz), looking outwards and down at the walls and floor with a gentle
+    /// hand-held sway, so that the camera returns to each place 30 s after it left and the table
+    /// (behind it) is never in view: a loop for loop closure.
+    Survey,
 }
 
 /// The point the room's objects are arranged around (the table top).
@@ -77,6 +82,7 @@ pub fn procedural(motion: Motion, frames: usize, fps: f64) -> Trajectory {
                 );
                 Isometry3::from_parts(base.translation, base.rotation * shake)
             }
+            Motion::Survey => survey(f / fps),
             Motion::FastRotation => {
                 let a = (3.0 * f).to_radians();
                 let eye = Point3::new(0.9, 0.3, 1.3);
@@ -87,6 +93,21 @@ pub fn procedural(motion: Motion, frames: usize, fps: f64) -> Trajectory {
         t.push(f / fps, pose);
     }
     t
+}
+
+/// The pose of [`Motion::Survey`] at `t` seconds.
+fn survey(t: f64) -> Isometry3<f64> {
+    let a = std::f64::consts::TAU * t / 30.0;
+    let s = |hz: f64, p: f64| (std::f64::consts::TAU * hz * t + p).sin();
+    let eye = Point3::new(1.0 * a.cos(), 0.8 * a.sin(), 1.4 + 0.08 * s(0.13, 0.0));
+    // outwards, turned 25° towards the direction of travel, 20° down
+    let heading = a + 25f64.to_radians() + 0.1 * s(0.07, 1.0);
+    let dir = Vector3::new(heading.cos(), heading.sin(), -(20f64.to_radians()).tan());
+    let base = look_at(&eye, &(eye + dir), &Vector3::z());
+    let sway = UnitQuaternion::from_scaled_axis(
+        Vector3::new(s(0.5, 0.3), s(0.4, 1.1), 0.5 * s(0.3, 2.0)) * 2f64.to_radians(),
+    );
+    Isometry3::from_parts(base.translation, base.rotation * sway)
 }
 
 /// Picks from a (denser) ground-truth trajectory the poses nearest to `fps` frames per second,
@@ -165,7 +186,12 @@ mod tests {
         assert!((axis - (TARGET - eye).normalize()).norm() < 1e-12);
         // image "down" points downwards in the world
         assert!((pose.rotation * Vector3::y()).z < 0.0);
-        for m in [Motion::Orbit, Motion::Shake, Motion::FastRotation] {
+        for m in [
+            Motion::Orbit,
+            Motion::Shake,
+            Motion::FastRotation,
+            Motion::Survey,
+        ] {
             let t = procedural(m, 10, 30.0);
             assert_eq!(t.len(), 10);
         }

@@ -1,0 +1,131 @@
+//! Loop closure with sub-maps (issue 24, points 3 and 4): a camera surveying the room's walls
+//! comes back to where it started; tracked against the newest sub-map only, its odometry drifts,
+//! the older sub-maps give dense loops, and the frames carried with their keyframes to the
+//! graph's solution lie nearer the ground truth than the frames as tracked.
+
+use dynamap::slam::camera::Camera;
+use dynamap::slam::eval::{ate, Alignment};
+use dynamap::slam::io::trajectory::Trajectory;
+use dynamap::slam::rigid::submaps::SubmapParams;
+use dynamap::slam::rigid::{RelocaliseParams, RigidSlam, SlamParams};
+use dynamap::slam::synthetic::layouts::{self, Layout};
+use dynamap::slam::synthetic::motion::{self, Motion};
+use dynamap::slam::synthetic::noise::SensorNoise;
+use dynamap::slam::synthetic::render::render;
+
+/// Every `step`-th pose of `frames` survey frames.
+fn survey(frames: usize, step: usize) -> Trajectory {
+    let all = motion::procedural(Motion::Survey, frames * step, 30.0);
+    let mut t = Trajectory::default();
+    for k in (0..all.len()).step_by(step) {
+        t.push(all.stamps[k], all.poses[k]);
+    }
+    t
+}
+
+/// What a run gives: the trajectories as tracked and as corrected, and each loop as (its error
+/// against the ground truth's relative pose in metres, its DCS weight).
+struct Run {
+    tracked: Trajectory,
+    corrected: Trajectory,
+    loops: Vec<(f64, f64)>,
+}
+
+/// Runs the pipeline with sub-maps on `layout` along `gt`.
+fn run(layout: Layout, gt: &Trajectory) -> Run {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let scene = layouts::build(layout, 3);
+    let noise = SensorNoise {
+        seed: 9,
+        ..SensorNoise::default()
+    };
+    let mut params = SlamParams {
+        submaps: Some(SubmapParams {
+            frames: 60,
+            overlap: 10,
+        }),
+        ..SlamParams::default()
+    };
+    let r: &mut RelocaliseParams = &mut params.relocalise;
+    r.loops.min_frames_apart = 100;
+    r.keyframes.recent_frames = 100;
+    let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
+    let (mut tracked, mut anchors) = (Trajectory::default(), Vec::new());
+    for (k, (stamp, pose)) in gt.stamps.iter().zip(&gt.poses).enumerate() {
+        let mut f = render(&scene, &cam, pose);
+        let raw = noise.apply(k as u64, &f.depth, &f.cos_incidence, &mut f.color, 5000.0);
+        let report = slam.process(&raw, Some(&f.color));
+        assert!(
+            report.failure().is_none(),
+            "frame {k}: {:?}",
+            report.outcome
+        );
+        tracked.push(*stamp, report.pose);
+        anchors.push(report.anchor);
+    }
+    let warm = slam.finish_graph().unwrap().map(|o| o.poses.clone());
+    let graph = slam.keyframe_graph();
+    let solved = graph.optimise(warm.as_ref()).unwrap();
+    assert!(solved.converged);
+    let mut corrected = tracked.clone();
+    for (pose, anchor) in corrected.poses.iter_mut().zip(&anchors) {
+        *pose = graph.corrected(&solved.poses, anchor.unwrap(), pose);
+    }
+    let loops = graph
+        .loops()
+        .iter()
+        .zip(&solved.loop_weights)
+        .map(|(l, w)| {
+            // keyframes are named by the count of frames processed, from 1
+            let truth = gt.poses[l.from - 1].inverse() * gt.poses[l.to - 1];
+            let error = (truth.inverse() * l.relative).translation.vector.norm();
+            (error, w.2)
+        })
+        .collect();
+    Run {
+        tracked,
+        corrected,
+        loops,
+    }
+}
+
+#[test]
+fn a_short_looping_survey_closes_its_loop_and_lowers_the_trajectory_error() {
+    // 1.4 rounds of the survey at 6× speed: the camera is back where it began after 150 frames
+    let gt = survey(210, 6);
+    let r = run(Layout::Room, &gt);
+    let error = |t: &Trajectory| ate(&gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
+    let (before, after) = (error(&r.tracked), error(&r.corrected));
+    let kept = r.loops.iter().filter(|l| l.1 > 0.5).count();
+    assert!(
+        r.loops.len() >= 2 && kept >= 1,
+        "loops (error m, weight): {:?}",
+        r.loops
+    );
+    assert!(
+        after < 0.8 * before,
+        "ATE {:.1} mm corrected against {:.1} mm tracked",
+        1e3 * after,
+        1e3 * before
+    );
+}
+
+#[test]
+fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
+    // in the twin room the place half a round away looks the same as this one: loops to it are
+    // false, and they must be rejected or switched off
+    let gt = survey(300, 6);
+    let r = run(Layout::Twins, &gt);
+    let error = |t: &Trajectory| ate(&gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
+    let (before, after) = (error(&r.tracked), error(&r.corrected));
+    // (at the time of writing three false loops pass the dense test, each 1.6-2 m off, and DCS
+    // switches them off)
+    let false_kept = r.loops.iter().filter(|l| l.0 > 0.1 && l.1 > 0.5).count();
+    assert!(
+        false_kept == 0 || after <= 1.1 * before,
+        "ATE {:.1} mm corrected against {:.1} mm tracked; loops (error m, weight): {:?}",
+        1e3 * after,
+        1e3 * before,
+        r.loops
+    );
+}
