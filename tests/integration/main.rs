@@ -13,6 +13,7 @@ mod bounds_covariance;
 mod bundle_adjustment;
 mod chi2_agreement;
 mod cli;
+mod exposure;
 mod faults;
 mod g2o_files;
 mod kinect;

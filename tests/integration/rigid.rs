@@ -78,7 +78,7 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
     assert!(a.stats.max < 0.01, "ATE {:?}", a.stats);
 }
 
-/// A 15 % auto-exposure drift (issue 23): with the affine brightness fit the ATE stays within
+/// A 15 % auto-exposure drift (issue 23): with the exposure (gain) fit the ATE stays within
 /// 10 % of the same sequence at a fixed exposure, on two motions; without the fit it is worse on
 /// at least one (since residuals are weighed by depth noise, NOTES 54, the shake is held by its
 /// geometry and the drift no longer moves its ATE either way).

@@ -21,7 +21,6 @@ use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{RaycastMaps, TsdfError, TsdfParams, TsdfVolume};
 use nalgebra::Isometry3;
-use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -130,6 +129,10 @@ pub struct FrameReport {
     /// from: the newest one when the frame was fused. [`KeyframeGraph::corrected`] carries the
     /// pose along when a loop moves the keyframe. `None` before the first keyframe.
     pub anchor: Option<usize>,
+    /// The exposure fit (a, b) the frame was tracked with: the model's intensity is about
+    /// a I + b for the live intensity I (b is 0: the fit is a gain, NOTES 60; (1, 0) when not
+    /// fitted or not tracked). The colour is fused as recorded.
+    pub brightness: (f64, f64),
 }
 
 impl FrameReport {
@@ -164,8 +167,6 @@ pub struct RigidSlam {
     health: Health,
     /// Frames given to [`Self::process`] and [`Self::process_timed`].
     calls: usize,
-    /// The frame's colour mapped into the model's exposure before it is fused.
-    exposed_color: ColorImage,
     /// The frame's colour brought to its depth's instant with the predicted motion.
     registered_color: ColorImage,
     /// The last tracked poses, for the start of the next track and the colour's instant.
@@ -219,7 +220,6 @@ impl RigidSlam {
             relocaliser,
             health: Health::default(),
             calls: 0,
-            exposed_color: ColorImage::new(0, 0),
             registered_color: ColorImage::new(0, 0),
             motion: MotionModel::default(),
             anchor: None,
@@ -365,6 +365,7 @@ impl RigidSlam {
             agreement: 0.0,
             conditioning: 0.0,
             anchor: None,
+            brightness: (1.0, 0.0),
         };
         if let Err(why) = self.check_size(depth_raw, color) {
             report.outcome = FrameOutcome::NotTracked(why);
@@ -388,8 +389,9 @@ impl RigidSlam {
         });
         let agreement = fit.map(|f| f.agreement);
         let fused = located.and_then(|brightness| {
+            report.brightness = brightness;
             let t = Instant::now();
-            let fused = self.fuse(color, brightness, agreement);
+            let fused = self.fuse(color, agreement);
             report.times.integrate = t.elapsed().as_secs_f64();
             fused.map_err(TrackFailure::from)
         });
@@ -539,30 +541,13 @@ impl RigidSlam {
         found
     }
 
-    /// Fuses the frame at the current pose, its colour mapped into the model's exposure by the
-    /// fit (a, b) so that the model stays one brightness; the relocaliser keeps it (with the
-    /// agreement it was tracked with).
+    /// Fuses the frame at the current pose, its colour as recorded; the relocaliser keeps it
+    /// (with the agreement it was tracked with). The exposure fit is tracking's alone: colour
+    /// fused through it fed the fit back into the model, and where the sensor darkens the
+    /// image's corners (vignetting), surfaces first seen at the border made the model darker
+    /// than the view's centre, the next fit lower, and so on, down to half the exposure within
+    /// 200 frames of a survey (NOTES 60).
     fn fuse(
-        &mut self,
-        color: Option<&ColorImage>,
-        brightness: (f64, f64),
-        agreement: Option<f64>,
-    ) -> Result<(), TsdfError> {
-        let mut exposed = std::mem::replace(&mut self.exposed_color, ColorImage::new(0, 0));
-        let color = match color {
-            Some(c) if brightness != (1.0, 0.0) => {
-                expose(c, brightness, &mut exposed);
-                Some(&exposed)
-            }
-            other => other,
-        };
-        let fused = self.fuse_exposed(color, agreement);
-        self.exposed_color = exposed;
-        fused
-    }
-
-    /// [`Self::fuse`] once the colour is in the model's exposure.
-    fn fuse_exposed(
         &mut self,
         color: Option<&ColorImage>,
         agreement: Option<f64>,
@@ -709,6 +694,7 @@ impl RigidSlam {
             fraction = report.inlier_fraction,
             agreement = report.agreement,
             conditioning = report.conditioning,
+            gain = report.brightness.0,
             preprocess_ms = 1e3 * times.preprocess,
             track_ms = 1e3 * times.track,
             integrate_ms = 1e3 * times.integrate,
@@ -728,16 +714,4 @@ fn integrate(
     volume
         .integrate(&level.depth, &level.normals, color, camera, pose)
         .map(|_| ())
-}
-
-/// `out` = a c + 255 b per channel of `c`, rounded and clamped to 8 bits: a colour image mapped
-/// by the exposure fit (a, b) of intensities in [0, 1].
-fn expose(c: &ColorImage, (a, b): (f64, f64), out: &mut ColorImage) {
-    out.reset(c.width, c.height, [0; 3]);
-    let (a, b) = (a as f32, 255.0 * b as f32);
-    out.data.par_iter_mut().zip(&c.data).for_each(|(o, p)| {
-        for (oc, &pc) in o.iter_mut().zip(p) {
-            *oc = (a * pc as f32 + b).round().clamp(0.0, 255.0) as u8;
-        }
-    });
 }

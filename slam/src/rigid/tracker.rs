@@ -66,10 +66,11 @@ pub struct TrackerParams {
     /// (default 0.01; a plain wall under sensor noise gives about 0.001, the rendered room
     /// 0.04–0.06).
     pub min_texture: f64,
-    /// Compensate exposure: before each level, fit the live intensities to the model's by an
-    /// affine map I ↦ aI + b over the associated pixels, and compare aI + b (default true; the
-    /// brightness model of Engel et al., *Direct Sparse Odometry*, 2018, fitted in closed form
-    /// rather than optimised with the pose).
+    /// Compensate exposure: before each level, fit the gain a that takes the live intensities
+    /// to the model's over the associated pixels (the median ratio), and compare aI (default
+    /// true; the gain of the brightness model of Engel et al., *Direct Sparse Odometry*, 2018,
+    /// fitted in closed form rather than optimised with the pose). The fit serves tracking
+    /// only: the model keeps the colours as recorded (NOTES 60).
     pub affine_brightness: bool,
     /// Weigh each point-to-plane residual by the inverse of the sensor's depth noise relative to
     /// the frame's mean depth z̄: r ↦ r·(z̄/z)^k (default 2; 0 turns it off). A structured-light
@@ -426,6 +427,10 @@ fn emit_prior<E: FnMut(f64, &[f64; 6], usize)>(
 /// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_brightness`]).
 const BRIGHTNESS_SAMPLES: usize = 2000;
 
+/// Live intensities below this (of 1) take no part in the exposure fit: their ratio to the
+/// model's is mostly noise (8-bit noise of about 1 level is 4 % of an intensity of 0.1).
+const MIN_RATIO_INTENSITY: f64 = 0.1;
+
 /// A live point associated with a model point.
 struct Association {
     /// The live pixel.
@@ -527,53 +532,42 @@ impl IcpTerms<'_> {
         agree as f64 / hits.max(1) as f64
     }
 
-    /// The affine map (a, b) that best takes the live intensities onto the model's over the
-    /// pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them, evenly spread): a
-    /// total-least-squares line through the (live, model) pairs, then once more without the
-    /// pairs farther than `trim` from the first fit (speculars, occlusions). Both intensities
-    /// carry noise, so an ordinary regression of one on the other would shrink a below 1 (and,
-    /// fused frame after frame, flatten the model's texture); the orthogonal fit does not.
-    /// (1, 0) when fewer than 100 pairs agree, when they span no contrast, or when the fit is
-    /// implausible (a outside [0.5, 2]).
-    fn fit_brightness(&self, x: &[f64], trim: f64) -> (f64, f64) {
+    /// The gain a that takes the live intensities onto the model's, as the median of the
+    /// ratios m / l over the pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them,
+    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out); returned as (a, 0). A
+    /// sensor's gain multiplies the intensities, and a ratio is blind to contrast: the model's
+    /// texture is the live one averaged over frames and voxels, so its contrast is lower, and
+    /// a fit of the slope (least squares or total least squares) reads that as a gain below 1
+    /// which, fused into the model, lowers its contrast further, frame after frame (NOTES 60).
+    /// The median leaves out speculars, occlusions and the model's uncoloured edges. (1, 0)
+    /// when fewer than 100 pairs, or when the gain is implausible (outside [0.5, 2]).
+    fn fit_brightness(&self, x: &[f64]) -> (f64, f64) {
         let lin = self.prepare(x);
-        let mut fit = (1.0, 0.0);
-        // two numbers need far fewer pairs than the level has: about BRIGHTNESS_SAMPLES grid
-        // points, spread evenly
+        let mut ratios = [0.0f32; 2 * BRIGHTNESS_SAMPLES];
+        let mut n = 0;
+        // one number needs far fewer pairs than the level has: about BRIGHTNESS_SAMPLES grid
+        // points, spread evenly (at most twice that many)
         let step = (self.grid.len() / BRIGHTNESS_SAMPLES).max(1);
-        for round in 0..2 {
-            let mut sums = [0.0f64; 6]; // n, Σl, Σm, Σl², Σlm, Σm²
-            for k in (0..self.grid.len()).step_by(step) {
-                let Some(a) = self.associate(k, &lin) else {
-                    continue;
-                };
-                let Some((m, _)) = self.field.sample(a.x.u, a.x.v) else {
-                    continue;
-                };
-                let l = self.live.intensity.data[a.pixel] as f64;
-                if round == 1 && (fit.0 * l + fit.1 - m).abs() > trim {
-                    continue;
-                }
-                for (s, v) in sums.iter_mut().zip([1.0, l, m, l * l, l * m, m * m]) {
-                    *s += v;
-                }
+        for k in (0..self.grid.len()).step_by(step) {
+            let Some(a) = self.associate(k, &lin) else {
+                continue;
+            };
+            let Some((m, _)) = self.field.sample(a.x.u, a.x.v) else {
+                continue;
+            };
+            let l = self.live.intensity.data[a.pixel] as f64;
+            if l >= MIN_RATIO_INTENSITY && n < ratios.len() {
+                ratios[n] = (m / l) as f32;
+                n += 1;
             }
-            let [n, sl, sm, sll, slm, smm] = sums;
-            if n < 100.0 {
-                return (1.0, 0.0);
-            }
-            // centred second moments
-            let (cll, clm, cmm) = (sll - sl * sl / n, slm - sl * sm / n, smm - sm * sm / n);
-            if clm <= 1e-9 * n {
-                return (1.0, 0.0);
-            }
-            // the major axis of the 2 × 2 scatter: slope (cmm − cll + √((cmm − cll)² + 4clm²)) / 2clm
-            let d = cmm - cll;
-            let a = (d + (d * d + 4.0 * clm * clm).sqrt()) / (2.0 * clm);
-            fit = (a, (sm - a * sl) / n);
         }
-        if (0.5..=2.0).contains(&fit.0) && fit.1.is_finite() {
-            fit
+        if n < 100 {
+            return (1.0, 0.0);
+        }
+        let (_, median, _) = ratios[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
+        let gain = *median as f64;
+        if (0.5..=2.0).contains(&gain) {
+            (gain, 0.0)
         } else {
             (1.0, 0.0)
         }
@@ -769,7 +763,7 @@ impl Tracker {
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
             if terms.photometric && p.affine_brightness {
-                brightness = Some(terms.fit_brightness(&x, 3.0 * p.huber_photometric));
+                brightness = Some(terms.fit_brightness(&x));
             }
             let terms = IcpTerms {
                 brightness: brightness.unwrap_or((1.0, 0.0)),
