@@ -151,7 +151,7 @@ struct Args {
     /// Frames to process at most [default: all].
     #[arg(long)]
     max_frames: Option<usize>,
-    /// Do not fit the live exposure to the model's (TrackerParams::affine_brightness).
+    /// Do not fit the live exposure to the model's (TrackerParams::fit_gain).
     #[arg(long)]
     no_exposure_fit: bool,
     /// Start each frame's tracking from the last pose, not from the constant-velocity prediction.
@@ -245,7 +245,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.lambda_photometric = args.lambda;
     p.tracker.iterations = args.iterations.clone();
     p.tracker.strides = args.strides.clone();
-    p.tracker.affine_brightness = !args.no_exposure_fit;
+    p.tracker.fit_gain = !args.no_exposure_fit;
     p.predict_motion = !args.no_motion_prediction;
     p.register_color = !args.no_color_registration;
     p.tracker.max_distance = args.max_distance;

@@ -46,7 +46,7 @@ fn the_fitted_gain_follows_the_sensors_gain_through_vignetting() {
         let g0 = *first_gain.get_or_insert(model.gain(f.color_stamp));
         if k > 0 {
             let truth = g0 / model.gain(f.color_stamp);
-            let off = (report.brightness.0 / truth - 1.0).abs();
+            let off = (report.gain / truth - 1.0).abs();
             if off > worst.1 {
                 worst = (k, off);
             }

@@ -87,9 +87,9 @@ fn an_exposure_drift_costs_no_accuracy() {
     let frames = 75; // the gain climbs to 1.15 at frame 37 and is back to 1 at 75
     let mut fit_mattered = false;
     for m in [Motion::Orbit, Motion::Shake] {
-        let ate_of = |gain_drift: f32, affine: bool| {
+        let ate_of = |gain_drift: f32, fit: bool| {
             let mut params = SlamParams::default();
-            params.tracker.affine_brightness = affine;
+            params.tracker.fit_gain = fit;
             let noise = SensorNoise {
                 seed: 3,
                 gain_drift,
@@ -113,7 +113,7 @@ fn an_exposure_drift_costs_no_accuracy() {
     }
     assert!(
         fit_mattered,
-        "the brightness fit made no difference on either motion"
+        "the exposure fit made no difference on either motion"
     );
 }
 

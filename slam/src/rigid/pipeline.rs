@@ -129,10 +129,10 @@ pub struct FrameReport {
     /// from: the newest one when the frame was fused. [`KeyframeGraph::corrected`] carries the
     /// pose along when a loop moves the keyframe. `None` before the first keyframe.
     pub anchor: Option<usize>,
-    /// The exposure fit (a, b) the frame was tracked with: the model's intensity is about
-    /// a I + b for the live intensity I (b is 0: the fit is a gain, NOTES 60; (1, 0) when not
-    /// fitted or not tracked). The colour is fused as recorded.
-    pub brightness: (f64, f64),
+    /// The exposure gain a the frame was tracked with: the model's intensity is about a I for
+    /// the live intensity I (NOTES 60; 1 when not fitted or not tracked). The colour is fused
+    /// as recorded.
+    pub gain: f64,
 }
 
 impl FrameReport {
@@ -365,7 +365,7 @@ impl RigidSlam {
             agreement: 0.0,
             conditioning: 0.0,
             anchor: None,
-            brightness: (1.0, 0.0),
+            gain: 1.0,
         };
         if let Err(why) = self.check_size(depth_raw, color) {
             report.outcome = FrameOutcome::NotTracked(why);
@@ -381,15 +381,15 @@ impl RigidSlam {
             report.times.track = t.elapsed().as_secs_f64();
             located
         } else {
-            self.can_start().map(|()| (1.0, 0.0))
+            self.can_start().map(|()| 1.0)
         };
         let fit = (report.outcome != FrameOutcome::Started).then_some(Fit {
             fraction: report.inlier_fraction,
             agreement: report.agreement,
         });
         let agreement = fit.map(|f| f.agreement);
-        let fused = located.and_then(|brightness| {
-            report.brightness = brightness;
+        let fused = located.and_then(|gain| {
+            report.gain = gain;
             let t = Instant::now();
             let fused = self.fuse(color, agreement);
             report.times.integrate = t.elapsed().as_secs_f64();
@@ -454,14 +454,14 @@ impl RigidSlam {
     /// [`RelocaliseParams::min_fit_ratio`] × their fit); otherwise the frame is tracked from
     /// `start`, and a track that fails or falls below either floor faces the relocaliser, the
     /// higher inlier fraction kept. Sets the pose, the report's outcome, inliers and
-    /// conditioning; on success, the exposure fit (a, b) to fuse the colour with.
+    /// conditioning; on success, the exposure gain the frame was tracked with.
     fn locate(
         &mut self,
         color: Option<&ColorImage>,
         start: Isometry3<f64>,
         stamp: f64,
         report: &mut FrameReport,
-    ) -> Result<(f64, f64), TrackFailure> {
+    ) -> Result<f64, TrackFailure> {
         // degeneracy does not depend on the pose: checked once, before any start is tried
         let constraint = FrameConstraint::of(&self.pre.levels);
         report.conditioning = constraint.conditioning;
@@ -514,7 +514,7 @@ impl RigidSlam {
         }
         match outcome.failure {
             Some(why) => Err(why),
-            None => Ok(outcome.brightness),
+            None => Ok(outcome.gain),
         }
     }
 
@@ -589,10 +589,12 @@ impl RigidSlam {
         if let Some(s) = self.submaps.as_mut().filter(|s| s.wants_anchor()) {
             s.anchor(self.frames, tsdf);
             if let Some(next) = s.next_volume() {
-                // the anchor's own frame starts the new sub-map (errors are the budget's, met
-                // again by the active volume on the next frame)
+                // the anchor's own frame starts the new sub-map; an error is the memory
+                // budget's, met again (and reported) when the next frame is fused into it
                 let view = (&self.camera, &self.pose);
-                let _ = integrate(next, &self.pre.levels[0], color, view);
+                if let Err(why) = integrate(next, &self.pre.levels[0], color, view) {
+                    tracing::warn!(frame = self.frames, %why, "the new sub-map's first frame was not fused");
+                }
             }
         }
         let found = if self.submaps.is_some() {
@@ -656,18 +658,18 @@ impl RigidSlam {
             if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= fraction) {
                 continue;
             }
-            let depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
-            let relative = pose.inverse() * o.pose;
             let found = LoopCandidate {
                 from: frame,
                 to: self.frames,
-                relative,
+                relative: pose.inverse() * o.pose,
                 inliers: o.inliers,
-                depth,
+                depth: 0.0,
             };
             best = Some((fraction, found));
         }
-        best.map(|b| b.1)
+        let (_, mut found) = best?;
+        found.depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
+        Some(found)
     }
 
     /// Raycasts the model at the current pose for the next frame's tracking.
@@ -694,7 +696,7 @@ impl RigidSlam {
             fraction = report.inlier_fraction,
             agreement = report.agreement,
             conditioning = report.conditioning,
-            gain = report.brightness.0,
+            gain = report.gain,
             preprocess_ms = 1e3 * times.preprocess,
             track_ms = 1e3 * times.track,
             integrate_ms = 1e3 * times.integrate,

@@ -71,7 +71,7 @@ pub struct TrackerParams {
     /// true; the gain of the brightness model of Engel et al., *Direct Sparse Odometry*, 2018,
     /// fitted in closed form rather than optimised with the pose). The fit serves tracking
     /// only: the model keeps the colours as recorded (NOTES 60).
-    pub affine_brightness: bool,
+    pub fit_gain: bool,
     /// Weigh each point-to-plane residual by the inverse of the sensor's depth noise relative to
     /// the frame's mean depth z̄: r ↦ r·(z̄/z)^k (default 2; 0 turns it off). A structured-light
     /// sensor's noise grows as z² (Khoshelham & Elberink 2012; Nguyen, Izadi & Lovell 2012), so
@@ -107,7 +107,7 @@ impl Default for TrackerParams {
             max_rotation_deg: 30.0,
             min_conditioning: 1e-3,
             min_texture: 0.01,
-            affine_brightness: true,
+            fit_gain: true,
             depth_weight_power: 2,
             motion_prior: 1e-4,
         }
@@ -296,8 +296,8 @@ struct IcpTerms<'a> {
     max_distance: f64,
     min_cos: f64,
     photometric: bool,
-    /// (a, b): the live intensity I enters the photometric residual as aI + b.
-    brightness: (f64, f64),
+    /// The exposure gain a: the live intensity I enters the photometric residual as aI.
+    gain: f64,
     /// The live pixels taken.
     grid: Grid,
     /// (z̄, k): point-to-plane residuals are weighed by (z̄/z)^k ([`TrackerParams::depth_weight_power`]).
@@ -391,8 +391,7 @@ impl DenseTerms<6> for IcpTerms<'_> {
             emit(r * s, &jac.map(|j| j * s), 0);
         }
         if self.photometric {
-            let (ga, gb) = self.brightness;
-            let live_i = ga * self.live.intensity.data[a.pixel] as f64 + gb;
+            let live_i = self.gain * self.live.intensity.data[a.pixel] as f64;
             if let Some((r, jac)) = photometric_at(
                 &a.x,
                 &lin.rel.rt,
@@ -424,7 +423,7 @@ fn emit_prior<E: FnMut(f64, &[f64; 6], usize)>(
     }
 }
 
-/// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_brightness`]).
+/// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_gain`]).
 const BRIGHTNESS_SAMPLES: usize = 2000;
 
 /// Live intensities below this (of 1) take no part in the exposure fit: their ratio to the
@@ -534,14 +533,13 @@ impl IcpTerms<'_> {
 
     /// The gain a that takes the live intensities onto the model's, as the median of the
     /// ratios m / l over the pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them,
-    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out); returned as (a, 0). A
+    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out). A
     /// sensor's gain multiplies the intensities, and a ratio is blind to contrast: the model's
     /// texture is the live one averaged over frames and voxels, so its contrast is lower, and
     /// a fit of the slope (least squares or total least squares) reads that as a gain below 1
     /// which, fused into the model, lowers its contrast further, frame after frame (NOTES 60).
-    /// The median leaves out speculars, occlusions and the model's uncoloured edges. (1, 0)
-    /// when fewer than 100 pairs, or when the gain is implausible (outside [0.5, 2]).
-    fn fit_brightness(&self, x: &[f64]) -> (f64, f64) {
+    /// The median leaves out speculars, occlusions and the model's uncoloured edges. 1 when fewer than 100 pairs, or when the gain is implausible (outside [0.5, 2]).
+    fn fit_gain(&self, x: &[f64]) -> f64 {
         let lin = self.prepare(x);
         let mut ratios = [0.0f32; 2 * BRIGHTNESS_SAMPLES];
         let mut n = 0;
@@ -562,14 +560,14 @@ impl IcpTerms<'_> {
             }
         }
         if n < 100 {
-            return (1.0, 0.0);
+            return 1.0;
         }
         let (_, median, _) = ratios[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
         let gain = *median as f64;
         if (0.5..=2.0).contains(&gain) {
-            (gain, 0.0)
+            gain
         } else {
-            (1.0, 0.0)
+            1.0
         }
     }
 }
@@ -597,9 +595,9 @@ pub struct TrackOutcome {
     /// agree with it: the normal test passed and within three noise deviations of the model
     /// point (0 when not tracked).
     pub agreement: f64,
-    /// (a, b) of the exposure fit on the finest level that ran: the model's intensity is about
-    /// a I + b for the live intensity I ((1, 0) when not fitted).
-    pub brightness: (f64, f64),
+    /// The exposure gain fitted on the finest level that ran: the model's intensity is about
+    /// a I for the live intensity I (1 when not fitted).
+    pub gain: f64,
 }
 
 impl TrackOutcome {
@@ -616,7 +614,7 @@ impl TrackOutcome {
             inliers: 0,
             valid_pixels: 0,
             agreement: 0.0,
-            brightness: (1.0, 0.0),
+            gain: 1.0,
         }
     }
 }
@@ -723,7 +721,7 @@ impl Tracker {
         let prior = (p.motion_prior > 0.0).then(|| (start.inverse(), z_mean));
         let mut inliers = 0;
         let mut agreement = 0.0;
-        let mut brightness = None;
+        let mut gain = None;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = p.iterations.get(l).copied().unwrap_or(0);
@@ -747,7 +745,7 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
-                brightness: (1.0, 0.0),
+                gain: 1.0,
                 grid: Grid::new(&live[l], stride_of(l)),
                 depth_weight: (z_mean, p.depth_weight_power),
                 prior,
@@ -762,11 +760,11 @@ impl Tracker {
             }
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
-            if terms.photometric && p.affine_brightness {
-                brightness = Some(terms.fit_brightness(&x));
+            if terms.photometric && p.fit_gain {
+                gain = Some(terms.fit_gain(&x));
             }
             let terms = IcpTerms {
-                brightness: brightness.unwrap_or((1.0, 0.0)),
+                gain: gain.unwrap_or(1.0),
                 ..terms
             };
             let options = DenseOptions {
@@ -828,7 +826,7 @@ impl Tracker {
             inliers,
             valid_pixels,
             agreement,
-            brightness: brightness.unwrap_or((1.0, 0.0)),
+            gain: gain.unwrap_or(1.0),
         }
     }
 }
