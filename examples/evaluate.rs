@@ -3,8 +3,10 @@
 //! ```text
 //! cargo run --release --example evaluate -- ate GT.txt EST.txt [--align se3|sim3|none]
 //! cargo run --release --example evaluate -- rpe GT.txt EST.txt [--delta 1 --delta-unit frames|seconds|meters]
+//! cargo run --release --example evaluate -- mesh MESH.ply GT.txt EST.txt --layout room --seed 51
 //! ```
-//! Prints the statistics and, last, one JSON line (rmse, mean, median, max, pairs).
+//! Prints the statistics and, last, one JSON line (rmse, mean, median, max, pairs; for `mesh`,
+//! the distances of the mesh's vertices to the generated scene's surface and the share off it).
 
 #[path = "common/cli.rs"]
 mod cli;
@@ -14,8 +16,11 @@ mod preview;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use cli::{InputError, Session};
-use dynamap::slam::eval::{ate, rpe, Alignment, DeltaUnit, MAX_STAMP_DIFFERENCE};
+use dynamap::slam::eval::{associate, ate, rpe, Alignment, DeltaUnit, MAX_STAMP_DIFFERENCE};
+use dynamap::slam::io::ply;
 use dynamap::slam::io::trajectory::Trajectory;
+use dynamap::slam::synthetic::layouts::{self, Layout};
+use dynamap::slam::synthetic::surface_error::surface_error;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -65,6 +70,33 @@ enum Metric {
         delta_unit: Unit,
         /// Largest stamp difference for associating poses, seconds (evo's --t_max_diff).
         #[arg(long, visible_alias = "t-max-diff", default_value_t = MAX_STAMP_DIFFERENCE)]
+        max_difference: f64,
+    },
+    /// A mesh of a generated rigid sequence against its scene: each vertex's distance to the
+    /// scene's surface along its normal, and the share farther than --tolerance (a wall fused
+    /// twice shows as vertices off the surface). The mesh is taken into the scene's frame by the
+    /// ground truth and the estimate at the first stamp they share.
+    Mesh {
+        /// The mesh (PLY), in the frame of the estimate.
+        mesh: PathBuf,
+        /// Ground truth of the sequence (TUM format).
+        gt: PathBuf,
+        /// The trajectory the mesh was made with (TUM format).
+        est: PathBuf,
+        /// The layout the sequence was generated with (room, bare, office, twins).
+        #[arg(long)]
+        layout: Layout,
+        /// The seed it was generated with.
+        #[arg(long)]
+        seed: u64,
+        /// How far along its normal a vertex looks for the surface, metres.
+        #[arg(long, default_value_t = 0.05)]
+        reach: f64,
+        /// Farther than this from the surface, a vertex is off it, metres.
+        #[arg(long, default_value_t = 0.01)]
+        tolerance: f64,
+        /// Largest stamp difference for associating poses, seconds.
+        #[arg(long, default_value_t = MAX_STAMP_DIFFERENCE)]
         max_difference: f64,
     },
 }
@@ -169,6 +201,72 @@ fn run(args: Args, session: &Session) -> Result<()> {
                     "rotation_deg": {"rmse": d.rmse, "mean": d.mean, "median": d.median, "max": d.max}})
             );
         }
+        Metric::Mesh {
+            mesh,
+            gt,
+            est,
+            layout,
+            seed,
+            reach,
+            tolerance,
+            max_difference,
+        } => mesh_error(
+            &mesh,
+            (&gt, &est),
+            (layout, seed),
+            (reach, tolerance),
+            max_difference,
+            quiet,
+        )?,
     }
+    Ok(())
+}
+
+/// `evaluate mesh`: the mesh at `path` against the scene of `layout` and `seed`.
+fn mesh_error(
+    path: &std::path::Path,
+    (gt, est): (&std::path::Path, &std::path::Path),
+    (layout, seed): (Layout, u64),
+    (reach, tolerance): (f64, f64),
+    max_difference: f64,
+    quiet: bool,
+) -> Result<()> {
+    if !(reach > 0.0 && tolerance > 0.0) {
+        return Err(cli::bad_input("--reach and --tolerance must be positive"));
+    }
+    let (g, e) = read_pair(gt, est)?;
+    let Some(&(i, j)) = associate(&g, &e, max_difference).first() else {
+        return Err(cli::bad_input(format!(
+            "{} and {} share no stamp within {max_difference} s",
+            gt.display(),
+            est.display()
+        )));
+    };
+    let to_scene = g.poses[i] * e.poses[j].inverse();
+    let mesh = ply::read(path).bad_input()?;
+    let scene = layouts::build(layout, seed);
+    let r = surface_error(&mesh, &scene.prepare(), &to_scene, reach, tolerance);
+    let d = r.distances.as_ref();
+    if !quiet {
+        println!(
+            "{} vertices measured, {} off the surface by more than {tolerance} m ({:.2} %), {} find no surface within {reach} m",
+            r.vertices,
+            r.off,
+            100.0 * r.off_fraction(),
+            r.unmatched
+        );
+        if let Some(d) = d {
+            println!(
+                "  distance (m): rmse {:.6}  mean {:.6}  median {:.6}  max {:.6}",
+                d.rmse, d.mean, d.median, d.max
+            );
+        }
+    }
+    println!(
+        "{}",
+        serde_json::json!({"metric": "mesh", "vertices": r.vertices, "off": r.off, "off_fraction": r.off_fraction(),
+            "unmatched": r.unmatched, "rmse": d.map(|d| d.rmse), "mean": d.map(|d| d.mean),
+            "median": d.map(|d| d.median), "max": d.map(|d| d.max)})
+    );
     Ok(())
 }

@@ -30,6 +30,23 @@ pub enum Layout {
     Twins,
 }
 
+impl std::str::FromStr for Layout {
+    type Err = String;
+
+    /// `room`, `bare`, `office` or `twins` (as `generate rigid --layout` takes them).
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "room" => Ok(Layout::Room),
+            "bare" => Ok(Layout::Bare),
+            "office" => Ok(Layout::Office),
+            "twins" => Ok(Layout::Twins),
+            _ => Err(format!(
+                "unknown layout {s:?}: expected room, bare, office or twins"
+            )),
+        }
+    }
+}
+
 /// The scene of `layout` with textures (and, for [`Layout::Office`], geometry) from `seed`.
 pub fn build(layout: Layout, seed: u64) -> Scene {
     match layout {

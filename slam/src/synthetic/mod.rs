@@ -12,6 +12,7 @@
 //!   per-pixel scene flow and the deformed mesh per frame;
 //! - [`plate`]: the thesis' flat 21 × 13 grid and its five target deformations (Table 4.1);
 //! - [`sequence`]: writing everything in the TUM layout;
+//! - [`surface_error`]: how far a reconstructed mesh lies from the scene (a wall fused twice);
 //! - [`faults`]: a sequence with dropped, corrupt and blank frames, a jump and a textureless
 //!   stretch, for reliability tests.
 //!
@@ -28,4 +29,5 @@ pub mod plate;
 pub mod render;
 pub mod scene;
 pub mod sequence;
+pub mod surface_error;
 pub mod texture;
