@@ -246,6 +246,12 @@ fn mesh_error(
     let mesh = ply::read(path).bad_input()?;
     let scene = layouts::build(layout, seed);
     let r = surface_error(&mesh, &scene.prepare(), &to_scene, reach, tolerance);
+    if r.vertices == 0 {
+        return Err(cli::bad_input(format!(
+            "{}: no vertex with a normal to measure",
+            path.display()
+        )));
+    }
     let d = r.distances.as_ref();
     if !quiet {
         println!(

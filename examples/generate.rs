@@ -45,14 +45,6 @@ enum RigidMotion {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
-enum LayoutArg {
-    Room,
-    Bare,
-    Office,
-    Twins,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
 enum SensorArg {
     Kinect,
     Ideal,
@@ -119,10 +111,10 @@ enum Kind {
         /// with its own stamps) or the ideal render with simple axial noise.
         #[arg(long, value_enum, default_value = "kinect")]
         sensor: SensorArg,
-        /// The scene: the furnished room, the same room with plain floor and walls, or an office
-        /// drawn from the seed.
-        #[arg(long, value_enum, default_value = "room")]
-        layout: LayoutArg,
+        /// The scene: `room` (furnished), `bare` (the same room with plain floor and walls),
+        /// `office` (drawn from the seed) or `twins` (two identical halves).
+        #[arg(long, default_value = "room")]
+        layout: Layout,
     },
     /// A surface deforming in front of a static camera.
     Deforming {
@@ -249,15 +241,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             };
             sequence::write_rigid(
                 &common.out,
-                &layouts::build(
-                    match layout {
-                        LayoutArg::Room => Layout::Room,
-                        LayoutArg::Bare => Layout::Bare,
-                        LayoutArg::Office => Layout::Office,
-                        LayoutArg::Twins => Layout::Twins,
-                    },
-                    common.seed,
-                ),
+                &layouts::build(*layout, common.seed),
                 &cam,
                 &traj,
                 &to_room,

@@ -533,12 +533,13 @@ impl IcpTerms<'_> {
 
     /// The gain a that takes the live intensities onto the model's, as the median of the
     /// ratios m / l over the pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them,
-    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out). A
-    /// sensor's gain multiplies the intensities, and a ratio is blind to contrast: the model's
-    /// texture is the live one averaged over frames and voxels, so its contrast is lower, and
-    /// a fit of the slope (least squares or total least squares) reads that as a gain below 1
-    /// which, fused into the model, lowers its contrast further, frame after frame (NOTES 60).
-    /// The median leaves out speculars, occlusions and the model's uncoloured edges. 1 when fewer than 100 pairs, or when the gain is implausible (outside [0.5, 2]).
+    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out). A sensor's gain multiplies
+    /// the intensities, and a ratio is blind to contrast: the model's texture is the live one
+    /// averaged over frames and voxels, so its contrast is lower, and a fit of the slope (least
+    /// squares or total least squares) reads that as a gain below 1 which, fused into the
+    /// model, lowers its contrast further, frame after frame (NOTES 60). The median leaves out
+    /// speculars, occlusions and the model's uncoloured edges. 1 when fewer than 100 pairs, or
+    /// when the gain is implausible (outside [0.5, 2]).
     fn fit_gain(&self, x: &[f64]) -> f64 {
         let lin = self.prepare(x);
         let mut ratios = [0.0f32; 2 * BRIGHTNESS_SAMPLES];
@@ -721,7 +722,7 @@ impl Tracker {
         let prior = (p.motion_prior > 0.0).then(|| (start.inverse(), z_mean));
         let mut inliers = 0;
         let mut agreement = 0.0;
-        let mut gain = None;
+        let mut gain = 1.0;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = p.iterations.get(l).copied().unwrap_or(0);
@@ -731,7 +732,7 @@ impl Tracker {
             let ml = &model.levels[l.saturating_sub(model.offset).min(model.levels.len() - 1)];
             let has_color = live[l].intensity.data.len() == live[l].vertices.data.len()
                 && ml.intensity.data.len() == ml.vertices.data.len();
-            let terms = IcpTerms {
+            let mut terms = IcpTerms {
                 live: &live[l],
                 model: ml,
                 field: ModelIntensity { level: ml },
@@ -745,7 +746,7 @@ impl Tracker {
                 max_distance: p.max_distance,
                 min_cos: p.max_normal_angle_deg.to_radians().cos(),
                 photometric: has_color && p.lambda_photometric > 0.0,
-                gain: 1.0,
+                gain,
                 grid: Grid::new(&live[l], stride_of(l)),
                 depth_weight: (z_mean, p.depth_weight_power),
                 prior,
@@ -761,12 +762,9 @@ impl Tracker {
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
             if terms.photometric && p.fit_gain {
-                gain = Some(terms.fit_gain(&x));
+                gain = terms.fit_gain(&x);
+                terms.gain = gain;
             }
-            let terms = IcpTerms {
-                gain: gain.unwrap_or(1.0),
-                ..terms
-            };
             let options = DenseOptions {
                 groups: &groups,
                 max_iterations: iterations,
@@ -826,7 +824,7 @@ impl Tracker {
             inliers,
             valid_pixels,
             agreement,
-            gain: gain.unwrap_or(1.0),
+            gain,
         }
     }
 }
