@@ -136,6 +136,10 @@ struct Args {
     /// With --submaps: frames a sub-map fuses before the next keyframe starts a new one.
     #[arg(long, default_value_t = SubmapParams::default().frames)]
     submap_frames: usize,
+    /// With --submaps: frames fused into both the old and the new sub-map before tracking
+    /// switches to the new one.
+    #[arg(long, default_value_t = SubmapParams::default().overlap)]
+    submap_overlap: usize,
     /// A loop's deviation as a fraction of the scene's median depth (and radians), in the
     /// keyframe graph (LoopParams::loop_deviation).
     #[arg(long, default_value_t = SlamParams::default().relocalise.loops.loop_deviation)]
@@ -269,7 +273,7 @@ fn params(args: &Args) -> Result<SlamParams> {
         }
         p.submaps = Some(SubmapParams {
             frames: args.submap_frames,
-            ..SubmapParams::default()
+            overlap: args.submap_overlap,
         });
     }
     let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;

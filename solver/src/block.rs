@@ -7,7 +7,7 @@
 //! element (r, c) of block (i, j) sits at `values[col_ptr[block_start[j] + c] + pos + r]`, with
 //! `pos` the block's offset inside its columns.
 
-use crate::linear::Damping;
+use crate::damping::Damping;
 
 /// One block (i, j), i ≤ j, of the upper triangle.
 #[derive(Clone, Copy, Debug)]

@@ -14,8 +14,8 @@
 //! solver; its answer is snapped onto the bounds it reaches, the free coordinates are re-solved
 //! exactly with that active set (small systems), and every iterate honours the bounds exactly.
 
+use crate::damping::Damping;
 use crate::error::SolveError;
-use crate::linear::Damping;
 use crate::normal::NormalEquations;
 use crate::problem::Problem;
 use clarabel::algebra::CscMatrix;
@@ -40,7 +40,7 @@ impl StepBox {
     /// The box at the problem's current values, or None when no free variable is bounded.
     pub fn new(problem: &Problem, ne: &NormalEquations) -> Option<Self> {
         if !ne
-            .var_of_block
+            .var_of_block()
             .iter()
             .any(|&v| !problem.variables[v].lower.is_empty())
         {
@@ -49,14 +49,14 @@ impl StepBox {
         let n = ne.dim();
         let (mut lo, mut hi) = (vec![f64::NEG_INFINITY; n], vec![f64::INFINITY; n]);
         let mut bounded = Vec::new();
-        for (b, &v) in ne.var_of_block.iter().enumerate() {
+        for (b, &v) in ne.var_of_block().iter().enumerate() {
             let var = &problem.variables[v];
             if var.lower.is_empty() {
                 continue;
             }
             let x = &problem.values[var.offset..];
             for (i, xi) in x.iter().take(var.lower.len()).enumerate() {
-                let k = ne.h.block_start[b] + i;
+                let k = ne.h().block_start[b] + i;
                 lo[k] = var.lower[i] - xi;
                 hi[k] = var.upper[i] - xi;
                 if lo[k].is_finite() || hi[k].is_finite() {
@@ -94,7 +94,7 @@ impl StepBox {
         step: &mut [f64],
     ) -> Result<(), SolveError> {
         let n = ne.dim();
-        let h = &ne.h;
+        let h = ne.h();
         let mut values = h.values.clone();
         for &p in &h.diag_pos {
             values[p] = damping.apply(values[p]);
@@ -128,7 +128,7 @@ impl StepBox {
             .verbose(false)
             .build()
             .map_err(|e| SolveError::Bounds(format!("settings: {e:?}")))?;
-        let mut qp = DefaultSolver::new(&p, &ne.gradient, &a, &b, &cones, settings)
+        let mut qp = DefaultSolver::new(&p, ne.gradient(), &a, &b, &cones, settings)
             .map_err(|e| SolveError::Bounds(format!("the step's QP was refused: {e:?}")))?;
         qp.solve();
         match qp.solution.status {
@@ -172,7 +172,7 @@ fn polish(ne: &NormalEquations, damping: Damping, lo: &[f64], hi: &[f64], step: 
     if free.len() == n || free.is_empty() {
         return;
     }
-    let h = &ne.h;
+    let h = ne.h();
     let mut dense = DMatrix::<f64>::zeros(n, n);
     h.for_each_damped(damping, |r, c, v| {
         dense[(r, c)] = v;
@@ -181,7 +181,7 @@ fn polish(ne: &NormalEquations, damping: Damping, lo: &[f64], hi: &[f64], step: 
     let mut a = DMatrix::<f64>::zeros(free.len(), free.len());
     let mut b = DVector::<f64>::zeros(free.len());
     for (i, &fi) in free.iter().enumerate() {
-        b[i] = -ne.gradient[fi];
+        b[i] = -ne.gradient()[fi];
         for k in 0..n {
             if step[k] == lo[k] || step[k] == hi[k] {
                 b[i] -= dense[(fi, k)] * step[k];

@@ -6,11 +6,13 @@
 //! is found without forming H⁻¹: H is factorised once (sparse or dense Cholesky) and solved for the
 //! unit vectors of that variable's coordinates.
 
+use crate::cholesky::Cholesky;
+use crate::damping::Damping;
 use crate::diagnose;
 use crate::error::SolveError;
-use crate::linear::{Cholesky, Damping, LinearSolver};
-use crate::minimizer::Options;
+use crate::linear::LinearSolver;
 use crate::normal::NormalEquations;
+use crate::options::Options;
 use crate::problem::{Problem, VarId};
 use nalgebra::DMatrix;
 
@@ -22,7 +24,7 @@ use nalgebra::DMatrix;
 pub fn covariance(problem: &Problem, variables: &[VarId]) -> Result<Vec<DMatrix<f64>>, SolveError> {
     let mut ne = NormalEquations::new(problem)?;
     for v in variables {
-        match ne.block_of_var.get(v.0) {
+        match ne.block_of_var().get(v.0) {
             None => {
                 return Err(SolveError::Covariance(format!(
                     "variable {} does not exist",
@@ -46,7 +48,7 @@ pub fn covariance(problem: &Problem, variables: &[VarId]) -> Result<Vec<DMatrix<
     }
     ne.assemble();
     let dense = ne.dim() <= Options::default().dense_threshold;
-    let mut linear = LinearSolver::Direct(Cholesky::new(&ne.h, dense)?);
+    let mut linear = LinearSolver::Direct(Cholesky::new(ne.h(), dense)?);
     if diagnose::has_unanchored_component(problem, &ne) {
         diagnose::check_rank(problem, &ne, &mut linear)?;
     }
@@ -65,8 +67,8 @@ pub fn covariance(problem: &Problem, variables: &[VarId]) -> Result<Vec<DMatrix<
     let mut column = vec![0.0; n];
     let mut out = Vec::with_capacity(variables.len());
     for v in variables {
-        let b = ne.block_of_var[v.0];
-        let (start, d) = (ne.h.block_start[b], ne.h.block_dim(b));
+        let b = ne.block_of_var()[v.0];
+        let (start, d) = (ne.h().block_start[b], ne.h().block_dim(b));
         let mut m = DMatrix::zeros(d, d);
         for c in 0..d {
             column.fill(0.0);

@@ -6,9 +6,11 @@
 //! (Saad, *Numerical Methods for Large Eigenvalue Problems*, 2011, sec. 4.3 and 5.1), and the
 //! variables carrying it are named.
 
+use crate::damping::Damping;
 use crate::error::SolveError;
-use crate::linear::{Damping, LinearSolver};
-use crate::normal::{dot, NormalEquations};
+use crate::linear::LinearSolver;
+use crate::normal::NormalEquations;
+use crate::parallel::dot;
 use crate::problem::Problem;
 use nalgebra::{DMatrix, SymmetricEigen};
 
@@ -30,7 +32,7 @@ pub(crate) fn has_unanchored_component(problem: &Problem, ne: &NormalEquations) 
         let mut first = None;
         let mut touches_fixed = false;
         for &v in &block.vars {
-            let b = ne.block_of_var[v];
+            let b = ne.block_of_var()[v];
             if b == usize::MAX {
                 touches_fixed = true;
                 continue;
@@ -75,10 +77,11 @@ pub(crate) fn check_rank(
     if n == 0 {
         return Ok(());
     }
-    let max_diag =
-        ne.h.diagonal()
-            .fold(0.0f64, f64::max)
-            .max(f64::MIN_POSITIVE);
+    let max_diag = ne
+        .h()
+        .diagonal()
+        .fold(0.0f64, f64::max)
+        .max(f64::MIN_POSITIVE);
     let mut eps = 1e-10 * max_diag;
     let mut factored = false;
     for _ in 0..4 {
@@ -105,7 +108,7 @@ pub(crate) fn check_rank(
     let mut hv = vec![0.0; n];
     let mut t = DMatrix::zeros(k, k);
     for j in 0..k {
-        ne.h.multiply(&basis[j], &mut hv);
+        ne.h().multiply(&basis[j], &mut hv);
         for i in 0..k {
             t[(i, j)] = dot(&basis[i], &hv);
         }
@@ -120,7 +123,7 @@ pub(crate) fn check_rank(
             nullity += 1;
             let y = eig.eigenvectors.column(e);
             for (b, m) in mass.iter_mut().enumerate() {
-                for i in ne.h.block_start[b]..ne.h.block_start[b + 1] {
+                for i in ne.h().block_start[b]..ne.h().block_start[b + 1] {
                     let u: f64 = basis.iter().zip(y.iter()).map(|(v, yj)| v[i] * yj).sum();
                     *m += u * u;
                 }
@@ -146,14 +149,14 @@ fn deficiency(
     nullity: usize,
     blocks: Vec<usize>,
 ) -> SolveError {
-    let mut variables: Vec<usize> = blocks.iter().map(|&b| ne.var_of_block[b]).collect();
+    let mut variables: Vec<usize> = blocks.iter().map(|&b| ne.var_of_block()[b]).collect();
     let any_fixed = problem.variables.iter().any(|v| v.fixed);
     // A null space over every free variable of a problem with nothing fixed is a gauge freedom.
     let message = if !any_fixed && variables.len() == ne.num_blocks() && ne.num_blocks() > 1 {
         format!(
             "no variable is fixed: the graph has a {nullity}-dimensional gauge freedom \
              (fix one variable, e.g. variable {}, or add a prior)",
-            ne.var_of_block[0]
+            ne.var_of_block()[0]
         )
     } else {
         let mut shown: Vec<usize> = variables.clone();

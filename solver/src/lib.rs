@@ -80,7 +80,9 @@
 mod autodiff;
 mod block;
 mod bounds;
+mod cholesky;
 mod covariance;
+mod damping;
 pub mod dense;
 mod diagnose;
 mod error;
@@ -92,29 +94,33 @@ mod manifold;
 mod minimizer;
 mod normal;
 mod numeric;
+mod options;
+mod parallel;
 mod problem;
+#[cfg(test)]
+mod properties;
 mod real;
 mod residual;
 pub mod robust;
 mod schur;
+mod summary;
 mod system;
 
 pub use autodiff::{AutoDiff, CostFunctor};
 pub use covariance::covariance;
+pub use damping::{Damping, LevenbergDamping};
 pub use error::{ProblemError, SolveError};
 pub use jet::Jet;
-pub use linear::{Damping, LinearSolverKind};
 pub use linearize::{linearize, Linearization};
 pub use manifold::{Euclidean, EuclideanDyn, Manifold, UnitQuaternionManifold, SE2, SE3, SO2, SO3};
-pub use minimizer::{
-    Algorithm, DampingKind, Elimination, IterationSummary, Observer, Options, Solver, Summary,
-    Termination,
-};
+pub use minimizer::Solver;
 pub use numeric::{check_jacobians, JacobianCheck, NumericDiff, DEFAULT_STEP};
+pub use options::{Algorithm, DampingKind, Elimination, LinearSolverKind, Options};
 pub use problem::{Problem, ResidualId, VarId};
 pub use real::Real;
 pub use residual::{Jacobians, Residual, Var};
 pub use robust::RobustKernel;
+pub use summary::{IterationSummary, Observer, Summary, Termination};
 pub use system::BlockSystem;
 
 #[doc = include_str!("../../docs/solver_guide.md")]

@@ -1,259 +1,13 @@
-//! Linear solvers for the damped normal equations `(H + μD) δ = −g`: dense Cholesky for small
-//! systems, faer's sparse (supernodal or simplicial) Cholesky for large ones, and the Schur
-//! complement (see [`crate::schur`]) for problems with many small independent blocks.
-//!
-//! The sparse path orders the *block* graph of H with approximate minimum degree (Amestoy, Davis &
-//! Duff, 1996), expands it to scalars so each variable's coordinates stay together, and computes the
-//! symbolic factorisation once; every later factorisation with the same structure reuses it.
+//! Dispatch to the solver of the damped normal equations `(H + μD) δ = −g` that
+//! [`LinearSolverKind`] names: a Cholesky of H itself ([`crate::cholesky`]) or the Schur
+//! complement ([`crate::schur`]) for problems with many small independent blocks.
 
-use crate::block::BlockSparse;
+use crate::cholesky::Cholesky;
+use crate::damping::Damping;
 use crate::error::SolveError;
 use crate::normal::NormalEquations;
+use crate::options::LinearSolverKind;
 use crate::schur::{Schur, SchurOptions};
-use dyn_stack::{MemBuffer, MemStack, StackReq};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::amd;
-use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
-    SymmetricOrdering,
-};
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{Conj, Mat, MatMut, Par, Side};
-
-/// Factor entries above which the sparse factorisation runs on all threads.
-const PARALLEL_FACTOR_ENTRIES: usize = 8_000_000;
-
-/// Which linear solver to use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LinearSolverKind {
-    /// Dense below [`crate::Options::dense_threshold`] unknowns, sparse above.
-    Auto,
-    /// Dense Cholesky of the full matrix.
-    Dense,
-    /// Sparse Cholesky with AMD ordering.
-    Sparse,
-    /// Schur complement: eliminate independent variables (see [`crate::Elimination`]), solve the
-    /// reduced system by dense Cholesky below [`crate::Options::dense_threshold`] unknowns and
-    /// sparse Cholesky above.
-    Schur,
-    /// Schur complement with a dense Cholesky of the reduced system.
-    SchurDense,
-    /// Schur complement with a sparse Cholesky of the reduced system.
-    SchurSparse,
-    /// Schur complement solved by preconditioned conjugate gradients with implicit products and a
-    /// block-Jacobi preconditioner (the reduced system is never formed).
-    SchurIterative,
-}
-
-impl LinearSolverKind {
-    /// True for the Schur-complement solvers.
-    pub fn is_schur(self) -> bool {
-        matches!(
-            self,
-            Self::Schur | Self::SchurDense | Self::SchurSparse | Self::SchurIterative
-        )
-    }
-}
-
-/// How the damping term D is formed.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Damping {
-    /// None: solve H δ = −g.
-    None,
-    /// μ I (Levenberg; Madsen, Nielsen & Tingleff 2004).
-    Identity(f64),
-    /// μ diag(H), diag clamped to [1e-6, 1e32] (Marquardt; Ceres' default).
-    Diagonal(f64),
-}
-
-impl Damping {
-    /// The damped value of a diagonal element `v` of H.
-    #[inline]
-    pub fn apply(self, v: f64) -> f64 {
-        match self {
-            Damping::None => v,
-            Damping::Identity(mu) => v + mu,
-            Damping::Diagonal(mu) => v + mu * v.clamp(1e-6, 1e32),
-        }
-    }
-}
-
-enum Kind {
-    Dense {
-        a: Mat<f64>,
-    },
-    Sparse {
-        symbolic: Box<SymbolicCholesky<usize>>,
-        l_values: Vec<f64>,
-        work: Vec<f64>,
-    },
-}
-
-/// A Cholesky factorisation of a symmetric block-sparse matrix plus damping, with its workspace
-/// kept across iterations.
-pub(crate) struct Cholesky {
-    kind: Kind,
-    mem: MemBuffer,
-    par: Par,
-    n: usize,
-}
-
-impl Cholesky {
-    /// Prepares a factorisation of matrices with `a`'s structure: dense, or sparse with the
-    /// symbolic analysis done here once.
-    pub fn new(a: &BlockSparse, dense: bool) -> Result<Self, SolveError> {
-        let n = a.dim();
-        let threads = rayon::current_num_threads();
-        if dense {
-            let par = if threads > 1 && n >= 1024 {
-                Par::rayon(0)
-            } else {
-                Par::Seq
-            };
-            let req = faer::linalg::cholesky::llt::factor::cholesky_in_place_scratch::<f64>(
-                n,
-                par,
-                Default::default(),
-            )
-            .or(faer::linalg::cholesky::llt::solve::solve_in_place_scratch::<f64>(n, 1, par));
-            return Ok(Self {
-                kind: Kind::Dense {
-                    a: Mat::zeros(n, n),
-                },
-                mem: MemBuffer::new(req),
-                par,
-                n,
-            });
-        }
-        let (fwd, inv) = block_amd(a)?;
-        let pattern = SymbolicSparseColMatRef::new_checked(n, n, &a.col_ptr, None, &a.row_idx);
-        let perm_ref = faer::perm::PermRef::new_checked(&fwd, &inv, n);
-        let symbolic = factorize_symbolic_cholesky(
-            pattern,
-            Side::Upper,
-            SymmetricOrdering::Custom(perm_ref),
-            CholeskySymbolicParams::default(),
-        )
-        .map_err(|e| SolveError::LinearSolver(format!("{e:?}")))?;
-        // Measured on the pose-graph benchmarks (2 cores): below a few million factor entries the
-        // supernodes are too small for threads to pay; sequential was 10-40 % faster.
-        let par = if threads > 1 && symbolic.len_val() > PARALLEL_FACTOR_ENTRIES {
-            Par::rayon(0)
-        } else {
-            Par::Seq
-        };
-        let req = StackReq::any_of(&[
-            symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(1, par),
-        ]);
-        let l_values = vec![0.0; symbolic.len_val()];
-        Ok(Self {
-            kind: Kind::Sparse {
-                symbolic: Box::new(symbolic),
-                l_values,
-                work: vec![0.0; a.values.len()],
-            },
-            mem: MemBuffer::new(req),
-            par,
-            n,
-        })
-    }
-
-    /// True for the sparse path.
-    pub fn is_sparse(&self) -> bool {
-        matches!(self.kind, Kind::Sparse { .. })
-    }
-
-    /// Factorises A + μD. On failure returns the (unpermuted) index of a non-positive pivot.
-    pub fn factor(&mut self, m: &BlockSparse, damping: Damping) -> Result<(), usize> {
-        let stack = MemStack::new(&mut self.mem);
-        match &mut self.kind {
-            Kind::Dense { a } => {
-                a.fill(0.0);
-                m.for_each_damped(damping, |r, c, v| {
-                    a[(r, c)] = v;
-                    a[(c, r)] = v;
-                });
-                faer::linalg::cholesky::llt::factor::cholesky_in_place(
-                    a.as_mut(),
-                    LltRegularization::default(),
-                    self.par,
-                    stack,
-                    Default::default(),
-                )
-                .map(|_| ())
-                .map_err(|e| match e {
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => {
-                        index
-                    }
-                })
-            }
-            Kind::Sparse {
-                symbolic,
-                l_values,
-                work,
-            } => {
-                work.copy_from_slice(&m.values);
-                for &p in &m.diag_pos {
-                    work[p] = damping.apply(work[p]);
-                }
-                let pattern = unsafe {
-                    SymbolicSparseColMatRef::new_unchecked(
-                        self.n, self.n, &m.col_ptr, None, &m.row_idx,
-                    )
-                };
-                let a = SparseColMatRef::new(pattern, work);
-                symbolic
-                    .factorize_numeric_llt(
-                        l_values,
-                        a,
-                        Side::Upper,
-                        LltRegularization::default(),
-                        self.par,
-                        stack,
-                        Default::default(),
-                    )
-                    .map(|_| ())
-                    .map_err(|e| match e {
-                        faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot {
-                            index,
-                        } => symbolic
-                            .perm()
-                            .map(|p| p.arrays().0[index])
-                            .unwrap_or(index),
-                    })
-            }
-        }
-    }
-
-    /// Solves with the last factorisation, overwriting `x` (the right-hand side) with the solution.
-    pub fn solve(&mut self, x: &mut [f64]) {
-        let stack = MemStack::new(&mut self.mem);
-        let n = self.n;
-        let rhs = MatMut::from_column_major_slice_mut(x, n, 1);
-        match &self.kind {
-            Kind::Dense { a } => {
-                faer::linalg::cholesky::llt::solve::solve_in_place_with_conj(
-                    a.as_ref(),
-                    Conj::No,
-                    rhs,
-                    self.par,
-                    stack,
-                );
-            }
-            Kind::Sparse {
-                symbolic, l_values, ..
-            } => {
-                LltRef::new(symbolic, l_values).solve_in_place_with_conj(
-                    Conj::No,
-                    rhs,
-                    self.par,
-                    stack,
-                );
-            }
-        }
-    }
-}
 
 /// The solver of the damped normal equations chosen by [`LinearSolverKind`].
 pub(crate) enum LinearSolver {
@@ -275,9 +29,9 @@ impl LinearSolver {
     ) -> Result<Self, SolveError> {
         let n = ne.dim();
         Ok(match kind {
-            LinearSolverKind::Dense => Self::Direct(Cholesky::new(&ne.h, true)?),
-            LinearSolverKind::Sparse => Self::Direct(Cholesky::new(&ne.h, false)?),
-            LinearSolverKind::Auto => Self::Direct(Cholesky::new(&ne.h, n <= dense_threshold)?),
+            LinearSolverKind::Dense => Self::Direct(Cholesky::new(ne.h(), true)?),
+            LinearSolverKind::Sparse => Self::Direct(Cholesky::new(ne.h(), false)?),
+            LinearSolverKind::Auto => Self::Direct(Cholesky::new(ne.h(), n <= dense_threshold)?),
             _ => Self::Schur(Box::new(Schur::new(
                 ne,
                 eliminate,
@@ -309,7 +63,7 @@ impl LinearSolver {
     /// unknown where positive definiteness failed.
     pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
         match self {
-            Self::Direct(c) => c.factor(&ne.h, damping),
+            Self::Direct(c) => c.factor(ne.h(), damping),
             Self::Schur(s) => s.factor(ne, damping),
         }
     }
@@ -321,41 +75,4 @@ impl LinearSolver {
             Self::Schur(s) => s.solve(ne, x),
         }
     }
-}
-
-/// AMD on the block graph of `a`, expanded to a scalar permutation (new → old, and its inverse).
-fn block_amd(a: &BlockSparse) -> Result<(Vec<usize>, Vec<usize>), SolveError> {
-    let nb = a.num_blocks();
-    let mut col_ptr = Vec::with_capacity(nb + 1);
-    let mut row_idx = Vec::with_capacity(a.entries.len());
-    col_ptr.push(0usize);
-    for j in 0..nb {
-        for e in &a.entries[a.entry_ptr[j]..a.entry_ptr[j + 1]] {
-            row_idx.push(e.row_block);
-        }
-        col_ptr.push(row_idx.len());
-    }
-    let (mut bp, mut bi) = (vec![0usize; nb], vec![0usize; nb]);
-    if nb > 0 {
-        let graph = SymbolicSparseColMatRef::new_checked(nb, nb, &col_ptr, None, &row_idx);
-        let mut mem = MemBuffer::new(amd::order_scratch::<usize>(nb, row_idx.len()));
-        amd::order(
-            &mut bp,
-            &mut bi,
-            graph,
-            amd::Control::default(),
-            MemStack::new(&mut mem),
-        )
-        .map_err(|e| SolveError::LinearSolver(format!("AMD ordering failed: {e:?}")))?;
-    }
-    let n = a.dim();
-    let mut fwd = Vec::with_capacity(n);
-    for &b in &bp {
-        fwd.extend(a.block_start[b]..a.block_start[b + 1]);
-    }
-    let mut inv = vec![0; n];
-    for (new, &old) in fwd.iter().enumerate() {
-        inv[old] = new;
-    }
-    Ok((fwd, inv))
 }

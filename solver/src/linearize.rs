@@ -1,7 +1,7 @@
 //! The normal equations the solver forms, written out densely for inspection and tests.
 
+use crate::damping::Damping;
 use crate::error::SolveError;
-use crate::linear::Damping;
 use crate::normal::NormalEquations;
 use crate::problem::{Problem, VarId};
 use nalgebra::{DMatrix, DVector};
@@ -37,14 +37,14 @@ pub fn linearize(problem: &Problem) -> Result<Linearization, SolveError> {
     ne.assemble();
     let n = ne.dim();
     let mut hessian = DMatrix::zeros(n, n);
-    ne.h.for_each_damped(Damping::None, |r, c, v| {
+    ne.h().for_each_damped(Damping::None, |r, c, v| {
         hessian[(r, c)] = v;
         hessian[(c, r)] = v;
     });
     Ok(Linearization {
         cost,
-        gradient: DVector::from_column_slice(&ne.gradient),
+        gradient: DVector::from_column_slice(ne.gradient()),
         hessian,
-        variables: ne.var_of_block.iter().map(|&v| VarId(v)).collect(),
+        variables: ne.var_of_block().iter().map(|&v| VarId(v)).collect(),
     })
 }

@@ -10,26 +10,9 @@
 
 use crate::block::BlockSparse;
 use crate::error::SolveError;
+use crate::parallel::{dot, SyncPtr};
 use crate::problem::Problem;
 use rayon::prelude::*;
-
-/// A raw pointer that may cross threads; every use writes a range no other task touches.
-#[derive(Clone, Copy)]
-pub(crate) struct SyncPtr(*mut f64);
-unsafe impl Send for SyncPtr {}
-unsafe impl Sync for SyncPtr {}
-impl SyncPtr {
-    pub(crate) fn new(s: &mut [f64]) -> Self {
-        Self(s.as_mut_ptr())
-    }
-    /// # Safety
-    /// The range must lie inside the slice this pointer came from, and no other live reference
-    /// may overlap it.
-    #[allow(clippy::mut_from_ref)]
-    pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [f64] {
-        std::slice::from_raw_parts_mut(self.0.add(start), len)
-    }
-}
 
 /// A residual's share of an entry: J_aᵀ J_b with `m` rows, Jacobians at these buffer offsets.
 #[derive(Clone, Copy, Debug)]
@@ -50,105 +33,64 @@ pub(crate) struct GradientContribution {
 /// The sparsity structure of the normal equations and the buffers they are assembled into.
 pub(crate) struct NormalEquations {
     /// Block (free-variable) index of each variable, `usize::MAX` when fixed.
-    pub block_of_var: Vec<usize>,
+    block_of_var: Vec<usize>,
     /// Variable of each block.
-    pub var_of_block: Vec<usize>,
-    pub res_offset: Vec<usize>,
-    pub jac_offset: Vec<usize>,
+    var_of_block: Vec<usize>,
+    res_offset: Vec<usize>,
+    jac_offset: Vec<usize>,
     /// H = JᵀJ, upper triangle; one block row and column per free variable.
-    pub h: BlockSparse,
+    h: BlockSparse,
     contrib_ptr: Vec<usize>,
     contribs: Vec<Contribution>,
     grad_ptr: Vec<usize>,
     grads: Vec<GradientContribution>,
     /// Gradient Jᵀr.
-    pub gradient: Vec<f64>,
-    pub residuals: Vec<f64>,
-    pub jacobians: Vec<f64>,
-    pub costs: Vec<f64>,
+    gradient: Vec<f64>,
+    residuals: Vec<f64>,
+    jacobians: Vec<f64>,
+    costs: Vec<f64>,
 }
 
 impl NormalEquations {
+    /// H = JᵀJ as assembled: the upper triangle, one block row and column per free variable.
+    pub fn h(&self) -> &BlockSparse {
+        &self.h
+    }
+
+    /// The gradient g = Jᵀr as assembled.
+    pub fn gradient(&self) -> &[f64] {
+        &self.gradient
+    }
+
+    /// The block (free-variable) index of each variable, `usize::MAX` for fixed ones.
+    pub fn block_of_var(&self) -> &[usize] {
+        &self.block_of_var
+    }
+
+    /// The variable of each block.
+    pub fn var_of_block(&self) -> &[usize] {
+        &self.var_of_block
+    }
+
     /// Lays out the structure of `problem`'s normal equations.
     pub fn new(problem: &Problem) -> Result<Self, SolveError> {
-        let nv = problem.variables.len();
-        let mut block_of_var = vec![usize::MAX; nv];
-        let mut var_of_block = Vec::new();
-        let mut block_start = vec![0];
-        for (v, var) in problem.variables.iter().enumerate() {
-            if !var.fixed {
-                block_of_var[v] = var_of_block.len();
-                var_of_block.push(v);
-                block_start.push(block_start.last().unwrap() + var.manifold.tangent_dim());
-            }
-        }
+        let (block_of_var, var_of_block, block_start) = free_blocks(problem);
         let nb = var_of_block.len();
-        let (mut res_offset, mut jac_offset) = (vec![0], vec![0]);
-        // (col block, row block, residual, jac offset row, jac offset col, m)
-        let mut pairs: Vec<(usize, usize, usize, usize, usize, usize)> = Vec::new();
-        let mut grad_list: Vec<(usize, usize, usize, usize, usize)> = Vec::new();
-        let mut touched = vec![false; nb];
-        for (k, block) in problem.blocks.iter().enumerate() {
-            let m = block.residual.dim();
-            let (r0, j0) = (*res_offset.last().unwrap(), *jac_offset.last().unwrap());
-            let mut local = Vec::with_capacity(block.vars.len());
-            let mut off = j0;
-            for (&v, &c) in block.vars.iter().zip(&block.cols) {
-                let b = block_of_var[v];
-                if b != usize::MAX {
-                    local.push((b, off));
-                    touched[b] = true;
-                    grad_list.push((b, k, off, r0, m));
-                }
-                off += m * c;
-            }
-            for &(ba, ja) in &local {
-                for &(bb, jb) in &local {
-                    if ba <= bb {
-                        pairs.push((bb, ba, k, ja, jb, m));
-                    }
-                }
-            }
-            res_offset.push(r0 + m);
-            jac_offset.push(off);
-        }
-        if let Some(b) = touched.iter().position(|t| !t) {
+        let layout = ResidualLayout::new(problem, &block_of_var, nb);
+        if let Some(b) = layout.touched.iter().position(|t| !t) {
             return Err(SolveError::UntouchedVariable(var_of_block[b]));
         }
+        let ResidualLayout {
+            res_offset,
+            jac_offset,
+            mut pairs,
+            mut grad_list,
+            ..
+        } = layout;
         pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
         grad_list.sort_unstable_by_key(|g| (g.0, g.1));
-
-        let mut columns: Vec<Vec<usize>> = vec![Vec::new(); nb];
-        let mut contrib_ptr = vec![0];
-        let mut contribs = Vec::new();
-        let mut i = 0;
-        while i < pairs.len() {
-            let (col, row) = (pairs[i].0, pairs[i].1);
-            columns[col].push(row);
-            while i < pairs.len() && pairs[i].0 == col && pairs[i].1 == row {
-                let p = pairs[i];
-                contribs.push(Contribution {
-                    ja: p.3,
-                    jb: p.4,
-                    m: p.5,
-                });
-                i += 1;
-            }
-            contrib_ptr.push(contribs.len());
-        }
-        let mut grad_ptr = vec![0; nb + 1];
-        let mut grads = Vec::with_capacity(grad_list.len());
-        for g in &grad_list {
-            grad_ptr[g.0 + 1] += 1;
-            grads.push(GradientContribution {
-                j: g.2,
-                r: g.3,
-                m: g.4,
-            });
-        }
-        for b in 0..nb {
-            grad_ptr[b + 1] += grad_ptr[b];
-        }
+        let (columns, contrib_ptr, contribs) = hessian_contributions(&pairs, nb);
+        let (grad_ptr, grads) = gradient_contributions(&grad_list, nb);
         let h = BlockSparse::new(block_start, &columns);
         Ok(Self {
             gradient: vec![0.0; h.dim()],
@@ -378,7 +320,120 @@ fn add_outer<const DI: usize, const DJ: usize>(
     }
 }
 
-#[inline]
-pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+/// Each free variable's block index (usize::MAX for fixed ones), each block's variable, and the
+/// blocks' scalar starts.
+fn free_blocks(problem: &Problem) -> (Vec<usize>, Vec<usize>, Vec<usize>) {
+    let mut block_of_var = vec![usize::MAX; problem.variables.len()];
+    let mut var_of_block = Vec::new();
+    let mut block_start = vec![0];
+    for (v, var) in problem.variables.iter().enumerate() {
+        if !var.fixed {
+            block_of_var[v] = var_of_block.len();
+            var_of_block.push(v);
+            block_start.push(block_start.last().unwrap() + var.manifold.tangent_dim());
+        }
+    }
+    (block_of_var, var_of_block, block_start)
+}
+
+/// (col block, row block, residual, Jacobian offset of the row block, of the column block, rows)
+type Pair = (usize, usize, usize, usize, usize, usize);
+/// (block, residual, Jacobian offset, residual offset, rows)
+type GradientEntry = (usize, usize, usize, usize, usize);
+
+/// Where each residual's values and Jacobian blocks live, and what each contributes to H and g.
+struct ResidualLayout {
+    res_offset: Vec<usize>,
+    jac_offset: Vec<usize>,
+    pairs: Vec<Pair>,
+    grad_list: Vec<GradientEntry>,
+    /// Whether some residual touches each block.
+    touched: Vec<bool>,
+}
+
+impl ResidualLayout {
+    fn new(problem: &Problem, block_of_var: &[usize], nb: usize) -> Self {
+        let mut out = Self {
+            res_offset: vec![0],
+            jac_offset: vec![0],
+            pairs: Vec::new(),
+            grad_list: Vec::new(),
+            touched: vec![false; nb],
+        };
+        for (k, block) in problem.blocks.iter().enumerate() {
+            let m = block.residual.dim();
+            let (r0, j0) = (
+                *out.res_offset.last().unwrap(),
+                *out.jac_offset.last().unwrap(),
+            );
+            let mut local = Vec::with_capacity(block.vars.len());
+            let mut off = j0;
+            for (&v, &c) in block.vars.iter().zip(&block.cols) {
+                let b = block_of_var[v];
+                if b != usize::MAX {
+                    local.push((b, off));
+                    out.touched[b] = true;
+                    out.grad_list.push((b, k, off, r0, m));
+                }
+                off += m * c;
+            }
+            for &(ba, ja) in &local {
+                for &(bb, jb) in &local {
+                    if ba <= bb {
+                        out.pairs.push((bb, ba, k, ja, jb, m));
+                    }
+                }
+            }
+            out.res_offset.push(r0 + m);
+            out.jac_offset.push(off);
+        }
+        out
+    }
+}
+
+/// From the sorted pairs: each block column's row blocks, and each entry's contributions.
+fn hessian_contributions(
+    pairs: &[Pair],
+    nb: usize,
+) -> (Vec<Vec<usize>>, Vec<usize>, Vec<Contribution>) {
+    let mut columns: Vec<Vec<usize>> = vec![Vec::new(); nb];
+    let mut contrib_ptr = vec![0];
+    let mut contribs = Vec::new();
+    let mut i = 0;
+    while i < pairs.len() {
+        let (col, row) = (pairs[i].0, pairs[i].1);
+        columns[col].push(row);
+        while i < pairs.len() && pairs[i].0 == col && pairs[i].1 == row {
+            let p = pairs[i];
+            contribs.push(Contribution {
+                ja: p.3,
+                jb: p.4,
+                m: p.5,
+            });
+            i += 1;
+        }
+        contrib_ptr.push(contribs.len());
+    }
+    (columns, contrib_ptr, contribs)
+}
+
+/// From the sorted gradient entries: each block's contributions to g.
+fn gradient_contributions(
+    grad_list: &[GradientEntry],
+    nb: usize,
+) -> (Vec<usize>, Vec<GradientContribution>) {
+    let mut grad_ptr = vec![0; nb + 1];
+    let mut grads = Vec::with_capacity(grad_list.len());
+    for g in grad_list {
+        grad_ptr[g.0 + 1] += 1;
+        grads.push(GradientContribution {
+            j: g.2,
+            r: g.3,
+            m: g.4,
+        });
+    }
+    for b in 0..nb {
+        grad_ptr[b + 1] += grad_ptr[b];
+    }
+    (grad_ptr, grads)
 }

@@ -11,8 +11,9 @@
 //! way for everything else.
 
 use crate::block::BlockSparse;
+use crate::cholesky::Cholesky;
+use crate::damping::Damping;
 use crate::error::SolveError;
-use crate::linear::{Cholesky, Damping};
 use crate::Options;
 
 /// H (upper triangle, block-sparse), g, and a factorisation prepared for H's structure.

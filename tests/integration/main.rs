@@ -1,6 +1,5 @@
-//! The integration tests as one test binary, one module per former test file. Each test binary
-//! is linked with the release profile's thin LTO over every dependency, about 30 s of CPU
-//! apiece on this machine, so one binary instead of twelve saves CI several minutes (NOTES 51).
+//! The integration tests as one test binary, one module per former test file: each test binary
+//! is linked on its own, so one binary instead of twelve saves CI minutes (NOTES 51, 61).
 //! `cargo test --release --test integration rigid::` runs one module's tests.
 //!
 //! Kept apart: `fuzz_corpus` (it includes the fuzz targets' modules, which name `crate::cli`),
@@ -24,5 +23,6 @@ mod rigid;
 mod robust;
 mod sensor;
 mod solver;
+mod structure;
 mod submaps;
 mod tsdf;

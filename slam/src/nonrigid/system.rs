@@ -33,7 +33,7 @@ use dynamap_residuals::deform::{
 };
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Tukey;
-use dynamap_solver::{BlockSystem, Damping, RobustKernel, SolveError};
+use dynamap_solver::{BlockSystem, Damping, LevenbergDamping, RobustKernel, SolveError};
 use nalgebra::{DualQuaternion, Isometry3, Matrix6, SMatrix, Vector3, Vector6};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -216,8 +216,8 @@ impl WarpSystem {
         if !cost.is_finite() {
             return Err(SolveError::NonFiniteInitialCost(0));
         }
-        let mut mu = damping * self.system().max_diagonal().max(f64::MIN_POSITIVE);
-        let mut nu = 2.0;
+        let mut lm =
+            LevenbergDamping::new(damping * self.system().max_diagonal().max(f64::MIN_POSITIVE));
         let mut done = 0;
         while done < iterations {
             done += 1;
@@ -226,12 +226,12 @@ impl WarpSystem {
                 .system
                 .as_mut()
                 .expect("prepared")
-                .solve(Damping::Identity(mu), &mut step);
+                .solve(Damping::Identity(lm.mu()), &mut step);
             let clock = Instant::now();
             // a failed factorisation is a rejected step
             let trial = solved
                 .ok()
-                .and_then(|()| self.try_step(terms, &step, mu, cost));
+                .and_then(|()| self.try_step(terms, &step, lm.mu(), cost));
             self.step = step;
             match trial {
                 Some((new_cost, gain, converged)) => {
@@ -240,8 +240,7 @@ impl WarpSystem {
                     } else {
                         new_cost
                     };
-                    mu *= (1.0f64 / 3.0).max(1.0 - (2.0 * gain - 1.0).powi(3));
-                    nu = 2.0;
+                    lm.taken(gain);
                     *evaluate_seconds += clock.elapsed().as_secs_f64();
                     if converged {
                         break;
@@ -249,9 +248,7 @@ impl WarpSystem {
                 }
                 None => {
                     *evaluate_seconds += clock.elapsed().as_secs_f64();
-                    mu *= nu;
-                    nu *= 2.0;
-                    if !mu.is_finite() || mu > 1e300 {
+                    if !lm.rejected() {
                         break;
                     }
                 }
@@ -272,12 +269,7 @@ impl WarpSystem {
     ) -> Option<(f64, f64, bool)> {
         // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
         let g = self.system().gradient();
-        let predicted: f64 = 0.5
-            * step
-                .iter()
-                .zip(g)
-                .map(|(d, g)| mu * d * d - d * g)
-                .sum::<f64>();
+        let predicted = Damping::Identity(mu).predicted_decrease(step, g, std::iter::empty());
         self.trial.clear();
         self.trial.extend(
             self.motions

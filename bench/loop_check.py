@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+"""Sorts the loops of a rigid_slam run into true and false ones by the ground truth (issue 24,
+point 4: "no false loop is accepted, or the robust kernel rejects it").
+
+usage: python3 bench/loop_check.py RUN.json SEQUENCE_DIR [--near 0.3]
+
+RUN.json holds rigid_slam's JSON line (`rigid_slam SEQ --submaps --quiet > RUN.json`); SEQUENCE_DIR
+is the generated sequence (associations.txt gives each frame's stamp, groundtruth.txt the true
+poses). A loop joins two keyframes; it is true when their true camera centres are within --near
+metres (a loop measured between views of one place), false otherwise (two places that look
+alike, as in the twin room). A loop is kept when its DCS weight at the graph's solution is above
+0.5. Prints one line: loops, true ones kept, false ones kept, and the largest weight of a false
+loop; exits 1 when a false loop was kept.
+"""
+import argparse
+import bisect
+import json
+import math
+import sys
+
+
+def stamps(seq):
+    out = []
+    with open(f"{seq}/associations.txt") as f:
+        for line in f:
+            if line.strip() and not line.startswith("#"):
+                out.append(float(line.split()[0]))
+    return out
+
+
+def ground_truth(seq):
+    t, p = [], []
+    with open(f"{seq}/groundtruth.txt") as f:
+        for line in f:
+            if line.strip() and not line.startswith("#"):
+                v = line.split()
+                t.append(float(v[0]))
+                p.append([float(x) for x in v[1:4]])
+    return t, p
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run")
+    ap.add_argument("sequence")
+    ap.add_argument("--near", type=float, default=0.3)
+    a = ap.parse_args()
+    with open(a.run) as f:
+        lines = [l for l in f.read().splitlines() if l.strip()]
+    run = json.loads(lines[-1])
+    frames = stamps(a.sequence)
+    t, p = ground_truth(a.sequence)
+
+    def centre(frame):
+        # the ground truth's pose nearest in time (its stamps ascend)
+        s = frames[frame]
+        i = bisect.bisect_left(t, s)
+        near = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - s))
+        return p[near]
+
+    rows = []
+    for e in run["loop_events"]:
+        d = math.dist(centre(e["from"]), centre(e["to"]))
+        w = e["weight"] if e["weight"] is not None else 0.0
+        rows.append((d, w))
+    true = [w for d, w in rows if d <= a.near]
+    false = [w for d, w in rows if d > a.near]
+    kept_false = sum(1 for w in false if w > 0.5)
+    print(
+        f"{a.run}: {len(rows)} loops; true {len(true)} (kept {sum(1 for w in true if w > 0.5)}); "
+        f"false {len(false)} (kept {kept_false}, largest weight {max(false, default=0.0):.2g}); "
+        f"ATE {1e3 * run['ate_tracked']:.2f} mm tracked, {1e3 * run['ate_rmse']:.2f} mm corrected"
+    )
+    sys.exit(1 if kept_false else 0)
+
+
+if __name__ == "__main__":
+    main()

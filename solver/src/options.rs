@@ -1,0 +1,125 @@
+//! The minimiser's settings: the method, its stopping tests, the linear solver and what the Schur
+//! solvers eliminate.
+
+use crate::problem::VarId;
+
+/// The minimisation method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Algorithm {
+    /// Plain Gauss-Newton: δ = −H⁻¹g, every step taken.
+    GaussNewton,
+    /// Levenberg-Marquardt with Nielsen's damping update.
+    LevenbergMarquardt,
+    /// Powell's dogleg trust region.
+    Dogleg,
+}
+
+/// How LM's damping term is scaled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DampingKind {
+    /// μI.
+    Identity,
+    /// μ diag(H).
+    Diagonal,
+}
+
+/// Which variables the Schur-complement solvers eliminate.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Elimination {
+    /// A maximal set of independent variables (no residual ties two of them), chosen greedily by
+    /// fewest neighbours, then smallest tangent dimension: the points of bundle adjustment.
+    #[default]
+    Auto,
+    /// These variables (they must be independent; fixed ones are skipped).
+    Variables(Vec<VarId>),
+}
+
+/// Solver settings. The defaults suit most problems; [`Options::default`] documents each.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Minimisation method (default Levenberg-Marquardt).
+    pub algorithm: Algorithm,
+    /// Largest number of iterations (default 100).
+    pub max_iterations: usize,
+    /// Wall-clock limit in seconds (default: none).
+    pub max_seconds: f64,
+    /// Stop when max |gᵢ| ≤ this (default 1e-10).
+    pub gradient_tolerance: f64,
+    /// Stop when ‖δ‖ ≤ tol (‖x‖ + tol) (default 1e-10).
+    pub step_tolerance: f64,
+    /// Stop when an accepted step lowers the cost by less than this fraction (default 1e-10).
+    pub function_tolerance: f64,
+    /// LM: τ in the initial damping, μ₀ = τ max diag(H) for μI damping and μ₀ = τ for
+    /// μ diag(H) damping (Ceres' 1 / initial trust-region radius) (default 1e-4).
+    pub initial_damping_tau: f64,
+    /// LM: damping μI or μ diag(H) (default μI).
+    pub damping: DampingKind,
+    /// Dogleg: initial trust-region radius (default 1e4).
+    pub initial_trust_radius: f64,
+    /// Linear solver (default: dense below `dense_threshold` unknowns, sparse above).
+    pub linear_solver: LinearSolverKind,
+    /// Unknowns up to which [`LinearSolverKind::Auto`] chooses the dense solver (default 200).
+    pub dense_threshold: usize,
+    /// Check components that touch no fixed variable for a null space before solving (default true).
+    pub check_rank: bool,
+    /// Variables the Schur solvers eliminate (default [`Elimination::Auto`]).
+    pub elimination: Elimination,
+    /// Iterative Schur: stop conjugate gradients at ‖S y − b‖ ≤ tol ‖b‖ (default 1e-6).
+    pub pcg_tolerance: f64,
+    /// Iterative Schur: most conjugate-gradient iterations per step (default 500).
+    pub pcg_max_iterations: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            algorithm: Algorithm::LevenbergMarquardt,
+            max_iterations: 100,
+            max_seconds: f64::INFINITY,
+            gradient_tolerance: 1e-10,
+            step_tolerance: 1e-10,
+            function_tolerance: 1e-10,
+            initial_damping_tau: 1e-4,
+            damping: DampingKind::Identity,
+            initial_trust_radius: 1e4,
+            linear_solver: LinearSolverKind::Auto,
+            dense_threshold: 200,
+            check_rank: true,
+            elimination: Elimination::Auto,
+            pcg_tolerance: 1e-6,
+            pcg_max_iterations: 500,
+        }
+    }
+}
+
+/// Which linear solver to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinearSolverKind {
+    /// Dense below [`crate::Options::dense_threshold`] unknowns, sparse above.
+    Auto,
+    /// Dense Cholesky of the full matrix.
+    Dense,
+    /// Sparse Cholesky with AMD ordering.
+    Sparse,
+    /// Schur complement: eliminate independent variables (see [`crate::Elimination`]), solve the
+    /// reduced system by dense Cholesky below [`crate::Options::dense_threshold`] unknowns and
+    /// sparse Cholesky above.
+    Schur,
+    /// Schur complement with a dense Cholesky of the reduced system.
+    SchurDense,
+    /// Schur complement with a sparse Cholesky of the reduced system.
+    SchurSparse,
+    /// Schur complement solved by preconditioned conjugate gradients with implicit products and a
+    /// block-Jacobi preconditioner (the reduced system is never formed).
+    SchurIterative,
+}
+
+impl LinearSolverKind {
+    /// True for the Schur-complement solvers.
+    pub fn is_schur(self) -> bool {
+        matches!(
+            self,
+            Self::Schur | Self::SchurDense | Self::SchurSparse | Self::SchurIterative
+        )
+    }
+}

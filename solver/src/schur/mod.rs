@@ -1,0 +1,336 @@
+//! The Schur complement: eliminate many small independent blocks, solve for the rest.
+//!
+//! Split the unknowns into eliminated blocks e (no residual ties two of them, so H_ee is block
+//! diagonal; the 3D points of bundle adjustment) and kept blocks c (the cameras). The damped
+//! normal equations
+//!
+//! ```text
+//! [ H_cc  H_ce ] [δ_c]   [b_c]
+//! [ H_ec  H_ee ] [δ_e] = [b_e]
+//! ```
+//!
+//! reduce to `S δ_c = b_c − H_ce H_ee⁻¹ b_e` with `S = H_cc − H_ce H_ee⁻¹ H_ec`, after which
+//! `δ_e = H_ee⁻¹ (b_e − H_ec δ_c)` block by block (Triggs et al., *Bundle Adjustment — A Modern
+//! Synthesis*, 2000, sec. 6.1; Agarwal et al., *Bundle Adjustment in the Large*, 2010).
+//!
+//! S is assembled in parallel over its block columns, each summing its contributions in a fixed
+//! order, and factorised by dense or sparse Cholesky (the sparse symbolic analysis done once), or
+//! never formed: conjugate gradients with implicit products `S x = H_cc x − H_ce (H_ee⁻¹ (H_ec x))`
+//! and the block-Jacobi preconditioner diag(S)⁻¹ (Agarwal et al. 2010, sec. 4.3).
+
+mod assembly;
+mod kernels;
+mod layout;
+mod ordering;
+mod pcg;
+
+pub(crate) use kernels::invert_spd;
+use kernels::{inverse_times_transpose, MAX_ELIMINATED, MAX_PRODUCT};
+use layout::{Neighbours, PointMajor, Split, Touches};
+pub(crate) use ordering::elimination_set;
+use pcg::Pcg;
+
+use crate::block::BlockSparse;
+use crate::cholesky::Cholesky;
+use crate::damping::Damping;
+use crate::error::SolveError;
+use crate::normal::NormalEquations;
+use crate::options::LinearSolverKind;
+use crate::parallel::{dot, SyncPtr};
+use rayon::prelude::*;
+
+/// Settings of the iterative Schur solver.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SchurOptions {
+    /// Stop when ‖S y − b‖ ≤ tolerance ‖b‖.
+    pub pcg_tolerance: f64,
+    /// Largest number of conjugate-gradient iterations per solve.
+    pub pcg_max_iterations: usize,
+}
+
+/// A kept block next to an eliminated one.
+#[derive(Clone, Copy, Debug)]
+struct Neighbour {
+    /// Reduced block index of the kept variable.
+    kept: usize,
+    /// Offset of H_ce (d_c × d_e, column-major) in its buffer.
+    offset: usize,
+    /// H entry holding the block, and whether it is stored as H_ec (the kept block comes later).
+    h_entry: usize,
+    h_column: usize,
+    transposed: bool,
+}
+
+enum Reduced {
+    Factored(Cholesky),
+    Iterative(Pcg),
+}
+
+/// The Schur-complement solver for one structure of the normal equations.
+pub(crate) struct Schur {
+    kind: LinearSolverKind,
+    /// H blocks eliminated, ascending.
+    elim: Vec<usize>,
+    /// H blocks kept, ascending: reduced block k is H block `kept[k]`.
+    kept: Vec<usize>,
+    /// Scalar offset of each eliminated block inside the eliminated part, with the total last.
+    elim_start: Vec<usize>,
+    nbr_ptr: Vec<usize>,
+    nbrs: Vec<Neighbour>,
+    /// Offset of each eliminated block's H_ee⁻¹ in `hinv`.
+    inv_offset: Vec<usize>,
+    hinv: Vec<f64>,
+    hce: Vec<f64>,
+    /// H_ee⁻¹ b_e during a solve, indexed like the eliminated scalars.
+    ze: Vec<f64>,
+    /// The reduced system (for the iterative solver only its H_cc part).
+    s: BlockSparse,
+    /// Per reduced column j: (S entry, H entry, H column) of the H_cc blocks copied into S.
+    direct_ptr: Vec<usize>,
+    direct: Vec<(usize, usize, usize)>,
+    /// Per reduced column j: the eliminated blocks next to it, as (eliminated index, index of j's
+    /// neighbour record).
+    touch_ptr: Vec<usize>,
+    touch: Vec<(usize, usize)>,
+    /// Per touch (j, q): the S entries of the blocks (i, j) for q's neighbours i ≤ j, in order.
+    update_ptr: Vec<usize>,
+    update: Vec<usize>,
+    /// Point-major assembly (when S is small enough to keep one copy per chunk): per eliminated
+    /// block q, the S entries of the blocks (a, b), a ≤ b over q's neighbours, b-major.
+    pair_ptr: Vec<usize>,
+    pair_entry: Vec<usize>,
+    /// Offset of each S entry's block in a chunk's copy, where every block is stored whole and
+    /// contiguous (d_i × d_j, column-major), with the total last.
+    block_offset: Vec<usize>,
+    /// Eliminated-block ranges of the chunks, and one private copy of S's blocks per chunk.
+    chunk_bounds: Vec<usize>,
+    chunk_values: Vec<Vec<f64>>,
+    /// One private reduced right-hand side per chunk.
+    chunk_rhs: Vec<Vec<f64>>,
+    reduced: Reduced,
+    rhs: Vec<f64>,
+}
+
+impl Schur {
+    /// Lays out the elimination of the H blocks marked in `eliminate` from `ne`'s structure.
+    pub fn new(
+        ne: &NormalEquations,
+        eliminate: &[bool],
+        kind: LinearSolverKind,
+        dense_threshold: usize,
+        options: SchurOptions,
+    ) -> Result<Self, SolveError> {
+        let h = ne.h();
+        debug_assert_eq!(eliminate.len(), h.num_blocks());
+        let split = Split::new(eliminate);
+        let nbrs = Neighbours::new(ne, &split, layout::adjacency(ne, eliminate, &split)?)?;
+        let touch_lists = nbrs.touch_lists(split.kept.len());
+        let iterative = kind == LinearSolverKind::SchurIterative;
+        let s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
+        let (direct_ptr, direct) = layout::direct_copies(h, eliminate, &split, &s);
+        let points = PointMajor::new(&s, &nbrs, split.elim.len(), iterative);
+        let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
+        let elim_scalars = *nbrs.elim_start.last().unwrap();
+        let (reduced, kind) = reduced_solver(&s, kind, dense_threshold, elim_scalars, options)?;
+        let chunks = points.chunk_bounds.len() - 1;
+        Ok(Self {
+            kind,
+            rhs: vec![0.0; s.dim()],
+            elim: split.elim,
+            kept: split.kept,
+            elim_start: nbrs.elim_start,
+            nbr_ptr: nbrs.nbr_ptr,
+            nbrs: nbrs.nbrs,
+            inv_offset: nbrs.inv_offset,
+            hinv: vec![0.0; nbrs.inv_len],
+            hce: vec![0.0; nbrs.buf_len],
+            ze: vec![0.0; elim_scalars],
+            direct_ptr,
+            direct,
+            touch_ptr: touches.touch_ptr,
+            touch: touches.touch,
+            update_ptr: touches.update_ptr,
+            update: touches.update,
+            pair_ptr: points.pair_ptr,
+            pair_entry: points.pair_entry,
+            chunk_values: vec![vec![0.0; *points.block_offset.last().unwrap()]; chunks],
+            chunk_rhs: vec![vec![0.0; s.dim()]; chunks],
+            block_offset: points.block_offset,
+            chunk_bounds: points.chunk_bounds,
+            s,
+            reduced,
+        })
+    }
+
+    /// "schur-dense", "schur-sparse" or "schur-iterative".
+    pub fn name(&self) -> &'static str {
+        match self.kind {
+            LinearSolverKind::SchurIterative => "schur-iterative",
+            LinearSolverKind::SchurSparse => "schur-sparse",
+            _ => "schur-dense",
+        }
+    }
+
+    /// True unless the reduced system is solved iteratively.
+    pub fn is_exact(&self) -> bool {
+        matches!(self.reduced, Reduced::Factored(_))
+    }
+
+    /// Inverts the damped H_ee blocks and gathers the H_ce blocks, then forms S (or the
+    /// preconditioner) and factorises it. On failure returns the H scalar index where definiteness failed.
+    pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
+        let h = ne.h();
+        let hinv = SyncPtr::new(&mut self.hinv);
+        let hce = SyncPtr::new(&mut self.hce);
+        let (elim, nbrs, nbr_ptr, inv_offset, kept) = (
+            &self.elim,
+            &self.nbrs,
+            &self.nbr_ptr,
+            &self.inv_offset,
+            &self.kept,
+        );
+        (0..elim.len())
+            .into_par_iter()
+            .with_min_len(64)
+            .try_for_each(|q| {
+                let b = elim[q];
+                let de = h.block_dim(b);
+                // SAFETY: block q owns its ranges of hinv and hce.
+                let inv = unsafe { hinv.slice(inv_offset[q], de * de) };
+                h.damped_diagonal_block(b, damping, inv);
+                if let Err(k) = invert_spd(inv, de) {
+                    return Err(h.block_start[b] + k);
+                }
+                for n in &nbrs[nbr_ptr[q]..nbr_ptr[q + 1]] {
+                    let dc = h.block_dim(kept[n.kept]);
+                    let block = unsafe { hce.slice(n.offset, dc * de) };
+                    if n.transposed {
+                        for r in 0..dc {
+                            let from = h.column_start(n.h_column, n.h_entry, r);
+                            for k in 0..de {
+                                block[r + k * dc] = h.values[from + k];
+                            }
+                        }
+                    } else {
+                        for k in 0..de {
+                            let from = h.column_start(n.h_column, n.h_entry, k);
+                            block[k * dc..(k + 1) * dc].copy_from_slice(&h.values[from..from + dc]);
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        if self.is_exact() {
+            self.assemble(ne, damping);
+        } else {
+            self.precondition(ne, damping)?;
+        }
+        let (s, kept) = (&self.s, &self.kept);
+        match &mut self.reduced {
+            Reduced::Factored(chol) => chol.factor(s, Damping::None).map_err(|i| {
+                let k = s.block_of_scalar(i);
+                h.block_start[kept[k]] + (i - s.block_start[k])
+            }),
+            Reduced::Iterative(_) => Ok(()),
+        }
+    }
+
+    /// Solves the damped system for the right-hand side `x` (H's scalar order), in place.
+    pub fn solve(&mut self, ne: &NormalEquations, x: &mut [f64]) {
+        let h = ne.h();
+        if self.chunk_rhs.is_empty() {
+            self.reduce_rhs_by_columns(h, x);
+        } else {
+            self.reduce_rhs_by_points(h, x);
+        }
+        let mut rhs = std::mem::take(&mut self.rhs);
+        match &mut self.reduced {
+            Reduced::Factored(chol) => chol.solve(&mut rhs),
+            Reduced::Iterative(_) => self.conjugate_gradients(ne, &mut rhs),
+        }
+        // δ_e = H_ee⁻¹ (b_e − H_ec δ_c), then δ_c into place.
+        {
+            let out = SyncPtr::new(x);
+            let this = &*self;
+            let y = &rhs;
+            (0..this.elim.len())
+                .into_par_iter()
+                .with_min_len(64)
+                .for_each(|q| {
+                    let b = this.elim[q];
+                    let (e0, de) = (h.block_start[b], h.block_dim(b));
+                    // SAFETY: eliminated block q owns x[e0..e0 + de]; kept ranges are not read.
+                    let xe = unsafe { out.slice(e0, de) };
+                    this.eliminated_update(q, de, xe, y);
+                });
+        }
+        for (k, &b) in self.kept.iter().enumerate() {
+            let (h0, r0, d) = (h.block_start[b], self.s.block_start[k], self.s.block_dim(k));
+            x[h0..h0 + d].copy_from_slice(&rhs[r0..r0 + d]);
+        }
+        self.rhs = rhs;
+    }
+
+    /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and its neighbour j, written into the
+    /// front of `scratch`.
+    #[inline(always)]
+    fn inverse_times_neighbour<'a>(
+        &'a self,
+        q: usize,
+        n: &Neighbour,
+        de: usize,
+        dj: usize,
+        scratch: &'a mut [f64; MAX_PRODUCT],
+    ) -> &'a [f64] {
+        let hj = &self.hce[n.offset..][..dj * de];
+        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
+        let u = &mut scratch[..de * dj];
+        inverse_times_transpose(inv, hj, u, de, dj);
+        u
+    }
+
+    /// `v ← H_ee⁻¹ (v − H_ec y)` for eliminated block q (d_e unknowns), y in reduced order.
+    fn eliminated_update(&self, q: usize, de: usize, v: &mut [f64], y: &[f64]) {
+        let mut t = [0.0f64; MAX_ELIMINATED];
+        let t = &mut t[..de];
+        t.copy_from_slice(v);
+        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
+            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+            let hb = &self.hce[n.offset..][..dc * de];
+            for (k, tk) in t.iter_mut().enumerate() {
+                *tk -= dot(&hb[k * dc..(k + 1) * dc], &y[c0..c0 + dc]);
+            }
+        }
+        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
+        for (r, o) in v.iter_mut().enumerate() {
+            *o = (0..de).map(|k| inv[r + k * de] * t[k]).sum();
+        }
+    }
+}
+
+/// The solver of the reduced system, and the kind named for it ("schur" resolved to dense or
+/// sparse by `dense_threshold`).
+fn reduced_solver(
+    s: &BlockSparse,
+    kind: LinearSolverKind,
+    dense_threshold: usize,
+    eliminated_scalars: usize,
+    options: SchurOptions,
+) -> Result<(Reduced, LinearSolverKind), SolveError> {
+    if kind == LinearSolverKind::SchurIterative {
+        let pcg = Pcg::new(s, eliminated_scalars, options);
+        return Ok((Reduced::Iterative(pcg), kind));
+    }
+    let dense = match kind {
+        LinearSolverKind::SchurDense => true,
+        LinearSolverKind::SchurSparse => false,
+        _ => s.dim() <= dense_threshold,
+    };
+    let chol = Cholesky::new(s, dense)?;
+    let kind = match kind {
+        LinearSolverKind::Schur if chol.is_sparse() => LinearSolverKind::SchurSparse,
+        LinearSolverKind::Schur => LinearSolverKind::SchurDense,
+        k => k,
+    };
+    Ok((Reduced::Factored(chol), kind))
+}

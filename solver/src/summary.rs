@@ -1,0 +1,166 @@
+//! What a solve reports: each iteration, why it stopped, and the whole solve's figures.
+
+use std::fmt;
+use std::ops::ControlFlow;
+
+/// What happened in one iteration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IterationSummary {
+    /// Iteration number; 0 is the start point.
+    pub iteration: usize,
+    /// Cost ½Σρ after the iteration.
+    pub cost: f64,
+    /// Cost decrease of this iteration (0 when the step was rejected).
+    pub cost_change: f64,
+    /// max |gᵢ| at the current point.
+    pub gradient_norm: f64,
+    /// ‖δ‖ of the step tried.
+    pub step_norm: f64,
+    /// LM's μ, or the dogleg's trust radius, used for the step.
+    pub damping: f64,
+    /// Whether the step was taken.
+    pub accepted: bool,
+    /// Seconds spent evaluating residuals and Jacobians and assembling H.
+    pub evaluate_seconds: f64,
+    /// Seconds spent factorising and solving.
+    pub solve_seconds: f64,
+    /// Seconds since the solve started.
+    pub total_seconds: f64,
+}
+
+/// Why the minimiser stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Termination {
+    /// The gradient is below `gradient_tolerance`.
+    GradientTolerance,
+    /// The step is below `step_tolerance`.
+    StepTolerance,
+    /// The relative cost decrease is below `function_tolerance`.
+    FunctionTolerance,
+    /// `max_iterations` reached.
+    MaxIterations,
+    /// `max_seconds` reached.
+    TimeLimit,
+    /// The observer asked to stop.
+    UserStopped,
+    /// LM's damping (or the dogleg's radius) ran out of range without finding a better point.
+    NoProgress,
+}
+
+impl Termination {
+    /// True for the convergence criteria (gradient, step or function tolerance).
+    pub fn converged(self) -> bool {
+        matches!(
+            self,
+            Self::GradientTolerance | Self::StepTolerance | Self::FunctionTolerance
+        )
+    }
+}
+
+impl fmt::Display for Termination {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::GradientTolerance => "gradient below tolerance",
+            Self::StepTolerance => "step below tolerance",
+            Self::FunctionTolerance => "relative cost change below tolerance",
+            Self::MaxIterations => "iteration limit reached",
+            Self::TimeLimit => "time limit reached",
+            Self::UserStopped => "stopped by the observer",
+            Self::NoProgress => "no further decrease found (damping exhausted)",
+        })
+    }
+}
+
+/// The outcome of a solve.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    /// Cost at the start.
+    pub initial_cost: f64,
+    /// Cost at the end.
+    pub final_cost: f64,
+    /// Every iteration, starting with iteration 0 (the start point).
+    pub iterations: Vec<IterationSummary>,
+    /// Why it stopped.
+    pub termination: Termination,
+    /// Wall-clock seconds of the whole solve.
+    pub total_seconds: f64,
+    /// Number of unknowns (tangent dimensions of the free variables).
+    pub unknowns: usize,
+    /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative".
+    pub linear_solver: &'static str,
+    /// Steps rejected because a residual block returned NaN or an infinity (in its residual or
+    /// its Jacobian) at the trial point; the damping was raised after each.
+    pub non_finite_steps: usize,
+    /// The residual block (its [`crate::ResidualId`] index) that returned a non-finite value at
+    /// the last such rejected step, when the solve ended on it: without progress, or with every
+    /// step of its last iterations rejected that way. The values are those of the last finite
+    /// point, never NaN.
+    pub non_finite_block: Option<usize>,
+}
+
+impl Summary {
+    /// Number of iterations performed (excluding the start point).
+    pub fn num_iterations(&self) -> usize {
+        self.iterations.len().saturating_sub(1)
+    }
+
+    /// A table with one line per iteration, for printing.
+    pub fn table(&self) -> String {
+        let mut s = String::from(IterationSummary::HEADER);
+        s.push('\n');
+        for it in &self.iterations {
+            s.push_str(&it.to_string());
+            s.push('\n');
+        }
+        s.push_str(&format!(
+            "stopped after {} iterations: {}; cost {:.10e} -> {:.10e} in {:.4} s ({} unknowns, {} Cholesky)",
+            self.num_iterations(),
+            self.termination,
+            self.initial_cost,
+            self.final_cost,
+            self.total_seconds,
+            self.unknowns,
+            self.linear_solver
+        ));
+        if let Some(block) = self.non_finite_block {
+            s.push_str(&format!(
+                "\nresidual block {block} returned NaN or infinity at the last trial points ({} non-finite trial points in all); the result is the last finite point",
+                self.non_finite_steps
+            ));
+        } else if self.non_finite_steps > 0 {
+            s.push_str(&format!(
+                "\n{} trial steps were rejected for non-finite residuals, and the solve went on",
+                self.non_finite_steps
+            ));
+        }
+        s
+    }
+}
+
+impl IterationSummary {
+    /// Column titles matching the `Display` form.
+    pub const HEADER: &'static str =
+        " iter          cost      cost_change    |gradient|        |step|       damping  ok  eval_s   solve_s   total_s";
+}
+
+impl fmt::Display for IterationSummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{:5} {:13.6e} {:16.6e} {:13.6e} {:13.6e} {:13.6e} {:>3} {:7.4} {:9.4} {:9.4}",
+            self.iteration,
+            self.cost,
+            self.cost_change,
+            self.gradient_norm,
+            self.step_norm,
+            self.damping,
+            if self.accepted { "y" } else { "n" },
+            self.evaluate_seconds,
+            self.solve_seconds,
+            self.total_seconds
+        )
+    }
+}
+
+/// An observer sees every iteration and may stop the solve by returning `ControlFlow::Break`.
+pub type Observer = Box<dyn FnMut(&IterationSummary) -> ControlFlow<()> + Send>;
