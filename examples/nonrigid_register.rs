@@ -32,7 +32,7 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use cli::{InputError, Session};
 use dynamap::slam::camera::Camera;
-use dynamap::slam::eval::{self as epe, Stats};
+use dynamap::slam::eval::{flow_scores, EpeResult, FlowScores, Stats, VertexMap};
 use dynamap::slam::image::{depth_to_metres, ColorImage, DepthImage, Image};
 use dynamap::slam::io::flow::{read_flow, write_flow};
 use dynamap::slam::io::images::{read_color, read_depth, read_mask};
@@ -43,7 +43,6 @@ use dynamap::slam::nonrigid::{
     register_surfaces, FrameSettings, RegisterSummary, RgbdFrame, Seeding, SurfaceMesh,
 };
 use dynamap::slam::synthetic::plate;
-use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use warp_flags::WarpFlags;
@@ -108,69 +107,6 @@ struct Args {
 }
 
 cli::has_common!(Args);
-
-/// Reads a vertex map of `n` lines, each an index below `targets`.
-fn read_map(path: &std::path::Path, n: usize, targets: usize) -> Result<Vec<usize>> {
-    let text = dynamap::slam::io::read_text(path)?;
-    let map = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| match l.trim().parse::<usize>() {
-            Ok(k) if k < targets => Ok(k),
-            _ => bail!(
-                "{}:{}: '{}' is not a vertex index below {targets}",
-                path.display(),
-                i + 1,
-                l.trim()
-            ),
-        })
-        .collect::<Result<Vec<_>>>()?;
-    if map.len() != n {
-        bail!(
-            "{}: {} lines for {n} source vertices",
-            path.display(),
-            map.len()
-        );
-    }
-    Ok(map)
-}
-
-/// The map entries to score: all but those pointing at a vertex that more than 1 % of the source's
-/// vertices point at (the camel maps send their unmatched vertices, about 7 %, to one vertex).
-fn scored_entries(map: &[usize], targets: usize) -> Vec<bool> {
-    let mut count = vec![0usize; targets];
-    for &k in map {
-        count[k] += 1;
-    }
-    map.iter().map(|&k| count[k] * 100 <= map.len()).collect()
-}
-
-/// Mean and 95th percentile of the distances from the scored `points` to their partners, over
-/// `scale`.
-fn map_error(
-    points: &[Vector3<f64>],
-    partners: &[Vector3<f64>],
-    map: &[usize],
-    scored: &[bool],
-    scale: f64,
-) -> (f64, f64) {
-    let mut d: Vec<f64> = points
-        .iter()
-        .zip(map)
-        .zip(scored)
-        .filter(|(_, &s)| s)
-        .map(|((p, &k), _)| (p - partners[k]).norm() / scale)
-        .collect();
-    d.sort_by(f64::total_cmp);
-    let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
-    (
-        mean,
-        d.get((0.95 * d.len() as f64) as usize)
-            .copied()
-            .unwrap_or(0.0),
-    )
-}
 
 /// The thesis' experiment: prints one row per deformation.
 fn grid_experiment(session: &Session) -> Result<()> {
@@ -361,49 +297,22 @@ fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> R
         "inliers": m.source.len(),
     })));
     if let Some(gt) = &gt {
-        json["epe"] = flow_scores(&flow, gt, source.mask.as_ref());
+        json["epe"] = flow_json(&flow_scores(&flow, gt, source.mask.as_ref()));
     }
     println!("{json}");
     Ok(())
 }
 
-/// EPE 3D of `flow` against `gt` over the pixels where the ground truth is finite: on the object
-/// (inside the source mask, where there is one; pixels we gave no flow are left out and counted in
-/// `coverage`), and over every ground-truth pixel with a missing flow taken as zero (`all`). Also
-/// the EPE of zero flow, the score of doing nothing.
-fn flow_scores(
-    flow: &Image<[f32; 3]>,
-    gt: &Image<[f32; 3]>,
-    mask: Option<&Image<bool>>,
-) -> serde_json::Value {
-    let v = |p: &[f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-    let finite = |p: &[f32; 3]| p.iter().all(|c| c.is_finite());
-    let (mut ours, mut truth, mut all_ours, mut all_truth) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut object = 0;
-    for (i, (f, g)) in flow.data.iter().zip(&gt.data).enumerate() {
-        if !finite(g) {
-            continue;
-        }
-        all_truth.push(v(g));
-        all_ours.push(if finite(f) { v(f) } else { Vector3::zeros() });
-        if mask.is_none_or(|m| m.data[i]) {
-            object += 1;
-            if finite(f) {
-                ours.push(v(f));
-                truth.push(v(g));
-            }
-        }
-    }
-    let score = |e: &epe::EpeResult| serde_json::json!({"mean": e.stats.mean, "median": e.stats.median, "within_5cm": e.within_5cm, "within_10cm": e.within_10cm});
-    let zeros = vec![Vector3::zeros(); all_truth.len()];
+/// The flow's scores as JSON.
+fn flow_json(s: &FlowScores) -> serde_json::Value {
+    let score = |e: &EpeResult| serde_json::json!({"mean": e.stats.mean, "median": e.stats.median, "within_5cm": e.within_5cm, "within_10cm": e.within_10cm});
     serde_json::json!({
-        "object": score(&epe::epe3d(&ours, &truth, None)),
-        "object_pixels": ours.len(),
-        "coverage": ours.len() as f64 / object.max(1) as f64,
-        "all": score(&epe::epe3d(&all_ours, &all_truth, None)),
-        "all_pixels": all_truth.len(),
-        "zero_flow": score(&epe::epe3d(&zeros, &all_truth, None)),
+        "object": score(&s.object),
+        "object_pixels": s.object_pixels,
+        "coverage": s.coverage,
+        "all": score(&s.all),
+        "all_pixels": s.all_pixels,
+        "zero_flow": score(&s.zero_flow),
     })
 }
 
@@ -454,7 +363,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let (mut graph, mut params) = clean_surface_settings(bounding_diagonal(&sp));
     args.warp.apply(&mut graph, &mut params).bad_input()?;
     let map = match &args.ground_truth {
-        Some(p) => Some(read_map(p, sp.len(), tp.len()).bad_input()?),
+        Some(p) => Some(VertexMap::read(p, sp.len(), tp.len()).bad_input()?),
         None => None,
     };
     let seeding = Seeding {
@@ -491,12 +400,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
     if let Some(map) = &map {
         let d = bounding_diagonal(&tp);
-        let scored = scored_entries(map, tp.len());
-        let (b_mean, b_p95) = map_error(&sp, &tp, map, &scored, d);
-        let (a_mean, a_p95) = map_error(&reg.points, &tp, map, &scored, d);
-        json["scored_vertices"] = scored.iter().filter(|&&s| s).count().into();
-        json["error_before"] = serde_json::json!({"mean": b_mean, "p95": b_p95});
-        json["error_after"] = serde_json::json!({"mean": a_mean, "p95": a_p95});
+        let (before, after) = (map.error(&sp, &tp, d), map.error(&reg.points, &tp, d));
+        json["scored_vertices"] = map.scored_count().into();
+        json["error_before"] = serde_json::json!({"mean": before.mean, "p95": before.p95});
+        json["error_after"] = serde_json::json!({"mean": after.mean, "p95": after.p95});
     }
     println!("{json}");
     Ok(())

@@ -9,11 +9,27 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Handle of a variable in a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct VarId(pub usize);
+pub struct VarId(pub(crate) usize);
 
 /// Handle of a residual block in a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct ResidualId(pub usize);
+pub struct ResidualId(pub(crate) usize);
+
+impl VarId {
+    /// The variable's index in its problem, in the order it was added (the number errors and
+    /// diagnostics name it by).
+    pub fn index(self) -> usize {
+        self.0
+    }
+}
+
+impl ResidualId {
+    /// The residual block's index in its problem, in the order it was added (the number
+    /// [`crate::Summary::non_finite_block`] names it by).
+    pub fn index(self) -> usize {
+        self.0
+    }
+}
 
 pub(crate) struct Variable {
     pub offset: usize,

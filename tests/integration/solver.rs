@@ -139,12 +139,12 @@ fn an_untouched_variable_is_named() {
     let err = Solver::new(Options::default())
         .solve(&mut pg.problem)
         .unwrap_err();
-    assert_eq!(err, SolveError::UntouchedVariable(extra.0));
+    assert_eq!(err, SolveError::UntouchedVariable(extra.index()));
     assert_eq!(
         err.to_string(),
         format!(
             "variable {} is touched by no residual (fix it or remove it)",
-            extra.0
+            extra.index()
         )
     );
 }
@@ -193,7 +193,7 @@ fn a_partly_constrained_variable_is_named_and_lm_never_produces_nan() {
             ref message,
         } => {
             assert_eq!(nullity, 1);
-            assert_eq!(variables, vec![b.0]);
+            assert_eq!(variables, vec![b.index()]);
             assert!(
                 message.contains("variables 1 are not constrained"),
                 "{message}"
@@ -570,8 +570,15 @@ fn replaced_residuals_keep_the_structure_and_move_the_optimum() {
     // a replacement must fit the block
     let wide = AutoDiff::<_, 2, 1>::new(TwoRows);
     assert!(problem.replace_residual(a, Box::new(wide)).is_err());
+    // an id this problem never handed out (the third block of another problem)
+    let mut other = Problem::new();
+    let y = other.add_variable(&[0.0], Euclidean::<1>).unwrap();
+    let foreign = (0..3)
+        .map(|_| other.add_residual(Offset(0.0), &[y]).unwrap())
+        .last()
+        .unwrap();
     assert!(problem
-        .replace_residual(dynamap::solver::ResidualId(9), Box::new(Offset(0.0)))
+        .replace_residual(foreign, Box::new(Offset(0.0)))
         .is_err());
 }
 

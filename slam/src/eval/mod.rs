@@ -1,9 +1,17 @@
 //! Evaluation (thesis eq. 3.26-3.27): absolute trajectory error after Horn/Umeyama alignment, relative
-//! pose error, scene-flow end-point error and point-to-surface mesh distances.
+//! pose error, scene-flow end-point error and point-to-surface mesh distances; a non-rigid
+//! registration against a ground-truth vertex map ([`VertexMap`]) and a scene flow against its
+//! ground truth ([`flow_scores`]).
 //!
 //! Association and statistics follow evo (Grupp, 2017) so that the figures agree with
 //! `evo_ape tum GT EST -a` and `evo_rpe`: each stamp of the shorter trajectory is matched to the
 //! nearest stamp of the longer within 0.01 s; the estimate is aligned onto the ground truth.
+
+mod flow_score;
+mod vertex_map;
+
+pub use flow_score::{flow_scores, FlowScores};
+pub use vertex_map::{MapError, VertexMap};
 
 use crate::io::trajectory::Trajectory;
 use crate::mesh::Mesh;
