@@ -40,7 +40,7 @@ use dynamap::slam::io::{meshes::read_mesh, ply};
 use dynamap::slam::mesh::Mesh;
 use dynamap::slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_meshes,
-    register_surfaces, FrameSettings, RegisterSummary, RgbdFrame, Seeding, SurfaceMesh,
+    register_surfaces, FrameSettings, FrameView, RegisterSummary, Seeding, SurfaceMesh,
 };
 use dynamap::slam::synthetic::plate;
 use std::path::{Path, PathBuf};
@@ -177,8 +177,8 @@ struct FrameFiles {
 }
 
 impl FrameFiles {
-    fn frame(&self) -> RgbdFrame<'_> {
-        RgbdFrame::new(
+    fn frame(&self) -> FrameView<'_> {
+        FrameView::new(
             &self.camera,
             &self.depth,
             self.color.as_ref(),

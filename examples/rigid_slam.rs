@@ -5,7 +5,8 @@
 //! cargo run --release --example rigid_slam -- DIR --output traj.txt [--mesh out.ply] [--config slam.toml]
 //! ```
 //! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else --fx/--fy/--cx/--cy/--depth-scale,
-//! else TUM's published ones). Prints a progress bar with the fps, and one JSON line last: frames,
+//! else TUM's published ones), an ICL-NUIM folder or a plain folder of frames
+//! (`slam::io::sequence::Sequence` tells them apart). Prints a progress bar with the fps, and one JSON line last: frames,
 //! seconds (the whole per-frame loop, image reading included), fps, failures (frames read but not
 //! tracked), skipped (frames whose files could not be read), relocalised, and the ATE when the
 //! folder has a ground truth. The trajectory holds the tracked frames only.
@@ -27,11 +28,10 @@ use dynamap::residuals::pose_graph::Pose;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::distortion::TumSensor;
 use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
-use dynamap::slam::io::folder::FolderSequence;
 use dynamap::slam::io::ply;
+use dynamap::slam::io::sequence::{OpenOptions, Sequence};
 use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::io::tum::{RgbdFrame, TumSequence};
-use dynamap::slam::io::IoError;
+use dynamap::slam::io::tum::RgbdFrame;
 use dynamap::slam::rigid::loops::{KeyframeGraph, Optimised};
 use dynamap::slam::rigid::submaps::SubmapParams;
 use dynamap::slam::rigid::{
@@ -50,7 +50,8 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(about, long_about = None)]
 struct Args {
-    /// A TUM-layout sequence (rgb.txt, depth.txt) or a folder of numbered colour/depth frames.
+    /// A TUM-layout sequence (rgb.txt, depth.txt), an ICL-NUIM folder (pose.txt, color/, depth/)
+    /// or a folder of numbered colour/depth frames.
     /// Without it, a 60-frame sequence is rendered and tracked.
     dir: Option<PathBuf>,
     /// Where to write the estimated trajectory (TUM format). With --submaps, each frame's
@@ -178,66 +179,6 @@ struct Args {
 }
 
 cli::has_common!(Args);
-
-/// A TUM-layout folder (rgb.txt, depth.txt) or a plain folder of numbered colour/depth frames.
-enum Source {
-    Tum(TumSequence),
-    Folder(FolderSequence, Camera),
-}
-
-impl Source {
-    fn open(dir: &std::path::Path, max_difference: f64, sensor: Option<TumSensor>) -> Result<Self> {
-        if dir.join("rgb.txt").exists() {
-            let seq = TumSequence::open_with(dir, max_difference)?;
-            Ok(Source::Tum(match sensor {
-                Some(s) => {
-                    let (camera, distortion) = s.calibration();
-                    seq.with_calibration(camera, &distortion)?
-                }
-                None => seq,
-            }))
-        } else if sensor.is_some() {
-            bail!(
-                "{}: --calibration applies to TUM-layout folders (rgb.txt, depth.txt)",
-                dir.display()
-            )
-        } else {
-            let f = FolderSequence::open(dir, None)?;
-            let c = f.camera;
-            Ok(Source::Folder(f, c))
-        }
-    }
-    fn len(&self) -> usize {
-        match self {
-            Source::Tum(t) => t.len(),
-            Source::Folder(f, _) => f.len(),
-        }
-    }
-    fn load(&self, i: usize) -> Result<RgbdFrame, IoError> {
-        match self {
-            Source::Tum(t) => t.load(i),
-            Source::Folder(f, _) => f.load(i),
-        }
-    }
-    fn camera_mut(&mut self) -> &mut Camera {
-        match self {
-            Source::Tum(t) => &mut t.camera,
-            Source::Folder(_, c) => c,
-        }
-    }
-    fn groundtruth(&self) -> Option<&Trajectory> {
-        match self {
-            Source::Tum(t) => t.groundtruth.as_ref(),
-            Source::Folder(..) => None,
-        }
-    }
-    fn first_stamp(&self) -> f64 {
-        match self {
-            Source::Tum(t) => t.frames[0].timestamp,
-            Source::Folder(..) => 0.0,
-        }
-    }
-}
 
 /// The SLAM parameters the flags set, checked.
 fn params(args: &Args) -> Result<SlamParams> {
@@ -403,7 +344,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
         })?),
         None => None,
     };
-    let mut seq = Source::open(&dir, args.max_difference, sensor).bad_input()?;
+    let options = OpenOptions {
+        max_difference: args.max_difference,
+        calibration: sensor.map(TumSensor::calibration),
+        ..OpenOptions::default()
+    };
+    let mut seq = Sequence::open(&dir, &options).bad_input()?;
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
@@ -413,7 +359,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         c.depth_scale = args.depth_scale.unwrap_or(c.depth_scale);
     }
     let n = args.max_frames.unwrap_or(seq.len()).min(seq.len());
-    let camera = *seq.camera_mut();
+    let camera = *seq.camera();
     let start_pose = seq.groundtruth().and_then(|g| {
         // start at the ground truth pose of the first frame when there is one (for comparable ATE
         // plots; ATE aligns anyway)

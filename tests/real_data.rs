@@ -485,7 +485,7 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     use dynamap::slam::image::{depth_to_metres, Image};
     use dynamap::slam::io::flow::read_flow;
     use dynamap::slam::io::images::read_mask;
-    use dynamap::slam::nonrigid::{register_frames, FrameSettings, RgbdFrame};
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameView};
     use nalgebra::Vector3;
 
     let dir = data("nonrigid/deepdeform_2pairs/train/seq258");
@@ -505,8 +505,8 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     );
     let mask = read_mask(dir.join("mask/000000_shirt.png")).unwrap();
     let reg = register_frames(
-        &RgbdFrame::new(&camera, &d0, Some(&c0), Some(&mask)),
-        &RgbdFrame::new(&camera, &d1, Some(&c1), None),
+        &FrameView::new(&camera, &d0, Some(&c0), Some(&mask)),
+        &FrameView::new(&camera, &d1, Some(&c1), None),
         &FrameSettings::default(),
     )
     .unwrap();

@@ -138,7 +138,7 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
     use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::epe3d;
     use dynamap::slam::image::{depth_to_metres, Image};
-    use dynamap::slam::nonrigid::{register_frames, FrameSettings, RgbdFrame};
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameView};
     use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
     use dynamap::slam::synthetic::noise::SensorNoise;
 
@@ -161,8 +161,8 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
     let (d1, c1) = scene.sensor_frame(&camera, &moved, frame, &noise);
     let (d0, d1) = (metres(&d0), metres(&d1));
     let reg = register_frames(
-        &RgbdFrame::new(&camera, &d0, Some(&c0), None),
-        &RgbdFrame::new(&camera, &d1, Some(&c1), None),
+        &FrameView::new(&camera, &d0, Some(&c0), None),
+        &FrameView::new(&camera, &d1, Some(&c1), None),
         &FrameSettings::default(),
     )
     .unwrap();

@@ -62,6 +62,12 @@ pub fn write_flow<const C: usize>(
     path: impl AsRef<Path>,
     flow: &Image<[f32; C]>,
 ) -> Result<(), IoError> {
+    write_atomic(path, &encode_flow(flow))
+}
+
+/// The bytes of a flow file: width, height and channel count (u32), then each channel's plane
+/// of little-endian f32, row by row (what [`decode_flow`] reads).
+pub fn encode_flow<const C: usize>(flow: &Image<[f32; C]>) -> Vec<u8> {
     let mut bytes = Vec::with_capacity(12 + 4 * C * flow.data.len());
     for v in [flow.width as u32, flow.height as u32, C as u32] {
         bytes.extend_from_slice(&v.to_le_bytes());
@@ -71,7 +77,7 @@ pub fn write_flow<const C: usize>(
             bytes.extend_from_slice(&p[ch].to_le_bytes());
         }
     }
-    write_atomic(path, &bytes)
+    bytes
 }
 
 #[cfg(test)]
@@ -109,5 +115,23 @@ mod tests {
             .message
             .contains("header"));
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_flow_round_trips_bit_for_bit(
+            w in 1usize..9, h in 1usize..7,
+            values in proptest::collection::vec(proptest::num::f32::ANY, 3 * 8 * 6),
+        ) {
+            let mut flow = Image::filled(w, h, [0.0f32; 3]);
+            for (k, p) in flow.data.iter_mut().enumerate() {
+                *p = [values[3 * k], values[3 * k + 1], values[3 * k + 2]];
+            }
+            let back: Image<[f32; 3]> = decode_flow(&encode_flow(&flow), Path::new("f")).unwrap();
+            proptest::prop_assert_eq!((back.width, back.height), (w, h));
+            for (a, b) in back.data.iter().zip(&flow.data) {
+                proptest::prop_assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
+            }
+        }
     }
 }

@@ -8,6 +8,7 @@ pub mod iclnuim;
 pub mod images;
 pub mod meshes;
 pub mod ply;
+pub mod sequence;
 pub mod trajectory;
 pub mod tum;
 

@@ -320,4 +320,34 @@ mod tests {
             .to_string()
             .contains("face 0"));
     }
+
+    proptest::proptest! {
+        #[test]
+        fn any_mesh_round_trips_through_binary_ply(
+            points in proptest::collection::vec(
+                (proptest::num::f32::NORMAL, proptest::num::f32::NORMAL, proptest::num::f32::NORMAL),
+                1..40,
+            ),
+            faces in proptest::collection::vec((0u32..40, 0u32..40, 0u32..40), 0..30),
+            normals: bool, colors: bool, seed in 0u8..255,
+        ) {
+            let n = points.len() as u32;
+            let mesh = Mesh {
+                vertices: points.iter().map(|&(x, y, z)| nalgebra::Point3::new(x, y, z)).collect(),
+                normals: if normals {
+                    points.iter().map(|&(x, y, z)| nalgebra::Vector3::new(z, x, y)).collect()
+                } else {
+                    Vec::new()
+                },
+                colors: if colors {
+                    (0..n).map(|i| [i as u8, seed, (i as u8).wrapping_mul(seed)]).collect()
+                } else {
+                    Vec::new()
+                },
+                faces: faces.iter().map(|&(a, b, c)| [a % n, b % n, c % n]).collect(),
+            };
+            let back = decode(&encode(&mesh), Path::new("m.ply")).unwrap();
+            proptest::prop_assert_eq!(back, mesh);
+        }
+    }
 }

@@ -122,4 +122,30 @@ mod tests {
             "t.txt:2: fields qx qy qz qw: the quaternion is zero"
         );
     }
+
+    proptest::proptest! {
+        #[test]
+        fn any_trajectory_round_trips_through_tum_text(
+            poses in proptest::collection::vec(
+                (-1e3f64..1e3, -1e3f64..1e3, -1e3f64..1e3, -4.0f64..4.0, -4.0f64..4.0, -4.0f64..4.0),
+                1..20,
+            ),
+            start in 0u32..2_000_000,
+        ) {
+            let mut t = Trajectory::default();
+            for (k, &(x, y, z, a, b, c)) in poses.iter().enumerate() {
+                let pose = Isometry3::new(nalgebra::Vector3::new(x, y, z), nalgebra::Vector3::new(a, b, c));
+                // stamps in whole microseconds, which six decimals carry exactly
+                t.push((start as f64 + 33_333.0 * k as f64) * 1e-6, pose);
+            }
+            let back = Trajectory::parse_tum(&t.format_tum(), Path::new("t.txt")).unwrap();
+            proptest::prop_assert_eq!(back.len(), t.len());
+            for (s, u) in back.stamps.iter().zip(&t.stamps) {
+                proptest::prop_assert!((s - u).abs() < 1e-9);
+            }
+            for (p, q) in back.poses.iter().zip(&t.poses) {
+                proptest::prop_assert!((p.to_homogeneous() - q.to_homogeneous()).abs().max() < 1e-12);
+            }
+        }
+    }
 }

@@ -15,10 +15,11 @@ use crate::image::{
 use crate::preprocess::{Level, PreprocessParams, Preprocessor};
 use nalgebra::{Isometry3, Vector3};
 
-/// One RGB-D frame: depth in metres (0 where missing), optional colour and object mask, all of the
-/// camera's size.
+/// A borrowed view of one RGB-D frame for registration (the frames read from disk are
+/// [`crate::io::tum::RgbdFrame`]): depth in metres (0 where missing), optional colour and object
+/// mask, all of the camera's size.
 #[derive(Clone, Copy, Debug)]
-pub struct RgbdFrame<'a> {
+pub struct FrameView<'a> {
     /// Intrinsics.
     pub camera: &'a Camera,
     /// Depth, metres.
@@ -146,7 +147,7 @@ fn check(what: &'static str, size: (usize, usize), camera: &Camera) -> Result<()
     Ok(())
 }
 
-impl<'a> RgbdFrame<'a> {
+impl<'a> FrameView<'a> {
     /// A frame of these images.
     pub fn new(
         camera: &'a Camera,
@@ -214,8 +215,8 @@ fn vector(v: &[f32; 3]) -> Vector3<f64> {
 /// when both frames have colour, and the field is optimised against the target's depth with data
 /// terms on a strided subset of the pixels (those with a normal).
 pub fn register_frames(
-    source: &RgbdFrame<'_>,
-    target: &RgbdFrame<'_>,
+    source: &FrameView<'_>,
+    target: &FrameView<'_>,
     settings: &FrameSettings,
 ) -> Result<FrameRegistration, FrameError> {
     source.check(["source depth", "source colour", "source mask"])?;

@@ -23,7 +23,7 @@ pub mod surface;
 mod system;
 
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
-pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, RgbdFrame};
+pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, FrameView};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{

@@ -61,7 +61,7 @@ struct Neighbour {
     transposed: bool,
 }
 
-enum Reduced {
+enum ReducedSolver {
     Factored(Cholesky),
     Iterative(Pcg),
 }
@@ -107,7 +107,7 @@ pub(crate) struct Schur {
     chunk_values: Vec<Vec<f64>>,
     /// One private reduced right-hand side per chunk.
     chunk_rhs: Vec<Vec<f64>>,
-    reduced: Reduced,
+    reduced: ReducedSolver,
     rhs: Vec<f64>,
 }
 
@@ -173,7 +173,7 @@ impl Schur {
 
     /// True unless the reduced system is solved iteratively.
     pub fn is_exact(&self) -> bool {
-        matches!(self.reduced, Reduced::Factored(_))
+        matches!(self.reduced, ReducedSolver::Factored(_))
     }
 
     /// Inverts the damped H_ee blocks and gathers the H_ce blocks, then forms S (or the
@@ -227,11 +227,11 @@ impl Schur {
         }
         let (s, kept) = (&self.s, &self.kept);
         match &mut self.reduced {
-            Reduced::Factored(chol) => chol.factor(s, Damping::None).map_err(|i| {
+            ReducedSolver::Factored(chol) => chol.factor(s, Damping::None).map_err(|i| {
                 let k = s.block_of_scalar(i);
                 h.block_start[kept[k]] + (i - s.block_start[k])
             }),
-            Reduced::Iterative(_) => Ok(()),
+            ReducedSolver::Iterative(_) => Ok(()),
         }
     }
 
@@ -245,8 +245,8 @@ impl Schur {
         }
         let mut rhs = std::mem::take(&mut self.rhs);
         match &mut self.reduced {
-            Reduced::Factored(chol) => chol.solve(&mut rhs),
-            Reduced::Iterative(_) => self.conjugate_gradients(ne, &mut rhs),
+            ReducedSolver::Factored(chol) => chol.solve(&mut rhs),
+            ReducedSolver::Iterative(_) => self.conjugate_gradients(ne, &mut rhs),
         }
         // δ_e = H_ee⁻¹ (b_e − H_ec δ_c), then δ_c into place.
         {
@@ -316,10 +316,10 @@ fn reduced_solver(
     dense_threshold: usize,
     eliminated_scalars: usize,
     options: SchurOptions,
-) -> Result<(Reduced, LinearSolverKind), SolveError> {
+) -> Result<(ReducedSolver, LinearSolverKind), SolveError> {
     if kind == LinearSolverKind::SchurIterative {
         let pcg = Pcg::new(s, eliminated_scalars, options);
-        return Ok((Reduced::Iterative(pcg), kind));
+        return Ok((ReducedSolver::Iterative(pcg), kind));
     }
     let dense = match kind {
         LinearSolverKind::SchurDense => true,
@@ -332,5 +332,5 @@ fn reduced_solver(
         LinearSolverKind::Schur => LinearSolverKind::SchurDense,
         k => k,
     };
-    Ok((Reduced::Factored(chol), kind))
+    Ok((ReducedSolver::Factored(chol), kind))
 }

@@ -3,7 +3,7 @@
 //! (Agarwal et al., *Bundle Adjustment in the Large*, 2010, sec. 4.3); S is never formed.
 
 use super::kernels::{invert_spd, subtract_block, MAX_PRODUCT};
-use super::{Reduced, Schur, SchurOptions};
+use super::{ReducedSolver, Schur, SchurOptions};
 use crate::block::BlockSparse;
 use crate::damping::Damping;
 use crate::normal::NormalEquations;
@@ -63,14 +63,14 @@ impl Schur {
                 }
                 invert_spd(p, dj).map_err(|k| h.block_start[this.kept[j]] + k)
             });
-        self.reduced = Reduced::Iterative(pcg);
+        self.reduced = ReducedSolver::Iterative(pcg);
         result
     }
 
     pub(super) fn take_pcg(&mut self) -> Pcg {
-        match std::mem::replace(&mut self.reduced, Reduced::Iterative(Pcg::empty())) {
-            Reduced::Iterative(pcg) => pcg,
-            Reduced::Factored(_) => unreachable!("only the iterative solver has PCG buffers"),
+        match std::mem::replace(&mut self.reduced, ReducedSolver::Iterative(Pcg::empty())) {
+            ReducedSolver::Iterative(pcg) => pcg,
+            ReducedSolver::Factored(_) => unreachable!("only the iterative solver has PCG buffers"),
         }
     }
 
@@ -163,7 +163,7 @@ impl Schur {
             }
         }
         (pcg.r, pcg.z, pcg.p, pcg.q) = (r, z, p, q);
-        self.reduced = Reduced::Iterative(pcg);
+        self.reduced = ReducedSolver::Iterative(pcg);
     }
 
     pub(super) fn apply_preconditioner(&self, pcg: &Pcg, r: &[f64], z: &mut [f64]) {
