@@ -113,29 +113,48 @@ impl Solver {
         result
     }
 
+    /// Runs the minimiser on a prepared workspace: the start point, the iterations, the summary.
     fn run(&mut self, problem: &mut Problem, ws: &mut Workspace) -> Result<Summary, SolveError> {
         let opts = self.options.clone();
         let (mut run, mut step_box) = self.start(problem, ws, &opts)?;
         let mut method = Method::new(&opts, run.max_diag, &mut ws.gauss_newton);
-        let mut iteration = 0;
-        while !run.stop
-            && run.termination == Termination::MaxIterations
-            && iteration < opts.max_iterations
-        {
-            iteration += 1;
-            if run.start.elapsed().as_secs_f64() > opts.max_seconds {
-                run.termination = Termination::TimeLimit;
-                break;
-            }
-            let step = self.iterate(problem, ws, &mut method, &mut step_box, &mut run, iteration);
-            if step?.is_break() {
-                break;
-            }
-        }
+        let outcome = self.iterations(problem, ws, &mut method, &mut step_box, &mut run);
+        // the dogleg's buffer goes back to the workspace whether or not the loop failed
         if let Some(buffer) = method.finish() {
             ws.gauss_newton = buffer;
         }
+        outcome?;
         Ok(run.summary(&ws.ne, &ws.linear))
+    }
+
+    /// Iterates until a stopping test, the iteration or time limit, or the observer ends it.
+    fn iterations(
+        &mut self,
+        problem: &mut Problem,
+        ws: &mut Workspace,
+        method: &mut Method,
+        step_box: &mut Option<StepBox>,
+        run: &mut Run,
+    ) -> Result<(), SolveError> {
+        let (max_iterations, max_seconds) = (self.options.max_iterations, self.options.max_seconds);
+        let mut iteration = 0;
+        while !run.stop
+            && run.termination == Termination::MaxIterations
+            && iteration < max_iterations
+        {
+            iteration += 1;
+            if run.start.elapsed().as_secs_f64() > max_seconds {
+                run.termination = Termination::TimeLimit;
+                break;
+            }
+            if self
+                .iterate(problem, ws, method, step_box, run, iteration)?
+                .is_break()
+            {
+                break;
+            }
+        }
+        Ok(())
     }
 
     /// Evaluates the start point, checks its rank where asked and reports it as iteration 0.
