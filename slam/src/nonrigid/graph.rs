@@ -187,7 +187,7 @@ impl DeformationGraph {
 
     /// [`Self::bind`] with the nearest nodes looked up in `tree`, a tree over the nodes in their
     /// order at other positions (e.g. warped into the live frame).
-    pub fn bind_in(&self, tree: &ImmutableKdTree<f64, 3>, p: &Vector3<f64>) -> Binding {
+    pub(crate) fn bind_in(&self, tree: &ImmutableKdTree<f64, 3>, p: &Vector3<f64>) -> Binding {
         let mut found = [(0u32, 0.0); MAX_NEIGHBOURS];
         let Some(k) = NonZero::new(self.neighbours()) else {
             return self.binding(&[]);

@@ -20,9 +20,9 @@ use rustc_hash::FxHashMap;
 use thiserror::Error;
 
 /// Voxels along a block edge.
-pub const BLOCK: i32 = 8;
+pub(crate) const BLOCK: i32 = 8;
 /// Voxels in a block.
-pub const BLOCK_VOXELS: usize = 512;
+pub(crate) const BLOCK_VOXELS: usize = 512;
 
 /// Settings of the volume.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -156,7 +156,7 @@ impl<'a> BlockCache<'a> {
 
 /// Index of local voxel (x, y, z) in a block.
 #[inline]
-pub fn local_index(x: i32, y: i32, z: i32) -> usize {
+pub(crate) fn local_index(x: i32, y: i32, z: i32) -> usize {
     (x + BLOCK * (y + BLOCK * z)) as usize
 }
 
