@@ -4,12 +4,13 @@
 //! cargo run --release --example rigid_slam                       # renders a sequence, runs, prints ATE
 //! cargo run --release --example rigid_slam -- DIR --output traj.txt [--mesh out.ply] [--config slam.toml]
 //! ```
-//! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else --fx/--fy/--cx/--cy/--depth-scale,
-//! else TUM's published ones), an ICL-NUIM folder or a plain folder of frames
-//! (`slam::io::sequence::Sequence` tells them apart). Prints a progress bar with the fps, and one JSON line last: frames,
-//! seconds (the whole per-frame loop, image reading included), fps, failures (frames read but not
-//! tracked), skipped (frames whose files could not be read), relocalised, and the ATE when the
-//! folder has a ground truth. The trajectory holds the tracked frames only.
+//! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else --fx/--fy/--cx/--cy/
+//! --depth-scale, else TUM's published ones), an ICL-NUIM folder or a plain folder of frames
+//! (`slam::io::sequence::Sequence` tells them apart). Prints a progress bar with the fps, and one
+//! JSON line last: frames, seconds (the whole per-frame loop, image reading included), fps,
+//! failures (frames read but not tracked), skipped (frames whose files could not be read),
+//! relocalised, and the ATE when the folder has a ground truth. The trajectory holds the tracked
+//! frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
