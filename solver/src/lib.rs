@@ -74,6 +74,24 @@
 //!
 //! The [`guide`] walks through a custom residual, a custom manifold, a property test of the
 //! Jacobians and the [`Summary`].
+//!
+//! ## Where things are (for contributors)
+//!
+//! The modules form layers; each uses only those before it (`tests/integration/structure.rs`
+//! checks that no module imports one that imports it):
+//!
+//! 1. `error`, `parallel` (a pointer for disjoint writes, the one dot product), `damping`
+//!    ([`Damping`], [`LevenbergDamping`]), `summary` ([`Summary`]);
+//! 2. [`lie`], `manifold`, `residual`, `real`, `jet`, `autodiff`, `numeric`, [`robust`],
+//!    `problem`, `options` ([`Options`] and its enums);
+//! 3. `block` (the block-sparse matrix), `normal` (H and g assembled from the residuals),
+//!    `cholesky` (dense and sparse, with the block AMD ordering);
+//! 4. `schur/` (`ordering`, `layout`, `assembly`, `pcg`, `kernels`), then `linear`, which only
+//!    dispatches between Cholesky and Schur;
+//! 5. `diagnose` (rank and null space), `bounds` (the box-constrained step);
+//! 6. `minimizer/`: `method` says what differs between Gauss-Newton (`gauss_newton`),
+//!    Levenberg-Marquardt (`levenberg_marquardt`) and the dogleg (`dogleg`); `mod` is the loop
+//!    they share; then `covariance`, `linearize`, `system`, [`dense`].
 
 #![warn(missing_docs)]
 
