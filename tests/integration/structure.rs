@@ -1,6 +1,9 @@
 //! The code's shape, checked on its source (issue 25): no module of a crate imports, through a
 //! chain of others, a module that imports it; and the solver's functions stay short.
 //!
+//! The function-length check covers the solver and the residuals crates; slam, the examples and
+//! the tests still have longer functions (NOTES 63).
+//!
 //! A module's imports are the `crate::…`, `super::…` and `self::…` paths in its file (outside
 //! `#[cfg(test)]` and comments), each resolved to the longest module path it names. A module's
 //! use of its own ancestors is not counted: a parent declares its children, and a child may use
@@ -9,7 +12,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-/// Longest function body allowed in the solver, lines (the issue's "about 80").
+/// Longest function body allowed in the solver and the residuals, lines (the issue's "about 80").
 const LONGEST_FUNCTION: usize = 85;
 
 /// Every `.rs` file under `dir`, recursively.
@@ -239,9 +242,10 @@ fn long_functions(file: &str, text: &str, limit: usize) -> Vec<(String, usize, S
 }
 
 #[test]
-fn the_solvers_functions_are_short() {
+fn the_solver_and_residuals_functions_are_short() {
     let mut files = Vec::new();
     rust_files(&workspace().join("solver/src"), &mut files);
+    rust_files(&workspace().join("residuals/src"), &mut files);
     let mut long = Vec::new();
     for f in &files {
         let text = std::fs::read_to_string(f).expect("source readable");

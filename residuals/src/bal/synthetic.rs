@@ -87,6 +87,26 @@ fn seen_by(o: &SyntheticOptions, rng: &mut ChaCha8Rng) -> Vec<usize> {
     seen
 }
 
+/// Camera `i` of `n` on the ring, looking at the cloud's centre (BAL's parameters: angle-axis,
+/// translation, focal length, two radial distortion coefficients).
+fn ring_camera(i: usize, n: usize) -> [f64; 9] {
+    let a = 2.0 * std::f64::consts::PI * i as f64 / n.max(1) as f64;
+    let centre = Vector3::new(8.0 * a.cos(), 8.0 * a.sin(), 2.0 + (3.0 * a).sin());
+    // BAL cameras look down their −z axis.
+    let z = centre.normalize();
+    let x = Vector3::z().cross(&z).normalize();
+    let y = z.cross(&x);
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+        x.transpose(),
+        y.transpose(),
+        z.transpose(),
+    ]));
+    let w = so3::log(&UnitQuaternion::from_rotation_matrix(&r));
+    let t = -(r * centre);
+    let f = 500.0 + 20.0 * i as f64;
+    [w.x, w.y, w.z, t.x, t.y, t.z, f, -0.02, 0.001]
+}
+
 /// Generates a problem (see the module documentation).
 pub fn generate(o: &SyntheticOptions) -> Synthetic {
     let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
@@ -100,25 +120,7 @@ pub fn generate(o: &SyntheticOptions) -> Synthetic {
             ]
         })
         .collect();
-    let cameras: Vec<[f64; 9]> = (0..o.cameras)
-        .map(|i| {
-            let a = 2.0 * std::f64::consts::PI * i as f64 / o.cameras.max(1) as f64;
-            let centre = Vector3::new(8.0 * a.cos(), 8.0 * a.sin(), 2.0 + (3.0 * a).sin());
-            // BAL cameras look down their −z axis.
-            let z = centre.normalize();
-            let x = Vector3::z().cross(&z).normalize();
-            let y = z.cross(&x);
-            let r = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
-                x.transpose(),
-                y.transpose(),
-                z.transpose(),
-            ]));
-            let w = so3::log(&UnitQuaternion::from_rotation_matrix(&r));
-            let t = -(r * centre);
-            let f = 500.0 + 20.0 * i as f64;
-            [w.x, w.y, w.z, t.x, t.y, t.z, f, -0.02, 0.001]
-        })
-        .collect();
+    let cameras: Vec<[f64; 9]> = (0..o.cameras).map(|i| ring_camera(i, o.cameras)).collect();
     let mut observations = Vec::new();
     let mut outlier = Vec::new();
     for (p, point) in points.iter().enumerate() {

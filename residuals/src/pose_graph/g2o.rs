@@ -169,100 +169,13 @@ pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
         let mut tokens = content.split_whitespace();
         let tag = tokens.next().unwrap_or("");
         let rest: Vec<&str> = tokens.collect();
-        let this_dim = match tag {
-            "VERTEX_SE2" | "EDGE_SE2" => Some(Dimension::Two),
-            "VERTEX_SE3:QUAT" | "EDGE_SE3:QUAT" => Some(Dimension::Three),
-            _ => None,
-        };
-        if let Some(d) = this_dim {
-            match dimension {
-                None => dimension = Some((d, i + 1)),
-                Some((prev, at)) if prev != d => {
-                    return Err(p.err(format!(
-                        "{tag} mixes dimensions: line {at} started a {} graph",
-                        if prev == Dimension::Two { "2D" } else { "3D" }
-                    )));
-                }
-                _ => {}
-            }
-        }
+        check_dimension(&p, tag, &mut dimension)?;
         match tag {
             "VERTEX_SE2" | "VERTEX_SE3:QUAT" => {
-                let (names, pose) = if tag == "VERTEX_SE2" {
-                    p.count(tag, &rest, SE2_VERTEX)?;
-                    let v = p.nums(&rest[1..], &SE2_VERTEX[1..])?;
-                    (
-                        SE2_VERTEX,
-                        Pose::Se2(Isometry2::new(Vector2::new(v[0], v[1]), v[2])),
-                    )
-                } else {
-                    p.count(tag, &rest, SE3_VERTEX)?;
-                    let v = p.nums(&rest[1..], &SE3_VERTEX[1..])?;
-                    let q = p.quaternion(&v[3..7])?;
-                    (
-                        SE3_VERTEX,
-                        Pose::Se3(Isometry3::from_parts(
-                            Translation3::new(v[0], v[1], v[2]),
-                            q,
-                        )),
-                    )
-                };
-                let id = p.id(rest[0], names[0])?;
-                match graph.vertices.entry(id) {
-                    Entry::Occupied(_) => {
-                        return Err(p.err(format!(
-                            "duplicate vertex id {id} (first defined on line {})",
-                            graph.vertex_lines[&id]
-                        )));
-                    }
-                    Entry::Vacant(slot) => {
-                        slot.insert(pose);
-                        graph.vertex_lines.insert(id, i + 1);
-                    }
-                }
+                let (id, pose) = parse_vertex(&p, tag, &rest)?;
+                add_vertex(&mut graph, &p, id, pose)?;
             }
-            "EDGE_SE2" | "EDGE_SE3:QUAT" => {
-                let measurement = if tag == "EDGE_SE2" {
-                    p.count(tag, &rest, SE2_EDGE)?;
-                    let v = p.nums(&rest[2..], &SE2_EDGE[2..])?;
-                    Measurement::Se2 {
-                        z: Isometry2::new(Vector2::new(v[0], v[1]), v[2]),
-                        information: upper::<3>(&v[3..9]),
-                    }
-                } else {
-                    p.count(tag, &rest, &edge3)?;
-                    let v = p.nums(&rest[2..], &edge3[2..])?;
-                    let q = p.quaternion(&v[3..7])?;
-                    Measurement::Se3 {
-                        z: Isometry3::from_parts(Translation3::new(v[0], v[1], v[2]), q),
-                        information: swap_halves(&upper::<6>(&v[7..28])),
-                    }
-                };
-                let pd = match &measurement {
-                    Measurement::Se2 { information, .. } => {
-                        nalgebra::Cholesky::new(*information).is_some()
-                    }
-                    Measurement::Se3 { information, .. } => {
-                        nalgebra::Cholesky::new(*information).is_some()
-                    }
-                };
-                if !pd {
-                    return Err(
-                        p.err("fields I11..: the information matrix is not positive definite")
-                    );
-                }
-                let from = p.id(rest[0], "from")?;
-                let to = p.id(rest[1], "to")?;
-                if from == to {
-                    return Err(p.err(format!("edge from vertex {from} to itself")));
-                }
-                graph.edges.push(Edge {
-                    from,
-                    to,
-                    measurement,
-                    line: i + 1,
-                });
-            }
+            "EDGE_SE2" | "EDGE_SE3:QUAT" => graph.edges.push(parse_edge(&p, tag, &rest, &edge3)?),
             "FIX" => {
                 if rest.is_empty() {
                     return Err(p.err("FIX needs at least one vertex id"));
@@ -296,6 +209,119 @@ pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
         });
     }
     Ok(graph)
+}
+
+/// Notes the graph's dimension from the first tag that has one; an error when `tag` is of the
+/// other dimension.
+fn check_dimension(
+    p: &LineParser<'_>,
+    tag: &str,
+    dimension: &mut Option<(Dimension, usize)>,
+) -> Result<(), G2oError> {
+    let this_dim = match tag {
+        "VERTEX_SE2" | "EDGE_SE2" => Dimension::Two,
+        "VERTEX_SE3:QUAT" | "EDGE_SE3:QUAT" => Dimension::Three,
+        _ => return Ok(()),
+    };
+    match *dimension {
+        None => *dimension = Some((this_dim, p.line)),
+        Some((prev, at)) if prev != this_dim => {
+            return Err(p.err(format!(
+                "{tag} mixes dimensions: line {at} started a {} graph",
+                if prev == Dimension::Two { "2D" } else { "3D" }
+            )));
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// A VERTEX_SE2 or VERTEX_SE3:QUAT line's id and pose.
+fn parse_vertex(p: &LineParser<'_>, tag: &str, rest: &[&str]) -> Result<(usize, Pose), G2oError> {
+    let (names, pose) = if tag == "VERTEX_SE2" {
+        p.count(tag, rest, SE2_VERTEX)?;
+        let v = p.nums(&rest[1..], &SE2_VERTEX[1..])?;
+        (
+            SE2_VERTEX,
+            Pose::Se2(Isometry2::new(Vector2::new(v[0], v[1]), v[2])),
+        )
+    } else {
+        p.count(tag, rest, SE3_VERTEX)?;
+        let v = p.nums(&rest[1..], &SE3_VERTEX[1..])?;
+        let q = p.quaternion(&v[3..7])?;
+        (
+            SE3_VERTEX,
+            Pose::Se3(Isometry3::from_parts(
+                Translation3::new(v[0], v[1], v[2]),
+                q,
+            )),
+        )
+    };
+    Ok((p.id(rest[0], names[0])?, pose))
+}
+
+/// Adds a vertex; an error naming the first definition when the id is taken.
+fn add_vertex(
+    graph: &mut PoseGraph,
+    p: &LineParser<'_>,
+    id: usize,
+    pose: Pose,
+) -> Result<(), G2oError> {
+    match graph.vertices.entry(id) {
+        Entry::Occupied(_) => Err(p.err(format!(
+            "duplicate vertex id {id} (first defined on line {})",
+            graph.vertex_lines[&id]
+        ))),
+        Entry::Vacant(slot) => {
+            slot.insert(pose);
+            graph.vertex_lines.insert(id, p.line);
+            Ok(())
+        }
+    }
+}
+
+/// An EDGE_SE2 or EDGE_SE3:QUAT line; its information matrix must be positive definite and it
+/// must join two vertices.
+fn parse_edge(
+    p: &LineParser<'_>,
+    tag: &str,
+    rest: &[&str],
+    edge3: &[String],
+) -> Result<Edge, G2oError> {
+    let measurement = if tag == "EDGE_SE2" {
+        p.count(tag, rest, SE2_EDGE)?;
+        let v = p.nums(&rest[2..], &SE2_EDGE[2..])?;
+        Measurement::Se2 {
+            z: Isometry2::new(Vector2::new(v[0], v[1]), v[2]),
+            information: upper::<3>(&v[3..9]),
+        }
+    } else {
+        p.count(tag, rest, edge3)?;
+        let v = p.nums(&rest[2..], &edge3[2..])?;
+        let q = p.quaternion(&v[3..7])?;
+        Measurement::Se3 {
+            z: Isometry3::from_parts(Translation3::new(v[0], v[1], v[2]), q),
+            information: swap_halves(&upper::<6>(&v[7..28])),
+        }
+    };
+    let pd = match &measurement {
+        Measurement::Se2 { information, .. } => nalgebra::Cholesky::new(*information).is_some(),
+        Measurement::Se3 { information, .. } => nalgebra::Cholesky::new(*information).is_some(),
+    };
+    if !pd {
+        return Err(p.err("fields I11..: the information matrix is not positive definite"));
+    }
+    let from = p.id(rest[0], "from")?;
+    let to = p.id(rest[1], "to")?;
+    if from == to {
+        return Err(p.err(format!("edge from vertex {from} to itself")));
+    }
+    Ok(Edge {
+        from,
+        to,
+        measurement,
+        line: p.line,
+    })
 }
 
 /// Formats a pose graph as g2o text with the vertices in `poses` (all digits needed to read each

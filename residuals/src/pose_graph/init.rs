@@ -157,40 +157,12 @@ pub fn chordal(graph: &PoseGraph) -> Result<BTreeMap<usize, Pose>, String> {
             .copied()
             .unwrap_or_else(|| Pose::identity(graph.dimension))
     };
-    let rotation_of = |p: &Pose| -> DMatrix<f64> {
-        match p {
-            Pose::Se2(t) => DMatrix::from_column_slice(
-                2,
-                2,
-                t.rotation.to_rotation_matrix().matrix().as_slice(),
-            ),
-            Pose::Se3(t) => DMatrix::from_column_slice(
-                3,
-                3,
-                t.rotation.to_rotation_matrix().matrix().as_slice(),
-            ),
-        }
-    };
-    let translation_of = |p: &Pose| -> DVector<f64> {
-        match p {
-            Pose::Se2(t) => DVector::from_column_slice(t.translation.vector.as_slice()),
-            Pose::Se3(t) => DVector::from_column_slice(t.translation.vector.as_slice()),
-        }
-    };
     // Rotations: vec(R_j) − (Z_Rᵀ ⊗ I) vec(R_i) = 0.
     let rotation_edges = graph
         .edges
         .iter()
         .map(|e| {
-            let rz = rotation_of(&e.measurement.pose());
-            let mut a = DMatrix::zeros(d * d, d * d);
-            for c in 0..d {
-                for k in 0..d {
-                    for r in 0..d {
-                        a[(c * d + r, k * d + r)] = -rz[(k, c)];
-                    }
-                }
-            }
+            let a = rotation_edge(&rotation_of(&e.measurement.pose()), d);
             (e.from, e.to, a, DVector::zeros(d * d))
         })
         .collect();
@@ -210,22 +182,7 @@ pub fn chordal(graph: &PoseGraph) -> Result<BTreeMap<usize, Pose>, String> {
     )?;
     let projected: BTreeMap<usize, DMatrix<f64>> = rotations
         .into_iter()
-        .map(|(id, v)| {
-            let m = DMatrix::from_column_slice(d, d, &v);
-            let r = if d == 3 {
-                let p = so3::project(&Matrix3::from_column_slice(m.as_slice()));
-                DMatrix::from_column_slice(3, 3, p.as_slice())
-            } else {
-                // nearest planar rotation: angle of (m00 + m11, m10 − m01)
-                let a = (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)]);
-                DMatrix::from_column_slice(
-                    2,
-                    2,
-                    UnitComplex::new(a).to_rotation_matrix().matrix().as_slice(),
-                )
-            };
-            (id, r)
-        })
+        .map(|(id, v)| (id, nearest_rotation(&DMatrix::from_column_slice(d, d, &v))))
         .collect();
     // Translations: t_j − t_i − R_i t_ij = 0.
     let translation_edges = graph
@@ -251,22 +208,71 @@ pub fn chordal(graph: &PoseGraph) -> Result<BTreeMap<usize, Pose>, String> {
     )?;
     Ok(ids
         .iter()
-        .map(|id| {
-            let (r, t) = (&projected[id], &translations[id]);
-            let pose = if d == 3 {
-                let rot =
-                    Rotation3::from_matrix_unchecked(Matrix3::from_column_slice(r.as_slice()));
-                Pose::Se3(Isometry3::from_parts(
-                    Translation3::new(t[0], t[1], t[2]),
-                    UnitQuaternion::from_rotation_matrix(&rot),
-                ))
-            } else {
-                Pose::Se2(Isometry2::new(
-                    Vector2::new(t[0], t[1]),
-                    r[(1, 0)].atan2(r[(0, 0)]),
-                ))
-            };
-            (*id, pose)
-        })
+        .map(|id| (*id, compose(&projected[id], &translations[id])))
         .collect())
+}
+
+/// A pose's rotation as a d × d matrix.
+fn rotation_of(p: &Pose) -> DMatrix<f64> {
+    match p {
+        Pose::Se2(t) => {
+            DMatrix::from_column_slice(2, 2, t.rotation.to_rotation_matrix().matrix().as_slice())
+        }
+        Pose::Se3(t) => {
+            DMatrix::from_column_slice(3, 3, t.rotation.to_rotation_matrix().matrix().as_slice())
+        }
+    }
+}
+
+/// A pose's translation.
+fn translation_of(p: &Pose) -> DVector<f64> {
+    match p {
+        Pose::Se2(t) => DVector::from_column_slice(t.translation.vector.as_slice()),
+        Pose::Se3(t) => DVector::from_column_slice(t.translation.vector.as_slice()),
+    }
+}
+
+/// The block −(Z_Rᵀ ⊗ I) of a rotation edge's row vec(R_j) − (Z_Rᵀ ⊗ I) vec(R_i) = 0.
+fn rotation_edge(rz: &DMatrix<f64>, d: usize) -> DMatrix<f64> {
+    let mut a = DMatrix::zeros(d * d, d * d);
+    for c in 0..d {
+        for k in 0..d {
+            for r in 0..d {
+                a[(c * d + r, k * d + r)] = -rz[(k, c)];
+            }
+        }
+    }
+    a
+}
+
+/// The rotation nearest to a d × d matrix (d = 2 or 3).
+fn nearest_rotation(m: &DMatrix<f64>) -> DMatrix<f64> {
+    if m.nrows() == 3 {
+        let p = so3::project(&Matrix3::from_column_slice(m.as_slice()));
+        DMatrix::from_column_slice(3, 3, p.as_slice())
+    } else {
+        // nearest planar rotation: angle of (m00 + m11, m10 − m01)
+        let a = (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)]);
+        DMatrix::from_column_slice(
+            2,
+            2,
+            UnitComplex::new(a).to_rotation_matrix().matrix().as_slice(),
+        )
+    }
+}
+
+/// The pose of rotation `r` (d × d) and translation `t`.
+fn compose(r: &DMatrix<f64>, t: &[f64]) -> Pose {
+    if r.nrows() == 3 {
+        let rot = Rotation3::from_matrix_unchecked(Matrix3::from_column_slice(r.as_slice()));
+        Pose::Se3(Isometry3::from_parts(
+            Translation3::new(t[0], t[1], t[2]),
+            UnitQuaternion::from_rotation_matrix(&rot),
+        ))
+    } else {
+        Pose::Se2(Isometry2::new(
+            Vector2::new(t[0], t[1]),
+            r[(1, 0)].atan2(r[(0, 0)]),
+        ))
+    }
 }
