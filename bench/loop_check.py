@@ -10,7 +10,7 @@ poses). A loop joins two keyframes; it is true when their true camera centres ar
 metres (a loop measured between views of one place), false otherwise (two places that look
 alike, as in the twin room). A loop is kept when its DCS weight at the graph's solution is above
 0.5. Prints one line: loops, true ones kept, false ones kept, and the largest weight of a false
-loop; exits 1 when a false loop was kept.
+loop; exits 1 when a false loop was kept or a loop has no weight (the graph was not solved).
 """
 import argparse
 import bisect
@@ -61,8 +61,10 @@ def main():
     rows = []
     for e in run["loop_events"]:
         d = math.dist(centre(e["from"]), centre(e["to"]))
-        w = e["weight"] if e["weight"] is not None else 0.0
-        rows.append((d, w))
+        if e["weight"] is None:
+            # no weight: the graph was not solved, so no loop can be called switched off
+            sys.exit(f"{a.run}: loop {e['from']}-{e['to']} has no DCS weight (the keyframe graph was not solved)")
+        rows.append((d, e["weight"]))
     true = [w for d, w in rows if d <= a.near]
     false = [w for d, w in rows if d > a.near]
     kept_false = sum(1 for w in false if w > 0.5)

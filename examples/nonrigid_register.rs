@@ -297,7 +297,16 @@ fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> R
         "inliers": m.source.len(),
     })));
     if let Some(gt) = &gt {
-        json["epe"] = flow_json(&flow_scores(&flow, gt, source.mask.as_ref()));
+        let scores = flow_scores(&flow, gt, source.mask.as_ref()).ok_or_else(|| {
+            cli::bad_input(format!(
+                "{}: no pixel has a finite ground-truth flow",
+                args.flow_ground_truth
+                    .as_deref()
+                    .unwrap_or(Path::new(""))
+                    .display()
+            ))
+        })?;
+        json["epe"] = flow_json(&scores);
     }
     println!("{json}");
     Ok(())
@@ -307,7 +316,7 @@ fn register_frame_pair(args: &Args, source_path: &Path, target_path: &Path) -> R
 fn flow_json(s: &FlowScores) -> serde_json::Value {
     let score = |e: &EpeResult| serde_json::json!({"mean": e.stats.mean, "median": e.stats.median, "within_5cm": e.within_5cm, "within_10cm": e.within_10cm});
     serde_json::json!({
-        "object": score(&s.object),
+        "object": s.object.as_ref().map(score),
         "object_pixels": s.object_pixels,
         "coverage": s.coverage,
         "all": score(&s.all),

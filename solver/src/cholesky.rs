@@ -9,7 +9,7 @@ use crate::block::BlockSparse;
 use crate::damping::Damping;
 use crate::error::SolveError;
 use dyn_stack::{MemBuffer, MemStack, StackReq};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::linalg::cholesky::llt::factor::{LltError, LltRegularization};
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
@@ -125,11 +125,7 @@ impl Cholesky {
                     Default::default(),
                 )
                 .map(|_| ())
-                .map_err(|e| match e {
-                    faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index } => {
-                        index
-                    }
-                })
+                .map_err(pivot)
             }
             Kind::Sparse {
                 symbolic,
@@ -157,13 +153,12 @@ impl Cholesky {
                         Default::default(),
                     )
                     .map(|_| ())
-                    .map_err(|e| match e {
-                        faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot {
-                            index,
-                        } => symbolic
+                    .map_err(|e| {
+                        let index = pivot(e);
+                        symbolic
                             .perm()
                             .map(|p| p.arrays().0[index])
-                            .unwrap_or(index),
+                            .unwrap_or(index)
                     })
             }
         }
@@ -195,6 +190,13 @@ impl Cholesky {
                 );
             }
         }
+    }
+}
+
+/// The index of the pivot at which faer's LLᵀ found the matrix not positive definite.
+fn pivot(e: LltError) -> usize {
+    match e {
+        LltError::NonPositivePivot { index } => index,
     }
 }
 

@@ -24,7 +24,7 @@ impl Damping {
         match self {
             Damping::None => v,
             Damping::Identity(mu) => v + mu,
-            Damping::Diagonal(mu) => v + mu * v.clamp(1e-6, 1e32),
+            Damping::Diagonal(mu) => v + marquardt(mu, v),
         }
     }
 }
@@ -44,11 +44,18 @@ impl Damping {
             Damping::Identity(mu) => mu * dot(step, step),
             Damping::Diagonal(mu) => diagonal
                 .zip(step)
-                .map(|(h, s)| mu * h.clamp(1e-6, 1e32) * s * s)
+                .map(|(h, s)| marquardt(mu, h) * s * s)
                 .sum(),
         };
         0.5 * (damp_term - dot(step, gradient))
     }
+}
+
+/// Marquardt's damping of a diagonal element v of H: μ v, v clamped to [1e-6, 1e32] (Ceres'
+/// bounds), so that a zero or huge diagonal still gets a usable damping.
+#[inline]
+fn marquardt(mu: f64, v: f64) -> f64 {
+    mu * v.clamp(1e-6, 1e32)
 }
 
 /// Levenberg-Marquardt's damping μ and its growth factor ν, with Nielsen's update.

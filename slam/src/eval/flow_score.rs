@@ -10,8 +10,9 @@ use nalgebra::Vector3;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FlowScores {
     /// On the object: inside the source mask (where there is one), over the pixels with both a
-    /// ground truth and a flow.
-    pub object: EpeResult,
+    /// ground truth and a flow; `None` when there is no such pixel (nothing to score, not a
+    /// zero error).
+    pub object: Option<EpeResult>,
     /// Pixels scored for `object`.
     pub object_pixels: usize,
     /// The share of the object's ground-truth pixels that were given a flow.
@@ -25,12 +26,12 @@ pub struct FlowScores {
 }
 
 /// Scores `flow` against `gt` (the same size) over the pixels where the ground truth is finite;
-/// `mask` marks the object in the source frame.
+/// `mask` marks the object in the source frame. `None` when no pixel has a finite ground truth.
 pub fn flow_scores(
     flow: &Image<[f32; 3]>,
     gt: &Image<[f32; 3]>,
     mask: Option<&Image<bool>>,
-) -> FlowScores {
+) -> Option<FlowScores> {
     let v = |p: &[f32; 3]| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
     let finite = |p: &[f32; 3]| p.iter().all(|c| c.is_finite());
     let (mut ours, mut truth, mut all_ours, mut all_truth) =
@@ -50,15 +51,18 @@ pub fn flow_scores(
             }
         }
     }
+    if all_truth.is_empty() {
+        return None;
+    }
     let zeros = vec![Vector3::zeros(); all_truth.len()];
-    FlowScores {
-        object: epe3d(&ours, &truth, None),
+    Some(FlowScores {
+        object: (!ours.is_empty()).then(|| epe3d(&ours, &truth, None)),
         object_pixels: ours.len(),
         coverage: ours.len() as f64 / object.max(1) as f64,
         all: epe3d(&all_ours, &all_truth, None),
         all_pixels: all_truth.len(),
         zero_flow: epe3d(&zeros, &all_truth, None),
-    }
+    })
 }
 
 #[cfg(test)]
@@ -82,15 +86,21 @@ mod tests {
             height: 1,
             data: vec![true, true, true, false],
         };
-        let s = flow_scores(&flow, &gt, Some(&mask));
+        let s = flow_scores(&flow, &gt, Some(&mask)).unwrap();
         assert_eq!((s.object_pixels, s.all_pixels), (2, 3));
         assert!((s.coverage - 2.0 / 3.0).abs() < 1e-12);
-        assert!((s.object.stats.mean - 0.015).abs() < 1e-6);
+        assert!((s.object.unwrap().stats.mean - 0.015).abs() < 1e-6);
         assert!(
             (s.all.stats.max - 0.1).abs() < 1e-6,
             "the missing flow counts as zero"
         );
         assert!((s.zero_flow.stats.mean - 0.1).abs() < 1e-6);
         assert_eq!(s.zero_flow.within_10cm, 0.0);
+        // no flow on the object: nothing scored there, not a zero error
+        let none = image(vec![nan; 4]);
+        let s = flow_scores(&none, &gt, Some(&mask)).unwrap();
+        assert_eq!((s.object, s.object_pixels, s.coverage), (None, 0, 0.0));
+        // no ground truth at all: no score
+        assert!(flow_scores(&flow, &image(vec![nan; 4]), None).is_none());
     }
 }

@@ -29,7 +29,7 @@ pub struct MapError {
 
 impl VertexMap {
     /// Reads a map for `sources` source vertices, each line an index below `targets` (blank
-    /// lines skipped); an error names the file and line.
+    /// lines skipped); an error names the file and line. A map with no entry to score is refused.
     pub fn read(path: impl AsRef<Path>, sources: usize, targets: usize) -> Result<Self, IoError> {
         let path = path.as_ref();
         Self::parse(&read_text(path)?, path, sources, targets)
@@ -60,10 +60,17 @@ impl VertexMap {
         for &k in &partner {
             count[k] += 1;
         }
-        let scored = partner
+        let scored: Vec<bool> = partner
             .iter()
             .map(|&k| count[k] * 100 <= partner.len())
             .collect();
+        if !scored.contains(&true) {
+            // an error of 0 over no entries would read as a perfect registration
+            return Err(IoError::file(
+                path,
+                "no entry to score: every vertex maps to a target shared by more than 1 % of them",
+            ));
+        }
         Ok(Self { partner, scored })
     }
 
@@ -126,5 +133,7 @@ mod tests {
             err.to_string().contains("2 lines for 3 source vertices"),
             "{err}"
         );
+        let err = VertexMap::parse("4\n4\n4\n", path, 3, 5).unwrap_err();
+        assert!(err.to_string().contains("no entry to score"), "{err}");
     }
 }
