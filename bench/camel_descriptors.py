@@ -6,7 +6,7 @@ usage (numpy and scipy, e.g. the peers' venv):
       [--map MAP]
 
 I, J: camel poses (map I_to_J of ../shared/data/nonrigid/camel_gallop); WARPED.ply: the output of
-`nonrigid_register camel-gallop-0I.off camel-gallop-0J.off --seeded-passes 0 --output WARPED.ply`
+`nonrigid_register meshes camel-gallop-0I.off camel-gallop-0J.off --seeded-passes 0 --output WARPED.ply`
 (the one-pass registration, whose result places the anchors, as in `register_meshes`). MAP: a
 ground-truth map other than the data's maps/I_to_J (e.g. a chained one from camel_heldout.py).
 

@@ -8,7 +8,7 @@ The 30 maps in ../shared/data/nonrigid/camel_gallop/maps were also the maps the 
 settings were chosen on. Two maps chained through a third pose, i -> k -> j, give a ground truth
 for a pair (i, j) that has no map of its own: vertex v of mesh i goes to map_kj[map_ik[v]].
 Entries that point at a placeholder (a vertex that over 1 % of the sources point at, "no partner",
-as `nonrigid_register --ground-truth` reads them; NOTES 20) in either map become placeholders of
+as `nonrigid_register meshes --ground-truth` reads them; NOTES 20) in either map become placeholders of
 the chain: they point at vertex 0 of mesh j. Writes every such composed map to OUT_DIR/i_to_j
 (the format of the given maps, taking for each pair the intermediate pose k of smallest number)
 and prints one line per pair.

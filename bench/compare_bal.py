@@ -10,7 +10,7 @@ Prints one Markdown table: initial and final cost, iterations and the median sol
 import argparse, json, os, statistics, subprocess, sys
 
 here = os.path.dirname(os.path.abspath(__file__))
-ours = os.path.join(here, "..", "target", "release", "examples", "bundle_adjustment")
+ours = os.path.join(here, "..", "target", "release", "bundle_adjustment")
 ceres = os.path.expanduser("~/.cache/dynamap-peers/bin/ceres_bal")
 
 
@@ -27,7 +27,7 @@ def main():
     a = ap.parse_args()
     for tool in (ours, ceres):
         if not os.path.exists(tool):
-            sys.exit(f"{tool} is missing (cargo build --release --example bundle_adjustment; ../shared/bench/peers/setup.sh)")
+            sys.exit(f"{tool} is missing (cargo build --release -p dynamap-apps; ../shared/bench/peers/setup.sh)")
     print("| problem | solver | cost initial | cost final | iterations | seconds (median of %d) |" % a.runs)
     print("|---|---|---|---|---|---|")
     for f in a.files:

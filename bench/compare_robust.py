@@ -16,7 +16,7 @@ The suite (generated into --work, seeds from --seed):
 
 usage: python3 bench/compare_robust.py [--seed 3] [--work DIR] [--curves OUT.json]
                                        [--quick] [--max-iterations 50]
-Needs `cargo build --release --example bundle_adjustment --example pose_graph --example generate_problem`.
+Needs `cargo build --release -p dynamap-apps` (the binaries in target/release/).
 """
 import argparse
 import json
@@ -28,7 +28,7 @@ import time
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data"
-BIN = ROOT / "target" / "release" / "examples"
+BIN = ROOT / "target" / "release"
 PEERS = pathlib.Path(os.environ.get("PEERS_VENV", pathlib.Path.home() / ".cache" / "dynamap-peers")) / "bin"
 TOLERANCE = 1e-6
 

@@ -27,8 +27,8 @@ SHARED = os.path.join(ROOT, "..", "shared")
 FR1 = os.path.join(SHARED, "data", "rgbd", "tum_trajectories", "freiburg1_xyz-groundtruth.txt")
 VENV = os.environ.get("PEERS_VENV", os.path.expanduser("~/.cache/dynamap-peers"))
 PY = os.path.join(VENV, "bin", "python")
-GEN = os.path.join(ROOT, "target", "release", "examples", "generate")
-SLAM = os.path.join(ROOT, "target", "release", "examples", "rigid_slam")
+GEN = os.path.join(ROOT, "target", "release", "generate")
+SLAM = os.path.join(ROOT, "target", "release", "rigid_slam")
 
 SUITE = [
     ("slow", ["--trajectory", FR1, "--frames", "600", "--seed", "31"], 0.01),

@@ -3,9 +3,6 @@
 //! plain `cargo test` catches a parser that panics again on an input libFuzzer once found
 //! interesting or broke.
 
-#[path = "../examples/common/cli.rs"]
-#[allow(unused)]
-mod cli;
 #[path = "../fuzz/exercise/mod.rs"]
 mod exercise;
 #[path = "../fuzz/exercise/config.rs"]

@@ -1,9 +1,9 @@
 //! The `config` fuzz target's calls, shared with `tests/fuzz_corpus.rs`: a `--config` file through
-//! the example binaries' own parsing (keys are long flags, then clap checks the values). The
-//! including crate declares `mod cli` (examples/common/cli.rs) at its root.
+//! the applications' own parsing (`dynamap_apps::cli`: keys are long flags, then clap checks the
+//! values).
 
-use crate::cli;
 use clap::Parser;
+use dynamap_apps::cli;
 use std::ffi::OsString;
 use std::path::PathBuf;
 

@@ -1,8 +1,5 @@
 //! Fuzz target: see `exercise::config`.
 #![no_main]
-#[path = "../../examples/common/cli.rs"]
-#[allow(unused)]
-mod cli;
 #[path = "../exercise/config.rs"]
 mod exercise;
 

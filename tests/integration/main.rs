@@ -2,18 +2,13 @@
 //! is linked on its own, so one binary instead of twelve saves CI minutes (NOTES 51, 61).
 //! `cargo test --release --test integration rigid::` runs one module's tests.
 //!
-//! Kept apart: `fuzz_corpus` (it includes the fuzz targets' modules, which name `crate::cli`),
-//! and the feature-gated `real_data` and `rerun_recording`.
-
-#[path = "../common/mod.rs"]
-mod common;
+//! Kept apart: `fuzz_corpus` (it includes the fuzz targets' modules) and the feature-gated
+//! `real_data`. The tests that run the applications' binaries are dynamap-apps' (`apps/tests/`).
 
 mod bounds_covariance;
 mod bundle_adjustment;
 mod chi2_agreement;
-mod cli;
 mod exposure;
-mod faults;
 mod g2o_files;
 mod kinect;
 mod loops;

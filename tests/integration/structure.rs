@@ -1,8 +1,9 @@
 //! The code's shape, checked on its source (issue 25): no module of a crate imports, through a
-//! chain of others, a module that imports it; and the solver's functions stay short.
+//! chain of others, a module that imports it; and the functions of the solver, the residuals and
+//! the applications stay short.
 //!
-//! The function-length check covers the solver and the residuals crates; slam, the examples and
-//! the tests still have longer functions (NOTES 63).
+//! The function-length check covers the solver, the residuals and the applications (apps/);
+//! slam still has longer functions (NOTES 63).
 //!
 //! A module's imports are the `crate::…`, `super::…` and `self::…` paths in its file (outside
 //! `#[cfg(test)]` and comments), each resolved to the longest module path it names. A module's
@@ -12,7 +13,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-/// Longest function body allowed in the solver and the residuals, lines (the issue's "about 80").
+/// Longest function body allowed in the solver, the residuals and the applications, lines (the issue's "about 80").
 const LONGEST_FUNCTION: usize = 85;
 
 /// Every `.rs` file under `dir`, recursively.
@@ -173,7 +174,7 @@ fn workspace() -> PathBuf {
 
 #[test]
 fn no_crate_has_an_import_cycle_among_its_modules() {
-    for krate in ["solver/src", "residuals/src", "slam/src", "src"] {
+    for krate in ["solver/src", "residuals/src", "slam/src", "apps/src", "src"] {
         let graph = import_graph(&workspace().join(krate));
         assert!(
             graph.len() > 1 || krate == "src",
@@ -218,7 +219,11 @@ fn long_functions(file: &str, text: &str, limit: usize) -> Vec<(String, usize, S
             .trim_start_matches("pub(super) ")
             .trim_start_matches("pub ")
             .trim_start_matches("unsafe ");
-        if !signature.starts_with("fn ") || line.trim_end().ends_with(';') {
+        // `fn a => b(...)` inside a macro's invocation is not a function body
+        if !signature.starts_with("fn ")
+            || line.trim_end().ends_with(';')
+            || signature.contains("=>")
+        {
             continue;
         }
         let close = format!("{}}}", " ".repeat(indent));
@@ -242,10 +247,11 @@ fn long_functions(file: &str, text: &str, limit: usize) -> Vec<(String, usize, S
 }
 
 #[test]
-fn the_solver_and_residuals_functions_are_short() {
+fn the_solver_residuals_and_apps_functions_are_short() {
     let mut files = Vec::new();
     rust_files(&workspace().join("solver/src"), &mut files);
     rust_files(&workspace().join("residuals/src"), &mut files);
+    rust_files(&workspace().join("apps/src"), &mut files);
     let mut long = Vec::new();
     for f in &files {
         let text = std::fs::read_to_string(f).expect("source readable");
@@ -265,4 +271,53 @@ fn the_solver_and_residuals_functions_are_short() {
     let found = long_functions("sample", &sample, LONGEST_FUNCTION);
     assert_eq!(found.len(), 1, "the check finds a long function");
     assert_eq!(found[0].2, "long");
+}
+
+/// slam's functions still over the limit (NOTES 63), each to be split: the check fails on any
+/// other long function, and on one of these once it is short (so that the list stays true).
+const SLAM_LONG_FUNCTIONS: [(&str, &str); 8] = [
+    ("rigid/tracker.rs", "track"),
+    ("io/ply.rs", "decode"),
+    (
+        "nonrigid/system.rs",
+        "fused_assembly_matches_the_residual_types",
+    ),
+    ("tsdf/integrate.rs", "integrate"),
+    ("synthetic/scene.rs", "intersect_local"),
+    ("tsdf/mesh.rs", "extract_mesh"),
+    ("nonrigid/register.rs", "optimise_from"),
+    ("nonrigid/frames.rs", "register_frames"),
+];
+
+#[test]
+fn slam_gains_no_long_function() {
+    let root = workspace().join("slam/src");
+    let mut files = Vec::new();
+    rust_files(&root, &mut files);
+    let mut long = BTreeSet::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).expect("source readable");
+        let rel = f
+            .strip_prefix(&root)
+            .expect("under slam/src")
+            .display()
+            .to_string();
+        for (_, _, name, _) in long_functions(&rel, &text, LONGEST_FUNCTION) {
+            long.insert((rel.clone(), name));
+        }
+    }
+    let listed: BTreeSet<(String, String)> = SLAM_LONG_FUNCTIONS
+        .iter()
+        .map(|(f, n)| (f.to_string(), n.to_string()))
+        .collect();
+    let new: Vec<_> = long.difference(&listed).collect();
+    let split: Vec<_> = listed.difference(&long).collect();
+    assert!(
+        new.is_empty(),
+        "slam functions over {LONGEST_FUNCTION} lines: {new:?}"
+    );
+    assert!(
+        split.is_empty(),
+        "no longer long (take them off the list): {split:?}"
+    );
 }

@@ -444,109 +444,127 @@ impl Scene {
     /// all textured; `seed` varies textures. About 6 × 5 × 3 m.
     pub fn room(seed: u64) -> Self {
         let mut s = Scene::default();
-        let tex = |k: u64, lo: f64, hi: f64| {
-            Texture::random(seed.wrapping_mul(1000).wrapping_add(k), lo, hi)
-        };
-        let at = |x: f64, y: f64, z: f64| Isometry3::translation(x, y, z);
-        let rot = |x: f64, y: f64, z: f64, axis: Vector3<f64>, angle: f64| {
-            Isometry3::from_parts(
-                Translation3::new(x, y, z),
-                UnitQuaternion::from_scaled_axis(axis * angle),
-            )
-        };
-        // floor, ceiling, four walls
+        s.add_room_shell(seed);
+        s.add_room_furniture(seed);
+        s
+    }
+
+    /// The room's floor, ceiling and four walls.
+    fn add_room_shell(&mut self, seed: u64) {
+        let s = self;
         s.add(
             Shape::Plane { hx: 3.0, hy: 2.5 },
-            at(0.0, 0.0, 0.0),
-            tex(1, 3.0, 20.0),
+            place(0.0, 0.0, 0.0),
+            room_texture(seed, 1, 3.0, 20.0),
         );
         s.add(
             Shape::Plane { hx: 3.0, hy: 2.5 },
-            at(0.0, 0.0, 3.0),
-            tex(2, 2.0, 10.0),
+            place(0.0, 0.0, 3.0),
+            room_texture(seed, 2, 2.0, 10.0),
         );
         s.add(
             Shape::Plane { hx: 3.0, hy: 1.5 },
-            rot(0.0, 2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
-            tex(3, 2.0, 15.0),
+            turned(0.0, 2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
+            room_texture(seed, 3, 2.0, 15.0),
         );
         s.add(
             Shape::Plane { hx: 3.0, hy: 1.5 },
-            rot(0.0, -2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
-            tex(4, 2.0, 15.0),
+            turned(0.0, -2.5, 1.5, Vector3::x(), std::f64::consts::FRAC_PI_2),
+            room_texture(seed, 4, 2.0, 15.0),
         );
         s.add(
             Shape::Plane { hx: 1.5, hy: 2.5 },
-            rot(3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
-            tex(5, 2.0, 15.0),
+            turned(3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
+            room_texture(seed, 5, 2.0, 15.0),
         );
         s.add(
             Shape::Plane { hx: 1.5, hy: 2.5 },
-            rot(-3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
-            tex(6, 2.0, 15.0),
+            turned(-3.0, 0.0, 1.5, Vector3::y(), std::f64::consts::FRAC_PI_2),
+            room_texture(seed, 6, 2.0, 15.0),
         );
-        // table, objects
+    }
+
+    /// The room's table, the objects on it and the furniture around it.
+    fn add_room_furniture(&mut self, seed: u64) {
+        let s = self;
         s.add(
             Shape::Cuboid {
                 half: Vector3::new(0.6, 0.4, 0.03),
             },
-            at(0.0, 0.0, 0.72),
-            tex(7, 5.0, 30.0),
+            place(0.0, 0.0, 0.72),
+            room_texture(seed, 7, 5.0, 30.0),
         );
         s.add(
             Shape::Cuboid {
                 half: Vector3::new(0.05, 0.05, 0.35),
             },
-            at(0.5, 0.3, 0.35),
-            tex(8, 5.0, 30.0),
+            place(0.5, 0.3, 0.35),
+            room_texture(seed, 8, 5.0, 30.0),
         );
         s.add(
             Shape::Cuboid {
                 half: Vector3::new(0.05, 0.05, 0.35),
             },
-            at(-0.5, -0.3, 0.35),
-            tex(9, 5.0, 30.0),
+            place(-0.5, -0.3, 0.35),
+            room_texture(seed, 9, 5.0, 30.0),
         );
         s.add(
             Shape::Sphere { radius: 0.15 },
-            at(0.2, 0.1, 0.9),
-            tex(10, 8.0, 40.0),
+            place(0.2, 0.1, 0.9),
+            room_texture(seed, 10, 8.0, 40.0),
         );
         s.add(
             Shape::Cylinder {
                 radius: 0.08,
                 half_height: 0.12,
             },
-            at(-0.25, -0.1, 0.87),
-            tex(11, 8.0, 40.0),
+            place(-0.25, -0.1, 0.87),
+            room_texture(seed, 11, 8.0, 40.0),
         );
         s.add(
             Shape::Cuboid {
                 half: Vector3::new(0.1, 0.15, 0.08),
             },
-            rot(-0.1, 0.25, 0.83, Vector3::z(), 0.4),
-            tex(12, 8.0, 40.0),
+            turned(-0.1, 0.25, 0.83, Vector3::z(), 0.4),
+            room_texture(seed, 12, 8.0, 40.0),
         );
         s.add(
             Shape::Cuboid {
                 half: Vector3::new(0.4, 0.3, 0.45),
             },
-            rot(1.8, -1.5, 0.45, Vector3::z(), 0.3),
-            tex(13, 4.0, 25.0),
+            turned(1.8, -1.5, 0.45, Vector3::z(), 0.3),
+            room_texture(seed, 13, 4.0, 25.0),
         );
         s.add(
             Shape::Cylinder {
                 radius: 0.25,
                 half_height: 0.5,
             },
-            at(-1.8, 1.4, 0.5),
-            tex(14, 4.0, 25.0),
+            place(-1.8, 1.4, 0.5),
+            room_texture(seed, 14, 4.0, 25.0),
         );
         s.add(
             Shape::Sphere { radius: 0.35 },
-            at(1.5, 1.6, 0.35),
-            tex(15, 4.0, 25.0),
+            place(1.5, 1.6, 0.35),
+            room_texture(seed, 15, 4.0, 25.0),
         );
-        s
     }
+}
+
+/// The texture of the room's surface `k`: its seed from the room's.
+fn room_texture(seed: u64, k: u64, lo: f64, hi: f64) -> Texture {
+    Texture::random(seed.wrapping_mul(1000).wrapping_add(k), lo, hi)
+}
+
+/// A pose at (x, y, z), unrotated.
+fn place(x: f64, y: f64, z: f64) -> Isometry3<f64> {
+    Isometry3::translation(x, y, z)
+}
+
+/// A pose at (x, y, z), turned by `angle` about `axis`.
+fn turned(x: f64, y: f64, z: f64, axis: Vector3<f64>, angle: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::from_scaled_axis(axis * angle),
+    )
 }

@@ -8,12 +8,10 @@
 //! `world/mesh`, `world/graph/{nodes,edges}`, `world/live_mesh`, `tracking/*` and `solver/*`
 //! scalars. Time lines: `frame` and `iteration`.
 
-#![allow(dead_code)] // each binary logs a different subset
-
 use anyhow::Result;
-use dynamap::slam::camera::Camera;
-use dynamap::slam::image::{ColorImage, Image};
-use dynamap::slam::mesh::Mesh;
+use dynamap_slam::camera::Camera;
+use dynamap_slam::image::{ColorImage, Image};
+use dynamap_slam::mesh::Mesh;
 use nalgebra::{Isometry3, Point3};
 use std::path::PathBuf;
 

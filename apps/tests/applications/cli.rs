@@ -2,7 +2,7 @@
 //! (`--print-config` then `--config` gives the same run), quiet output off a terminal, and the exit
 //! codes (0 ok, 1 runtime failure, 2 bad input). Runs the binaries `cargo test` builds.
 
-use crate::common::examples::{result_json, run, scratch, text};
+use crate::common::{result_json, run, scratch, text};
 use std::path::Path;
 use std::process::Output;
 
@@ -29,6 +29,7 @@ fn every_binary_has_help_with_defaults_and_the_shared_flags() {
             "generate" => &["rigid", "--help"],
             "evaluate" => &["ate", "--help"],
             "generate_problem" => &["bal", "--help"],
+            "nonrigid_register" => &["meshes", "--help"],
             _ => &["--help"],
         };
         let out = run(name, args);
@@ -216,6 +217,87 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
 }
 
 #[test]
+fn nonrigid_register_takes_one_subcommand_per_input_with_its_own_flags() {
+    use dynamap_slam::io::ply;
+    use dynamap_slam::synthetic::plate::{flat_grid, PlateDeformation};
+    let dir = scratch("register");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
+    let source = flat_grid();
+    ply::write(dir.join("flat.ply"), &source).unwrap();
+    ply::write(
+        dir.join("bent.ply"),
+        &PlateDeformation::ALL[0].deformed(&source),
+    )
+    .unwrap();
+    // the grid's vertices keep their order, so vertex k's partner is vertex k
+    let map: String = (0..source.vertices.len())
+        .map(|k| format!("{k}\n"))
+        .collect();
+    std::fs::write(dir.join("map.txt"), map).unwrap();
+    let out = run(
+        "nonrigid_register",
+        &[
+            "meshes",
+            &path("flat.ply"),
+            &path("bent.ply"),
+            "--ground-truth",
+            &path("map.txt"),
+            "--output",
+            &path("warped.ply"),
+            "-q",
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = result_json(&out);
+    let (before, after) = (
+        json["error_before"]["mean"].as_f64().unwrap(),
+        json["error_after"]["mean"].as_f64().unwrap(),
+    );
+    assert!(after < 0.2 * before, "{json}");
+    let warped = dynamap_slam::io::meshes::read_mesh(dir.join("warped.ply")).unwrap();
+    assert_eq!(warped.vertices.len(), source.vertices.len());
+    // a frame's flag given to meshes, and a frame without its intrinsics, are usage errors
+    let flow = run(
+        "nonrigid_register",
+        &[
+            "meshes",
+            &path("flat.ply"),
+            &path("bent.ply"),
+            "--flow",
+            "f",
+        ],
+    );
+    assert_exit(&flow, 2, &["--flow"]);
+    let frames = run(
+        "nonrigid_register",
+        &[
+            "frames",
+            &path("a.png"),
+            &path("b.png"),
+            "--depth-scale",
+            "1000",
+        ],
+    );
+    assert_exit(&frames, 2, &["--intrinsics"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_reader_that_stops_early_ends_the_run_without_a_panic() {
+    use std::process::{Command, Stdio};
+    // the grid experiment prints a table row per target; its reader is gone before the first
+    let mut child = Command::new(crate::common::binary("nonrigid_register"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = text(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
 fn robust_kernels_from_the_command_line_and_generated_problems() {
     let dir = scratch("robust");
     let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
@@ -397,7 +479,7 @@ fn preview_writes_the_pictures() {
         &["--preview", dir.to_str().unwrap(), "-q"],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let img = dynamap::slam::io::images::read_color(dir.join("cost.png")).expect("a PNG");
+    let img = dynamap_slam::io::images::read_color(dir.join("cost.png")).expect("a PNG");
     // a white page with a plotted line: not one colour
     let first = img.data[0];
     assert!(img.data.iter().filter(|p| **p != first).count() > 1000);

@@ -11,8 +11,6 @@
 //! shown by `--help`. `--print-config` prints the merged options as TOML, a file `--config` reads
 //! back to the same run.
 
-#![allow(dead_code)] // each binary uses a different part
-
 use anyhow::{Context, Result};
 use clap::parser::ValueSource;
 use clap::ArgAction;
@@ -149,6 +147,28 @@ impl Write for LogWriter {
     }
 }
 
+/// Output piped into a reader that stops early (`| head`) ends the process as it does any Unix
+/// tool, rather than panicking in `println!` (Rust ignores SIGPIPE by default). Outputs are written
+/// to a temporary file and renamed, so none is left half-written.
+fn die_quietly_on_a_closed_pipe() {
+    #[cfg(unix)]
+    // SAFETY: called first in `main`, before any other thread starts; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+/// `--threads N`: rayon's global pool with N threads (0 keeps rayon's default, one per core).
+pub fn set_threads(threads: usize) -> Result<()> {
+    if threads > 0 {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global()
+            .context("setting up the thread pool")?;
+    }
+    Ok(())
+}
+
 /// Parses the arguments (with `--config` merged in), sets up logging, runs `body`, and turns its
 /// result into the exit code: 0 ok, 1 runtime failure, 2 bad input (usage errors, unreadable or
 /// malformed files, invalid options). `A` must flatten [`Common`] as `common`.
@@ -167,6 +187,7 @@ where
     A: clap::Parser + HasCommon,
     F: FnOnce(A, &Session) -> Result<()>,
 {
+    die_quietly_on_a_closed_pipe();
     let argv: Vec<OsString> = std::env::args_os().collect();
     let args = match parse::<A>(&argv, &tweak) {
         Ok(Parsed::Run(a)) => a,
@@ -241,7 +262,7 @@ fn parse<A: clap::Parser>(
     })
 }
 
-/// [`parse`] with the config file's text from `load` (the fuzz target gives it from memory).
+/// `parse` with the config file's text from `load` (the fuzz target gives it from memory).
 pub fn parse_with<A: clap::Parser>(
     argv: &[OsString],
     tweak: &dyn Fn(clap::Command) -> clap::Command,

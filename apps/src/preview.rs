@@ -1,15 +1,13 @@
 //! `--preview DIR`: pictures of a run without a viewer, drawn with plotters (cost per iteration,
 //! trajectories from above, per-frame error) or by the TSDF raycaster (shaded model views).
 
-#![allow(dead_code)] // each binary draws a different subset
-
 use anyhow::{anyhow, Context, Result};
-use dynamap::slam::camera::Camera;
-use dynamap::slam::eval::AteResult;
-use dynamap::slam::image::{ColorImage, Image};
-use dynamap::slam::io::images::write_color;
-use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::tsdf::{RaycastMaps, TsdfVolume};
+use dynamap_slam::camera::Camera;
+use dynamap_slam::eval::AteResult;
+use dynamap_slam::image::{ColorImage, Image};
+use dynamap_slam::io::images::write_color;
+use dynamap_slam::io::trajectory::Trajectory;
+use dynamap_slam::tsdf::{RaycastMaps, TsdfVolume};
 use nalgebra::{Isometry3, Vector3};
 use plotters::prelude::*;
 use std::path::Path;

@@ -1,10 +1,8 @@
 //! The iteration table of the solver binaries: printed as the solver runs (above the progress
 //! bar), and the cost per iteration kept for `--preview`.
 
-#![allow(dead_code)] // not every binary reads the costs
-
 use crate::cli::Session;
-use dynamap::solver::IterationSummary;
+use dynamap_solver::IterationSummary;
 use indicatif::ProgressBar;
 use std::ops::ControlFlow;
 use std::sync::{Arc, Mutex};

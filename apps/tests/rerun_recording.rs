@@ -1,14 +1,10 @@
 //! `rigid_slam --rerun` writes a recording that Rerun's own decoder reads back with every entity
-//! of every frame (issue 7). Needs `--features rerun` and the example built with it
-//! (`cargo build --release --features rerun --example rigid_slam`; `cargo test --release
-//! --features rerun` builds it).
+//! of every frame (issue 7). Needs the `rerun` feature
+//! (`cargo test --release -p dynamap-apps --features rerun --test rerun_recording`).
 
-mod common;
-
-use common::examples::example;
-use dynamap::slam::camera::Camera;
-use dynamap::slam::io::images::read_color;
-use dynamap::slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
+use dynamap_slam::camera::Camera;
+use dynamap_slam::io::images::read_color;
+use dynamap_slam::synthetic::{motion, noise::SensorNoise, scene::Scene, sequence};
 use nalgebra::Isometry3;
 use re_log_encoding::DecoderApp;
 use rerun::log::{Chunk, LogMsg};
@@ -51,7 +47,7 @@ fn rigid_slam_recording_reads_back_with_every_frame() {
     .expect("the sequence is written");
     let rrd = dir.join("run.rrd");
     let preview = dir.join("preview");
-    let out = Command::new(example("rigid_slam"))
+    let out = Command::new(env!("CARGO_BIN_EXE_rigid_slam"))
         .arg(&dir)
         .arg("--rerun")
         .arg(&rrd)
@@ -109,7 +105,7 @@ fn nonrigid_and_pose_graph_recordings_hold_the_graphs() {
     let dir = std::env::temp_dir().join(format!("dynamap-rerun-graphs-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let rrd = dir.join("nonrigid.rrd");
-    let out = Command::new(example("nonrigid_slam"))
+    let out = Command::new(env!("CARGO_BIN_EXE_nonrigid_slam"))
         .args(["--max-frames", "3", "-q", "--rerun"])
         .arg(&rrd)
         .output()
@@ -129,7 +125,7 @@ fn nonrigid_and_pose_graph_recordings_hold_the_graphs() {
         assert_eq!(rows.get(entity).copied(), Some(3), "{entity}: {rows:?}");
     }
     let rrd = dir.join("pose_graph.rrd");
-    let out = Command::new(example("pose_graph"))
+    let out = Command::new(env!("CARGO_BIN_EXE_pose_graph"))
         .args(["-q", "--rerun"])
         .arg(&rrd)
         .output()

@@ -2,14 +2,14 @@
 //! of the camera, a stretch at a wall without texture, missing or cut depth files, and Ctrl-C.
 //! Each runs `rigid_slam` as a user would, on a sequence rendered at 320×240.
 
-use crate::common::examples::{example, result_json, run, scratch, text};
-use dynamap::slam::camera::Camera;
-use dynamap::slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
-use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::synthetic::faults::{write_faulty, FaultPlan};
-use dynamap::slam::synthetic::motion::{self, Motion};
-use dynamap::slam::synthetic::noise::SensorNoise;
-use dynamap::slam::synthetic::{scene::Scene, sequence};
+use crate::common::{binary, result_json, run, scratch, text};
+use dynamap_slam::camera::Camera;
+use dynamap_slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
+use dynamap_slam::io::trajectory::Trajectory;
+use dynamap_slam::synthetic::faults::{write_faulty, FaultPlan};
+use dynamap_slam::synthetic::motion::{self, Motion};
+use dynamap_slam::synthetic::noise::SensorNoise;
+use dynamap_slam::synthetic::{scene::Scene, sequence};
 use nalgebra::Isometry3;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -161,7 +161,7 @@ fn ctrl_c_writes_the_trajectory_so_far_and_exits_130() {
     let seq = dir.join("seq");
     orbit(&seq, 120);
     let traj = dir.join("t.txt");
-    let mut child = Command::new(example("rigid_slam"))
+    let mut child = Command::new(binary("rigid_slam"))
         .args([
             seq.to_str().unwrap(),
             "--output",
@@ -243,10 +243,10 @@ fn a_long_run_stays_within_its_block_budget_with_flat_memory() {
 /// pipeline reports and does not fuse.
 #[test]
 fn odd_images_give_a_clear_error_or_a_reported_frame() {
-    use dynamap::slam::image::Image;
-    use dynamap::slam::io::images::read_depth;
-    use dynamap::slam::io::tum::TumSequence;
-    use dynamap::slam::rigid::{RigidSlam, SlamParams};
+    use dynamap_slam::image::Image;
+    use dynamap_slam::io::images::read_depth;
+    use dynamap_slam::io::tum::TumSequence;
+    use dynamap_slam::rigid::{RigidSlam, SlamParams};
 
     let dir = scratch("odd");
     let seq = dir.join("seq");

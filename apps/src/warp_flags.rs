@@ -1,7 +1,7 @@
 //! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each example sets its
 //! own defaults first; a flag given overrides them).
 
-use dynamap::slam::nonrigid::{GraphParams, RegisterParams};
+use dynamap_slam::nonrigid::{GraphParams, RegisterParams};
 
 /// Settings of the deformation graph and the warp-field optimiser.
 #[derive(clap::Args, Debug)]
@@ -61,7 +61,6 @@ impl WarpFlags {
     }
 
     /// Shows `graph` and `register` as the flags' defaults (in `--help` and `--print-config`).
-    #[allow(dead_code)] // nonrigid_register's defaults depend on its input
     pub fn show_defaults(
         cmd: clap::Command,
         graph: &GraphParams,
@@ -74,25 +73,28 @@ impl WarpFlags {
             })
     }
 
-    /// Describes in `--help` defaults that depend on the input: `meshes` (lengths as multiples of
-    /// the source's bounding-box diagonal D, so given for D = 1) and `frames`.
-    #[allow(dead_code)] // only nonrigid_register has input-dependent defaults
-    pub fn describe_defaults(
+    /// Describes in `--help` defaults whose lengths scale with the input: `graph` and
+    /// `register` are the settings for a unit length, shown as multiples of `unit` (e.g. `D`, the
+    /// source's bounding-box diagonal).
+    pub fn describe_relative_defaults(
         cmd: clap::Command,
-        meshes: (&GraphParams, &RegisterParams),
-        frames: (&GraphParams, &RegisterParams),
+        graph: &GraphParams,
+        register: &RegisterParams,
+        unit: &str,
     ) -> clap::Command {
         let lengths = ["spacing", "max_distance", "tukey"];
-        let m = Self::values(meshes.0, meshes.1);
-        let f = Self::values(frames.0, frames.1);
-        m.into_iter().zip(f).fold(cmd, |cmd, ((id, mv), (_, fv))| {
-            let unit = if lengths.contains(&id) { " D" } else { "" };
-            append_help(
-                cmd,
-                id,
-                &format!("[default: {mv}{unit} for meshes, {fv} for frames]"),
-            )
-        })
+        Self::values(graph, register)
+            .into_iter()
+            .fold(cmd, |cmd, (id, value)| {
+                let unit = if lengths.contains(&id) { unit } else { "" };
+                append_help(
+                    cmd,
+                    id,
+                    format!("[default: {value} {unit}]")
+                        .replace(" ]", "]")
+                        .as_str(),
+                )
+            })
     }
 
     /// Overrides the settings with the flags given; a spacing must be a positive length.

@@ -1,0 +1,452 @@
+//! Dense non-rigid RGB-D SLAM of one deforming object (DynamicFusion-style).
+//!
+//! ```text
+//! cargo run --release --example nonrigid_slam                  # a generated bending plate, error vs ground truth
+//! cargo run --release --example nonrigid_slam -- DIR [--masks MASKS] [--output OUT]
+//! ```
+//! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else TUM's published ones);
+//! MASKS holds one object mask per depth image, with the depth image's file name. OUT receives the
+//! canonical mesh (`canonical.ply`), the live mesh of every frame (`live/NNNNNN.ply`) and the warp
+//! field (`warp.txt`: one node per line, position, radius and unit dual quaternion
+//! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures (frames not
+//! fused), skipped (frames that could not be read), nodes, per-stage
+//! seconds per frame and, for the generated sequence, the tracking error.
+
+use crate::cli;
+use crate::preview;
+use crate::rerun_log;
+use crate::warp_flags;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use cli::{InputError, Session};
+use dynamap_slam::camera::Camera;
+use dynamap_slam::eval::Stats;
+use dynamap_slam::image::Image;
+use dynamap_slam::io::images::read_mask;
+use dynamap_slam::io::tum::TumSequence;
+use dynamap_slam::io::{ply, write_atomic};
+use dynamap_slam::mesh::Mesh;
+use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
+use dynamap_slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
+use dynamap_slam::synthetic::noise::SensorNoise;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+use warp_flags::WarpFlags;
+
+/// Dense non-rigid RGB-D SLAM.
+#[derive(Parser, Debug)]
+#[command(long_about = None)]
+struct Args {
+    /// A TUM-layout sequence. Without it, a bending plate is rendered and tracked.
+    dir: Option<PathBuf>,
+    /// A folder of object masks named like the depth images.
+    #[arg(long)]
+    masks: Option<PathBuf>,
+    /// A folder for the canonical mesh, the live meshes and the warp field.
+    #[arg(long)]
+    output: Option<PathBuf>,
+    /// Frames to process at most [default: all; 30 for the generated sequence].
+    #[arg(long)]
+    max_frames: Option<usize>,
+    /// A folder for pictures: the canonical model shaded from three viewpoints and, for the
+    /// generated sequence, the tracking error per frame.
+    #[arg(long, value_name = "DIR")]
+    preview: Option<PathBuf>,
+    #[command(flatten)]
+    rerun: rerun_log::RerunFlags,
+    /// With --rerun: log the live (warped) mesh every this many frames.
+    #[arg(long, default_value_t = 1)]
+    rerun_mesh_every: usize,
+    /// Voxel size, metres.
+    #[arg(long, default_value_t = FusionParams::default().tsdf.voxel_size)]
+    voxel_size: f32,
+    /// Canonical data points are thinned to one per cube of this edge, metres.
+    #[arg(long, default_value_t = FusionParams::default().data_spacing)]
+    data_spacing: f64,
+    #[command(flatten)]
+    warp: WarpFlags,
+    /// The pyramid level of the data term's depth (0: full resolution).
+    #[arg(long, default_value_t = FusionParams::default().data_level)]
+    data_level: usize,
+    #[command(flatten)]
+    common: cli::Common,
+}
+
+cli::has_common!(Args);
+
+fn params(args: &Args) -> Result<FusionParams> {
+    let mut p = FusionParams::default();
+    args.warp.apply(&mut p.graph, &mut p.register).bad_input()?;
+    p.tsdf.voxel_size = args.voxel_size;
+    p.data_spacing = args.data_spacing;
+    p.data_level = args.data_level;
+    if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
+        return Err(cli::bad_input("--voxel-size must be a positive length"));
+    }
+    Ok(p)
+}
+
+/// One frame as the pipeline takes it.
+struct Frame {
+    depth: Image<u16>,
+    color: Option<dynamap_slam::image::ColorImage>,
+    mask: Option<Image<bool>>,
+}
+
+/// Where frames come from: the generator (with its ground truth) or a folder.
+enum Source {
+    Generated {
+        scene: DeformingScene,
+        camera: Camera,
+        noise: SensorNoise,
+        frames: usize,
+    },
+    Folder {
+        seq: TumSequence,
+        masks: Option<PathBuf>,
+    },
+}
+
+impl Source {
+    fn camera(&self) -> Camera {
+        match self {
+            Source::Generated { camera, .. } => *camera,
+            Source::Folder { seq, .. } => seq.camera,
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Source::Generated { frames, .. } => *frames,
+            Source::Folder { seq, .. } => seq.len(),
+        }
+    }
+
+    fn load(&self, i: usize) -> Result<Frame> {
+        match self {
+            Source::Generated {
+                scene,
+                camera,
+                noise,
+                ..
+            } => {
+                let (depth, color) = scene.sensor_frame(camera, &Isometry3::identity(), i, noise);
+                Ok(Frame {
+                    depth,
+                    color: Some(color),
+                    mask: None,
+                })
+            }
+            Source::Folder { seq, masks } => {
+                let f = seq.load(i)?;
+                let mask = match masks {
+                    None => None,
+                    Some(dir) => {
+                        let name = seq.frames[i].depth.file_name().with_context(|| {
+                            format!("frame {i}: depth image without a file name")
+                        })?;
+                        Some(read_mask(dir.join(name))?)
+                    }
+                };
+                Ok(Frame {
+                    depth: f.depth,
+                    color: f.color,
+                    mask,
+                })
+            }
+        }
+    }
+}
+
+/// The warp field as text: `x y z radius w x y z w' x' y' z'` per node.
+fn warp_text(slam: &NonRigidFusion) -> String {
+    let mut out = String::from("# position(3) radius real(w x y z) dual(w x y z)\n");
+    if let Some(g) = slam.graph() {
+        for n in &g.nodes {
+            let (r, d) = (n.motion.real, n.motion.dual);
+            let _ = writeln!(
+                out,
+                "{} {} {} {} {} {} {} {} {} {} {} {}",
+                n.position.x,
+                n.position.y,
+                n.position.z,
+                n.radius,
+                r.w,
+                r.i,
+                r.j,
+                r.k,
+                d.w,
+                d.i,
+                d.j,
+                d.k
+            );
+        }
+    }
+    out
+}
+
+/// Mean distance between the warped canonical samples and where their material points truly are.
+fn tracking_error(slam: &NonRigidFusion, scene: &DeformingScene, frame: usize) -> f64 {
+    let points = slam.data_points();
+    Stats::of(&scene.tracking_errors(points, &slam.warp_points(points), frame)).mean
+}
+
+/// Logs one frame: the camera and its images, the deformation graph warped into the live frame
+/// (nodes and edges), the live mesh when given, and the stage times.
+fn record(
+    rec: &rerun_log::Recorder,
+    i: usize,
+    frame: &Frame,
+    slam: &NonRigidFusion,
+    camera: &Camera,
+    times: &FusionTimes,
+    live_mesh: Option<&Mesh>,
+) -> Result<()> {
+    rec.at("frame", i);
+    rec.camera("world/camera", camera, &Isometry3::identity())?;
+    if let Some(c) = &frame.color {
+        rec.color("world/camera/rgb", c)?;
+    }
+    rec.depth("world/camera/depth", &frame.depth, camera.depth_scale)?;
+    if let Some(g) = slam.graph() {
+        let canonical: Vec<Vector3<f64>> = g.nodes.iter().map(|n| n.position).collect();
+        let live: Vec<nalgebra::Point3<f64>> = slam
+            .warp_points(&canonical)
+            .into_iter()
+            .map(Into::into)
+            .collect();
+        let edges: Vec<(usize, usize)> = g
+            .edges
+            .iter()
+            .enumerate()
+            .flat_map(|(a, list)| list.iter().map(move |&b| (a, b as usize)))
+            .filter(|&(a, b)| a < b)
+            .collect();
+        rec.graph("world/graph", &live, &edges)?;
+        rec.scalar("tracking/nodes", g.nodes.len() as f64)?;
+    }
+    if let Some(mesh) = live_mesh {
+        rec.mesh("world/live_mesh", mesh)?;
+    }
+    rec.scalar("tracking/ms/optimise", 1e3 * times.optimise)?;
+    rec.scalar("tracking/ms/fuse", 1e3 * times.fuse)
+}
+
+pub fn main() -> ExitCode {
+    let defaults = FusionParams::default();
+    cli::run_with(
+        |cmd| WarpFlags::show_defaults(cmd, &defaults.graph, &defaults.register),
+        run,
+    )
+}
+
+/// The canonical volume seen from the camera and from two sides, turned ±35° about the vertical
+/// axis through the object's data points.
+fn canonical_views(slam: &NonRigidFusion) -> Vec<Isometry3<f64>> {
+    let points = slam.data_points();
+    let centre = points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64;
+    [0.0f64, 35.0, -35.0]
+        .iter()
+        .map(|deg| {
+            // a camera at the origin, turned about the centre: x -> R (x - c) + c
+            let r = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), deg.to_radians());
+            Isometry3::from_parts(Translation3::from(centre - r * centre), r)
+        })
+        .collect()
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    let params = params(&args)?;
+    let source = open_source(&args)?;
+    let n = args.max_frames.unwrap_or(source.len()).min(source.len());
+    if let Some(out) = &args.output {
+        std::fs::create_dir_all(out.join("live"))
+            .with_context(|| format!("cannot create {}", out.join("live").display()))?;
+    }
+    let camera = source.camera();
+    let mut slam = NonRigidFusion::new(camera, params);
+    let rec = rerun_log::Recorder::open(&args.rerun, "dynamap nonrigid_slam")?;
+    // a failed recording is reported after the outputs are written, so the run is not lost
+    let mut logged: Result<()> = Ok(());
+    let bar = session.progress(n as u64, "frames");
+    let mut tally = Tally::default();
+    let start = Instant::now();
+    for i in 0..n {
+        let frame = match source.load(i) {
+            Ok(f) => f,
+            Err(e) => {
+                tally.skipped += 1;
+                tracing::warn!("frame {i} skipped: {e:#}");
+                continue;
+            }
+        };
+        let times = process_frame(&source, &mut slam, &mut tally, i, &frame);
+        // the live mesh, built once when the output or the recording needs it this frame
+        let log_mesh = rec.enabled() && args.rerun_mesh_every > 0 && i % args.rerun_mesh_every == 0;
+        let live =
+            (args.output.is_some() || log_mesh).then(|| slam.warp_mesh(&slam.canonical_mesh()));
+        if rec.enabled() && logged.is_ok() {
+            let mesh = live.as_ref().filter(|_| log_mesh);
+            logged = record(&rec, i, &frame, &slam, &camera, &times, mesh);
+        }
+        if let (Some(out), Some(live)) = (&args.output, &live) {
+            ply::write(out.join("live").join(format!("{i:06}.ply")), live)?;
+        }
+        bar.inc(1);
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    if let Some(out) = &args.output {
+        ply::write(out.join("canonical.ply"), &slam.canonical_mesh())?;
+        write_atomic(out.join("warp.txt"), warp_text(&slam).as_bytes())?;
+    }
+    let logged = logged.and_then(|()| rec.flush());
+    if let Some(dir) = &args.preview {
+        write_preview(dir, &slam, &camera, &tally.errors)?;
+    }
+    println!("{}", result_line(n, seconds, &tally, &slam));
+    logged
+}
+
+/// The generated bending plate, or the folder of `DIR` with its masks.
+fn open_source(args: &Args) -> Result<Source> {
+    Ok(match &args.dir {
+        None => Source::Generated {
+            scene: DeformingScene::new(surface(SurfaceKind::Plane, 60), Field::Bend, 3),
+            camera: Camera::tum_default(),
+            noise: SensorNoise::default(),
+            frames: args.max_frames.unwrap_or(30),
+        },
+        Some(d) => Source::Folder {
+            seq: TumSequence::open(d).bad_input()?,
+            masks: args.masks.clone(),
+        },
+    })
+}
+
+/// What the frame loop counts and keeps.
+#[derive(Default)]
+struct Tally {
+    /// Stage times summed over the frames, and the optimiser's over the frames it ran on.
+    totals: FusionTimes,
+    stages: RegisterTimes,
+    /// Frames the optimiser ran on.
+    optimised: usize,
+    /// Frames not fused, frames that could not be read, frames processed.
+    failures: usize,
+    skipped: usize,
+    processed: usize,
+    /// Time in `process`, seconds.
+    processing: f64,
+    /// (frame, tracking error) on a generated sequence.
+    errors: Vec<(usize, f64)>,
+}
+
+/// Processes frame `i`, counts it, logs its figures; gives its stage times.
+fn process_frame(
+    source: &Source,
+    slam: &mut NonRigidFusion,
+    tally: &mut Tally,
+    i: usize,
+    frame: &Frame,
+) -> FusionTimes {
+    let t = Instant::now();
+    let report = slam.process(&frame.depth, frame.color.as_ref(), frame.mask.as_ref());
+    tally.processing += t.elapsed().as_secs_f64();
+    tally.processed += 1;
+    tally.totals.add(&report.times);
+    if let Some(s) = &report.summary {
+        tally.stages.add(&s.times);
+        tally.optimised += 1;
+    }
+    if let Some(why) = &report.failure {
+        tally.failures += 1;
+        tracing::warn!("frame {i}: not fused: {why}");
+    }
+    let error = match source {
+        Source::Generated { scene, .. } if slam.graph().is_some() => {
+            Some(tracking_error(slam, scene, i))
+        }
+        _ => None,
+    };
+    tally.errors.extend(error.map(|e| (i, e)));
+    let s = report.summary.as_ref();
+    tracing::debug!(
+        "frame {i}: nodes {} (+{}), matched {}, iterations {}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        report.nodes,
+        report.added_nodes,
+        s.map_or(0, |s| s.matched),
+        s.map_or(0, |s| s.iterations),
+        error.unwrap_or(f64::NAN) * 1e3,
+        report.times.optimise * 1e3,
+        report.times.fuse * 1e3,
+        report.times.surface * 1e3
+    );
+    report.times
+}
+
+/// `--preview`: views of the canonical model and, on a generated sequence, the error per frame.
+fn write_preview(
+    dir: &Path,
+    slam: &NonRigidFusion,
+    camera: &Camera,
+    errors: &[(usize, f64)],
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let views = canonical_views(slam);
+    preview::model_views(dir, slam.volume(), camera, 1.0, &views)?;
+    if !errors.is_empty() {
+        let mm = errors.iter().map(|&(i, e)| (i as f64, 1e3 * e)).collect();
+        preview::line_plot(
+            &dir.join("error.png"),
+            "mean distance of the warped samples from their true positions",
+            ("frame", "error (mm)"),
+            &[("tracking error", mm)],
+        )?;
+    }
+    Ok(())
+}
+
+/// The JSON line printed last.
+fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> String {
+    let errors: Vec<f64> = tally.errors.iter().map(|e| e.1).collect();
+    let per_frame = |s: f64| s / tally.processed.max(1) as f64;
+    let error = (!errors.is_empty()).then(|| {
+        let s = Stats::of(&errors);
+        format!(
+            ", \"error_mean\": {:.6}, \"error_max_frame\": {:.6}",
+            s.mean, s.max
+        )
+    });
+    let ms = |s: f64| 1e3 * s / tally.optimised.max(1) as f64;
+    let st = &tally.stages;
+    let stages = format!(
+        "{{\"prealign\": {:.2}, \"associate\": {:.2}, \"update\": {:.2}, \"evaluate\": {:.2}, \"linear\": {:.2}}}",
+        ms(st.prealign),
+        ms(st.associate),
+        ms(st.update),
+        ms(st.evaluate),
+        ms(st.linear)
+    );
+    let totals = &tally.totals;
+    format!(
+        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {}, \"skipped\": {}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
+        if tally.processing > 0.0 {
+            tally.processed as f64 / tally.processing
+        } else {
+            0.0
+        },
+        tally.failures,
+        tally.skipped,
+        slam.graph().map_or(0, |g| g.nodes.len()),
+        per_frame(totals.preprocess),
+        per_frame(totals.optimise),
+        per_frame(totals.fuse),
+        per_frame(totals.surface),
+        error.unwrap_or_default()
+    )
+}
