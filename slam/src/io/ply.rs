@@ -127,7 +127,28 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
         .ok_or_else(|| IoError::file(path, "no 'end_header' line"))?;
     let header = std::str::from_utf8(&bytes[..end])
         .map_err(|_| IoError::file(path, "header is not text"))?;
-    let mut body = &bytes[end + 11..];
+    let body = &bytes[end + 11..];
+    let (elements, ascii) = parse_header(header, path)?;
+    check_counts(&elements, body.len(), path)?;
+    let mut values = if ascii {
+        let text =
+            std::str::from_utf8(body).map_err(|_| IoError::file(path, "ASCII body is not text"))?;
+        Values::Ascii(text.split_whitespace())
+    } else {
+        Values::Binary(body)
+    };
+    let mut mesh = Mesh::default();
+    for el in elements.iter().filter(|e| !e.props.is_empty()) {
+        for _ in 0..el.count {
+            read_entry(el, &mut values, &mut mesh, path)?;
+        }
+    }
+    mesh.validate().map_err(|m| IoError::file(path, m))?;
+    Ok(mesh)
+}
+
+/// The header's elements with their properties, and whether the body is ASCII.
+fn parse_header(header: &str, path: &Path) -> Result<(Vec<Element>, bool), IoError> {
     let mut elements: Vec<Element> = Vec::new();
     let mut ascii = false;
     for (i, line) in header.lines().enumerate() {
@@ -155,120 +176,135 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
                 let el = elements
                     .last_mut()
                     .ok_or_else(|| err("property before any element"))?;
-                if f.get(1) == Some(&"list") {
-                    let (c, t) = (
-                        f.get(2).and_then(|s| Kind::parse(s)),
-                        f.get(3).and_then(|s| Kind::parse(s)),
-                    );
-                    match (c, t, f.get(4)) {
-                        (Some(c), Some(t), Some(n)) => el.props.push((n.to_string(), c, Some(t))),
-                        _ => return Err(err("malformed list property")),
-                    }
-                } else {
-                    match (f.get(1).and_then(|s| Kind::parse(s)), f.get(2)) {
-                        (Some(k), Some(n)) => el.props.push((n.to_string(), k, None)),
-                        _ => return Err(err("malformed property")),
-                    }
-                }
+                el.props.push(parse_property(&f).map_err(err)?);
             }
             Some(other) => return Err(err(&format!("unknown header keyword '{other}'"))),
         }
     }
-    // every property takes at least a byte (two in ASCII): a count beyond the body is a lie, and
-    // looping over it would take forever (an element without properties is read as nothing)
-    if let Some(el) = elements
+    Ok((elements, ascii))
+}
+
+/// A `property` line's (name, type, list item type), split into words.
+fn parse_property(f: &[&str]) -> Result<(String, Kind, Option<Kind>), &'static str> {
+    if f.get(1) == Some(&"list") {
+        let (c, t) = (
+            f.get(2).and_then(|s| Kind::parse(s)),
+            f.get(3).and_then(|s| Kind::parse(s)),
+        );
+        match (c, t, f.get(4)) {
+            (Some(c), Some(t), Some(n)) => Ok((n.to_string(), c, Some(t))),
+            _ => Err("malformed list property"),
+        }
+    } else {
+        match (f.get(1).and_then(|s| Kind::parse(s)), f.get(2)) {
+            (Some(k), Some(n)) => Ok((n.to_string(), k, None)),
+            _ => Err("malformed property"),
+        }
+    }
+}
+
+/// Every property takes at least a byte (two in ASCII): a count beyond the body is a lie, and
+/// looping over it would take forever (an element without properties is read as nothing).
+fn check_counts(elements: &[Element], body: usize, path: &Path) -> Result<(), IoError> {
+    match elements
         .iter()
-        .find(|e| !e.props.is_empty() && e.count > body.len())
+        .find(|e| !e.props.is_empty() && e.count > body)
     {
-        return Err(IoError::file(
+        Some(el) => Err(IoError::file(
             path,
             format!(
                 "element '{}' declares {} entries, more than the {} bytes after the header hold",
-                el.name,
-                el.count,
-                body.len()
+                el.name, el.count, body
             ),
-        ));
+        )),
+        None => Ok(()),
     }
-    let text = if ascii {
-        Some(std::str::from_utf8(body).map_err(|_| IoError::file(path, "ASCII body is not text"))?)
-    } else {
-        None
-    };
-    let mut tokens = text.map(|t| t.split_whitespace());
-    let mut next = |k: Kind| -> Result<f64, IoError> {
-        match &mut tokens {
-            Some(t) => t
+}
+
+/// The body's values in order: words of an ASCII body, or little-endian binary.
+enum Values<'a> {
+    Ascii(std::str::SplitWhitespace<'a>),
+    Binary(&'a [u8]),
+}
+
+impl Values<'_> {
+    /// The next value, of type `k`.
+    fn next(&mut self, k: Kind, path: &Path) -> Result<f64, IoError> {
+        match self {
+            Values::Ascii(t) => t
                 .next()
                 .and_then(|s| s.parse::<f64>().ok())
                 .ok_or_else(|| IoError::file(path, "ASCII body ends early or has a non-number")),
-            None => {
+            Values::Binary(body) => {
                 if body.len() < k.size() {
                     return Err(IoError::file(path, "binary body ends early"));
                 }
                 let v = k.read(body);
-                body = &body[k.size()..];
+                *body = &body[k.size()..];
                 Ok(v)
             }
         }
-    };
-    let mut mesh = Mesh::default();
-    for el in elements.iter().filter(|e| !e.props.is_empty()) {
-        for _ in 0..el.count {
-            let mut vals: Vec<(usize, f64)> = Vec::with_capacity(el.props.len());
-            let mut face = Vec::new();
-            for (pi, (name, k, list)) in el.props.iter().enumerate() {
-                match list {
-                    Some(t) => {
-                        let n = next(*k)? as usize;
-                        for _ in 0..n {
-                            let v = next(*t)?;
-                            if name == "vertex_indices" || name == "vertex_index" {
-                                face.push(v);
-                            }
-                        }
+    }
+}
+
+/// Reads one entry of `el` and adds it to `mesh`: a vertex (with its normal and colour when it
+/// has them), or a face (polygons fan-triangulated); entries of other elements are skipped.
+fn read_entry(
+    el: &Element,
+    values: &mut Values,
+    mesh: &mut Mesh,
+    path: &Path,
+) -> Result<(), IoError> {
+    let mut vals: Vec<(usize, f64)> = Vec::with_capacity(el.props.len());
+    let mut face = Vec::new();
+    for (pi, (name, k, list)) in el.props.iter().enumerate() {
+        match list {
+            Some(t) => {
+                let n = values.next(*k, path)? as usize;
+                for _ in 0..n {
+                    let v = values.next(*t, path)?;
+                    if name == "vertex_indices" || name == "vertex_index" {
+                        face.push(v);
                     }
-                    None => vals.push((pi, next(*k)?)),
                 }
             }
-            let get = |n: &str| {
-                el.props
-                    .iter()
-                    .position(|p| p.0 == n)
-                    .and_then(|i| vals.iter().find(|v| v.0 == i))
-                    .map(|v| v.1)
-            };
-            if el.name == "vertex" {
-                let (x, y, z) = (get("x"), get("y"), get("z"));
-                let (Some(x), Some(y), Some(z)) = (x, y, z) else {
-                    return Err(IoError::file(path, "vertex element lacks x, y or z"));
-                };
-                mesh.vertices
-                    .push(Point3::new(x as f32, y as f32, z as f32));
-                if let (Some(a), Some(b), Some(c)) = (get("nx"), get("ny"), get("nz")) {
-                    mesh.normals
-                        .push(Vector3::new(a as f32, b as f32, c as f32));
-                }
-                if let (Some(r), Some(g), Some(b)) = (get("red"), get("green"), get("blue")) {
-                    mesh.colors.push([r as u8, g as u8, b as u8]);
-                }
-            } else if el.name == "face" {
-                if face.len() < 3 {
-                    return Err(IoError::file(
-                        path,
-                        format!("face {} has {} vertices", mesh.faces.len(), face.len()),
-                    ));
-                }
-                // fan-triangulate polygons
-                for k in 1..face.len() - 1 {
-                    mesh.faces
-                        .push([face[0] as u32, face[k] as u32, face[k + 1] as u32]);
-                }
-            }
+            None => vals.push((pi, values.next(*k, path)?)),
         }
     }
-    mesh.validate().map_err(|m| IoError::file(path, m))?;
-    Ok(mesh)
+    let get = |n: &str| {
+        el.props
+            .iter()
+            .position(|p| p.0 == n)
+            .and_then(|i| vals.iter().find(|v| v.0 == i))
+            .map(|v| v.1)
+    };
+    if el.name == "vertex" {
+        let (x, y, z) = (get("x"), get("y"), get("z"));
+        let (Some(x), Some(y), Some(z)) = (x, y, z) else {
+            return Err(IoError::file(path, "vertex element lacks x, y or z"));
+        };
+        mesh.vertices
+            .push(Point3::new(x as f32, y as f32, z as f32));
+        if let (Some(a), Some(b), Some(c)) = (get("nx"), get("ny"), get("nz")) {
+            mesh.normals
+                .push(Vector3::new(a as f32, b as f32, c as f32));
+        }
+        if let (Some(r), Some(g), Some(b)) = (get("red"), get("green"), get("blue")) {
+            mesh.colors.push([r as u8, g as u8, b as u8]);
+        }
+    } else if el.name == "face" {
+        if face.len() < 3 {
+            return Err(IoError::file(
+                path,
+                format!("face {} has {} vertices", mesh.faces.len(), face.len()),
+            ));
+        }
+        for k in 1..face.len() - 1 {
+            mesh.faces
+                .push([face[0] as u32, face[k] as u32, face[k + 1] as u32]);
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -210,22 +210,25 @@ fn vector(v: &[f32; 3]) -> Vector3<f64> {
     Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
 }
 
-/// Registers `source` onto `target`: every valid source pixel inside its mask is a point (its raw
-/// depth back-projected), a graph is sampled over them, the rigid start comes from feature matches
-/// when both frames have colour, and the field is optimised against the target's depth with data
-/// terms on a strided subset of the pixels (those with a normal).
-pub fn register_frames(
+/// The source frame's points: each valid pixel inside the mask, back-projected, with its normal.
+struct SourcePoints {
+    /// The pixels (row-major index) the points come from.
+    pixels: Vec<usize>,
+    points: Vec<Vector3<f64>>,
+    /// A pixel without a normal (at an edge) faces the camera.
+    normals: Vec<Vector3<f64>>,
+    /// The points that carry data terms: those with a normal, on every `stride`-th pixel.
+    data: Vec<usize>,
+}
+
+/// [`SourcePoints`] of `source`, its normals `source_normals`, data terms every `stride` pixels.
+fn source_points(
     source: &FrameView<'_>,
-    target: &FrameView<'_>,
-    settings: &FrameSettings,
-) -> Result<FrameRegistration, FrameError> {
-    source.check(["source depth", "source colour", "source mask"])?;
-    target.check(["target depth", "target colour", "target mask"])?;
+    source_normals: &NormalMap,
+    stride: usize,
+) -> SourcePoints {
     let (w, h) = (source.camera.width, source.camera.height);
-    let (_, source_normals) = source.maps(&settings.bilateral);
-    let (target_vertices, target_normals) = target.maps(&settings.bilateral);
     let (mut pixels, mut points, mut normals) = (Vec::new(), Vec::new(), Vec::new());
-    let stride = settings.data_stride.max(1);
     let mut data = Vec::new();
     for y in 0..h {
         for x in 0..w {
@@ -245,16 +248,25 @@ pub fn register_frames(
                     .back_project(x as f64, y as f64, z as f64)
                     .coords,
             );
-            // a pixel without a normal (at an edge) faces the camera
             normals.push(if valid(&n) { vector(&n) } else { -Vector3::z() });
         }
     }
-    if points.is_empty() {
-        return Err(FrameError::NoPoints);
+    SourcePoints {
+        pixels,
+        points,
+        normals,
+        data,
     }
-    let mut graph = DeformationGraph::sample(&points, settings.graph)?;
-    let bindings = graph.bind_all(&points);
-    let matches = match (&settings.features, source.color, target.color) {
+}
+
+/// The colour feature matches between the frames (and their rigid motion), when both have colour
+/// and the settings ask for them.
+fn feature_start(
+    source: &FrameView<'_>,
+    target: &FrameView<'_>,
+    settings: &FrameSettings,
+) -> Option<FrameMatches> {
+    match (&settings.features, source.color, target.color) {
         (Some(params), Some(sc), Some(tc)) => match_frames(
             &FeatureFrame {
                 color: sc,
@@ -271,7 +283,34 @@ pub fn register_frames(
             params,
         ),
         _ => None,
-    };
+    }
+}
+
+/// Registers `source` onto `target`: every valid source pixel inside its mask is a point (its raw
+/// depth back-projected), a graph is sampled over them, the rigid start comes from feature matches
+/// when both frames have colour, and the field is optimised against the target's depth with data
+/// terms on a strided subset of the pixels (those with a normal).
+pub fn register_frames(
+    source: &FrameView<'_>,
+    target: &FrameView<'_>,
+    settings: &FrameSettings,
+) -> Result<FrameRegistration, FrameError> {
+    source.check(["source depth", "source colour", "source mask"])?;
+    target.check(["target depth", "target colour", "target mask"])?;
+    let (_, source_normals) = source.maps(&settings.bilateral);
+    let (target_vertices, target_normals) = target.maps(&settings.bilateral);
+    let SourcePoints {
+        pixels,
+        points,
+        normals,
+        data,
+    } = source_points(source, &source_normals, settings.data_stride.max(1));
+    if points.is_empty() {
+        return Err(FrameError::NoPoints);
+    }
+    let mut graph = DeformationGraph::sample(&points, settings.graph)?;
+    let bindings = graph.bind_all(&points);
+    let matches = feature_start(source, target, settings);
     let start = matches.as_ref().map_or(Isometry3::identity(), |m| m.motion);
     let pick = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> { data.iter().map(|&k| v[k]).collect() };
     let data_bindings: Vec<_> = data.iter().map(|&k| bindings[k]).collect();

@@ -301,27 +301,8 @@ impl WarpOptimiser {
         guesses: &[Isometry3<f64>],
         seeds: Option<&Seeds>,
     ) -> Result<RegisterSummary, RegisterError> {
-        if let Some(s) = seeds.filter(|s| s.matches.len() != points.len()) {
-            return Err(RegisterError::Seeds {
-                seeds: s.matches.len(),
-                points: points.len(),
-            });
-        }
         let start = Instant::now();
-        let nodes = graph.nodes.len();
-        if points.len() != normals.len()
-            || points.len() != bindings.len()
-            || bindings.iter().any(|b| {
-                b.count > MAX_NEIGHBOURS || b.nodes[..b.count].iter().any(|&k| k as usize >= nodes)
-            })
-        {
-            return Err(RegisterError::Mismatch {
-                points: points.len(),
-                normals: normals.len(),
-                bindings: bindings.len(),
-                nodes,
-            });
-        }
+        check_inputs(graph, points, normals, bindings, seeds)?;
         let mut times = RegisterTimes::default();
         let mut clock = Instant::now();
         let mut lap = |t: &mut f64| {
@@ -331,14 +312,7 @@ impl WarpOptimiser {
         };
         self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
-        self.system.prepare(graph, bindings)?;
-        self.system
-            .set_motions(graph.nodes.iter().map(|n| rigid_motion(&n.motion)));
-        self.anchors.clear();
-        if self.params.stay_weight > 0.0 {
-            self.anchors
-                .extend(self.system.motions().iter().map(|m| m.inverse()));
-        }
+        self.start_system(graph, bindings)?;
         let mut iterations = 0;
         let mut lambda = 0.0;
         for stage in 0..self.params.schedule.len() {
@@ -390,6 +364,24 @@ impl WarpOptimiser {
             seconds: start.elapsed().as_secs_f64(),
             times,
         })
+    }
+
+    /// Builds the system's structure for `graph` and `bindings`, starts it from the nodes'
+    /// motions, and with the stay prior anchors each node at its start.
+    fn start_system(
+        &mut self,
+        graph: &DeformationGraph,
+        bindings: &[Binding],
+    ) -> Result<(), RegisterError> {
+        self.system.prepare(graph, bindings)?;
+        self.system
+            .set_motions(graph.nodes.iter().map(|n| rigid_motion(&n.motion)));
+        self.anchors.clear();
+        if self.params.stay_weight > 0.0 {
+            self.anchors
+                .extend(self.system.motions().iter().map(|m| m.inverse()));
+        }
+        Ok(())
     }
 
     /// Warps the points by the current field and finds each one's partner, rejecting by distance
@@ -683,6 +675,38 @@ impl DenseTerms<6> for RigidTerms<'_> {
             emit(d[row], &[w.x, w.y, w.z, a.x, a.y, a.z], 1);
         }
     }
+}
+
+/// Seeds one per point (when given), and normals and bindings one per point, each binding to
+/// nodes of `graph`.
+fn check_inputs(
+    graph: &DeformationGraph,
+    points: &[Vector3<f64>],
+    normals: &[Vector3<f64>],
+    bindings: &[Binding],
+    seeds: Option<&Seeds>,
+) -> Result<(), RegisterError> {
+    if let Some(s) = seeds.filter(|s| s.matches.len() != points.len()) {
+        return Err(RegisterError::Seeds {
+            seeds: s.matches.len(),
+            points: points.len(),
+        });
+    }
+    let nodes = graph.nodes.len();
+    if points.len() != normals.len()
+        || points.len() != bindings.len()
+        || bindings.iter().any(|b| {
+            b.count > MAX_NEIGHBOURS || b.nodes[..b.count].iter().any(|&k| k as usize >= nodes)
+        })
+    {
+        return Err(RegisterError::Mismatch {
+            points: points.len(),
+            normals: normals.len(),
+            bindings: bindings.len(),
+            nodes,
+        });
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -608,6 +608,84 @@ mod tests {
         (graph, points, bindings, matches)
     }
 
+    /// The graph's edges (weight 3) and anchors a small motion away from `motions`.
+    #[allow(clippy::type_complexity)]
+    fn edges_and_anchors(
+        graph: &DeformationGraph,
+        motions: &[Isometry3<f64>],
+    ) -> (Vec<(u32, u32, Vector3<f64>, f64)>, Vec<Isometry3<f64>>) {
+        let edges = graph
+            .edges
+            .iter()
+            .enumerate()
+            .flat_map(|(i, js)| {
+                js.iter()
+                    .map(move |&j| (i as u32, j, graph.nodes[j as usize].position, 3.0))
+            })
+            .collect();
+        let anchors = motions
+            .iter()
+            .map(|m| (m * se3::exp(&Vector6::new(0.01, 0.0, -0.02, 0.0, 0.01, 0.0))).inverse())
+            .collect();
+        (edges, anchors)
+    }
+
+    /// JᵀWJ, JᵀWr and the cost ½ Σ ρ formed densely, one residual block at a time, at `xs`.
+    struct DenseReference {
+        xs: Vec<[f64; 7]>,
+        dim: usize,
+        h: DMatrix<f64>,
+        g: DMatrix<f64>,
+        cost: f64,
+    }
+
+    impl DenseReference {
+        fn new(motions: &[Isometry3<f64>]) -> Self {
+            let dim = 6 * motions.len();
+            let xs = motions
+                .iter()
+                .map(|m| {
+                    let mut x = [0.0; 7];
+                    se3::to_slice(m, &mut x);
+                    x
+                })
+                .collect();
+            Self {
+                xs,
+                dim,
+                h: DMatrix::zeros(dim, dim),
+                g: DMatrix::zeros(dim, 1),
+                cost: 0.0,
+            }
+        }
+
+        /// Adds one residual block, reweighted by ρ'(‖r‖²) of `kernel` (None: least squares).
+        fn add(&mut self, res: &dyn Residual, ids: &[usize], kernel: Option<Tukey>) {
+            let (m, dim) = (res.dim(), self.dim);
+            let vars: Vec<Var> = ids
+                .iter()
+                .map(|&k| Var {
+                    value: &self.xs[k],
+                    manifold: &SE3 as &dyn Manifold,
+                })
+                .collect();
+            let cols = vec![6; ids.len()];
+            let mut r = vec![0.0; m];
+            let mut jac = vec![0.0; m * 6 * ids.len()];
+            res.evaluate(&vars, &mut r, Some(&mut Jacobians::new(&mut jac, m, &cols)));
+            let s: f64 = r.iter().map(|v| v * v).sum();
+            let [rho, w, _] = kernel.map_or([s, 1.0, 0.0], |k| k.evaluate(s));
+            self.cost += 0.5 * rho;
+            let jm = DMatrix::from_fn(m, dim, |row, col| {
+                ids.iter()
+                    .position(|&k| k == col / 6)
+                    .map_or(0.0, |p| jac[p * m * 6 + (col % 6) * m + row])
+            });
+            self.h += jm.transpose() * &jm * w;
+            self.g += jm.transpose() * DMatrix::from_column_slice(m, 1, &r) * w;
+        }
+    }
+
     /// H and g of the fused assembly against JᵀWJ and JᵀWr formed densely from the residual
     /// types' own Jacobians (property-tested in `dynamap_residuals`), with the same IRLS weights.
     #[test]
@@ -618,20 +696,7 @@ mod tests {
             .iter()
             .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion))
             .collect();
-        let edges: Vec<(u32, u32, Vector3<f64>, f64)> = graph
-            .edges
-            .iter()
-            .enumerate()
-            .flat_map(|(i, js)| {
-                let graph = &graph;
-                js.iter()
-                    .map(move |&j| (i as u32, j, graph.nodes[j as usize].position, 3.0))
-            })
-            .collect();
-        let anchors: Vec<Isometry3<f64>> = motions
-            .iter()
-            .map(|m| (m * se3::exp(&Vector6::new(0.01, 0.0, -0.02, 0.0, 0.01, 0.0))).inverse())
-            .collect();
+        let (edges, anchors) = edges_and_anchors(&graph, &motions);
         let (tukey, pw, stay) = (0.05, 0.3, 0.2);
         let terms = WarpTerms {
             points: &points,
@@ -649,46 +714,9 @@ mod tests {
         let cost = ws.linearise(&terms);
         assert_eq!(cost, cost_at(&terms, &motions, &ws.dqs.clone()));
 
-        let nodes = graph.nodes.len();
-        let dim = 6 * nodes;
-        let (mut h, mut g) = (
-            DMatrix::<f64>::zeros(dim, dim),
-            DMatrix::<f64>::zeros(dim, 1),
-        );
-        let mut expect_cost = 0.0;
-        let xs: Vec<[f64; 7]> = motions
-            .iter()
-            .map(|m| {
-                let mut x = [0.0; 7];
-                se3::to_slice(m, &mut x);
-                x
-            })
-            .collect();
-        // adds one residual block, reweighted by ρ'(‖r‖²) of `kernel` (None: least squares)
-        let mut add = |res: &dyn Residual, ids: &[usize], kernel: Option<Tukey>| {
-            let m = res.dim();
-            let vars: Vec<Var> = ids
-                .iter()
-                .map(|&k| Var {
-                    value: &xs[k],
-                    manifold: &SE3 as &dyn Manifold,
-                })
-                .collect();
-            let cols = vec![6; ids.len()];
-            let mut r = vec![0.0; m];
-            let mut jac = vec![0.0; m * 6 * ids.len()];
-            res.evaluate(&vars, &mut r, Some(&mut Jacobians::new(&mut jac, m, &cols)));
-            let s: f64 = r.iter().map(|v| v * v).sum();
-            let [rho, w, _] = kernel.map_or([s, 1.0, 0.0], |k| k.evaluate(s));
-            expect_cost += 0.5 * rho;
-            let jm = DMatrix::from_fn(m, dim, |row, col| {
-                ids.iter()
-                    .position(|&k| k == col / 6)
-                    .map_or(0.0, |p| jac[p * m * 6 + (col % 6) * m + row])
-            });
-            h += jm.transpose() * &jm * w;
-            g += jm.transpose() * DMatrix::from_column_slice(m, 1, &r) * w;
-        };
+        let mut dense = DenseReference::new(&motions);
+        let mut add =
+            |res: &dyn Residual, ids: &[usize], kernel: Option<Tukey>| dense.add(res, ids, kernel);
         for (i, m) in matches.iter().enumerate() {
             let Some((q, n)) = m else { continue };
             let b = &bindings[i];
@@ -720,6 +748,13 @@ mod tests {
             let prior = Prior3::new(a.inverse(), Matrix6::identity() * stay.sqrt());
             add(&prior, &[k], None);
         }
+        let DenseReference {
+            h,
+            g,
+            cost: expect_cost,
+            dim,
+            ..
+        } = dense;
         assert!(
             (cost - expect_cost).abs() < 1e-12 * expect_cost.max(1.0),
             "{cost} {expect_cost}"

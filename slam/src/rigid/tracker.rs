@@ -307,6 +307,45 @@ struct IcpTerms<'a> {
     prior: Option<(Isometry3<f64>, f64)>,
 }
 
+impl<'a> IcpTerms<'a> {
+    /// The terms of live level `live` against model level `model`, with the tracker's gates and
+    /// weights; the photometric term is on when both levels have intensities and its weight is
+    /// positive.
+    #[allow(clippy::too_many_arguments)] // each is the level's own, given by `Tracker::track`
+    fn new(
+        p: &TrackerParams,
+        live: &'a Level,
+        model: &'a ModelLevel,
+        t_ref_inv: RigidMotion,
+        grid: Grid,
+        gain: f64,
+        z_mean: f64,
+        prior: Option<(Isometry3<f64>, f64)>,
+    ) -> Self {
+        let has_color = live.intensity.data.len() == live.vertices.data.len()
+            && model.intensity.data.len() == model.vertices.data.len();
+        Self {
+            live,
+            model,
+            field: ModelIntensity { level: model },
+            t_ref_inv,
+            intrinsics: Intrinsics {
+                fx: model.camera.fx,
+                fy: model.camera.fy,
+                cx: model.camera.cx,
+                cy: model.camera.cy,
+            },
+            max_distance: p.max_distance,
+            min_cos: p.max_normal_angle_deg.to_radians().cos(),
+            photometric: has_color && p.lambda_photometric > 0.0,
+            gain,
+            grid,
+            depth_weight: (z_mean, p.depth_weight_power),
+            prior,
+        }
+    }
+}
+
 /// The points of a live level taken on every `stride`-th pixel each way: the grid's size, and the
 /// pixel of grid point `k`.
 #[derive(Clone, Copy, Debug)]
@@ -684,73 +723,27 @@ impl Tracker {
         se3::to_slice(start, &mut x);
         let huber_g = Huber(p.huber_geometric);
         let huber_p = Huber(p.huber_photometric);
-        let mut groups = [
-            Group {
-                weight: 1.0,
-                kernel: Some(&huber_g),
-            },
-            Group {
-                weight: p.lambda_photometric,
-                kernel: Some(&huber_p),
-            },
-            Group {
-                weight: 0.0,
-                kernel: None,
-            },
-        ];
+        let mut groups = term_groups(p, &huber_g, &huber_p);
         let t_ref_inv = RigidMotion::new(&model.pose.inverse());
         let levels = live.len();
         // the finest level that runs, and its valid pixels on its (strided) grid, against which
         // inliers are counted
-        let finest = (0..levels)
-            .find(|&l| p.iterations.get(l).copied().unwrap_or(0) > 0)
-            .unwrap_or(0);
-        // the level's stride, made finer where its grid would fall below min_grid_points
-        let stride_of = |l: usize| {
-            let most = p.strides.get(l).copied().unwrap_or(1).max(1);
-            (1..=most)
-                .rev()
-                .find(|&s| Grid::new(&live[l], s).len() >= p.min_grid_points)
-                .unwrap_or(1)
-        };
+        let finest = (0..levels).find(|&l| iterations_at(p, l) > 0).unwrap_or(0);
+        let stride_of = |l: usize| level_stride(p, &live[l], l);
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
-        let z_mean = if p.depth_weight_power != 0 || p.motion_prior > 0.0 {
-            mean_depth(&live[levels - 1])
-        } else {
-            1.0
-        };
-        let prior = (p.motion_prior > 0.0).then(|| (start.inverse(), z_mean));
+        let (z_mean, prior) = depth_and_prior(p, &live[levels - 1], start);
         let mut inliers = 0;
         let mut agreement = 0.0;
         let mut gain = 1.0;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
-            let iterations = p.iterations.get(l).copied().unwrap_or(0);
+            let iterations = iterations_at(p, l);
             if iterations == 0 {
                 continue;
             }
             let ml = &model.levels[l.saturating_sub(model.offset).min(model.levels.len() - 1)];
-            let has_color = live[l].intensity.data.len() == live[l].vertices.data.len()
-                && ml.intensity.data.len() == ml.vertices.data.len();
-            let mut terms = IcpTerms {
-                live: &live[l],
-                model: ml,
-                field: ModelIntensity { level: ml },
-                t_ref_inv,
-                intrinsics: Intrinsics {
-                    fx: ml.camera.fx,
-                    fy: ml.camera.fy,
-                    cx: ml.camera.cx,
-                    cy: ml.camera.cy,
-                },
-                max_distance: p.max_distance,
-                min_cos: p.max_normal_angle_deg.to_radians().cos(),
-                photometric: has_color && p.lambda_photometric > 0.0,
-                gain,
-                grid: Grid::new(&live[l], stride_of(l)),
-                depth_weight: (z_mean, p.depth_weight_power),
-                prior,
-            };
+            let grid = Grid::new(&live[l], stride_of(l));
+            let mut terms = IcpTerms::new(p, &live[l], ml, t_ref_inv, grid, gain, z_mean, prior);
             if prior.is_some() {
                 let points = if l == finest {
                     valid_pixels
@@ -765,12 +758,7 @@ impl Tracker {
                 gain = terms.fit_gain(&x);
                 terms.gain = gain;
             }
-            let options = DenseOptions {
-                groups: &groups,
-                max_iterations: iterations,
-                step_tolerance: 1e-6,
-                damping: 0.0,
-            };
+            let options = solve_options(&groups, iterations);
             let summary = solve(&terms, &SE3, &mut x, &options, &mut self.ws);
             stop = summary.stop;
             // the prior's rows alone fix the pose at the start: no data, as without them
@@ -797,27 +785,7 @@ impl Tracker {
             }
         }
         let pose = se3::from_slice(&x);
-        let motion = start.inverse() * pose;
-        let (metres, degrees) = (
-            motion.translation.vector.norm(),
-            motion.rotation.angle().to_degrees(),
-        );
-        let failure = if matches!(stop, DenseStop::NoTerms) {
-            Some(TrackFailure::NoAssociations)
-        } else if matches!(stop, DenseStop::Singular) {
-            Some(TrackFailure::Singular)
-        } else if (inliers as f64) < p.min_inlier_fraction * valid_pixels.max(1) as f64 {
-            Some(TrackFailure::TooFewInliers {
-                inliers,
-                valid_pixels,
-            })
-        } else if metres > p.max_translation || degrees > p.max_rotation_deg {
-            Some(TrackFailure::ImplausibleMotion { metres, degrees })
-        } else if !x.iter().all(|v| v.is_finite()) {
-            Some(TrackFailure::NonFinite)
-        } else {
-            None
-        };
+        let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
             failure,
@@ -826,6 +794,106 @@ impl Tracker {
             agreement,
             gain,
         }
+    }
+}
+
+/// Gauss-Newton iterations on level `l` (0 skips it).
+fn iterations_at(p: &TrackerParams, l: usize) -> usize {
+    p.iterations.get(l).copied().unwrap_or(0)
+}
+
+/// Gauss-Newton (no damping) for at most `iterations`, to steps below 1e-6.
+fn solve_options<'a>(groups: &'a [Group<'a>], iterations: usize) -> DenseOptions<'a> {
+    DenseOptions {
+        groups,
+        max_iterations: iterations,
+        step_tolerance: 1e-6,
+        damping: 0.0,
+    }
+}
+
+/// The three groups of residuals: point-to-plane and photometric, each under its Huber kernel,
+/// and the motion prior (its weight is set per level).
+fn term_groups<'k>(
+    p: &TrackerParams,
+    geometric: &'k Huber,
+    photometric: &'k Huber,
+) -> [Group<'k>; 3] {
+    [
+        Group {
+            weight: 1.0,
+            kernel: Some(geometric),
+        },
+        Group {
+            weight: p.lambda_photometric,
+            kernel: Some(photometric),
+        },
+        Group {
+            weight: 0.0,
+            kernel: None,
+        },
+    ]
+}
+
+/// The mean depth z̄ of the coarsest level (1 when neither the depth weights nor the prior need
+/// it), and the motion prior's centre T_start⁻¹ with z̄ when the prior is on.
+fn depth_and_prior(
+    p: &TrackerParams,
+    coarsest: &Level,
+    start: &Isometry3<f64>,
+) -> (f64, Option<(Isometry3<f64>, f64)>) {
+    let z_mean = if p.depth_weight_power != 0 || p.motion_prior > 0.0 {
+        mean_depth(coarsest)
+    } else {
+        1.0
+    };
+    (
+        z_mean,
+        (p.motion_prior > 0.0).then(|| (start.inverse(), z_mean)),
+    )
+}
+
+/// Level `l`'s stride: [`TrackerParams::strides`]'s, made finer where its grid would fall below
+/// [`TrackerParams::min_grid_points`].
+fn level_stride(p: &TrackerParams, live: &Level, l: usize) -> usize {
+    let most = p.strides.get(l).copied().unwrap_or(1).max(1);
+    (1..=most)
+        .rev()
+        .find(|&s| Grid::new(live, s).len() >= p.min_grid_points)
+        .unwrap_or(1)
+}
+
+/// Why a registration that stopped with `stop` at `pose` (from `start`, parameters `x`) is not
+/// trusted, if it is not: no associations, a singular system, too few inliers of the valid
+/// pixels, an implausible motion, or a value that is not finite.
+fn failure_of(
+    p: &TrackerParams,
+    stop: DenseStop,
+    (inliers, valid_pixels): (usize, usize),
+    start: &Isometry3<f64>,
+    pose: &Isometry3<f64>,
+    x: &[f64],
+) -> Option<TrackFailure> {
+    let motion = start.inverse() * pose;
+    let (metres, degrees) = (
+        motion.translation.vector.norm(),
+        motion.rotation.angle().to_degrees(),
+    );
+    if matches!(stop, DenseStop::NoTerms) {
+        Some(TrackFailure::NoAssociations)
+    } else if matches!(stop, DenseStop::Singular) {
+        Some(TrackFailure::Singular)
+    } else if (inliers as f64) < p.min_inlier_fraction * valid_pixels.max(1) as f64 {
+        Some(TrackFailure::TooFewInliers {
+            inliers,
+            valid_pixels,
+        })
+    } else if metres > p.max_translation || degrees > p.max_rotation_deg {
+        Some(TrackFailure::ImplausibleMotion { metres, degrees })
+    } else if !x.iter().all(|v| v.is_finite()) {
+        Some(TrackFailure::NonFinite)
+    } else {
+        None
     }
 }
 

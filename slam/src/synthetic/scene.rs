@@ -238,80 +238,11 @@ fn intersect_local(
             let t = if -b - s > EPS { -b - s } else { -b + s };
             (t > EPS && t < t_max).then(|| (t, (o + d * t) / *radius, None))
         }
-        Shape::Cuboid { half } => {
-            let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-            let (mut n0, mut n1) = (Vector3::zeros(), Vector3::zeros());
-            for a in 0..3 {
-                if d[a].abs() < 1e-15 {
-                    if o[a].abs() > half[a] {
-                        return None;
-                    }
-                    continue;
-                }
-                let (mut near, mut far) = ((-half[a] - o[a]) / d[a], (half[a] - o[a]) / d[a]);
-                let mut sign = -1.0;
-                if near > far {
-                    std::mem::swap(&mut near, &mut far);
-                    sign = 1.0;
-                }
-                if near > t0 {
-                    t0 = near;
-                    n0 = Vector3::ith(a, sign);
-                }
-                if far < t1 {
-                    t1 = far;
-                    n1 = Vector3::ith(a, -sign);
-                }
-            }
-            if t0 > t1 {
-                return None;
-            }
-            if t0 > EPS && t0 < t_max {
-                Some((t0, n0, None))
-            } else if t1 > EPS && t1 < t_max {
-                Some((t1, n1, None))
-            } else {
-                None
-            }
-        }
+        Shape::Cuboid { half } => hit_cuboid(half, o, d, t_max).map(|(t, n)| (t, n, None)),
         Shape::Cylinder {
             radius,
             half_height,
-        } => {
-            let mut best: Option<(f64, Vector3<f64>)> = None;
-            let a = d.x * d.x + d.y * d.y;
-            if a > 1e-15 {
-                let b = o.x * d.x + o.y * d.y;
-                let c = o.x * o.x + o.y * o.y - radius * radius;
-                let disc = b * b - a * c;
-                if disc >= 0.0 {
-                    for t in [(-b - disc.sqrt()) / a, (-b + disc.sqrt()) / a] {
-                        let p = o + d * t;
-                        if t > EPS
-                            && t < t_max
-                            && p.z.abs() <= *half_height
-                            && best.is_none_or(|b| t < b.0)
-                        {
-                            best = Some((t, Vector3::new(p.x, p.y, 0.0) / *radius));
-                        }
-                    }
-                }
-            }
-            if d.z.abs() > 1e-15 {
-                for cap in [-*half_height, *half_height] {
-                    let t = (cap - o.z) / d.z;
-                    let p = o + d * t;
-                    if t > EPS
-                        && t < t_max
-                        && p.x * p.x + p.y * p.y <= radius * radius
-                        && best.is_none_or(|b| t < b.0)
-                    {
-                        best = Some((t, Vector3::new(0.0, 0.0, cap.signum())));
-                    }
-                }
-            }
-            best.map(|(t, n)| (t, n, None))
-        }
+        } => hit_cylinder(*radius, *half_height, o, d, t_max).map(|(t, n)| (t, n, None)),
         Shape::Mesh(m) => {
             let h = m.bvh.intersect(o, d, t_max)?;
             let f = m.mesh.faces[h.triangle];
@@ -320,6 +251,93 @@ fn intersect_local(
             Some((h.t, n, Some((h.triangle, [1.0 - h.u - h.v, h.u, h.v]))))
         }
     }
+}
+
+/// Smallest EPS < t < t_max where the ray o + t d meets the axis-aligned box of half-sizes
+/// `half` about the origin (slabs), with the face's outward normal.
+fn hit_cuboid(
+    half: &Vector3<f64>,
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(f64, Vector3<f64>)> {
+    const EPS: f64 = 1e-9;
+    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+    let (mut n0, mut n1) = (Vector3::zeros(), Vector3::zeros());
+    for a in 0..3 {
+        if d[a].abs() < 1e-15 {
+            if o[a].abs() > half[a] {
+                return None;
+            }
+            continue;
+        }
+        let (mut near, mut far) = ((-half[a] - o[a]) / d[a], (half[a] - o[a]) / d[a]);
+        let mut sign = -1.0;
+        if near > far {
+            std::mem::swap(&mut near, &mut far);
+            sign = 1.0;
+        }
+        if near > t0 {
+            t0 = near;
+            n0 = Vector3::ith(a, sign);
+        }
+        if far < t1 {
+            t1 = far;
+            n1 = Vector3::ith(a, -sign);
+        }
+    }
+    if t0 > t1 {
+        return None;
+    }
+    if t0 > EPS && t0 < t_max {
+        Some((t0, n0))
+    } else if t1 > EPS && t1 < t_max {
+        Some((t1, n1))
+    } else {
+        None
+    }
+}
+
+/// Smallest EPS < t < t_max where the ray o + t d meets the cylinder of `radius` about the z
+/// axis, |z| ≤ `half_height`, side or caps, with the outward normal.
+fn hit_cylinder(
+    radius: f64,
+    half_height: f64,
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(f64, Vector3<f64>)> {
+    const EPS: f64 = 1e-9;
+    let mut best: Option<(f64, Vector3<f64>)> = None;
+    let a = d.x * d.x + d.y * d.y;
+    if a > 1e-15 {
+        let b = o.x * d.x + o.y * d.y;
+        let c = o.x * o.x + o.y * o.y - radius * radius;
+        let disc = b * b - a * c;
+        if disc >= 0.0 {
+            for t in [(-b - disc.sqrt()) / a, (-b + disc.sqrt()) / a] {
+                let p = o + d * t;
+                if t > EPS && t < t_max && p.z.abs() <= half_height && best.is_none_or(|b| t < b.0)
+                {
+                    best = Some((t, Vector3::new(p.x, p.y, 0.0) / radius));
+                }
+            }
+        }
+    }
+    if d.z.abs() > 1e-15 {
+        for cap in [-half_height, half_height] {
+            let t = (cap - o.z) / d.z;
+            let p = o + d * t;
+            if t > EPS
+                && t < t_max
+                && p.x * p.x + p.y * p.y <= radius * radius
+                && best.is_none_or(|b| t < b.0)
+            {
+                best = Some((t, Vector3::new(0.0, 0.0, cap.signum())));
+            }
+        }
+    }
+    best
 }
 
 impl Scene {

@@ -274,22 +274,8 @@ impl TsdfVolume {
         let eye = pose.translation.vector.cast::<f32>();
         let (new_blocks, evicted_blocks) = self.allocate(&touched, Some(eye))?;
         self.pixel_samples(depth, normals, color, camera);
-        let (w, h) = (depth.width, depth.height);
         let params = self.params;
-        let mu = params.truncation();
-        let inv = pose.inverse();
-        let rot = inv.rotation.to_rotation_matrix().into_inner().cast::<f32>();
-        let trans = inv.translation.vector.cast::<f32>();
-        let (fx, fy, cx, cy) = (
-            camera.fx as f32,
-            camera.fy as f32,
-            camera.cx as f32,
-            camera.cy as f32,
-        );
-        let none = (w * h) as i32;
-        let (w, h) = (w as i32, h as i32);
-        let block_size = params.voxel_size * BLOCK as f32;
-        let half_diag = block_size * 0.5 * 3f32.sqrt();
+        let view = BlockProjection::new(camera, pose, &params, (depth.width, depth.height));
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
         let frame = FrameView::new(
@@ -301,73 +287,7 @@ impl TsdfVolume {
             .par_iter_mut()
             .enumerate()
             .for_each(|(bi, blk)| {
-                if !active[bi] {
-                    return;
-                }
-                // Frustum test on the block's bounding sphere.
-                let centre = Vector3::new(
-                    blk.coord[0] as f32 + 0.5,
-                    blk.coord[1] as f32 + 0.5,
-                    blk.coord[2] as f32 + 0.5,
-                ) * block_size
-                    - Vector3::repeat(0.5 * params.voxel_size);
-                let pc = rot * centre + trans;
-                if pc.z + half_diag <= 0.0 || pc.z - half_diag > params.max_depth + mu {
-                    return;
-                }
-                if pc.z > half_diag {
-                    let (u, v) = (fx * pc.x / pc.z + cx, fy * pc.y / pc.z + cy);
-                    let margin = (half_diag / pc.z) * fx.abs().max(fy.abs());
-                    if u < -margin || v < -margin || u > w as f32 + margin || v > h as f32 + margin
-                    {
-                        return;
-                    }
-                }
-                let mut any = false;
-                let base = [
-                    blk.coord[0] * BLOCK,
-                    blk.coord[1] * BLOCK,
-                    blk.coord[2] * BLOCK,
-                ];
-                // voxel (x, y, z) of the block in the camera frame: q0 + x c0 + y c1 + z c2
-                let q0 = rot
-                    * (Vector3::new(base[0] as f32, base[1] as f32, base[2] as f32)
-                        * params.voxel_size)
-                    + trans;
-                let (c0, c1, c2) = (
-                    rot.column(0) * params.voxel_size,
-                    rot.column(1) * params.voxel_size,
-                    rot.column(2) * params.voxel_size,
-                );
-                // the x-steps of a row, eight lanes at once
-                let steps = f32x8::new(std::array::from_fn(|k| k as f32));
-                let row = [c0.x, c0.y, c0.z].map(|c| f32x8::splat(c) * steps);
-                for z in 0..BLOCK {
-                    for y in 0..BLOCK {
-                        let qyz = q0 + c1 * y as f32 + c2 * z as f32;
-                        let [qx, qy, qz] = std::array::from_fn(|i| f32x8::splat(qyz[i]) + row[i]);
-                        // a voxel behind the camera or outside the image gets the empty sample
-                        // past the last pixel
-                        let front = qz.simd_gt(f32x8::ZERO);
-                        let iz = f32x8::ONE / qz;
-                        let pixel = |f: f32, q: f32x8, c: f32| {
-                            let p = f32x8::splat(f) * q * iz + f32x8::splat(c + 0.5);
-                            // ⌊p + ½⌋, the nearest pixel; −1 behind the camera
-                            front.select(p, f32x8::splat(-1.0)).floor().trunc_int()
-                        };
-                        let (u, v) = (pixel(fx, qx, cx), pixel(fy, qy, cy));
-                        let inside = u.simd_ge(i32x8::ZERO)
-                            & v.simd_ge(i32x8::ZERO)
-                            & u.simd_lt(i32x8::splat(w))
-                            & v.simd_lt(i32x8::splat(h));
-                        // lanes outside are zeroed before the product, which then cannot overflow
-                        let (u, v) = (inside.select(u, i32x8::ZERO), inside.select(v, i32x8::ZERO));
-                        let index = inside.select(v * i32x8::splat(w) + u, i32x8::splat(none));
-                        let pixels = index.to_array().map(|i| i as u32);
-                        any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &qz.to_array());
-                    }
-                }
-                if any {
+                if active[bi] && view.sees(blk) && view.fuse(blk, &frame) {
                     updated.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 }
             });
@@ -396,6 +316,131 @@ fn check_sizes(
         }
     }
     Ok(())
+}
+
+/// The frame's camera as the blocks see it: world to camera, the intrinsics, the image's size, and
+/// the block's bounding sphere.
+struct BlockProjection {
+    rot: nalgebra::Matrix3<f32>,
+    trans: Vector3<f32>,
+    fx: f32,
+    fy: f32,
+    cx: f32,
+    cy: f32,
+    /// The image's width and height, and the sample index past the last pixel.
+    w: i32,
+    h: i32,
+    none: i32,
+    voxel_size: f32,
+    block_size: f32,
+    half_diag: f32,
+    /// The farthest distance a block in view may hold: the largest depth plus μ.
+    far: f32,
+}
+
+impl BlockProjection {
+    fn new(
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        params: &TsdfParams,
+        (w, h): (usize, usize),
+    ) -> Self {
+        let inv = pose.inverse();
+        let block_size = params.voxel_size * BLOCK as f32;
+        Self {
+            rot: inv.rotation.to_rotation_matrix().into_inner().cast::<f32>(),
+            trans: inv.translation.vector.cast::<f32>(),
+            fx: camera.fx as f32,
+            fy: camera.fy as f32,
+            cx: camera.cx as f32,
+            cy: camera.cy as f32,
+            w: w as i32,
+            h: h as i32,
+            none: (w * h) as i32,
+            voxel_size: params.voxel_size,
+            block_size,
+            half_diag: block_size * 0.5 * 3f32.sqrt(),
+            far: params.max_depth + params.truncation(),
+        }
+    }
+
+    /// Whether the block's bounding sphere may meet the view frustum (depth range and image).
+    #[inline]
+    fn sees(&self, blk: &Block) -> bool {
+        let centre = Vector3::new(
+            blk.coord[0] as f32 + 0.5,
+            blk.coord[1] as f32 + 0.5,
+            blk.coord[2] as f32 + 0.5,
+        ) * self.block_size
+            - Vector3::repeat(0.5 * self.voxel_size);
+        let pc = self.rot * centre + self.trans;
+        let half_diag = self.half_diag;
+        if pc.z + half_diag <= 0.0 || pc.z - half_diag > self.far {
+            return false;
+        }
+        if pc.z > half_diag {
+            let (u, v) = (
+                self.fx * pc.x / pc.z + self.cx,
+                self.fy * pc.y / pc.z + self.cy,
+            );
+            let margin = (half_diag / pc.z) * self.fx.abs().max(self.fy.abs());
+            let (w, h) = (self.w as f32, self.h as f32);
+            if u < -margin || v < -margin || u > w + margin || v > h + margin {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Fuses every voxel of `blk` from `frame`, a row of eight at a time: each voxel centre is
+    /// taken to the camera, projected to its nearest pixel (a voxel behind the camera or outside
+    /// the image gets the empty sample past the last pixel). Returns whether any voxel changed.
+    #[inline]
+    fn fuse(&self, blk: &mut Block, frame: &FrameView) -> bool {
+        let (rot, trans, voxel_size) = (&self.rot, &self.trans, self.voxel_size);
+        let mut any = false;
+        let base = [
+            blk.coord[0] * BLOCK,
+            blk.coord[1] * BLOCK,
+            blk.coord[2] * BLOCK,
+        ];
+        // voxel (x, y, z) of the block in the camera frame: q0 + x c0 + y c1 + z c2
+        let q0 = rot * (Vector3::new(base[0] as f32, base[1] as f32, base[2] as f32) * voxel_size)
+            + trans;
+        let (c0, c1, c2) = (
+            rot.column(0) * voxel_size,
+            rot.column(1) * voxel_size,
+            rot.column(2) * voxel_size,
+        );
+        // the x-steps of a row, eight lanes at once
+        let steps = f32x8::new(std::array::from_fn(|k| k as f32));
+        let row = [c0.x, c0.y, c0.z].map(|c| f32x8::splat(c) * steps);
+        let (w, h, none) = (self.w, self.h, self.none);
+        for z in 0..BLOCK {
+            for y in 0..BLOCK {
+                let qyz = q0 + c1 * y as f32 + c2 * z as f32;
+                let [qx, qy, qz] = std::array::from_fn(|i| f32x8::splat(qyz[i]) + row[i]);
+                let front = qz.simd_gt(f32x8::ZERO);
+                let iz = f32x8::ONE / qz;
+                let pixel = |f: f32, q: f32x8, c: f32| {
+                    let p = f32x8::splat(f) * q * iz + f32x8::splat(c + 0.5);
+                    // ⌊p + ½⌋, the nearest pixel; −1 behind the camera
+                    front.select(p, f32x8::splat(-1.0)).floor().trunc_int()
+                };
+                let (u, v) = (pixel(self.fx, qx, self.cx), pixel(self.fy, qy, self.cy));
+                let inside = u.simd_ge(i32x8::ZERO)
+                    & v.simd_ge(i32x8::ZERO)
+                    & u.simd_lt(i32x8::splat(w))
+                    & v.simd_lt(i32x8::splat(h));
+                // lanes outside are zeroed before the product, which then cannot overflow
+                let (u, v) = (inside.select(u, i32x8::ZERO), inside.select(v, i32x8::ZERO));
+                let index = inside.select(v * i32x8::splat(w) + u, i32x8::splat(none));
+                let pixels = index.to_array().map(|i| i as u32);
+                any |= frame.fuse_row(blk, local_index(0, y, z), &pixels, &qz.to_array());
+            }
+        }
+        any
+    }
 }
 
 /// One frame as the voxel updates read it: per pixel, and one empty sample past the last.

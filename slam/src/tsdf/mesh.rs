@@ -62,13 +62,11 @@ impl TsdfVolume {
     /// skipped.
     pub fn extract_mesh(&self) -> Mesh {
         // Per block, in parallel: triangles as three edge keys, plus each edge's vertex.
-        type Out = (Vec<[EdgeKey; 3]>, Vec<(EdgeKey, Point3<f32>, [u8; 3])>);
-        let parts: Vec<Out> = self
+        let parts: Vec<BlockMesh> = self
             .blocks
             .par_iter()
             .map(|blk| {
-                let mut tris = Vec::new();
-                let mut verts = Vec::new();
+                let mut part = BlockMesh::default();
                 let base = [
                     blk.coord[0] * BLOCK,
                     blk.coord[1] * BLOCK,
@@ -76,95 +74,118 @@ impl TsdfVolume {
                 ];
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
-                        'cube: for x in 0..BLOCK {
-                            let g = [base[0] + x, base[1] + y, base[2] + z];
-                            let mut c: [Option<Corner>; 8] = Default::default();
-                            let mut index = 0usize;
-                            for (k, off) in CORNERS.iter().enumerate() {
-                                let cg = [g[0] + off[0], g[1] + off[1], g[2] + off[2]];
-                                let Some(corner) = self.corner(cg) else {
-                                    continue 'cube;
-                                };
-                                if corner.tsdf < 0.0 {
-                                    index |= 1 << k;
-                                }
-                                c[k] = Some(corner);
-                            }
-                            let mask = EDGE_TABLE[index] as u16;
-                            if mask == 0 {
-                                continue;
-                            }
-                            let mut keys = [([0; 3], 0u8); 12];
-                            for (e, [a, b]) in EDGES.iter().enumerate() {
-                                if mask & (1 << e) == 0 {
-                                    continue;
-                                }
-                                let (ca, cb) = (c[*a].as_ref().unwrap(), c[*b].as_ref().unwrap());
-                                if ca.tsdf.abs() >= 1.0 && cb.tsdf.abs() >= 1.0 {
-                                    continue 'cube;
-                                }
-                                let (oa, ob) = (CORNERS[*a], CORNERS[*b]);
-                                let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
-                                let lower = if oa[axis as usize] < ob[axis as usize] {
-                                    oa
-                                } else {
-                                    ob
-                                };
-                                let key =
-                                    ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
-                                let t = ca.tsdf / (ca.tsdf - cb.tsdf);
-                                let pa =
-                                    self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
-                                let pb =
-                                    self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
-                                let p = pa + (pb - pa) * t;
-                                let col: [u8; 3] = std::array::from_fn(|k| {
-                                    (ca.color[k] as f32
-                                        + (cb.color[k] as f32 - ca.color[k] as f32) * t)
-                                        .round() as u8
-                                });
-                                keys[e] = key;
-                                verts.push((key, p, col));
-                            }
-                            let row = &TRI_TABLE[index];
-                            for tri in row.chunks(3) {
-                                if tri[0] < 0 {
-                                    break;
-                                }
-                                // Bourke's winding faces the "below iso" side; ours faces outward
-                                // (towards positive distance), so reverse it.
-                                tris.push([
-                                    keys[tri[0] as usize],
-                                    keys[tri[2] as usize],
-                                    keys[tri[1] as usize],
-                                ]);
-                            }
+                        for x in 0..BLOCK {
+                            self.march_cube([base[0] + x, base[1] + y, base[2] + z], &mut part);
                         }
                     }
                 }
-                (tris, verts)
+                part
             })
             .collect();
-        let mut mesh = Mesh::default();
-        let mut index: FxHashMap<EdgeKey, u32> = FxHashMap::default();
-        for (_, verts) in &parts {
-            for (key, p, col) in verts {
-                index.entry(*key).or_insert_with(|| {
-                    mesh.vertices.push(*p);
-                    mesh.colors.push(*col);
-                    (mesh.vertices.len() - 1) as u32
-                });
-            }
-        }
-        for (tris, _) in &parts {
-            for t in tris {
-                let f = t.map(|k| index[&k]);
-                if f[0] != f[1] && f[1] != f[2] && f[0] != f[2] {
-                    mesh.faces.push(f);
-                }
-            }
-        }
-        mesh.compute_normals();
-        mesh
+        weld(&parts)
     }
+
+    /// Marching cubes on the cube whose lowest corner is voxel `g`: its triangles (as edge keys)
+    /// and their vertices added to `part`; nothing when a corner is unobserved or a crossing lies
+    /// between two corners at the truncation limit.
+    fn march_cube(&self, g: [i32; 3], part: &mut BlockMesh) {
+        let mut c: [Option<Corner>; 8] = Default::default();
+        let mut index = 0usize;
+        for (k, off) in CORNERS.iter().enumerate() {
+            let Some(corner) = self.corner([g[0] + off[0], g[1] + off[1], g[2] + off[2]]) else {
+                return;
+            };
+            if corner.tsdf < 0.0 {
+                index |= 1 << k;
+            }
+            c[k] = Some(corner);
+        }
+        let mask = EDGE_TABLE[index] as u16;
+        if mask == 0 {
+            return;
+        }
+        let mut keys = [([0; 3], 0u8); 12];
+        for (e, [a, b]) in EDGES.iter().enumerate() {
+            if mask & (1 << e) == 0 {
+                continue;
+            }
+            let (ca, cb) = (c[*a].as_ref().unwrap(), c[*b].as_ref().unwrap());
+            if ca.tsdf.abs() >= 1.0 && cb.tsdf.abs() >= 1.0 {
+                return;
+            }
+            let (key, vertex) = self.edge_vertex(g, (CORNERS[*a], ca), (CORNERS[*b], cb));
+            keys[e] = key;
+            part.verts.push(vertex);
+        }
+        for tri in TRI_TABLE[index].chunks(3) {
+            if tri[0] < 0 {
+                break;
+            }
+            // Bourke's winding faces the "below iso" side; ours faces outward (towards positive
+            // distance), so reverse it.
+            part.tris.push([
+                keys[tri[0] as usize],
+                keys[tri[2] as usize],
+                keys[tri[1] as usize],
+            ]);
+        }
+    }
+
+    /// The crossing on the edge between corners `a` and `b` (offsets from voxel `g`): its key (the
+    /// lower corner and the axis), and its point and colour interpolated linearly in the distance.
+    fn edge_vertex(
+        &self,
+        g: [i32; 3],
+        (oa, ca): ([i32; 3], &Corner),
+        (ob, cb): ([i32; 3], &Corner),
+    ) -> (EdgeKey, (EdgeKey, Point3<f32>, [u8; 3])) {
+        let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
+        let lower = if oa[axis as usize] < ob[axis as usize] {
+            oa
+        } else {
+            ob
+        };
+        let key = ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
+        let t = ca.tsdf / (ca.tsdf - cb.tsdf);
+        let pa = self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
+        let pb = self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
+        let p = pa + (pb - pa) * t;
+        let col: [u8; 3] = std::array::from_fn(|k| {
+            (ca.color[k] as f32 + (cb.color[k] as f32 - ca.color[k] as f32) * t).round() as u8
+        });
+        (key, (key, p, col))
+    }
+}
+
+/// One block's marching-cubes output: triangles as three edge keys, and each edge's vertex.
+#[derive(Default)]
+struct BlockMesh {
+    tris: Vec<[EdgeKey; 3]>,
+    verts: Vec<(EdgeKey, Point3<f32>, [u8; 3])>,
+}
+
+/// The blocks' triangles joined into one mesh: a vertex per edge key (the first block's), faces
+/// that collapsed to a line or a point dropped, normals from the faces.
+fn weld(parts: &[BlockMesh]) -> Mesh {
+    let mut mesh = Mesh::default();
+    let mut index: FxHashMap<EdgeKey, u32> = FxHashMap::default();
+    for part in parts {
+        for (key, p, col) in &part.verts {
+            index.entry(*key).or_insert_with(|| {
+                mesh.vertices.push(*p);
+                mesh.colors.push(*col);
+                (mesh.vertices.len() - 1) as u32
+            });
+        }
+    }
+    for part in parts {
+        for t in &part.tris {
+            let f = t.map(|k| index[&k]);
+            if f[0] != f[1] && f[1] != f[2] && f[0] != f[2] {
+                mesh.faces.push(f);
+            }
+        }
+    }
+    mesh.compute_normals();
+    mesh
 }
