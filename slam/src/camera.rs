@@ -126,7 +126,7 @@ impl Camera {
     /// +1 when the image axes (u right, v down) form a right-handed frame with the viewing direction
     /// (fx·fy > 0), −1 when one axis is mirrored (e.g. ICL-NUIM's negative fy).
     #[inline]
-    pub fn handedness(&self) -> f64 {
+    pub(crate) fn handedness(&self) -> f64 {
         (self.fx * self.fy).signum()
     }
 }

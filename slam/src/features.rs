@@ -106,7 +106,7 @@ impl Keypoints {
     }
 
     /// Frees the arrays' spare capacity (for keypoints kept long).
-    pub fn shrink_to_fit(&mut self) {
+    pub(crate) fn shrink_to_fit(&mut self) {
         self.pixels.shrink_to_fit();
         self.points.shrink_to_fit();
         self.descriptors.shrink_to_fit();

@@ -361,7 +361,7 @@ pub fn epe3d(est: &[Vector3<f64>], gt: &[Vector3<f64>], valid: Option<&[bool]>) 
 
 /// The closest point to `p` on triangle (a, b, c) (Ericson, *Real-Time Collision Detection*, 2005,
 /// sec. 5.1.5).
-pub fn closest_point_on_triangle(
+pub(crate) fn closest_point_on_triangle(
     p: &Vector3<f64>,
     a: &Vector3<f64>,
     b: &Vector3<f64>,

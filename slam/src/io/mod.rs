@@ -37,14 +37,14 @@ impl IoError {
         }
     }
     /// The same error, its message prefixed with the frame it concerns.
-    pub fn in_frame(self, frame: usize) -> Self {
+    pub(crate) fn in_frame(self, frame: usize) -> Self {
         Self {
             message: format!("frame {frame}: {}", self.message),
             ..self
         }
     }
     /// The error for asking a sequence of `len` frames (at `root`) for frame `frame`.
-    pub fn no_frame(root: impl AsRef<Path>, frame: usize, len: usize) -> Self {
+    pub(crate) fn no_frame(root: impl AsRef<Path>, frame: usize, len: usize) -> Self {
         Self::file(root, format!("frame {frame} does not exist ({len} frames)"))
     }
     /// An error at a line.
@@ -58,7 +58,7 @@ impl IoError {
 }
 
 /// Reads a text file, naming it in the error.
-pub fn read_text(path: impl AsRef<Path>) -> Result<String, IoError> {
+pub(crate) fn read_text(path: impl AsRef<Path>) -> Result<String, IoError> {
     let path = path.as_ref();
     std::fs::read_to_string(path).map_err(|e| IoError::file(path, format!("cannot read: {e}")))
 }

@@ -153,7 +153,7 @@ pub fn read_calibration(
 }
 
 /// Parses the text of an intrinsics file (see [`read_calibration`]); `path` names it in errors.
-pub fn parse_calibration(
+pub(crate) fn parse_calibration(
     text: &str,
     path: &Path,
     width: usize,
@@ -207,7 +207,7 @@ pub fn parse_calibration(
 }
 
 /// The intrinsics TUM publishes for its three sensors, chosen by the folder name.
-pub fn known_intrinsics(root: &Path) -> Camera {
+pub(crate) fn known_intrinsics(root: &Path) -> Camera {
     let name = root.to_string_lossy();
     let (fx, fy, cx, cy) = if name.contains("freiburg1") {
         (517.3, 516.5, 318.6, 255.3)
@@ -230,7 +230,7 @@ impl TumSequence {
 
     /// As [`Self::open`], pairing a depth and a colour frame only when their stamps are less than
     /// `max_difference` seconds apart (`associate.py --max_difference`).
-    pub fn open_with(root: impl AsRef<Path>, max_difference: f64) -> Result<Self, IoError> {
+    pub(crate) fn open_with(root: impl AsRef<Path>, max_difference: f64) -> Result<Self, IoError> {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
@@ -301,7 +301,7 @@ impl TumSequence {
     /// intrinsics; the depth scale stays the sequence's. Refused when the image sizes differ.
     ///
     /// [`TumSensor`]: crate::distortion::TumSensor
-    pub fn with_calibration(
+    pub(crate) fn with_calibration(
         mut self,
         camera: Camera,
         distortion: &Distortion,

@@ -19,7 +19,7 @@ use petgraph::graph::{NodeIndex, UnGraph};
 use rayon::prelude::*;
 
 /// Number of anchors, the length of a descriptor.
-pub const ANCHORS: usize = 16;
+pub(crate) const ANCHORS: usize = 16;
 
 /// A mesh's vertices and triangles.
 #[derive(Clone, Copy, Debug)]
@@ -61,7 +61,11 @@ pub enum DescriptorError {
 
 /// `count` vertices spread over the `core_fraction` of `points` nearest their centroid, by
 /// farthest-point sampling from the core vertex of largest x.
-pub fn core_anchors(points: &[Vector3<f64>], count: usize, core_fraction: f64) -> Vec<usize> {
+pub(crate) fn core_anchors(
+    points: &[Vector3<f64>],
+    count: usize,
+    core_fraction: f64,
+) -> Vec<usize> {
     if points.is_empty() || count == 0 {
         return Vec::new();
     }
@@ -102,7 +106,7 @@ pub fn core_anchors(points: &[Vector3<f64>], count: usize, core_fraction: f64) -
 /// Each vertex's shortest-path distances along the mesh edges to the `ANCHORS` anchors. A vertex
 /// the anchor cannot reach (another component) gets twice the largest distance found, so that it
 /// stays far from every reachable one.
-pub fn geodesic_descriptors(
+pub(crate) fn geodesic_descriptors(
     mesh: MeshRef<'_>,
     anchors: &[usize; ANCHORS],
 ) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
@@ -147,7 +151,7 @@ pub fn geodesic_descriptors(
 }
 
 /// For every source vertex, the target vertex whose geodesic descriptor is nearest its own.
-/// The anchors are [`core_anchors`] of the source (the `core_fraction` nearest its centroid);
+/// The anchors are the core anchors of the source (the `core_fraction` nearest its centroid);
 /// each anchor's partner is the target vertex nearest its position in `warped`, the source
 /// registered onto the target as a whole.
 pub fn descriptor_matches(

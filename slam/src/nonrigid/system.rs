@@ -177,7 +177,7 @@ impl WarpSystem {
     }
 
     /// Sets the node motions the next round starts from.
-    pub fn set_motions(&mut self, motions: impl Iterator<Item = Isometry3<f64>>) {
+    pub(crate) fn set_motions(&mut self, motions: impl Iterator<Item = Isometry3<f64>>) {
         self.motions.clear();
         self.motions.extend(motions);
         self.dqs.clear();
@@ -301,7 +301,7 @@ impl WarpSystem {
     }
 
     /// Fills H and g at the current motions and returns the cost ½Σρ.
-    pub fn linearise(&mut self, terms: &WarpTerms<'_>) -> f64 {
+    pub(crate) fn linearise(&mut self, terms: &WarpTerms<'_>) -> f64 {
         let stride = self.stride();
         let system = self.system.as_mut().expect("prepared");
         let entries = system.num_entries();

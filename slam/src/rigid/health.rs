@@ -64,7 +64,7 @@ impl Health {
 
     /// Starts the fits again from a relocalised frame's (the recent frames saw another view):
     /// until a few frames are fused, that one is the expectation.
-    pub fn restart(&mut self, fit: Fit) {
+    pub(crate) fn restart(&mut self, fit: Fit) {
         self.fractions.clear();
         self.agreements.clear();
         self.anchor = Some(fit);
@@ -84,7 +84,7 @@ impl Health {
 
     /// Whether more than `factor` typical frame intervals passed since the last fused frame
     /// (frames dropped from the stream, or a stretch that could not be tracked).
-    pub fn is_gap(&self, stamp: f64, factor: f64) -> bool {
+    pub(crate) fn is_gap(&self, stamp: f64, factor: f64) -> bool {
         match (self.last_stamp, median(&self.intervals)) {
             (Some(last), Some(interval)) => stamp - last > factor * interval,
             _ => false,

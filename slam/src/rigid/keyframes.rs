@@ -171,7 +171,7 @@ impl Ferns {
 }
 
 /// The fraction of ferns whose codes differ (1 for codes of different lengths).
-pub fn dissimilarity(a: &[u8], b: &[u8]) -> f64 {
+pub(crate) fn dissimilarity(a: &[u8], b: &[u8]) -> f64 {
     if a.len() != b.len() || a.is_empty() {
         return 1.0;
     }
@@ -306,7 +306,7 @@ impl Keyframes {
 impl Keyframes {
     /// The indices of the `count` keyframes among the first `limit` whose codes are nearest
     /// `code`, nearest first.
-    pub fn nearest_code(&self, code: &[u8], limit: usize, count: usize) -> Vec<usize> {
+    pub(crate) fn nearest_code(&self, code: &[u8], limit: usize, count: usize) -> Vec<usize> {
         let mut ranked: Vec<(f64, usize)> = self.frames[..limit.min(self.frames.len())]
             .iter()
             .enumerate()

@@ -22,7 +22,7 @@ impl MotionModel {
 
     /// Forgets the motion (after a frame that was not tracked: what came before says nothing
     /// reliable about what follows).
-    pub(crate) fn reset(&mut self) {
+    pub fn reset(&mut self) {
         self.last = None;
         self.before = None;
     }

@@ -75,7 +75,7 @@ impl SlamParams {
     /// finest at most that wide, else the coarsest, and never level 0 when there are others (the
     /// finest tracking level is strided anyway; on a 160×120 sensor, a full-resolution model whose
     /// coarse levels are subsampled from it tracked 10° steps to 2.3 cm instead of 4 mm).
-    pub fn raycast_level(&self, camera: &Camera) -> usize {
+    pub(crate) fn raycast_level(&self, camera: &Camera) -> usize {
         let levels = self.preprocess.levels.max(1);
         (1.min(levels - 1)..levels)
             .find(|&l| camera.level(l).width <= self.raycast_max_width)

@@ -130,7 +130,7 @@ impl Relocaliser {
 
     /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and
     /// offers it as a keyframe; whether it became one.
-    pub fn remember(
+    pub(crate) fn remember(
         &mut self,
         frame: &Candidate<'_>,
         params: &RelocaliseParams,

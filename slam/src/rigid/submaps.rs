@@ -86,7 +86,7 @@ impl Submaps {
     }
 
     /// The newest frozen sub-map that fused `frame`.
-    pub fn containing(&self, frame: usize) -> Option<&Submap> {
+    pub(crate) fn containing(&self, frame: usize) -> Option<&Submap> {
         self.frozen
             .iter()
             .rev()
@@ -94,13 +94,13 @@ impl Submaps {
     }
 
     /// The last frame any frozen sub-map fused.
-    pub fn frozen_until(&self) -> Option<usize> {
+    pub(crate) fn frozen_until(&self) -> Option<usize> {
         self.frozen.last().map(|s| s.frames.1)
     }
 
     /// Whether a keyframe taken now should anchor a new sub-map (the first keyframe anchors the
     /// first one).
-    pub fn wants_anchor(&self) -> bool {
+    pub(crate) fn wants_anchor(&self) -> bool {
         self.active.anchor.is_none()
             || (self.next.is_none() && self.active.fused >= self.params.frames)
     }
@@ -121,7 +121,7 @@ impl Submaps {
     }
 
     /// The sub-map being started, to fuse the frame into as well.
-    pub fn next_volume(&mut self) -> Option<&mut TsdfVolume> {
+    pub(crate) fn next_volume(&mut self) -> Option<&mut TsdfVolume> {
         self.next.as_mut().map(|(s, _)| &mut s.volume)
     }
 

@@ -141,7 +141,7 @@ impl Bvh {
     }
 
     /// The nearest hit of the ray `origin + t dir` (t in (ε, t_max)), if any.
-    pub fn intersect(
+    pub(crate) fn intersect(
         &self,
         origin: &Vector3<f64>,
         dir: &Vector3<f64>,

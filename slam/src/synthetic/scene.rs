@@ -26,7 +26,7 @@ impl RayMesh {
         Self::with_texture_coords(mesh, texture_coords)
     }
     /// Indexes a mesh with separate texture-lookup positions (one per vertex).
-    pub fn with_texture_coords(mesh: Mesh, texture_coords: Vec<Point3<f64>>) -> Self {
+    pub(crate) fn with_texture_coords(mesh: Mesh, texture_coords: Vec<Point3<f64>>) -> Self {
         let v: Vec<Point3<f64>> = mesh.vertices.iter().map(|p| p.cast()).collect();
         Self {
             bvh: Bvh::new(&v, &mesh.faces),
@@ -70,7 +70,7 @@ pub enum Shape {
 
 impl Shape {
     /// The squared radius of a sphere about the shape's origin that holds all of it.
-    pub fn bounding_radius_squared(&self) -> f64 {
+    pub(crate) fn bounding_radius_squared(&self) -> f64 {
         match self {
             Shape::Plane { hx, hy } => hx * hx + hy * hy,
             Shape::Cuboid { half } => half.norm_squared(),
@@ -156,7 +156,7 @@ impl PreparedScene<'_> {
     }
 
     /// As [`Scene::intersect`].
-    pub fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
+    pub(crate) fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let n = self
             .scene
             .nearest_with(origin, dir, |k, _| self.local(k, origin, dir))?;

@@ -41,7 +41,7 @@ impl SurfaceError {
 
 /// The distance from `p` to the scene's surface along the line through `p` with unit direction
 /// `n`, when the surface crosses that line within `reach` of `p` (the nearer crossing).
-pub fn distance_along(
+pub(crate) fn distance_along(
     scene: &PreparedScene,
     p: &Point3<f64>,
     n: &Vector3<f64>,
@@ -61,7 +61,7 @@ pub fn distance_along(
 }
 
 /// Measures `mesh` (its vertices moved by `to_scene` into the scene's frame) against `scene`:
-/// each vertex's distance along its normal ([`distance_along`] within `reach`), and how many lie
+/// each vertex's distance to the surface along its normal line (within `reach`), and how many lie
 /// farther than `tolerance` or find no surface. Vertex normals are computed from the faces when
 /// the mesh has none; vertices without a normal are not measured.
 pub fn surface_error(

@@ -302,7 +302,7 @@ pub(crate) fn project(
 
 /// The pose at time `t` on a trajectory: interpolated between the stamps around it (the rotation
 /// by slerp, the translation linearly), extrapolated from the nearest pair beyond either end.
-pub fn pose_at(trajectory: &Trajectory, t: f64) -> Isometry3<f64> {
+pub(crate) fn pose_at(trajectory: &Trajectory, t: f64) -> Isometry3<f64> {
     let s = &trajectory.stamps;
     let p = &trajectory.poses;
     if s.len() < 2 {
