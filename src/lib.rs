@@ -1,8 +1,9 @@
 //! # dynamap
 //!
 //! Sparse non-linear least squares on manifolds ([`solver`]), the cost terms built on it
-//! ([`residuals`]), and dense RGB-D SLAM ([`slam`]). This crate re-exports the three, and owns
-//! the example binaries (`examples/`) and the integration tests (`tests/`).
+//! ([`residuals`]), and dense RGB-D SLAM ([`slam`]). This crate re-exports the three, holds their
+//! integration tests (`tests/`), and runs the applications of `dynamap-apps` (`apps/`) as its
+//! examples (`cargo run --release --example rigid_slam`).
 //!
 //! The layers, bottom up:
 //!
