@@ -4,8 +4,9 @@
 //! cargo run --release --example nonrigid_slam                  # a generated bending plate, error vs ground truth
 //! cargo run --release --example nonrigid_slam -- DIR [--masks MASKS] [--output OUT]
 //! ```
-//! DIR is a TUM-layout folder (intrinsics from DIR/intrinsics.txt, else TUM's published ones);
-//! MASKS holds one object mask per depth image, with the depth image's file name. OUT receives the
+//! DIR is a TUM-layout, ICL-NUIM or plain folder of frames, told apart by its files
+//! (`slam::io::sequence::Sequence`; intrinsics from DIR/intrinsics.txt, else the layout's); MASKS
+//! holds one object mask per depth image, with the depth image's file name. OUT receives the
 //! canonical mesh (`canonical.ply`), the live mesh of every frame (`live/NNNNNN.ply`) and the warp
 //! field (`warp.txt`: one node per line, position, radius and unit dual quaternion
 //! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures (frames not
@@ -24,7 +25,7 @@ use dynamap_slam::camera::Camera;
 use dynamap_slam::eval::Stats;
 use dynamap_slam::image::Image;
 use dynamap_slam::io::images::read_mask;
-use dynamap_slam::io::tum::TumSequence;
+use dynamap_slam::io::sequence::{OpenOptions, Sequence};
 use dynamap_slam::io::{ply, write_atomic};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
@@ -41,7 +42,8 @@ use warp_flags::WarpFlags;
 #[derive(Parser, Debug)]
 #[command(long_about = None)]
 struct Args {
-    /// A TUM-layout sequence. Without it, a bending plate is rendered and tracked.
+    /// A TUM-layout, ICL-NUIM or plain folder of frames. Without it, a bending plate is rendered
+    /// and tracked.
     dir: Option<PathBuf>,
     /// A folder of object masks named like the depth images.
     #[arg(long)]
@@ -106,7 +108,7 @@ enum Source {
         frames: usize,
     },
     Folder {
-        seq: TumSequence,
+        seq: Sequence,
         masks: Option<PathBuf>,
     },
 }
@@ -115,7 +117,7 @@ impl Source {
     fn camera(&self) -> Camera {
         match self {
             Source::Generated { camera, .. } => *camera,
-            Source::Folder { seq, .. } => seq.camera,
+            Source::Folder { seq, .. } => *seq.camera(),
         }
     }
 
@@ -146,7 +148,8 @@ impl Source {
                 let mask = match masks {
                     None => None,
                     Some(dir) => {
-                        let name = seq.frames[i].depth.file_name().with_context(|| {
+                        let depth = seq.depth_path(i).with_context(|| format!("no frame {i}"))?;
+                        let name = depth.file_name().with_context(|| {
                             format!("frame {i}: depth image without a file name")
                         })?;
                         Some(read_mask(dir.join(name))?)
@@ -322,7 +325,7 @@ fn open_source(args: &Args) -> Result<Source> {
             frames: args.max_frames.unwrap_or(30),
         },
         Some(d) => Source::Folder {
-            seq: TumSequence::open(d).bad_input()?,
+            seq: Sequence::open(d, &OpenOptions::default()).bad_input()?,
             masks: args.masks.clone(),
         },
     })

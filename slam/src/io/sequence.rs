@@ -11,7 +11,7 @@ use super::tum::{RgbdFrame, TumSequence, MAX_DIFFERENCE};
 use super::IoError;
 use crate::camera::Camera;
 use crate::distortion::Distortion;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// How [`Sequence::open`] reads a folder.
 #[derive(Clone, Debug, PartialEq)]
@@ -135,6 +135,18 @@ impl Sequence {
         }
     }
 
+    /// The depth image of frame `i` (a file name that per-frame side files, such as masks, are
+    /// named after); `None` past the last frame.
+    pub fn depth_path(&self, i: usize) -> Option<PathBuf> {
+        match self {
+            Self::Tum(s) => s.frames.get(i).map(|f| f.depth.clone()),
+            Self::IclNuim(s, _) => {
+                (i < s.len()).then(|| s.root.join("depth").join(format!("{}.png", i + 1)))
+            }
+            Self::Folder(s) => s.frames.get(i).map(|f| f.0.clone()),
+        }
+    }
+
     /// The first frame's stamp, seconds (0 where the layout has no stamps).
     pub fn first_stamp(&self) -> f64 {
         match self {
@@ -206,7 +218,12 @@ mod tests {
         assert_eq!(t.groundtruth().map(|g| g.len()), Some(2));
         assert_eq!(i.groundtruth().map(|g| g.poses[2].translation.z), Some(0.2));
         assert!(f.groundtruth().is_none());
+        // each frame's depth file, as masks and other per-frame files are named after it
+        assert_eq!(t.depth_path(1), Some(tum.join("depth/0.033333.png")));
+        assert_eq!(i.depth_path(2), Some(icl.join("depth/3.png")));
+        assert_eq!(f.depth_path(0), Some(plain.join("depth/000000.png")));
         for s in [&t, &i, &f] {
+            assert!(s.depth_path(s.len()).is_none());
             assert_eq!(s.load(0).unwrap().depth.width, 4);
             assert!(
                 s.load(s.len()).is_err(),
