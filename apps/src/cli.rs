@@ -1,4 +1,4 @@
-//! What every example binary shares on its command line: a TOML config file whose keys are the
+//! What every application shares on its command line: a TOML config file whose keys are the
 //! long flags, `--print-config`, `-v`/`-q` verbosity through `tracing`, a progress bar that stays
 //! quiet off a terminal, and the exit codes (0 ok, 1 runtime failure, 2 bad input, 130
 //! interrupted by Ctrl-C after writing the outputs so far).

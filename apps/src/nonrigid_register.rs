@@ -2,23 +2,24 @@
 //!
 //! ```text
 //! cargo run --release --example nonrigid_register                  # the thesis' grid experiment
-//! cargo run --release --example nonrigid_register -- SOURCE TARGET --output WARPED.ply
+//! cargo run --release --example nonrigid_register -- meshes SOURCE TARGET --output WARPED.ply
+//! cargo run --release --example nonrigid_register -- frames D0.png D1.png --intrinsics FX FY CX CY \
+//!     --depth-scale S [--mask M.png] [--color C0] [--target-color C1] [--flow F.sflow]
 //! ```
-//! SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its vertices (in
-//! their order) and normals warped. Lengths default to fractions of the source's bounding-box
-//! diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes are registered
-//! in a first pass by closest point and then in passes seeded by geodesic descriptors
-//! (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest point alone. One
-//! JSON line last: nodes, iterations, seconds, final data and regulariser costs.
+//! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
+//! vertices (in their order) and normals warped. Lengths default to fractions of the source's
+//! bounding-box diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
+//! are registered in a first pass by closest point and then in passes seeded by geodesic
+//! descriptors (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest
+//! point alone. One JSON line last: nodes, iterations, seconds, final data and regulariser costs.
 //!
-//! Either may instead be an RGB-D frame, a depth PNG (`.png`) read with `--intrinsics fx fy cx cy
-//! --depth-scale S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its
-//! colour given by `--color C` and `--target-color C` (with both colours, FAST/BRIEF matches give
-//! the rigid start). Then WARPED holds the source's valid pixels in row-major order, `--flow
-//! FLOW.sflow` writes their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow`
-//! scores it (EPE 3D).
+//! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
+//! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
+//! by `--color C` and `--target-color C` (with both colours, FAST/BRIEF matches give the rigid
+//! start). WARPED holds the source's valid pixels in row-major order, `--flow FLOW.sflow` writes
+//! their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow` scores it (EPE 3D).
 //!
-//! With no arguments: the thesis' experiment (sec. 4.5, Table 4.1), the flat 21 × 13 grid
+//! `grid`, or no subcommand: the thesis' experiment (sec. 4.5, Table 4.1), the flat 21 × 13 grid
 //! registered onto five deformed copies (correspondences found by closest point, not given by
 //! vertex index as in the thesis), with max, mean and σ of the vertex-to-ground-truth distance
 //! before and after.

@@ -1,5 +1,5 @@
-//! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each example sets its
-//! own defaults first; a flag given overrides them).
+//! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each application sets
+//! its own defaults first; a flag given overrides them).
 
 use dynamap_slam::nonrigid::{GraphParams, RegisterParams};
 
