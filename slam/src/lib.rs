@@ -3,12 +3,15 @@
 //! Dense RGB-D SLAM on the dynamap solver. The sensor side:
 //!
 //! - [`camera`]: the pinhole model, pyramid intrinsics.
+//! - [`distortion`]: Brown–Conrady lens distortion, undone by a precomputed remap; TUM's published
+//!   calibrations.
 //! - [`image`]: bilateral filter, Gaussian pyramid, vertex and normal maps, intensity and gradients;
 //!   [`preprocess`] ties them into a per-frame pyramid.
-//! - [`io`]: TUM RGB-D, ICL-NUIM and folder datasets, PNG images, TUM trajectories, PLY meshes,
-//!   DeepDeform flow files.
+//! - [`io`]: one interface over TUM RGB-D, ICL-NUIM and plain folders (`io::sequence::Sequence`),
+//!   PNG images, TUM trajectories, PLY, OFF and OBJ meshes, DeepDeform flow files.
 //! - [`mesh`]: triangle meshes.
-//! - [`rigid`]: frame-to-model tracking and the rigid SLAM pipeline.
+//! - [`rigid`]: frame-to-model tracking and the rigid SLAM pipeline: typed frame outcomes,
+//!   keyframes and relocalisation, loop closure on a keyframe pose graph, sub-maps.
 //! - [`nonrigid`]: the deformation graph, dual-quaternion warp and warp-field optimiser.
 //! - [`tsdf`]: the voxel-hashed TSDF map: integration, raycasting, marching cubes.
 //! - [`synthetic`]: the project's own rendered RGB-D sequences (rigid and deforming) with ground truth.
