@@ -383,8 +383,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let ate_rmse = ate_result.as_ref().map(|a| a.stats.rmse);
     log_summary(&tally, &slam, ate_rmse, &dir);
     let graph = slam.keyframe_graph();
-    let k = |t: f64| 1e3 * t / tally.processed.max(1) as f64;
-    let totals = &tally.totals;
+    let [read, preprocess, track, integrate, raycast] = tally.ms_per_frame();
     println!(
         "{}",
         serde_json::json!({
@@ -395,8 +394,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "loop_events": loop_events(graph, solved.as_ref()), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),
             "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
-            "ms_per_frame": {"read": k(tally.read_seconds), "preprocess": k(totals.preprocess), "track": k(totals.track),
-                             "integrate": k(totals.integrate), "raycast": k(totals.raycast)},
+            "ms_per_frame": {"read": read, "preprocess": preprocess, "track": track,
+                             "integrate": integrate, "raycast": raycast},
         })
     );
     if generated {
@@ -475,6 +474,21 @@ struct Tally {
     processed: usize,
     /// The last frame tracked.
     last_good: Option<usize>,
+}
+
+impl Tally {
+    /// Milliseconds per frame taken: read, preprocess, track, integrate, raycast.
+    fn ms_per_frame(&self) -> [f64; 5] {
+        let t = &self.totals;
+        [
+            self.read_seconds,
+            t.preprocess,
+            t.track,
+            t.integrate,
+            t.raycast,
+        ]
+        .map(|s| 1e3 * s / self.processed.max(1) as f64)
+    }
 }
 
 /// Tracks the first `n` frames of `seq` until done or interrupted, counting into `tally`; the
@@ -620,15 +634,14 @@ fn write_preview(
 
 /// Logs the per-frame stage times, the frames not tracked and the ATE.
 fn log_summary(tally: &Tally, slam: &RigidSlam, ate_rmse: Option<f64>, dir: &Path) {
-    let k = |t: f64| 1e3 * t / tally.processed.max(1) as f64;
-    let totals = &tally.totals;
+    let [read, preprocess, track, integrate, raycast] = tally.ms_per_frame();
     tracing::info!(
         "per frame: read {:.2} ms, preprocess {:.2} ms, track {:.2} ms, integrate {:.2} ms, raycast {:.2} ms; {} blocks ({:.0} MiB)",
-        k(tally.read_seconds),
-        k(totals.preprocess),
-        k(totals.track),
-        k(totals.integrate),
-        k(totals.raycast),
+        read,
+        preprocess,
+        track,
+        integrate,
+        raycast,
         slam.volume().num_blocks(),
         slam.volume().memory_bytes() as f64 / (1 << 20) as f64
     );

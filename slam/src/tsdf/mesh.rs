@@ -113,8 +113,8 @@ impl TsdfVolume {
             if ca.tsdf.abs() >= 1.0 && cb.tsdf.abs() >= 1.0 {
                 return;
             }
-            let (key, vertex) = self.edge_vertex(g, (CORNERS[*a], ca), (CORNERS[*b], cb));
-            keys[e] = key;
+            let vertex = self.edge_vertex(g, (CORNERS[*a], ca), (CORNERS[*b], cb));
+            keys[e] = vertex.0;
             part.verts.push(vertex);
         }
         for tri in TRI_TABLE[index].chunks(3) {
@@ -138,7 +138,7 @@ impl TsdfVolume {
         g: [i32; 3],
         (oa, ca): ([i32; 3], &Corner),
         (ob, cb): ([i32; 3], &Corner),
-    ) -> (EdgeKey, (EdgeKey, Point3<f32>, [u8; 3])) {
+    ) -> (EdgeKey, Point3<f32>, [u8; 3]) {
         let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
         let lower = if oa[axis as usize] < ob[axis as usize] {
             oa
@@ -153,7 +153,7 @@ impl TsdfVolume {
         let col: [u8; 3] = std::array::from_fn(|k| {
             (ca.color[k] as f32 + (cb.color[k] as f32 - ca.color[k] as f32) * t).round() as u8
         });
-        (key, (key, p, col))
+        (key, p, col)
     }
 }
 
