@@ -5,6 +5,7 @@
 //! cargo run --release --example nonrigid_register -- meshes SOURCE TARGET --output WARPED.ply
 //! cargo run --release --example nonrigid_register -- frames D0.png D1.png --intrinsics FX FY CX CY \
 //!     --depth-scale S [--mask M.png] [--color C0] [--target-color C1] [--flow F.sflow]
+//! cargo run --release --example nonrigid_register -- sheets [--sizes 0.1 0.5 2] [--remeshed]
 //! ```
 //! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
 //! vertices (in their order) and normals warped. Lengths default to fractions of the source's
@@ -18,6 +19,10 @@
 //! by `--color C` and `--target-color C` (with both colours, FAST/BRIEF matches give the rigid
 //! start). WARPED holds the source's valid pixels in row-major order, `--flow FLOW.sflow` writes
 //! their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow` scores it (EPE 3D).
+//!
+//! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
+//! copies, alone and moved rigidly, at `--sizes` widths and `--columns` resolutions (issue 26):
+//! one row per case with the largest and mean vertex error as % of the largest displacement.
 //!
 //! `grid`, or no subcommand: the thesis' experiment (sec. 4.5, Table 4.1), the flat 21 × 13 grid
 //! registered onto five deformed copies (correspondences found by closest point, not given by
@@ -38,10 +43,12 @@ use dynamap_slam::io::images::{read_color, read_depth, read_mask};
 use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_meshes,
-    register_surfaces, FrameSettings, FrameView, RegisterSummary, Seeding, SurfaceMesh,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_mesh_pair,
+    register_meshes, register_surfaces, FrameSettings, FrameView, RegisterSummary, Seeding,
+    SurfaceMesh,
 };
 use dynamap_slam::synthetic::plate;
+use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use warp_flags::WarpFlags;
@@ -68,6 +75,27 @@ enum Mode {
     Meshes(MeshArgs),
     /// One RGB-D frame (a depth PNG) onto another: warped points, scene flow and its EPE.
     Frames(FrameArgs),
+    /// Plain sheets (no correspondences given) onto bent, rolled, folded, twisted and saddled
+    /// copies, alone and moved rigidly, at several sizes and mesh resolutions (issue 26).
+    Sheets(SheetArgs),
+}
+
+/// `sheets`: which sizes and meshes.
+#[derive(clap::Args, Debug)]
+struct SheetArgs {
+    /// Sheet widths, metres.
+    #[arg(long, num_args = 1.., default_values_t = [0.1, 0.5, 2.0])]
+    sizes: Vec<f64>,
+    /// Vertices along the sheet's width (its height gets 0.6 × as many, rounded).
+    #[arg(long, num_args = 1.., default_values_t = [21, 41])]
+    columns: Vec<usize>,
+    /// The rigid motion's shift, metres (its turn is 15°).
+    #[arg(long, default_value_t = 0.03)]
+    shift: f64,
+    /// Mesh each target apart from its source: 1.4 × the columns and rows, its inner vertices
+    /// moved at random by up to 0.3 of their spacing (seeded), so that no vertex has a copy.
+    #[arg(long)]
+    remeshed: bool,
 }
 
 /// `meshes`: the inputs and the flags that apply to meshes.
@@ -180,6 +208,82 @@ fn grid_experiment(session: &Session) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// Issue 26's sheets: one row per case, size and mesh, with the largest and mean vertex error
+/// as a share of the largest displacement.
+fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
+    if args.sizes.iter().any(|s| !(s.is_finite() && *s > 0.0)) || !args.shift.is_finite() {
+        return Err(cli::bad_input(
+            "--sizes must be positive and --shift finite",
+        ));
+    }
+    if args.columns.iter().any(|&c| c < 3) {
+        return Err(cli::bad_input("--columns must be at least 3"));
+    }
+    let cases = SheetDeformation::cases(args.shift);
+    let total = cases.len() * args.sizes.len() * args.columns.len();
+    let bar = session.progress(total as u64, "cases");
+    let row = |line: String| bar.suspend(|| println!("{line}"));
+    row(format!(
+        "{:<18} {:>6} {:>7} {:>9} | {:>8} {:>8} | {:>5} {:>7}",
+        "case", "width", "mesh", "max disp", "max %", "mean %", "nodes", "seconds"
+    ));
+    let (mut worst_max, mut worst_mean) = (0.0f64, 0.0f64);
+    for &columns in &args.columns {
+        let rows = ((columns - 1) as f64 * 0.6).round() as usize + 1;
+        for &width in &args.sizes {
+            let source = sheet::flat_sheet(columns, rows, width);
+            let target_sheet = if args.remeshed {
+                let (c, r) = (columns * 7 / 5, rows * 7 / 5);
+                sheet::jittered(sheet::flat_sheet(c, r, width), c, r, 0.3, 7)
+            } else {
+                source.clone()
+            };
+            for case in &cases {
+                let (score, nodes, seconds) = register_sheet(&source, &target_sheet, case, width)?;
+                worst_max = worst_max.max(score.max);
+                worst_mean = worst_mean.max(score.mean);
+                bar.inc(1);
+                let name = format!(
+                    "{}{}",
+                    case.shape.name(),
+                    if case.rigid.is_some() { " +rigid" } else { "" }
+                );
+                row(format!(
+                    "{:<18} {:>6} {:>7} {:>9.4} | {:>8.2} {:>8.2} | {:>5} {:>7.3}",
+                    name,
+                    width,
+                    format!("{columns}x{rows}"),
+                    score.displacement,
+                    100.0 * score.max,
+                    100.0 * score.mean,
+                    nodes,
+                    seconds
+                ));
+            }
+        }
+    }
+    row(format!(
+        "worst: max {:.2} %, mean {:.2} % of the largest displacement",
+        100.0 * worst_max,
+        100.0 * worst_mean
+    ));
+    Ok(())
+}
+
+/// Registers the flat `source` (width `width`) onto `case` of the flat `target` with
+/// [`register_mesh_pair`] and scores every vertex against where the case sends it; with the
+/// graph's nodes and the seconds.
+fn register_sheet(
+    source: &Mesh,
+    target: &Mesh,
+    case: &SheetDeformation,
+    width: f64,
+) -> Result<(SheetScore, usize, f64)> {
+    let reg = register_mesh_pair(source, &case.deformed(target, width), &Seeding::default())?;
+    let score = case.score(source, &reg.points, width);
+    Ok((score, reg.graph.nodes.len(), reg.summary.seconds))
 }
 
 /// The JSON line's common part: nodes, iterations, seconds, final costs, matched and source points.
@@ -345,14 +449,15 @@ pub fn main() -> ExitCode {
 fn run(args: Args, session: &Session) -> Result<()> {
     match &args.mode {
         None | Some(Mode::Grid) => grid_experiment(session),
-        Some(Mode::Meshes(m)) => register_mesh_pair(m),
+        Some(Mode::Meshes(m)) => register_mesh_files(m),
         Some(Mode::Frames(f)) => register_frame_pair(f),
+        Some(Mode::Sheets(a)) => sheet_experiment(a, session),
     }
 }
 
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
 /// vertex map, and prints the JSON line.
-fn register_mesh_pair(args: &MeshArgs) -> Result<()> {
+fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let source = read_mesh(&args.source).bad_input()?;
     let target = read_mesh(&args.target).bad_input()?;
     let (sp, sn) = mesh_points(&source);

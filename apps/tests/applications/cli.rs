@@ -485,3 +485,32 @@ fn preview_writes_the_pictures() {
     assert!(img.data.iter().filter(|p| **p != first).count() > 1000);
     let _ = std::fs::remove_dir_all(Path::new(&dir));
 }
+
+#[test]
+fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
+    let out = run(
+        "nonrigid_register",
+        &["sheets", "--sizes", "0.3", "--columns", "21", "-q"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    // a header, ten cases (five shapes, alone and moved rigidly), the worst
+    assert_eq!(stdout.lines().count(), 12, "{stdout}");
+    let worst = stdout.lines().last().unwrap();
+    let numbers: Vec<f64> = worst
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    assert_eq!(numbers.len(), 2, "{worst}");
+    assert!(numbers[0] <= 10.0 && numbers[1] <= 3.0, "{worst}");
+    assert_exit(
+        &run("nonrigid_register", &["sheets", "--sizes=-1"]),
+        2,
+        &["--sizes"],
+    );
+    assert_exit(
+        &run("nonrigid_register", &["sheets", "--columns", "2"]),
+        2,
+        &["--columns"],
+    );
+}

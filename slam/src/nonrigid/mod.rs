@@ -10,10 +10,12 @@
 //!   field tracked frame to frame against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
 //!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
-//!   apart parts closest point confuses.
+//!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
+//!   ([`boundary`]).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow.
 
+pub mod boundary;
 pub mod descriptors;
 pub mod frames;
 pub mod fusion;
@@ -22,6 +24,7 @@ pub mod register;
 pub mod surface;
 mod system;
 
+pub use boundary::rim_matches;
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, FrameView};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
@@ -31,6 +34,6 @@ pub use register::{
     RegisterSummary, RegisterTimes, Seeds, Target, WarpOptimiser,
 };
 pub use surface::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_meshes, register_surfaces,
-    Seeding, SurfaceError, SurfaceMesh, SurfaceRegistration,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_pair, register_meshes,
+    register_surfaces, Seeding, SurfaceError, SurfaceMesh, SurfaceRegistration,
 };

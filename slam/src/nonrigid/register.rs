@@ -187,6 +187,10 @@ pub struct Seeds {
     /// Tukey's c in those stages, as a multiple of [`RegisterParams::tukey`]: the seeds are far
     /// from where the points start, and a narrow kernel would reject them.
     pub tukey_scale: f64,
+    /// Whether the seeds replace every association in their stages (seeds found without
+    /// comparing positions, which closest point cannot improve on early), not only where the
+    /// two disagree by more than the gate.
+    pub replace_all: bool,
 }
 
 /// What one optimisation did.
@@ -420,7 +424,11 @@ impl WarpOptimiser {
     /// distance gate (or the point found no partner): the seeds are coarse, closest point is
     /// exact where it is right, and they disagree where closest point took the wrong part.
     fn take_seeds(&mut self, seeds: &Seeds) {
-        let gate = self.params.max_distance * self.params.max_distance;
+        let gate = if seeds.replace_all {
+            -1.0
+        } else {
+            self.params.max_distance * self.params.max_distance
+        };
         for (m, s) in self.matches.iter_mut().zip(&seeds.matches) {
             if m.is_none_or(|(q, _)| (q - s.0).norm_squared() > gate) {
                 *m = Some(*s);
@@ -728,12 +736,20 @@ mod tests {
             matches: vec![at(0.0), at(0.0), at(0.0)],
             stages: 1,
             tukey_scale: 8.0,
+            replace_all: false,
         };
         optimiser.take_seeds(&seeds);
         assert_eq!(
             optimiser.matches,
             vec![Some(at(0.05)), Some(at(0.0)), Some(at(0.0))]
         );
+        // seeds that replace every association
+        optimiser.matches = vec![Some(at(0.05)), Some(at(0.5)), None];
+        optimiser.take_seeds(&Seeds {
+            replace_all: true,
+            ..seeds
+        });
+        assert_eq!(optimiser.matches, vec![Some(at(0.0)); 3]);
     }
 
     /// A depth frame of the plane z = 1 facing the camera.

@@ -4,14 +4,16 @@
 //! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
+use super::boundary::rim_matches;
 use super::descriptors::{descriptor_matches, DescriptorError, MeshRef};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::register::{
     principal_axes_guesses, CloudTarget, RegisterError, RegisterParams, RegisterSummary, Seeds,
     WarpOptimiser,
 };
+use crate::eval::umeyama;
 use crate::mesh::Mesh;
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Why a surface registration failed.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
@@ -180,6 +182,16 @@ impl<'a> Passes<'a> {
         })
     }
 
+    /// Adds the rigid motion that best carries each source point onto its partner (Horn's
+    /// absolute orientation) to the pre-alignment's starting guesses.
+    fn add_guess(&mut self, partner: &[usize], target: &[Vector3<f64>]) {
+        let from: Vec<Point3<f64>> = self.source.0.iter().map(|p| Point3::from(*p)).collect();
+        let to: Vec<Point3<f64>> = partner.iter().map(|&k| Point3::from(target[k])).collect();
+        if let Some(fit) = umeyama(&from, &to, false) {
+            self.guesses.push(fit.isometry);
+        }
+    }
+
     /// One registration from the graph at rest, with a fresh optimiser.
     fn run(&self, seeds: Option<&Seeds>) -> Result<SurfaceRegistration, SurfaceError> {
         let (sp, sn) = self.source;
@@ -202,6 +214,48 @@ impl<'a> Passes<'a> {
             summary,
         })
     }
+}
+
+/// Each source point's partner on the target as [`Seeds`].
+fn seeds_of(partner: &[usize], target: SurfaceMesh<'_>, seeding: &Seeding) -> Seeds {
+    Seeds {
+        matches: partner
+            .iter()
+            .map(|&k| (target.points[k], target.normals[k]))
+            .collect(),
+        stages: seeding.stages,
+        tukey_scale: seeding.tukey_scale,
+        replace_all: false,
+    }
+}
+
+/// [`register_meshes`] of two [`Mesh`]es with [`clean_surface_settings`] relative to the
+/// source's bounding-box diagonal, from where the source is: what `nonrigid_register meshes`
+/// does without flags.
+pub fn register_mesh_pair(
+    source: &Mesh,
+    target: &Mesh,
+    seeding: &Seeding,
+) -> Result<SurfaceRegistration, SurfaceError> {
+    let (sp, sn) = mesh_points(source);
+    let (tp, tn) = mesh_points(target);
+    let (graph, params) = clean_surface_settings(bounding_diagonal(&sp));
+    register_meshes(
+        SurfaceMesh {
+            points: &sp,
+            normals: &sn,
+            faces: &source.faces,
+        },
+        SurfaceMesh {
+            points: &tp,
+            normals: &tn,
+            faces: &target.faces,
+        },
+        graph,
+        params,
+        false,
+        seeding,
+    )
 }
 
 /// Registers one mesh onto another in several passes, for poses far apart whose parts swing
@@ -228,7 +282,7 @@ pub fn register_meshes(
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let start = std::time::Instant::now();
-    let passes = Passes::new(
+    let mut passes = Passes::new(
         (source.points, source.normals),
         (target.points, target.normals),
         graph_params,
@@ -245,6 +299,17 @@ pub fn register_meshes(
             faces: target.faces,
         },
     );
+    if let Some(partner) = rim_matches(source_mesh, target_mesh) {
+        passes.add_guess(&partner, target.points);
+        let seeds = Seeds {
+            replace_all: true,
+            ..seeds_of(&partner, target, seeding)
+        };
+
+        let mut done = passes.run(Some(&seeds))?;
+        done.summary.seconds = start.elapsed().as_secs_f64();
+        return Ok(done);
+    }
     let mut last = passes.run(None)?;
     let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
     for _ in 0..seeding.passes {
@@ -254,15 +319,7 @@ pub fn register_meshes(
             target_mesh,
             seeding.core_fraction,
         )?;
-        let seeds = Seeds {
-            matches: partner
-                .iter()
-                .map(|&k| (target.points[k], target.normals[k]))
-                .collect(),
-            stages: seeding.stages,
-            tukey_scale: seeding.tukey_scale,
-        };
-        last = passes.run(Some(&seeds))?;
+        last = passes.run(Some(&seeds_of(&partner, target, seeding)))?;
         iterations += last.summary.iterations;
         times.add(&last.summary.times);
     }
@@ -386,6 +443,7 @@ mod tests {
             matches: vec![(Vector3::zeros(), Vector3::z()); sp.len() - 1],
             stages: 1,
             tukey_scale: 8.0,
+            replace_all: false,
         };
         let result = WarpOptimiser::new(params).optimise_from(
             &mut graph,

@@ -11,6 +11,7 @@
 //! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
 //!   per-pixel scene flow and the deformed mesh per frame;
 //! - [`plate`]: the thesis' flat 21 × 13 grid and its five target deformations (Table 4.1);
+//! - [`sheet`]: plain sheets bent, rolled, folded, twisted and saddled (issue 26), at any size;
 //! - [`sequence`]: writing everything in the TUM layout;
 //! - [`surface_error`]: how far a reconstructed mesh lies from the scene (a wall fused twice);
 //! - [`faults`]: a sequence with dropped, corrupt and blank frames, a jump and a textureless
@@ -29,5 +30,6 @@ pub mod plate;
 pub mod render;
 pub mod scene;
 pub mod sequence;
+pub mod sheet;
 pub mod surface_error;
 pub mod texture;

@@ -1,0 +1,393 @@
+//! Correspondences between two meshes with a boundary (sheets, cloth, an open tube), from the
+//! boundary's own shape: where no texture and no feature tells points apart, the rim still does.
+//!
+//! How much a boundary turns at a vertex is intrinsic, π less the angles of the triangles
+//! meeting there (the discrete geodesic curvature), and so is the length along the boundary:
+//! bending without stretch changes neither. A rectangle's corners turn by π/2 wherever the sheet
+//! is rolled or folded. So the boundary of the source and of the target are described by their
+//! turning along the arc length, the two descriptions are aligned by circular cross-correlation
+//! (both directions), and each alignment that fits places 16 anchors around the rim
+//! with their partners. Every vertex is then matched by its geodesic distances to them
+//! (over the mesh's edges and second ring).
+//!
+//! A symmetric rim fits several ways (a rectangle four: turned by a half turn, mirrored). All
+//! are intrinsically equal, so the choice is the one that moves the surface least: the least
+//! mean distance between each source vertex and its match.
+
+use super::descriptors::{geodesic_descriptors_two_ring, MeshRef, ANCHORS};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::f64::consts::PI;
+
+/// Bins of the turning signal around a rim.
+const BINS: usize = 512;
+/// The Gaussian that spreads each vertex's turning over the bins, as a share of the rim.
+const SPREAD: f64 = 0.01;
+/// An alignment fits when its correlation is at least this share of the best one's.
+const FIT: f64 = 0.9;
+/// A rim whose turning varies, root mean square about its mean, by less than this share of 2π
+/// per bin (a disc's rim turns 2π in all) has nothing to align by: a circle, or a tube's rim,
+/// turns the same everywhere.
+const CONTRAST: f64 = 0.2;
+
+/// One closed boundary loop: its vertices in order, each vertex's arc length from the first,
+/// the loop's length, and how much it turns at each vertex.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Rim {
+    vertices: Vec<u32>,
+    arc: Vec<f64>,
+    length: f64,
+    turning: Vec<f64>,
+}
+
+/// The boundary loops of a triangle mesh: a directed edge a→b of a face whose reverse b→a no face
+/// has is on the boundary, and the loops follow those edges. `None` where the boundary is not a
+/// set of simple loops (a vertex with two boundary edges leaving it: a non-manifold rim).
+pub(crate) fn boundary_loops(faces: &[[u32; 3]]) -> Option<Vec<Vec<u32>>> {
+    let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(faces.len() * 3);
+    for f in faces {
+        for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+            *directed.entry((a, b)).or_insert(0) += 1;
+        }
+    }
+    let mut next: HashMap<u32, u32> = HashMap::new();
+    for (&(a, b), _) in directed
+        .iter()
+        .filter(|(&(a, b), _)| !directed.contains_key(&(b, a)) && a != b)
+    {
+        if next.insert(a, b).is_some() {
+            return None;
+        }
+    }
+    let mut starts: Vec<u32> = next.keys().copied().collect();
+    starts.sort_unstable();
+    let mut seen = std::collections::HashSet::new();
+    let mut loops = Vec::new();
+    for start in starts {
+        if seen.contains(&start) {
+            continue;
+        }
+        let mut cycle = vec![start];
+        seen.insert(start);
+        let mut v = *next.get(&start)?;
+        while v != start {
+            if !seen.insert(v) {
+                return None;
+            }
+            cycle.push(v);
+            v = *next.get(&v)?;
+        }
+        loops.push(cycle);
+    }
+    Some(loops)
+}
+
+/// Σ of the triangle angles at each vertex.
+fn angle_sums(mesh: MeshRef<'_>) -> Vec<f64> {
+    let mut sums = vec![0.0; mesh.points.len()];
+    for f in mesh.faces {
+        for k in 0..3 {
+            let (a, b, c) = (
+                f[k] as usize,
+                f[(k + 1) % 3] as usize,
+                f[(k + 2) % 3] as usize,
+            );
+            let (u, v) = (
+                mesh.points[b] - mesh.points[a],
+                mesh.points[c] - mesh.points[a],
+            );
+            let angle = u.cross(&v).norm().atan2(u.dot(&v));
+            if angle.is_finite() {
+                sums[a] += angle;
+            }
+        }
+    }
+    sums
+}
+
+impl Rim {
+    /// The mesh's longest boundary loop, or `None` for a closed mesh or a non-manifold rim.
+    /// Faces must name existing vertices.
+    pub(crate) fn longest(mesh: MeshRef<'_>) -> Option<Rim> {
+        let loops = boundary_loops(mesh.faces)?;
+        let sums = angle_sums(mesh);
+        loops
+            .into_iter()
+            .filter(|l| l.len() >= 3)
+            .map(|vertices| Rim::of_loop(mesh.points, &sums, vertices))
+            .max_by(|a, b| a.length.total_cmp(&b.length))
+    }
+
+    fn of_loop(points: &[Vector3<f64>], sums: &[f64], vertices: Vec<u32>) -> Rim {
+        let mut arc = Vec::with_capacity(vertices.len());
+        let mut length = 0.0;
+        for (k, &v) in vertices.iter().enumerate() {
+            arc.push(length);
+            let w = vertices[(k + 1) % vertices.len()];
+            length += (points[w as usize] - points[v as usize]).norm();
+        }
+        let turning = vertices.iter().map(|&v| PI - sums[v as usize]).collect();
+        Rim {
+            vertices,
+            arc,
+            length,
+            turning,
+        }
+    }
+
+    /// The turning spread over [`BINS`] bins of equal arc length, each vertex's by a circular
+    /// Gaussian of [`SPREAD`] × the length, or of twice the mean spacing of the rim's vertices
+    /// where that is wider (so that a coarse round rim reads as round, not as a ripple).
+    fn signal(&self) -> Vec<f64> {
+        let mut out = vec![0.0; BINS];
+        let sigma = (SPREAD * BINS as f64).max(2.0 * BINS as f64 / self.vertices.len() as f64);
+        let reach = (4.0 * sigma).ceil() as isize;
+        for (&s, &t) in self.arc.iter().zip(&self.turning) {
+            let centre = s / self.length * BINS as f64;
+            let c = centre.round() as isize;
+            for b in c - reach..=c + reach {
+                let d = (b as f64 - centre) / sigma;
+                out[b.rem_euclid(BINS as isize) as usize] += t * (-0.5 * d * d).exp();
+            }
+        }
+        out
+    }
+
+    /// The index (in this loop) of the partner of `source`'s vertex `i` under `alignment`: the
+    /// vertex nearest the same share of the length, laid on as `alignment` says.
+    fn partner_of(&self, source: &Rim, i: usize, alignment: &RimAlignment) -> usize {
+        let u = source.arc[i] / source.length;
+        self.index_at((alignment.shift + alignment.direction * u) * self.length)
+    }
+
+    /// The index (in the loop) of the rim vertex nearest arc length `s`, taken modulo the length.
+    fn index_at(&self, s: f64) -> usize {
+        let s = s.rem_euclid(self.length);
+        let k = self.arc.partition_point(|&a| a <= s).max(1) - 1;
+        let after = (k + 1) % self.vertices.len();
+        let end = if after == 0 {
+            self.length
+        } else {
+            self.arc[after]
+        };
+        if end - s < s - self.arc[k] {
+            after
+        } else {
+            k
+        }
+    }
+}
+
+/// One way of laying the source's rim onto the target's: the target's arc length (as a share of
+/// its length) at the source's share u is `shift + direction · u`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct RimAlignment {
+    /// +1 or −1.
+    pub(crate) direction: f64,
+    /// Share of the target's rim.
+    pub(crate) shift: f64,
+    /// Normalised correlation of the two turning signals, at most 1.
+    pub(crate) score: f64,
+}
+
+/// The alignments of two rims' turning signals that fit: local maxima of the circular
+/// correlation, in both directions, within [`FIT`] of the best, best first. Empty when either rim
+/// turns the same everywhere.
+pub(crate) fn rim_alignments(source: &Rim, target: &Rim) -> Vec<RimAlignment> {
+    let (f, g) = (source.signal(), target.signal());
+    if !(contrast(&f) > CONTRAST && contrast(&g) > CONTRAST) {
+        return Vec::new();
+    }
+    let (f, g) = (centred(f), centred(g));
+    let norm = (dot(&f, &f) * dot(&g, &g)).sqrt();
+    let mut found = Vec::new();
+    for direction in [1.0, -1.0] {
+        let scores: Vec<f64> = (0..BINS)
+            .map(|k| {
+                (0..BINS)
+                    .map(|b| f[b] * g[target_bin(b, k, direction)])
+                    .sum::<f64>()
+                    / norm
+            })
+            .collect();
+        for k in 0..BINS {
+            let (before, after) = (scores[(k + BINS - 1) % BINS], scores[(k + 1) % BINS]);
+            if scores[k] > 0.0 && scores[k] >= before && scores[k] > after {
+                found.push(RimAlignment {
+                    direction,
+                    shift: k as f64 / BINS as f64,
+                    score: scores[k],
+                });
+            }
+        }
+    }
+    found.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let best = found.first().map_or(0.0, |a| a.score);
+    found.retain(|a| a.score >= FIT * best);
+    found
+}
+
+/// The target bin that source bin `b` falls on under shift `k` (bins) and `direction`.
+fn target_bin(b: usize, k: usize, direction: f64) -> usize {
+    if direction > 0.0 {
+        (k + b) % BINS
+    } else {
+        (k + BINS - b) % BINS
+    }
+}
+
+/// Root mean square of a signal about its mean, over 2π per bin.
+fn contrast(v: &[f64]) -> f64 {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let rms = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+    rms / (2.0 * PI / n)
+}
+
+fn centred(mut v: Vec<f64>) -> Vec<f64> {
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    v.iter_mut().for_each(|x| *x -= mean);
+    v
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// [`ANCHORS`] source rim vertices evenly spaced by arc length, and their partners on the target's
+/// rim under `alignment`.
+fn rim_anchors(
+    source: &Rim,
+    target: &Rim,
+    alignment: &RimAlignment,
+) -> ([usize; ANCHORS], [usize; ANCHORS]) {
+    let at: [usize; ANCHORS] =
+        std::array::from_fn(|k| source.index_at(k as f64 / ANCHORS as f64 * source.length));
+    let from = at.map(|i| source.vertices[i] as usize);
+    let to = at.map(|i| target.vertices[target.partner_of(source, i, alignment)] as usize);
+    (from, to)
+}
+
+/// For every source vertex a target vertex, found from the two meshes' rims alone: no position
+/// is compared until the choice between symmetric fits, which takes the least motion (the least
+/// mean distance from each source vertex to its match). `None` when either mesh has no usable
+/// rim (closed, non-manifold, or a rim that turns the same everywhere) or is too small.
+pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize>> {
+    if source.points.len() < ANCHORS || target.points.len() < ANCHORS {
+        return None;
+    }
+    let (s_rim, t_rim) = (Rim::longest(source)?, Rim::longest(target)?);
+    let alignments = rim_alignments(&s_rim, &t_rim);
+    alignments
+        .par_iter()
+        .filter_map(|a| {
+            let (from, to) = rim_anchors(&s_rim, &t_rim, a);
+            let d_source = geodesic_descriptors_two_ring(source, &from).ok()?;
+            let mut d_target = geodesic_descriptors_two_ring(target, &to).ok()?;
+            // a surface that stretches (a saddle) stretches its rim too: compare distances in
+            // units of each rim's length
+            let ratio = s_rim.length / t_rim.length;
+            d_target
+                .iter_mut()
+                .for_each(|d| d.iter_mut().for_each(|x| *x *= ratio));
+            let tree: ImmutableKdTree<f64, ANCHORS> = ImmutableKdTree::new_from_slice(&d_target);
+            let mut matches: Vec<usize> = d_source
+                .iter()
+                .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
+                .collect();
+            // the rim itself is matched by arc length
+            for (i, &v) in s_rim.vertices.iter().enumerate() {
+                matches[v as usize] = t_rim.vertices[t_rim.partner_of(&s_rim, i, a)] as usize;
+            }
+            let motion = matches
+                .iter()
+                .enumerate()
+                .map(|(v, &m)| (target.points[m] - source.points[v]).norm())
+                .sum::<f64>();
+            Some((motion, matches))
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, m)| m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::sheet::{flat_sheet, SheetDeformation, SheetShape};
+
+    fn points_of(m: &crate::mesh::Mesh) -> Vec<Vector3<f64>> {
+        m.vertices.iter().map(|p| p.coords.cast()).collect()
+    }
+
+    #[test]
+    fn a_sheet_has_one_rim_that_turns_at_four_corners() {
+        let sheet = flat_sheet(21, 13, 1.0);
+        let points = points_of(&sheet);
+        let mesh = MeshRef {
+            points: &points,
+            faces: &sheet.faces,
+        };
+        assert_eq!(boundary_loops(&sheet.faces).unwrap().len(), 1);
+        let rim = Rim::longest(mesh).unwrap();
+        assert_eq!(rim.vertices.len(), 2 * (20 + 12));
+        assert!((rim.length - 3.2).abs() < 1e-6, "{}", rim.length);
+        let corners = rim
+            .turning
+            .iter()
+            .filter(|t| (*t - PI / 2.0).abs() < 1e-6)
+            .count();
+        assert_eq!(corners, 4);
+        let total: f64 = rim.turning.iter().sum();
+        assert!((total - 2.0 * PI).abs() < 1e-6, "a disc's rim turns once");
+    }
+
+    #[test]
+    fn a_rolled_and_renumbered_sheet_is_matched_vertex_for_vertex() {
+        let sheet = flat_sheet(21, 13, 0.5);
+        let roll = SheetDeformation {
+            shape: SheetShape::Roll { angle: PI },
+            rigid: Some(crate::synthetic::sheet::case_motion(15.0, 0.03)),
+        }
+        .deformed(&sheet, 0.5);
+        let n = sheet.vertices.len();
+        let new_of = |v: usize| (v * 11 + 5) % n; // 11 is prime to 273 = 3 · 7 · 13
+        let mut target = vec![Vector3::zeros(); n];
+        for (v, p) in points_of(&roll).into_iter().enumerate() {
+            target[new_of(v)] = p;
+        }
+        let faces: Vec<[u32; 3]> = roll
+            .faces
+            .iter()
+            .map(|f| f.map(|v| new_of(v as usize) as u32))
+            .collect();
+        let source = points_of(&sheet);
+        let matches = rim_matches(
+            MeshRef {
+                points: &source,
+                faces: &sheet.faces,
+            },
+            MeshRef {
+                points: &target,
+                faces: &faces,
+            },
+        )
+        .expect("the rims align");
+        let right = (0..n).filter(|&v| matches[v] == new_of(v)).count();
+        assert_eq!(right, n);
+    }
+
+    #[test]
+    fn closed_and_round_rims_give_nothing() {
+        let (points, faces) = super::super::descriptors::tube(6, 8, 0.0);
+        // an open tube has two round rims: no corner to align by
+        let mesh = MeshRef {
+            points: &points,
+            faces: &faces,
+        };
+        assert!(rim_matches(mesh, mesh).is_none());
+        // two triangles that share only a vertex: two rim edges leave it
+        assert!(boundary_loops(&[[0, 1, 2], [0, 3, 4]]).is_none());
+    }
+}
