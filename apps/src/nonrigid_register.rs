@@ -281,7 +281,8 @@ fn register_sheet(
     case: &SheetDeformation,
     width: f64,
 ) -> Result<(SheetScore, usize, f64)> {
-    let reg = register_mesh_pair(source, &case.deformed(target, width), &Seeding::default())?;
+    let deformed = case.deformed(target, width);
+    let reg = register_mesh_pair(source, &deformed, &Seeding::default())?;
     let score = case.score(source, &reg.points, width);
     Ok((score, reg.graph.nodes.len(), reg.summary.seconds))
 }

@@ -27,6 +27,12 @@ const BINS: usize = 512;
 const SPREAD: f64 = 0.01;
 /// An alignment fits when its correlation is at least this share of the best one's.
 const FIT: f64 = 0.9;
+/// Two rims are taken for one only when their best alignment's correlation reaches this: a
+/// rectangle of another aspect, or a sheet cut in half, correlates about 0.5.
+const SAME_RIM: f64 = 0.8;
+/// … and when their lengths differ by less than this factor (a saddle of rims 0.15 of the
+/// width high stretches its rim by a few percent).
+const LENGTH_RATIO: f64 = 1.25;
 /// A rim whose turning varies, root mean square about its mean, by less than this share of 2π
 /// per bin (a disc's rim turns 2π in all) has nothing to align by: a circle, or a tube's rim,
 /// turns the same everywhere.
@@ -193,7 +199,8 @@ pub(crate) struct RimAlignment {
 }
 
 /// The alignments of two rims' turning signals that fit: local maxima of the circular
-/// correlation, in both directions, within [`FIT`] of the best, best first. Empty when either rim
+/// correlation, in both directions, within [`FIT`] of the best, best first. Empty when the best
+/// correlates less than [`SAME_RIM`] (not the same outline) or when either rim
 /// turns the same everywhere.
 pub(crate) fn rim_alignments(source: &Rim, target: &Rim) -> Vec<RimAlignment> {
     let (f, g) = (source.signal(), target.signal());
@@ -225,6 +232,9 @@ pub(crate) fn rim_alignments(source: &Rim, target: &Rim) -> Vec<RimAlignment> {
     }
     found.sort_by(|a, b| b.score.total_cmp(&a.score));
     let best = found.first().map_or(0.0, |a| a.score);
+    if best < SAME_RIM {
+        return Vec::new();
+    }
     found.retain(|a| a.score >= FIT * best);
     found
 }
@@ -273,12 +283,18 @@ fn rim_anchors(
 /// For every source vertex a target vertex, found from the two meshes' rims alone: no position
 /// is compared until the choice between symmetric fits, which takes the least motion (the least
 /// mean distance from each source vertex to its match). `None` when either mesh has no usable
-/// rim (closed, non-manifold, or a rim that turns the same everywhere) or is too small.
+/// rim (closed, non-manifold, or a rim that turns the same everywhere) or is too small, or when
+/// the two rims are not one outline (lengths or turning too different: another shape, or part
+/// of it).
 pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize>> {
     if source.points.len() < ANCHORS || target.points.len() < ANCHORS {
         return None;
     }
     let (s_rim, t_rim) = (Rim::longest(source)?, Rim::longest(target)?);
+    let ratio = t_rim.length / s_rim.length;
+    if !(1.0 / LENGTH_RATIO..=LENGTH_RATIO).contains(&ratio) {
+        return None;
+    }
     let alignments = rim_alignments(&s_rim, &t_rim);
     alignments
         .par_iter()
@@ -376,6 +392,44 @@ mod tests {
         .expect("the rims align");
         let right = (0..n).filter(|&v| matches[v] == new_of(v)).count();
         assert_eq!(right, n);
+    }
+
+    fn sheet_points(
+        columns: usize,
+        rows: usize,
+        width: f64,
+        height: f64,
+    ) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+        let mut sheet = flat_sheet(columns, rows, width);
+        // flat_sheet is 0.6 × width tall; stretch it to `height`
+        sheet
+            .vertices
+            .iter_mut()
+            .for_each(|v| v.y *= (height / (0.6 * width)) as f32);
+        (points_of(&sheet), sheet.faces)
+    }
+
+    #[test]
+    fn another_outline_or_a_part_is_not_aligned() {
+        let (rect, rect_faces) = sheet_points(21, 13, 1.0, 0.6);
+        let (square, square_faces) = sheet_points(17, 17, 0.8, 0.8);
+        let (half, half_faces) = sheet_points(11, 13, 0.5, 0.6);
+        let rect = MeshRef {
+            points: &rect,
+            faces: &rect_faces,
+        };
+        // the same perimeter, corners elsewhere
+        let square = MeshRef {
+            points: &square,
+            faces: &square_faces,
+        };
+        assert!(rim_matches(rect, square).is_none());
+        let half = MeshRef {
+            points: &half,
+            faces: &half_faces,
+        };
+        assert!(rim_matches(rect, half).is_none());
+        assert!(rim_matches(rect, rect).is_some());
     }
 
     #[test]

@@ -283,6 +283,21 @@ impl DeformationGraph {
             });
     }
 
+    /// The same graph with every length multiplied by `k` (positions, radii, the spacing and the
+    /// motions' translations): the warp of points scaled by `k` is the warp scaled by `k`.
+    pub fn scale(&mut self, k: f64) {
+        self.params.spacing *= k;
+        for n in &mut self.nodes {
+            n.position *= k;
+            n.radius *= k;
+            let mut m = rigid_motion(&n.motion);
+            m.translation.vector *= k;
+            n.motion = dual_quaternion(&m);
+        }
+        let positions: Vec<[f64; 3]> = self.nodes.iter().map(|n| n.position.into()).collect();
+        self.tree = ImmutableKdTree::new_from_slice(&positions);
+    }
+
     /// Applies a rigid motion after the warp: every node's motion becomes `T A_k`. Blending is
     /// linear in the nodes, so the warp becomes exactly `T ∘ W`.
     pub fn premultiply(&mut self, t: &Isometry3<f64>) {
