@@ -89,9 +89,16 @@ struct SheetArgs {
     /// Vertices along the sheet's width (its height gets 0.6 × as many, rounded).
     #[arg(long, num_args = 1.., default_values_t = [21, 41])]
     columns: Vec<usize>,
-    /// The rigid motion's shift, metres (its turn is 15°).
+    /// The rigid motion's shift, metres.
     #[arg(long, default_value_t = 0.03)]
     shift: f64,
+    /// The rigid motion's turn, degrees.
+    #[arg(long, default_value_t = 15.0)]
+    turn: f64,
+    /// Each deformation's amount as a multiple of the issue's largest (1: an S of 69°, a roll of
+    /// 180°, a fold of 90°, a twist of 0.8 rad, a saddle 0.15 of the width high).
+    #[arg(long, default_value_t = 1.0)]
+    amount: f64,
     /// Mesh each target apart from its source: 1.4 × the columns and rows, its inner vertices
     /// moved at random by up to 0.3 of their spacing (seeded), so that no vertex has a copy.
     #[arg(long)]
@@ -213,15 +220,19 @@ fn grid_experiment(session: &Session) -> Result<()> {
 /// Issue 26's sheets: one row per case, size and mesh, with the largest and mean vertex error
 /// as a share of the largest displacement.
 fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
-    if args.sizes.iter().any(|s| !(s.is_finite() && *s > 0.0)) || !args.shift.is_finite() {
+    if args.sizes.iter().any(|s| !(s.is_finite() && *s > 0.0))
+        || ![args.shift, args.turn, args.amount]
+            .iter()
+            .all(|v| v.is_finite())
+    {
         return Err(cli::bad_input(
-            "--sizes must be positive and --shift finite",
+            "--sizes must be positive, and --shift, --turn and --amount finite",
         ));
     }
     if args.columns.iter().any(|&c| c < 3) {
         return Err(cli::bad_input("--columns must be at least 3"));
     }
-    let cases = SheetDeformation::cases(args.shift);
+    let cases = SheetDeformation::cases(args.amount, args.turn, args.shift);
     let total = cases.len() * args.sizes.len() * args.columns.len();
     let bar = session.progress(total as u64, "cases");
     let row = |line: String| bar.suspend(|| println!("{line}"));

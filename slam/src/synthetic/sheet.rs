@@ -246,22 +246,29 @@ impl SheetDeformation {
         score
     }
 
-    /// The cases of `nonrigid_register sheets`: each shape at its issue's largest amount, alone
-    /// and followed by a rigid motion of 15° and `shift` metres.
-    pub fn cases(shift: f64) -> Vec<SheetDeformation> {
+    /// The cases of `nonrigid_register sheets`: each shape at `amount` × its issue's largest
+    /// amount (1: an S of 69°, a roll of 180°, a fold of 90°, a twist of 0.8 rad, a saddle 0.15
+    /// W high), alone and followed by a rigid motion of `degrees` and `shift` metres.
+    pub fn cases(amount: f64, degrees: f64, shift: f64) -> Vec<SheetDeformation> {
         let shapes = [
-            SheetShape::SBend { tilt: 1.2 },
-            SheetShape::Roll { angle: PI },
-            SheetShape::Fold { angle: PI / 2.0 },
-            SheetShape::Twist { angle: 0.8 },
-            SheetShape::Saddle { height: 0.15 },
+            SheetShape::SBend { tilt: 1.2 * amount },
+            SheetShape::Roll { angle: PI * amount },
+            SheetShape::Fold {
+                angle: PI / 2.0 * amount,
+            },
+            SheetShape::Twist {
+                angle: 0.8 * amount,
+            },
+            SheetShape::Saddle {
+                height: 0.15 * amount,
+            },
         ];
         let mut out = Vec::new();
         for shape in shapes {
             out.push(SheetDeformation { shape, rigid: None });
             out.push(SheetDeformation {
                 shape,
-                rigid: Some(case_motion(15.0, shift)),
+                rigid: Some(case_motion(degrees, shift)),
             });
         }
         out
