@@ -410,6 +410,31 @@ mod tests {
     }
 
     #[test]
+    fn a_square_that_fits_eight_ways_takes_the_least_motion() {
+        // a square rim aligns four ways round and four mirrored; an S-bend moved by 15° and
+        // 3 cm leaves one of them the least motion
+        let (points, faces) = sheet_points(17, 17, 0.8, 0.8);
+        let case = SheetDeformation {
+            shape: SheetShape::SBend { tilt: 1.2 },
+            rigid: Some(crate::synthetic::sheet::case_motion(15.0, 0.03)),
+        };
+        let target: Vec<Vector3<f64>> = points
+            .iter()
+            .map(|p| case.apply(&nalgebra::Point3::from(*p), 0.8).coords)
+            .collect();
+        let mesh = |p| MeshRef {
+            points: p,
+            faces: &faces,
+        };
+        let s_rim = Rim::longest(mesh(&points)).unwrap();
+        let t_rim = Rim::longest(mesh(&target)).unwrap();
+        assert_eq!(rim_alignments(&s_rim, &t_rim).len(), 8);
+        let matches = rim_matches(mesh(&points), mesh(&target)).unwrap();
+        let right = matches.iter().enumerate().filter(|(v, m)| v == *m).count();
+        assert_eq!(right, points.len());
+    }
+
+    #[test]
     fn another_outline_or_a_part_is_not_aligned() {
         let (rect, rect_faces) = sheet_points(21, 13, 1.0, 0.6);
         let (square, square_faces) = sheet_points(17, 17, 0.8, 0.8);
