@@ -114,9 +114,13 @@ fn angle_sums(mesh: MeshRef<'_>) -> Vec<f64> {
 }
 
 impl Rim {
-    /// The mesh's longest boundary loop, or `None` for a closed mesh or a non-manifold rim.
-    /// Faces must name existing vertices.
+    /// The mesh's longest boundary loop, or `None` for a closed mesh, a non-manifold rim or a
+    /// face that names a vertex the mesh does not have.
     pub(crate) fn longest(mesh: MeshRef<'_>) -> Option<Rim> {
+        let n = mesh.points.len();
+        if mesh.faces.iter().flatten().any(|&v| v as usize >= n) {
+            return None;
+        }
         let loops = boundary_loops(mesh.faces)?;
         let sums = angle_sums(mesh);
         loops
@@ -468,5 +472,12 @@ mod tests {
         assert!(rim_matches(mesh, mesh).is_none());
         // two triangles that share only a vertex: two rim edges leave it
         assert!(boundary_loops(&[[0, 1, 2], [0, 3, 4]]).is_none());
+        // a face naming a vertex that is not there
+        let few = &points[..3];
+        assert!(Rim::longest(MeshRef {
+            points: few,
+            faces: &faces,
+        })
+        .is_none());
     }
 }

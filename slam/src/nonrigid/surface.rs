@@ -44,7 +44,8 @@ pub struct SurfaceMesh<'a> {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Seeding {
     /// Seeded passes after the first, unseeded one (default 2); each places its anchors with the
-    /// pass before it. 0 is [`register_surfaces`] alone.
+    /// pass before it. 0 is one closest-point pass, as [`register_surfaces`] (in units of the
+    /// source's size), with no seeds at all: not the rim's either.
     pub passes: usize,
     /// Stages of a seeded pass that take the descriptor correspondences (default 1: λ = 100
     /// of [`clean_surface_settings`]).
@@ -338,7 +339,12 @@ pub fn register_meshes(
             faces: target.faces,
         },
     );
-    if let Some(partner) = rim_matches(source_mesh, target_mesh) {
+    let rim = if seeding.passes > 0 {
+        rim_matches(source_mesh, target_mesh)
+    } else {
+        None
+    };
+    if let Some(partner) = rim {
         passes.add_guess(&partner);
         let seeds = Seeds {
             replace_all: true,
