@@ -14,11 +14,11 @@
 //! are intrinsically equal, so the choice is the one that moves the surface least: the least
 //! mean distance between each source vertex and its match.
 
-use super::descriptors::{geodesic_descriptors_two_ring, MeshRef, ANCHORS};
+use super::descriptors::{MeshRef, SurfacePaths, ANCHORS};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::f64::consts::PI;
 
 /// Bins of the turning signal around a rim.
@@ -52,16 +52,14 @@ pub(crate) struct Rim {
 /// has is on the boundary, and the loops follow those edges. `None` where the boundary is not a
 /// set of simple loops (a vertex with two boundary edges leaving it: a non-manifold rim).
 pub(crate) fn boundary_loops(faces: &[[u32; 3]]) -> Option<Vec<Vec<u32>>> {
-    let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(faces.len() * 3);
-    for f in faces {
-        for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
-            *directed.entry((a, b)).or_insert(0) += 1;
-        }
-    }
-    let mut next: HashMap<u32, u32> = HashMap::new();
-    for (&(a, b), _) in directed
+    let directed: HashSet<(u32, u32)> = faces
         .iter()
-        .filter(|(&(a, b), _)| !directed.contains_key(&(b, a)) && a != b)
+        .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+        .collect();
+    let mut next: HashMap<u32, u32> = HashMap::new();
+    for &(a, b) in directed
+        .iter()
+        .filter(|&&(a, b)| !directed.contains(&(b, a)) && a != b)
     {
         if next.insert(a, b).is_some() {
             return None;
@@ -69,7 +67,7 @@ pub(crate) fn boundary_loops(faces: &[[u32; 3]]) -> Option<Vec<Vec<u32>>> {
     }
     let mut starts: Vec<u32> = next.keys().copied().collect();
     starts.sort_unstable();
-    let mut seen = std::collections::HashSet::new();
+    let mut seen = HashSet::new();
     let mut loops = Vec::new();
     for start in starts {
         if seen.contains(&start) {
@@ -270,18 +268,9 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// [`ANCHORS`] source rim vertices evenly spaced by arc length, and their partners on the target's
-/// rim under `alignment`.
-fn rim_anchors(
-    source: &Rim,
-    target: &Rim,
-    alignment: &RimAlignment,
-) -> ([usize; ANCHORS], [usize; ANCHORS]) {
-    let at: [usize; ANCHORS] =
-        std::array::from_fn(|k| source.index_at(k as f64 / ANCHORS as f64 * source.length));
-    let from = at.map(|i| source.vertices[i] as usize);
-    let to = at.map(|i| target.vertices[target.partner_of(source, i, alignment)] as usize);
-    (from, to)
+/// The rim indices of [`ANCHORS`] vertices evenly spaced by arc length round `rim`.
+fn anchor_indices(rim: &Rim) -> [usize; ANCHORS] {
+    std::array::from_fn(|k| rim.index_at(k as f64 / ANCHORS as f64 * rim.length))
 }
 
 /// For every source vertex a target vertex, found from the two meshes' rims alone: no position
@@ -300,18 +289,26 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize
         return None;
     }
     let alignments = rim_alignments(&s_rim, &t_rim);
+    if alignments.is_empty() {
+        return None;
+    }
+    // the source's anchors and descriptors are the same under every alignment
+    let at = anchor_indices(&s_rim);
+    let d_source = SurfacePaths::two_ring(source)
+        .ok()?
+        .descriptors(&at.map(|i| s_rim.vertices[i] as usize));
+    let target_paths = SurfacePaths::two_ring(target).ok()?;
+    // a surface that stretches (a saddle) stretches its rim too: compare distances in units of
+    // each rim's length
+    let shrink = s_rim.length / t_rim.length;
     alignments
         .par_iter()
-        .filter_map(|a| {
-            let (from, to) = rim_anchors(&s_rim, &t_rim, a);
-            let d_source = geodesic_descriptors_two_ring(source, &from).ok()?;
-            let mut d_target = geodesic_descriptors_two_ring(target, &to).ok()?;
-            // a surface that stretches (a saddle) stretches its rim too: compare distances in
-            // units of each rim's length
-            let ratio = s_rim.length / t_rim.length;
+        .map(|a| {
+            let to = at.map(|i| t_rim.vertices[t_rim.partner_of(&s_rim, i, a)] as usize);
+            let mut d_target = target_paths.descriptors(&to);
             d_target
                 .iter_mut()
-                .for_each(|d| d.iter_mut().for_each(|x| *x *= ratio));
+                .for_each(|d| d.iter_mut().for_each(|x| *x *= shrink));
             let tree: ImmutableKdTree<f64, ANCHORS> = ImmutableKdTree::new_from_slice(&d_target);
             let mut matches: Vec<usize> = d_source
                 .iter()
@@ -326,7 +323,7 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize
                 .enumerate()
                 .map(|(v, &m)| (target.points[m] - source.points[v]).norm())
                 .sum::<f64>();
-            Some((motion, matches))
+            (motion, matches)
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, m)| m)

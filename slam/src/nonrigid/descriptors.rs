@@ -110,39 +110,80 @@ pub(crate) fn geodesic_descriptors(
     mesh: MeshRef<'_>,
     anchors: &[usize; ANCHORS],
 ) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
-    let edges = mesh_edges(mesh)?;
-    Ok(descriptors_along(mesh, &edges, anchors))
+    Ok(SurfacePaths::along_edges(mesh)?.descriptors(anchors))
 }
 
-/// As [`geodesic_descriptors`], over paths that may also cut straight from a vertex to any vertex
-/// of its second ring. A grid's triangles have their diagonals one way only, so paths along the
-/// edges alone overestimate distances across the other diagonal by up to 41 %, and differently
-/// on two meshes of one surface; with the second ring the worst direction is 2.7 % long on a
-/// square grid.
-pub(crate) fn geodesic_descriptors_two_ring(
-    mesh: MeshRef<'_>,
-    anchors: &[usize; ANCHORS],
-) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
-    let edges = mesh_edges(mesh)?;
-    let mut ring: Vec<Vec<u32>> = vec![Vec::new(); mesh.points.len()];
-    for &(a, b) in &edges {
-        ring[a as usize].push(b);
-        ring[b as usize].push(a);
+/// A mesh's graph of shortest paths, built once and asked from many sets of anchors.
+pub(crate) struct SurfacePaths {
+    vertices: usize,
+    graph: UnGraph<(), f64>,
+}
+
+impl SurfacePaths {
+    /// Paths along the mesh's edges.
+    pub(crate) fn along_edges(mesh: MeshRef<'_>) -> Result<Self, DescriptorError> {
+        Ok(Self::over(mesh, &mesh_edges(mesh)?))
     }
-    let mut wide = edges.clone();
-    for (v, near) in ring.iter().enumerate() {
-        for &u in near {
-            wide.extend(
-                ring[u as usize]
-                    .iter()
-                    .filter(|&&w| w as usize > v)
-                    .map(|&w| (v as u32, w)),
-            );
+
+    /// Paths that may also cut straight from a vertex to any vertex of its second ring. A grid's
+    /// triangles have their diagonals one way only, so paths along the edges alone overestimate
+    /// distances across the other diagonal by up to 41 %, and differently on two meshes of one
+    /// surface; with the second ring the worst direction is 2.7 % long on a square grid.
+    pub(crate) fn two_ring(mesh: MeshRef<'_>) -> Result<Self, DescriptorError> {
+        let edges = mesh_edges(mesh)?;
+        let mut ring: Vec<Vec<u32>> = vec![Vec::new(); mesh.points.len()];
+        for &(a, b) in &edges {
+            ring[a as usize].push(b);
+            ring[b as usize].push(a);
         }
+        let mut wide = edges.clone();
+        for (v, near) in ring.iter().enumerate() {
+            for &u in near {
+                wide.extend(
+                    ring[u as usize]
+                        .iter()
+                        .filter(|&&w| w as usize > v)
+                        .map(|&w| (v as u32, w)),
+                );
+            }
+        }
+        wide.sort_unstable();
+        wide.dedup();
+        Ok(Self::over(mesh, &wide))
     }
-    wide.sort_unstable();
-    wide.dedup();
-    Ok(descriptors_along(mesh, &wide, anchors))
+
+    /// The graph of `edges`, each as long as the straight line between its ends.
+    fn over(mesh: MeshRef<'_>, edges: &[(u32, u32)]) -> Self {
+        let n = mesh.points.len();
+        let mut graph = UnGraph::<(), f64>::from_edges(edges.iter().map(|&(a, b)| {
+            let length = (mesh.points[a as usize] - mesh.points[b as usize]).norm();
+            (a, b, length)
+        }));
+        while graph.node_count() < n {
+            graph.add_node(());
+        }
+        Self { vertices: n, graph }
+    }
+
+    /// Each vertex's shortest-path distances to the `ANCHORS` anchors (see
+    /// [`geodesic_descriptors`] for unreachable vertices).
+    pub(crate) fn descriptors(&self, anchors: &[usize; ANCHORS]) -> Vec<[f64; ANCHORS]> {
+        let n = self.vertices;
+        let columns: Vec<Vec<f64>> = anchors
+            .par_iter()
+            .map(|&a| {
+                let reached =
+                    petgraph::algo::dijkstra(&self.graph, NodeIndex::new(a), None, |e| *e.weight());
+                let far = 2.0 * reached.values().copied().fold(0.0, f64::max);
+                (0..n)
+                    .map(|v| reached.get(&NodeIndex::new(v)).copied().unwrap_or(far))
+                    .collect()
+            })
+            .collect();
+        (0..n)
+            .map(|v| std::array::from_fn(|k| columns[k][v]))
+            .collect()
+    }
 }
 
 /// The mesh's edges, each once as (smaller, larger) vertex index.
@@ -165,36 +206,6 @@ fn mesh_edges(mesh: MeshRef<'_>) -> Result<Vec<(u32, u32)>, DescriptorError> {
     edges.sort_unstable();
     edges.dedup();
     Ok(edges)
-}
-
-/// Shortest-path distances over `edges` (straight lengths) from each anchor to every vertex.
-fn descriptors_along(
-    mesh: MeshRef<'_>,
-    edges: &[(u32, u32)],
-    anchors: &[usize; ANCHORS],
-) -> Vec<[f64; ANCHORS]> {
-    let n = mesh.points.len();
-    let mut graph = UnGraph::<(), f64>::from_edges(edges.iter().map(|&(a, b)| {
-        let length = (mesh.points[a as usize] - mesh.points[b as usize]).norm();
-        (a, b, length)
-    }));
-    while graph.node_count() < n {
-        graph.add_node(());
-    }
-    let columns: Vec<Vec<f64>> = anchors
-        .par_iter()
-        .map(|&a| {
-            let reached =
-                petgraph::algo::dijkstra(&graph, NodeIndex::new(a), None, |e| *e.weight());
-            let far = 2.0 * reached.values().copied().fold(0.0, f64::max);
-            (0..n)
-                .map(|v| reached.get(&NodeIndex::new(v)).copied().unwrap_or(far))
-                .collect()
-        })
-        .collect();
-    (0..n)
-        .map(|v| std::array::from_fn(|k| columns[k][v]))
-        .collect()
 }
 
 /// For every source vertex, the target vertex whose geodesic descriptor is nearest its own.

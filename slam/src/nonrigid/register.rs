@@ -424,13 +424,9 @@ impl WarpOptimiser {
     /// distance gate (or the point found no partner): the seeds are coarse, closest point is
     /// exact where it is right, and they disagree where closest point took the wrong part.
     fn take_seeds(&mut self, seeds: &Seeds) {
-        let gate = if seeds.replace_all {
-            -1.0
-        } else {
-            self.params.max_distance * self.params.max_distance
-        };
+        let gate = self.params.max_distance * self.params.max_distance;
         for (m, s) in self.matches.iter_mut().zip(&seeds.matches) {
-            if m.is_none_or(|(q, _)| (q - s.0).norm_squared() > gate) {
+            if seeds.replace_all || m.is_none_or(|(q, _)| (q - s.0).norm_squared() > gate) {
                 *m = Some(*s);
             }
         }
