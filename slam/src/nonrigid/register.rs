@@ -208,6 +208,9 @@ pub struct RegisterSummary {
     pub seconds: f64,
     /// Where they went.
     pub times: RegisterTimes,
+    /// The rigid pre-alignment's motion, applied to every node before the warp was optimised
+    /// (identity when none was found).
+    pub prealigned: Isometry3<f64>,
 }
 
 /// Seconds spent in each stage of one optimisation.
@@ -314,7 +317,7 @@ impl WarpOptimiser {
             *t += (now - clock).as_secs_f64();
             clock = now;
         };
-        self.prealign(graph, points, normals, bindings, target, guesses);
+        let prealigned = self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
         self.start_system(graph, bindings)?;
         let mut iterations = 0;
@@ -341,16 +344,21 @@ impl WarpOptimiser {
                     stay_weight: self.params.stay_weight,
                 };
                 let mut evaluate = 0.0;
-                iterations += self.system.minimise(
+                let done = self.system.minimise(
                     &terms,
                     self.params.iterations,
                     self.params.damping,
                     &mut evaluate,
                 )?;
+                iterations += done.iterations;
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`
                 times.evaluate += evaluate;
                 times.linear -= evaluate;
+                if !done.moved {
+                    // nothing moved, so the next round would match and minimise the same
+                    break;
+                }
                 for (node, m) in graph.nodes.iter_mut().zip(self.system.motions()) {
                     node.motion = dual_quaternion(m);
                 }
@@ -367,6 +375,7 @@ impl WarpOptimiser {
             matched,
             seconds: start.elapsed().as_secs_f64(),
             times,
+            prealigned,
         })
     }
 
@@ -449,7 +458,7 @@ impl WarpOptimiser {
     /// Rigid ICP (point-to-plane and point-to-point) of the warped points onto the target from each
     /// of `guesses`; the motion that leaves the points closest to the target (mean distance to their
     /// closest partner, capped at the gate) is applied to every node. With no rigid iterations, the
-    /// closest of the guesses themselves is applied.
+    /// closest of the guesses themselves is applied. Returns the motion applied.
     fn prealign(
         &mut self,
         graph: &mut DeformationGraph,
@@ -458,13 +467,12 @@ impl WarpOptimiser {
         bindings: &[Binding],
         target: &dyn Target,
         guesses: &[Isometry3<f64>],
-    ) {
+    ) -> Isometry3<f64> {
         if self.params.rigid_iterations == 0 && guesses.len() <= 1 {
             // a single guess taken as it is needs no scoring
-            if let Some(t) = guesses.first() {
-                graph.premultiply(t);
-            }
-            return;
+            let t = guesses.first().copied().unwrap_or_else(Isometry3::identity);
+            graph.premultiply(&t);
+            return t;
         }
         graph.warp_all(
             bindings,
@@ -491,12 +499,11 @@ impl WarpOptimiser {
             // no refinement: the guess that fits best as it is
             let best = guesses
                 .iter()
-                .map(|g| (terms.spread(g), g))
+                .map(|g| (terms.spread(g), *g))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
-            if let Some((_, t)) = best {
-                graph.premultiply(t);
-            }
-            return;
+            let t = best.map_or_else(Isometry3::identity, |(_, t)| t);
+            graph.premultiply(&t);
+            return t;
         }
         for guess in guesses {
             let mut x = [0.0; 7];
@@ -526,9 +533,9 @@ impl WarpOptimiser {
                 best = Some((score, t));
             }
         }
-        if let Some((_, t)) = best {
-            graph.premultiply(&t);
-        }
+        let t = best.map_or_else(Isometry3::identity, |(_, t)| t);
+        graph.premultiply(&t);
+        t
     }
 
     /// The regulariser edges of a stage: every directed edge (i, j) with weight λ φ_ij.

@@ -90,6 +90,33 @@ pub(crate) struct WarpTerms<'a> {
     pub stay_weight: f64,
 }
 
+/// Relative change of the cost below which one round's minimisation has converged: a step
+/// that gained less, or a rejected one whose model promised less.
+const FUNCTION_TOLERANCE: f64 = 1e-10;
+
+/// What one call of [`WarpSystem::minimise`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Minimised {
+    /// Iterations taken (each one factorisation).
+    pub iterations: usize,
+    /// Whether any step was taken: if not, the motions are as they were.
+    pub moved: bool,
+}
+
+/// What one trial step came to.
+enum Trial {
+    /// The cost fell to `cost` with gain ratio `gain`; `converged` when by less than the
+    /// function tolerance (or the step was negligible).
+    Taken {
+        cost: f64,
+        gain: f64,
+        converged: bool,
+    },
+    /// The cost did not fall (or H + μI could not be factorised); `negligible` when the model
+    /// promised less than the function tolerance, so that no damping would gain more.
+    Rejected { negligible: bool },
+}
+
 /// The assembled system, its structure and the buffers reused across iterations and calls.
 #[derive(Default)]
 pub(crate) struct WarpSystem {
@@ -200,8 +227,8 @@ impl WarpSystem {
     }
 
     /// Up to `iterations` Levenberg-Marquardt iterations from the current motions (Madsen, Nielsen
-    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken;
-    /// adds the seconds spent linearising and costing trial points to `evaluate_seconds` (the rest
+    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken
+    /// and whether any step was; adds the seconds spent linearising and costing trial points to `evaluate_seconds` (the rest
     /// is factorising and solving).
     pub fn minimise(
         &mut self,
@@ -209,7 +236,7 @@ impl WarpSystem {
         iterations: usize,
         damping: f64,
         evaluate_seconds: &mut f64,
-    ) -> Result<usize, SolveError> {
+    ) -> Result<Minimised, SolveError> {
         let clock = Instant::now();
         let mut cost = self.linearise(terms);
         *evaluate_seconds += clock.elapsed().as_secs_f64();
@@ -218,7 +245,7 @@ impl WarpSystem {
         }
         let mut lm =
             LevenbergDamping::new(damping * self.system().max_diagonal().max(f64::MIN_POSITIVE));
-        let mut done = 0;
+        let (mut done, mut moved) = (0, false);
         while done < iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
@@ -229,44 +256,46 @@ impl WarpSystem {
                 .solve(Damping::Identity(lm.mu()), &mut step);
             let clock = Instant::now();
             // a failed factorisation is a rejected step
-            let trial = solved
-                .ok()
-                .and_then(|()| self.try_step(terms, &step, lm.mu(), cost));
+            let trial = match solved {
+                Ok(()) => self.try_step(terms, &step, lm.mu(), cost),
+                Err(_) => Trial::Rejected { negligible: false },
+            };
             self.step = step;
             match trial {
-                Some((new_cost, gain, converged)) => {
+                Trial::Taken {
+                    cost: new_cost,
+                    gain,
+                    converged,
+                } => {
                     cost = if done < iterations && !converged {
                         self.linearise(terms)
                     } else {
                         new_cost
                     };
                     lm.taken(gain);
+                    moved = true;
                     *evaluate_seconds += clock.elapsed().as_secs_f64();
                     if converged {
                         break;
                     }
                 }
-                None => {
+                Trial::Rejected { negligible } => {
                     *evaluate_seconds += clock.elapsed().as_secs_f64();
-                    if !lm.rejected() {
+                    if negligible || !lm.rejected() {
                         break;
                     }
                 }
             }
         }
-        Ok(done)
+        Ok(Minimised {
+            iterations: done,
+            moved,
+        })
     }
 
     /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`) and takes them when
-    /// the cost falls: returns the new cost, the gain ratio and whether the change was below
-    /// tolerance, or None (motions unchanged) when the step is rejected.
-    fn try_step(
-        &mut self,
-        terms: &WarpTerms<'_>,
-        step: &[f64],
-        mu: f64,
-        cost: f64,
-    ) -> Option<(f64, f64, bool)> {
+    /// the cost falls ([`Trial`]).
+    fn try_step(&mut self, terms: &WarpTerms<'_>, step: &[f64], mu: f64, cost: f64) -> Trial {
         // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
         let g = self.system().gradient();
         let predicted = Damping::Identity(mu).predicted_decrease(step, g, std::iter::empty());
@@ -286,14 +315,20 @@ impl WarpSystem {
         let new_cost = cost_at(terms, &self.trial, &self.trial_dqs);
         let actual = cost - new_cost;
         let gain = actual / predicted;
+        let tolerance = FUNCTION_TOLERANCE * cost.max(f64::MIN_POSITIVE);
         if !(new_cost.is_finite() && predicted > 0.0 && gain > 0.0) {
-            return None;
+            return Trial::Rejected {
+                negligible: predicted.is_finite() && predicted.abs() < tolerance,
+            };
         }
         std::mem::swap(&mut self.motions, &mut self.trial);
         std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
         let step_norm = step.iter().map(|d| d * d).sum::<f64>().sqrt();
-        let converged = actual.abs() < 1e-10 * cost.max(f64::MIN_POSITIVE) || step_norm < 1e-10;
-        Some((new_cost, gain, converged))
+        Trial::Taken {
+            cost: new_cost,
+            gain,
+            converged: actual < tolerance || step_norm < 1e-10,
+        }
     }
 
     fn system(&self) -> &BlockSystem {
@@ -800,7 +835,7 @@ mod tests {
         let before = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         let mut seconds = 0.0;
         let taken = ws.minimise(&terms, 5, 1e-4, &mut seconds).unwrap();
-        assert!(taken >= 1);
+        assert!(taken.iterations >= 1 && taken.moved);
         let after = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         assert!(after < 0.5 * before, "{before} -> {after}");
         let entries = ws.system().num_entries();

@@ -110,11 +110,16 @@ impl PlateDeformation {
 }
 
 /// The registration settings of the experiment: [`clean_surface_settings`] in metres (gate 10 cm,
-/// Tukey's c 5 cm) with a node about every vertex spacing.
+/// Tukey's c 5 cm) with a node about every vertex spacing, and run to convergence as the thesis
+/// did: eight stages (λ down to 1e-5) of six matchings with six steps each. The defaults' six
+/// stages of eight single steps leave the wave at 1.6e-3 m instead of 2.2e-4.
 pub fn registration_settings() -> (GraphParams, RegisterParams) {
     let (mut graph, mut params) = clean_surface_settings(1.0);
     graph.spacing = SPACING;
     params.max_distance = 0.1;
     params.tukey = 0.05;
+    params.schedule = vec![100.0, 10.0, 1.0, 0.1, 1e-2, 1e-3, 1e-4, 1e-5];
+    params.rounds = 6;
+    params.iterations = 6;
     (graph, params)
 }
