@@ -52,6 +52,12 @@ pub struct Seeding {
     pub stages: usize,
     /// Tukey's c in those stages, as a multiple of the usual one (default 8).
     pub tukey_scale: f64,
+    /// Levenberg-Marquardt steps per round in those stages, at least (default 2).
+    pub iterations: usize,
+    /// Rounds per stage of the first, unseeded pass when seeded passes follow (default 3, at
+    /// most the settings' rounds): that pass only places the anchors of the next, and on the
+    /// camel three rounds placed them as well as ten.
+    pub anchor_rounds: usize,
     /// The part of the source nearest its centroid over which the anchors are spread (default
     /// 0.15).
     pub core_fraction: f64,
@@ -63,6 +69,8 @@ impl Default for Seeding {
             passes: 2,
             stages: 1,
             tukey_scale: 8.0,
+            iterations: 2,
+            anchor_rounds: 3,
             core_fraction: 0.15,
         }
     }
@@ -244,6 +252,7 @@ impl Passes {
             stages: seeding.stages,
             tukey_scale: seeding.tukey_scale,
             replace_all: false,
+            iterations: seeding.iterations,
         }
     }
 
@@ -310,7 +319,8 @@ pub fn register_mesh_pair(
 /// past each other (a galloping animal's legs), where closest point pulls a part onto its
 /// neighbour.
 ///
-/// 1. [`register_surfaces`] aligns the whole shape; its core lands where it belongs.
+/// 1. [`register_surfaces`] aligns the whole shape, with `seeding.anchor_rounds` rounds per
+///    stage; its core lands where it belongs.
 /// 2. Every source vertex is matched to the target vertex of nearest geodesic descriptor, with
 ///    anchors on the source's core and their partners from the pass before
 ///    ([`descriptor_matches`]).
@@ -320,7 +330,8 @@ pub fn register_mesh_pair(
 ///    associate by closest point alone.
 ///
 /// Steps 2 and 3 repeat `seeding.passes` times: a better pass places the anchors better. The
-/// summary is the last pass's, with the iterations, seconds and stage times of all.
+/// later passes start from the first one's rigid pre-alignment. The summary is the last
+/// pass's, with the iterations, seconds and stage times of all.
 ///
 /// Meshes with a rim that aligns ([`rim_matches`]: sheets) are registered in one pass instead,
 /// its first stage taking the rim's matches for every point. All of it runs in units of the
@@ -368,7 +379,12 @@ pub fn register_meshes(
         done.summary.seconds = start.elapsed().as_secs_f64();
         return Ok(done);
     }
+    let full_rounds = passes.params.rounds;
+    if seeding.passes > 0 {
+        passes.params.rounds = seeding.anchor_rounds.clamp(1, full_rounds);
+    }
     let mut last = passes.run(None)?;
+    passes.params.rounds = full_rounds;
     passes.keep_rigid_start(&last.summary.prealigned);
     let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
     for _ in 0..seeding.passes {
@@ -526,6 +542,28 @@ mod tests {
         }
     }
 
+    /// The later passes start from the first pass's rigid motion, carried in the caller's
+    /// units (a tube 20 times the size, so that a unit slip would show) and reported.
+    #[test]
+    fn the_passes_share_the_rigid_start_in_the_callers_units() {
+        let mut pair = TubePair::new(12, 8, 0.0);
+        let shift = Vector3::new(0.3, -0.2, 0.1) * 0.1 * bounding_diagonal(&pair.source.0);
+        for p in pair.source.0.iter_mut().chain(pair.target.0.iter_mut()) {
+            *p *= 20.0;
+        }
+        pair.target.0.iter_mut().for_each(|p| *p += shift * 20.0);
+        let reg = pair.register(2);
+        let t = reg.summary.prealigned;
+        assert!((t.translation.vector - shift * 20.0).norm() < 1e-3 * shift.norm() * 20.0);
+        assert!(t.rotation.angle() < 1e-3, "{t:?}");
+        let d = bounding_diagonal(&pair.source.0);
+        assert!(
+            pair.error(&reg.points) < 1e-3 * d,
+            "{}",
+            pair.error(&reg.points)
+        );
+    }
+
     #[test]
     fn seeds_that_are_not_one_per_point_are_an_error() {
         let (sp, faces) = tube(6, 8, 0.0);
@@ -538,6 +576,7 @@ mod tests {
             stages: 1,
             tukey_scale: 8.0,
             replace_all: false,
+            iterations: 2,
         };
         let result = WarpOptimiser::new(params).optimise_from(
             &mut graph,

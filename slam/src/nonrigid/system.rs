@@ -810,28 +810,43 @@ mod tests {
         }
     }
 
-    /// Levenberg-Marquardt lowers the cost, and the structure stays while the pairs fit.
-    #[test]
-    fn iterations_lower_the_cost_and_keep_the_structure() {
-        let (graph, points, bindings, matches) = scene();
-        let terms = WarpTerms {
-            points: &points,
-            bindings: &bindings,
-            matches: &matches,
+    /// Data terms alone (Tukey's c 5 cm, point-to-point weight 0.1).
+    fn data_only<'a>(
+        points: &'a [Vector3<f64>],
+        bindings: &'a [Binding],
+        matches: &'a Matches,
+    ) -> WarpTerms<'a> {
+        WarpTerms {
+            points,
+            bindings,
+            matches,
             tukey: 0.05,
             point_weight: 0.1,
             edges: &[],
             anchors: &[],
             stay_weight: 0.0,
-        };
+        }
+    }
+
+    /// A system prepared for `graph` and started from its nodes' motions.
+    fn system_at(graph: &DeformationGraph, bindings: &[Binding]) -> WarpSystem {
         let mut ws = WarpSystem::default();
-        ws.prepare(&graph, &bindings).unwrap();
+        ws.prepare(graph, bindings).unwrap();
         ws.set_motions(
             graph
                 .nodes
                 .iter()
                 .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion)),
         );
+        ws
+    }
+
+    /// Levenberg-Marquardt lowers the cost, and the structure stays while the pairs fit.
+    #[test]
+    fn iterations_lower_the_cost_and_keep_the_structure() {
+        let (graph, points, bindings, matches) = scene();
+        let terms = data_only(&points, &bindings, &matches);
+        let mut ws = system_at(&graph, &bindings);
         let before = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         let mut seconds = 0.0;
         let taken = ws.minimise(&terms, 5, 1e-4, &mut seconds).unwrap();
@@ -841,5 +856,37 @@ mod tests {
         let entries = ws.system().num_entries();
         ws.prepare(&graph, &bindings[..50]).unwrap();
         assert_eq!(ws.system().num_entries(), entries);
+    }
+
+    /// At the optimum (every match where its point already lands) no step lowers the cost; the
+    /// outcome says that nothing moved, so the caller can end its stage, and the motions are
+    /// as they were.
+    #[test]
+    fn at_the_optimum_the_minimisation_reports_that_nothing_moved() {
+        let (graph, points, bindings, _) = scene();
+        let mut warped = Vec::new();
+        let (mut wn, normals) = (Vec::new(), vec![Vector3::z(); points.len()]);
+        graph.warp_all(&bindings, &points, &normals, &mut warped, &mut wn);
+        let matches: Matches = warped
+            .iter()
+            .zip(&wn)
+            .map(|(p, n)| Some((*p, *n)))
+            .collect();
+        let terms = data_only(&points, &bindings, &matches);
+        let mut ws = system_at(&graph, &bindings);
+        let start = ws.motions.clone();
+        let mut seconds = 0.0;
+        let done = ws.minimise(&terms, 6, 1e-4, &mut seconds).unwrap();
+        assert!(!done.moved && done.iterations >= 1, "{done:?}");
+        assert_eq!(ws.motions, start);
+        // one match moved off: the same call now moves
+        let mut off = matches.clone();
+        off[7] = off[7].map(|(p, n)| (p + n * 0.01, n));
+        let terms = WarpTerms {
+            matches: &off,
+            ..terms
+        };
+        assert!(ws.minimise(&terms, 6, 1e-4, &mut seconds).unwrap().moved);
+        assert_ne!(ws.motions, start);
     }
 }
