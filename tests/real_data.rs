@@ -476,28 +476,40 @@ fn tum_fr2_frames_track() {
     }
 }
 
+/// DeepDeform's camera (its pairs' intrinsics.txt; depth in millimetres).
+fn deepdeform_camera() -> dynamap::slam::camera::Camera {
+    let mut camera =
+        dynamap::slam::camera::Camera::new(575.548, 577.46, 323.172, 236.417, 640, 480);
+    camera.depth_scale = 1000.0;
+    camera
+}
+
+/// A DeepDeform pair's depth frame `name` (in `dir/depth`), metres.
+fn deepdeform_depth(
+    dir: &std::path::Path,
+    name: &str,
+    camera: &dynamap::slam::camera::Camera,
+) -> dynamap::slam::image::DepthImage {
+    let raw = read_depth(dir.join("depth").join(name)).unwrap();
+    let mut out = dynamap::slam::image::Image::new(0, 0);
+    dynamap::slam::image::depth_to_metres(&raw, camera, &mut out);
+    out
+}
+
 /// DeepDeform seq258 (a shirt moved about 23 cm between frames 0 and 110): the scene flow of the
 /// masked shirt's pixels against the ground truth, EPE 3D under 5 cm (zero flow scores 23 cm).
 #[test]
 fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
-    use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::epe3d;
-    use dynamap::slam::image::{depth_to_metres, Image};
+    use dynamap::slam::image::Image;
     use dynamap::slam::io::flow::read_flow;
     use dynamap::slam::io::images::read_mask;
     use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameView};
     use nalgebra::Vector3;
 
     let dir = data("nonrigid/deepdeform_2pairs/train/seq258");
-    // intrinsics.txt's 4×4 matrix; depth in millimetres
-    let mut camera = Camera::new(575.548, 577.46, 323.172, 236.417, 640, 480);
-    camera.depth_scale = 1000.0;
-    let metres = |name: &str| {
-        let raw = read_depth(dir.join("depth").join(name)).unwrap();
-        let mut out = Image::new(0, 0);
-        depth_to_metres(&raw, &camera, &mut out);
-        out
-    };
+    let camera = deepdeform_camera();
+    let metres = |name: &str| deepdeform_depth(&dir, name, &camera);
     let (d0, d1) = (metres("000000.png"), metres("000110.png"));
     let (c0, c1) = (
         read_color(dir.join("color/000000.jpg")).unwrap(),
@@ -526,6 +538,60 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     println!("EPE {} m (zero flow {} m)", epe.stats.mean, zero.stats.mean);
     assert!(zero.stats.mean > 0.2, "zero flow {}", zero.stats.mean);
     assert!(epe.stats.mean < 0.05, "EPE {} m", epe.stats.mean);
+    assert_eq!(
+        reg.verdict(),
+        dynamap::slam::nonrigid::FrameVerdict::Registered
+    );
+}
+
+/// DeepDeform's test pair seq017 (300 → 600; a plain shirt lifted about 45 cm, no mask, the
+/// source's graph nodes given): the object taken from the nodes is the shirt's size, and the
+/// verdict agrees with where the source ends: reported registered only if its median distance to
+/// the target's surface is under 1 cm, and not registered otherwise.
+#[test]
+fn deepdeform_seq017_is_masked_by_its_nodes_and_its_verdict_agrees_with_the_surface() {
+    use dynamap::slam::io::deepdeform::read_graph_nodes;
+    use dynamap::slam::nonrigid::{
+        frame_points, mask_near_nodes, median_distance, register_frames, FrameSettings,
+        FrameVerdict, FrameView,
+    };
+
+    let dir = data("nonrigid/deepdeform_2pairs/test/seq017");
+    let camera = deepdeform_camera();
+    let metres = |name: &str| deepdeform_depth(&dir, name, &camera);
+    let (d0, d1) = (metres("000300.png"), metres("000600.png"));
+    let nodes = read_graph_nodes(
+        dir.join("graph_nodes/5dbd7c9104df0300f329f294_shirt_000300_000600_geodesic_0.05.bin"),
+    )
+    .unwrap();
+    assert_eq!(nodes.len(), 109);
+    let settings = FrameSettings::default();
+    let mask = mask_near_nodes(&camera, &d0, &nodes, settings.graph.spacing);
+    let pixels = mask.data.iter().filter(|&&m| m).count();
+    // the shirt covers about a tenth of the frame
+    assert!((15_000..60_000).contains(&pixels), "{pixels} object pixels");
+    let (c0, c1) = (
+        read_color(dir.join("color/000300.jpg")).unwrap(),
+        read_color(dir.join("color/000600.jpg")).unwrap(),
+    );
+    let target = FrameView::new(&camera, &d1, Some(&c1), None);
+    let reg = register_frames(
+        &FrameView::new(&camera, &d0, Some(&c0), Some(&mask)),
+        &target,
+        &settings,
+    )
+    .unwrap();
+    let surface = frame_points(&target);
+    let after = median_distance(&reg.warped, &surface).unwrap();
+    let before = median_distance(&reg.points, &surface).unwrap();
+    println!(
+        "seq017: {:?}, median distance {before} m -> {after} m",
+        reg.verdict()
+    );
+    match reg.verdict() {
+        FrameVerdict::Registered => assert!(after < 0.01, "registered at {after} m"),
+        FrameVerdict::NotRegistered { .. } => assert!(after >= 0.01, "not registered at {after} m"),
+    }
 }
 
 /// The dense Schur solver with `bal::options`, as the example runs it.

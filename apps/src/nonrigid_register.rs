@@ -4,7 +4,8 @@
 //! cargo run --release --example nonrigid_register                  # the thesis' grid experiment
 //! cargo run --release --example nonrigid_register -- meshes SOURCE TARGET --output WARPED.ply
 //! cargo run --release --example nonrigid_register -- frames D0.png D1.png --intrinsics FX FY CX CY \
-//!     --depth-scale S [--mask M.png] [--color C0] [--target-color C1] [--flow F.sflow]
+//!     --depth-scale S [--mask M.png | --mask-nodes NODES.bin] [--color C0] [--target-color C1] \
+//!     [--flow F.sflow] [--picture P.png]
 //! cargo run --release --example nonrigid_register -- sheets [--sizes 0.1 0.5 2] [--remeshed]
 //! ```
 //! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
@@ -19,6 +20,9 @@
 //! by `--color C` and `--target-color C` (with both colours, FAST/BRIEF matches give the rigid
 //! start). WARPED holds the source's valid pixels in row-major order, `--flow FLOW.sflow` writes
 //! their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow` scores it (EPE 3D).
+//! Without a mask, `--mask-nodes` takes the source's object from DeepDeform's graph nodes (its
+//! test pairs come so). The JSON gives the median distance from the source's points to the
+//! target's (inside its mask), before and after; `--picture` draws both.
 //!
 //! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
 //! copies, alone and moved rigidly, at `--sizes` widths and `--columns` resolutions (issue 26):
@@ -30,6 +34,7 @@
 //! before and after.
 
 use crate::cli;
+use crate::preview::registration_picture;
 use crate::warp_flags;
 
 use anyhow::{bail, Context, Result};
@@ -38,14 +43,16 @@ use cli::{InputError, Session};
 use dynamap_slam::camera::Camera;
 use dynamap_slam::eval::{flow_scores, EpeResult, FlowScores, Stats, VertexMap};
 use dynamap_slam::image::{depth_to_metres, ColorImage, DepthImage, Image};
+use dynamap_slam::io::deepdeform::read_graph_nodes;
 use dynamap_slam::io::flow::{read_flow, write_flow};
-use dynamap_slam::io::images::{read_color, read_depth, read_mask};
+use dynamap_slam::io::images::{read_color, read_depth, read_mask, write_color};
 use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_frames, register_mesh_pair,
-    register_meshes, register_surfaces, FrameSettings, FrameView, RegisterSummary, Seeding,
-    SurfaceMesh,
+    bounding_diagonal, clean_surface_settings, frame_points, mask_near_nodes, median_distance,
+    mesh_points, register_frames, register_mesh_pair, register_meshes, register_surfaces,
+    FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding, SurfaceMesh,
+    MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
@@ -151,6 +158,10 @@ struct FrameArgs {
     /// The object's pixels in the source frame (non-zero = object).
     #[arg(long)]
     mask: Option<PathBuf>,
+    /// The source's object from DeepDeform's graph nodes (`graph_nodes/*.bin`, source camera
+    /// frame): the pixels within one node spacing (--spacing) of a node; instead of --mask.
+    #[arg(long, conflicts_with = "mask")]
+    mask_nodes: Option<PathBuf>,
     /// The object's pixels in the target frame.
     #[arg(long)]
     target_mask: Option<PathBuf>,
@@ -169,6 +180,10 @@ struct FrameArgs {
     /// Where to write the warped source: its valid pixels in row-major order (binary PLY).
     #[arg(long)]
     output: Option<PathBuf>,
+    /// Where to draw the pair (PNG, two panels): the target in grey with the source (red,
+    /// before) and the warped source (blue, after).
+    #[arg(long)]
+    picture: Option<PathBuf>,
     /// Graph and optimiser settings.
     #[command(flatten)]
     warp: WarpFlags,
@@ -388,6 +403,17 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
     args.warp
         .apply(&mut settings.graph, &mut settings.register)
         .bad_input()?;
+    let mut source = source;
+    if let Some(path) = &args.mask_nodes {
+        let nodes = read_graph_nodes(path).bad_input()?;
+        let radius = settings.graph.spacing;
+        source.mask = Some(mask_near_nodes(
+            &source.camera,
+            &source.depth,
+            &nodes,
+            radius,
+        ));
+    }
     let gt = args
         .flow_ground_truth
         .as_deref()
@@ -407,6 +433,11 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
     if let Some(out) = &args.flow {
         write_flow(out, &flow)?;
     }
+    let surface = frame_points(&target.frame());
+    if let Some(out) = &args.picture {
+        let picture = registration_picture(&source.camera, &surface, &reg.points, &reg.warped);
+        write_color(out, &picture)?;
+    }
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, reg.points.len());
     json["data_points"] = reg.data_points.into();
     json["feature_matches"] = serde_json::json!(reg.matches.as_ref().map(|m| serde_json::json!({
@@ -414,6 +445,12 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "matches": m.matches,
         "inliers": m.source.len(),
     })));
+    json["registered"] = verdict_json(reg.verdict());
+    json["surface_distance"] = serde_json::json!({
+        "before": median_distance(&reg.points, &surface),
+        "after": median_distance(&reg.warped, &surface),
+        "target_points": surface.len(),
+    });
     if let (Some(gt), Some(path)) = (&gt, &args.flow_ground_truth) {
         let scores = flow_scores(&flow, gt, source.mask.as_ref()).ok_or_else(|| {
             cli::bad_input(format!(
@@ -425,6 +462,24 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
     }
     println!("{json}");
     Ok(())
+}
+
+/// Whether the registration registered, as JSON; a warning when it did not.
+fn verdict_json(verdict: FrameVerdict) -> serde_json::Value {
+    match verdict {
+        FrameVerdict::Registered => true.into(),
+        FrameVerdict::NotRegistered {
+            matched,
+            data_points,
+        } => {
+            tracing::warn!(
+                "not registered: {matched} of {data_points} data points ended on the target \
+                 (at least {:.0} % must)",
+                100.0 * MIN_MATCHED_FRACTION
+            );
+            false.into()
+        }
+    }
 }
 
 /// The flow's scores as JSON.

@@ -331,3 +331,46 @@ pub fn model_views(
     }
     Ok(())
 }
+
+/// Two panels side by side, each as the camera sees it: the target in grey (lighter is nearer)
+/// with the source in red (left, before) and the warped source in blue (right, after); of two
+/// points on one pixel the nearer is drawn. Where the blue lies on the grey and hides it, the
+/// warp put the source on the target's surface.
+pub fn registration_picture(
+    camera: &Camera,
+    target: &[Vector3<f64>],
+    source: &[Vector3<f64>],
+    warped: &[Vector3<f64>],
+) -> ColorImage {
+    let (w, h) = (camera.width, camera.height);
+    let (near, far) = target
+        .iter()
+        .chain(source)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.z), b.max(p.z))
+        });
+    let span = (far - near).max(1e-9);
+    let mut image = Image::filled(2 * w, h, [0u8; 3]);
+    let mut depth = Image::filled(2 * w, h, f64::INFINITY);
+    let mut splat = |points: &[Vector3<f64>], panel: usize, colour: &dyn Fn(f64) -> [u8; 3]| {
+        for p in points {
+            let Some((x, y)) = camera.project_to_pixel(&(*p).into()) else {
+                continue;
+            };
+            let i = y * 2 * w + panel * w + x;
+            if p.z < depth.data[i] {
+                depth.data[i] = p.z;
+                image.data[i] = colour(1.0 - ((p.z - near) / span).clamp(0.0, 1.0));
+            }
+        }
+    };
+    let grey = |t: f64| [(70.0 + 150.0 * t) as u8; 3];
+    let red = |t: f64| [(120.0 + 135.0 * t) as u8, 30, 30];
+    let blue = |t: f64| [30, 60, (120.0 + 135.0 * t) as u8];
+    for panel in 0..2 {
+        splat(target, panel, &grey);
+    }
+    splat(source, 0, &red);
+    splat(warped, 1, &blue);
+    image
+}

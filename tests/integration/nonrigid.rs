@@ -129,6 +129,33 @@ fn a_bending_plate_is_tracked_within_five_millimetres() {
     );
 }
 
+/// `source` onto `target` moved half a metre back: nothing lies within the gates, so the
+/// registration is reported as not registered, not as a result.
+fn assert_out_of_reach_is_not_registered(
+    camera: &dynamap::slam::camera::Camera,
+    source: &dynamap::slam::image::DepthImage,
+    target: &dynamap::slam::image::DepthImage,
+) {
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameVerdict, FrameView};
+    let mut far = target.clone();
+    far.data
+        .iter_mut()
+        .filter(|z| **z > 0.0)
+        .for_each(|z| *z += 0.5);
+    let lost = register_frames(
+        &FrameView::new(camera, source, None, None),
+        &FrameView::new(camera, &far, None, None),
+        &FrameSettings::default(),
+    )
+    .unwrap();
+    assert!(
+        matches!(lost.verdict(), FrameVerdict::NotRegistered { matched, data_points }
+            if matched < data_points / 2),
+        "{:?}",
+        lost.verdict()
+    );
+}
+
 /// Two frames of a bending, textured plate seen from cameras 12 cm and 6° apart (DeepDeform's
 /// setting, generated): the feature-matched rigid start and the dense non-rigid refinement give a
 /// scene flow within 1.5 cm of the truth on average (0.8 cm seen), where zero flow is off by
@@ -138,7 +165,7 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
     use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::epe3d;
     use dynamap::slam::image::{depth_to_metres, Image};
-    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameView};
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameVerdict, FrameView};
     use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
     use dynamap::slam::synthetic::noise::SensorNoise;
 
@@ -166,6 +193,8 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
         &FrameSettings::default(),
     )
     .unwrap();
+    assert_eq!(reg.verdict(), FrameVerdict::Registered);
+    assert_out_of_reach_is_not_registered(&camera, &d0, &d1);
     let matches = reg
         .matches
         .as_ref()

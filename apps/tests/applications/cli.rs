@@ -514,3 +514,74 @@ fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
         &["--columns"],
     );
 }
+
+/// `frames` without a mask: the object from graph nodes, the verdict and the surface distance in
+/// the JSON, and the picture; a cut nodes file is bad input naming the file.
+#[test]
+fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
+    use dynamap_slam::image::Image;
+    use dynamap_slam::io::deepdeform::encode_graph_nodes;
+    use dynamap_slam::io::images::{read_color, write_depth};
+    use nalgebra::Vector3;
+
+    let dir = scratch("frames_nodes");
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    // a wall with a bump in the middle, and the same bump 1 cm nearer: millimetres, 160 × 120
+    let wall = |shift: f64| {
+        let data = (0..160 * 120)
+            .map(|i| {
+                let (x, y) = ((i % 160) as f64 - 80.0, (i / 160) as f64 - 60.0);
+                let bump = 60.0 * (-(x * x + y * y) / 800.0).exp();
+                (1000.0 - bump - shift) as u16
+            })
+            .collect();
+        Image::from_vec(160, 120, data).unwrap()
+    };
+    write_depth(path("a.png"), &wall(0.0)).unwrap();
+    write_depth(path("b.png"), &wall(10.0)).unwrap();
+    let nodes = [Vector3::new(0.0, 0.0, 0.95)];
+    std::fs::write(path("nodes.bin"), encode_graph_nodes(&nodes)).unwrap();
+    let args = |nodes: &str| {
+        vec![
+            "frames".to_string(),
+            path("a.png"),
+            path("b.png"),
+            "--intrinsics".into(),
+            "150".into(),
+            "150".into(),
+            "79.5".into(),
+            "59.5".into(),
+            "--depth-scale".into(),
+            "1000".into(),
+            "--mask-nodes".into(),
+            path(nodes),
+            "--spacing".into(),
+            "0.1".into(),
+            "--picture".into(),
+            path("pair.png"),
+            "-q".into(),
+        ]
+    };
+    let run_with = |a: Vec<String>| {
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        run("nonrigid_register", &a)
+    };
+    let out = run_with(args("nodes.bin"));
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = result_json(&out);
+    assert_eq!(json["registered"], true, "{json}");
+    let d = &json["surface_distance"];
+    let (before, after) = (d["before"].as_f64().unwrap(), d["after"].as_f64().unwrap());
+    assert!(before > 0.005 && after < 0.5 * before, "{json}");
+    // only the pixels near the node are the object: far fewer than the frame's
+    assert!(json["points"].as_u64().unwrap() < 160 * 120 / 2, "{json}");
+    let picture = read_color(path("pair.png")).unwrap();
+    assert_eq!((picture.width, picture.height), (320, 120));
+    let bytes = std::fs::read(path("nodes.bin")).unwrap();
+    std::fs::write(path("cut.bin"), &bytes[..bytes.len() - 2]).unwrap();
+    assert_exit(&run_with(args("cut.bin")), 2, &["cut.bin"]);
+    let mut both = args("nodes.bin");
+    both.extend(["--mask".to_string(), path("a.png")]);
+    assert_exit(&run_with(both), 2, &["--mask"]);
+    let _ = std::fs::remove_dir_all(Path::new(&dir));
+}

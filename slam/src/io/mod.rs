@@ -2,6 +2,7 @@
 //! images, trajectories and meshes. Every error names the file and, where there is one, the line or
 //! frame; every write goes through a temporary file renamed into place.
 
+pub mod deepdeform;
 pub mod flow;
 pub mod folder;
 pub mod iclnuim;

@@ -13,10 +13,12 @@
 //!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
 //!   ([`boundary`]).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
-//!   non-rigid refinement), with per-pixel scene flow.
+//!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
+//!   graph's nodes, and the median distance from a registered source to the target's surface.
 
 pub mod boundary;
 pub mod descriptors;
+pub mod frame_surface;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
@@ -26,7 +28,11 @@ mod system;
 
 pub use boundary::rim_matches;
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
-pub use frames::{register_frames, FrameError, FrameRegistration, FrameSettings, FrameView};
+pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
+pub use frames::{
+    frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameVerdict,
+    FrameView, MIN_MATCHED_FRACTION,
+};
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use register::{
