@@ -381,7 +381,7 @@ pub fn register_meshes(
     }
     let full_rounds = passes.params.rounds;
     if seeding.passes > 0 {
-        passes.params.rounds = seeding.anchor_rounds.clamp(1, full_rounds);
+        passes.params.rounds = seeding.anchor_rounds.max(1).min(full_rounds);
     }
     let mut last = passes.run(None)?;
     passes.params.rounds = full_rounds;

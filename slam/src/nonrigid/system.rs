@@ -228,8 +228,8 @@ impl WarpSystem {
 
     /// Up to `iterations` Levenberg-Marquardt iterations from the current motions (Madsen, Nielsen
     /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken
-    /// and whether any step was; adds the seconds spent linearising and costing trial points to `evaluate_seconds` (the rest
-    /// is factorising and solving).
+    /// and whether any step was; adds the seconds spent linearising and costing trial points to
+    /// `evaluate_seconds` (the rest is factorising and solving).
     pub fn minimise(
         &mut self,
         terms: &WarpTerms<'_>,
