@@ -390,7 +390,7 @@ fn read_ground_truth_flow(path: &Path, camera: &Camera) -> Result<Image<[f32; 3]
 /// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &FrameArgs) -> Result<()> {
-    let source =
+    let mut source =
         read_frame(args, &args.source, args.color.as_ref(), args.mask.as_ref()).bad_input()?;
     let target = read_frame(
         args,
@@ -403,7 +403,6 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
     args.warp
         .apply(&mut settings.graph, &mut settings.register)
         .bad_input()?;
-    let mut source = source;
     if let Some(path) = &args.mask_nodes {
         let nodes = read_graph_nodes(path).bad_input()?;
         let radius = settings.graph.spacing;

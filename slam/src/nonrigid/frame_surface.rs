@@ -5,6 +5,7 @@
 
 use super::frames::FrameView;
 use crate::camera::Camera;
+use crate::eval::Stats;
 use crate::image::{DepthImage, Image};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
@@ -66,14 +67,14 @@ pub fn frame_points(frame: &FrameView<'_>) -> Vec<Vector3<f64>> {
         .collect()
 }
 
-/// The median over `points` of the distance to the nearest of `surface` (None when either is
+/// The median ([`Stats`]' convention) over `points` of the distance to the nearest of `surface` (None when either is
 /// empty): how far a registered source lies from the target's surface, without ground truth.
 pub fn median_distance(points: &[Vector3<f64>], surface: &[Vector3<f64>]) -> Option<f64> {
     if points.is_empty() || surface.is_empty() {
         return None;
     }
     let tree = tree(surface);
-    let mut d: Vec<f64> = points
+    let d: Vec<f64> = points
         .par_iter()
         .map(|p| {
             tree.nearest_one::<SquaredEuclidean>(&(*p).into())
@@ -81,9 +82,7 @@ pub fn median_distance(points: &[Vector3<f64>], surface: &[Vector3<f64>]) -> Opt
                 .sqrt()
         })
         .collect();
-    let mid = d.len() / 2;
-    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(*m)
+    Some(Stats::of(&d).median)
 }
 
 #[cfg(test)]

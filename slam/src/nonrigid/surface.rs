@@ -258,9 +258,18 @@ impl Passes {
 
     /// One registration from the graph at rest, with a fresh optimiser, in the caller's units.
     fn run(&self, seeds: Option<&Seeds>) -> Result<SurfaceRegistration, SurfaceError> {
+        self.run_with(self.params.clone(), seeds)
+    }
+
+    /// [`Self::run`] with other settings (in the passes' units).
+    fn run_with(
+        &self,
+        params: RegisterParams,
+        seeds: Option<&Seeds>,
+    ) -> Result<SurfaceRegistration, SurfaceError> {
         let (sp, sn) = (&self.source.0, &self.source.1);
         let mut graph = self.rest.clone();
-        let mut summary = WarpOptimiser::new(self.params.clone()).optimise_from(
+        let mut summary = WarpOptimiser::new(params).optimise_from(
             &mut graph,
             sp,
             sn,
@@ -379,12 +388,11 @@ pub fn register_meshes(
         done.summary.seconds = start.elapsed().as_secs_f64();
         return Ok(done);
     }
-    let full_rounds = passes.params.rounds;
+    let mut first = passes.params.clone();
     if seeding.passes > 0 {
-        passes.params.rounds = seeding.anchor_rounds.max(1).min(full_rounds);
+        first.rounds = seeding.anchor_rounds.max(1).min(first.rounds);
     }
-    let mut last = passes.run(None)?;
-    passes.params.rounds = full_rounds;
+    let mut last = passes.run_with(first, None)?;
     passes.keep_rigid_start(&last.summary.prealigned);
     let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
     for _ in 0..seeding.passes {
