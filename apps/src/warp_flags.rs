@@ -39,11 +39,15 @@ pub struct WarpFlags {
     /// Levenberg-Marquardt's initial damping, as a fraction of H's largest diagonal element.
     #[arg(long)]
     pub damping: Option<f64>,
+    /// Conjugate-gradient iterations a step may take on the last factorisation before the
+    /// system is factorised anew (0: every step factorises).
+    #[arg(long)]
+    pub refine_iterations: Option<usize>,
 }
 
 impl WarpFlags {
     /// The flags' argument ids with the values `graph` and `register` give them, as text.
-    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 11] {
+    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 12] {
         let schedule: Vec<String> = register.schedule.iter().map(|w| w.to_string()).collect();
         [
             ("spacing", graph.spacing.to_string()),
@@ -57,6 +61,7 @@ impl WarpFlags {
             ("point_weight", register.point_weight.to_string()),
             ("stay_weight", register.stay_weight.to_string()),
             ("damping", register.damping.to_string()),
+            ("refine_iterations", register.refine_iterations.to_string()),
         ]
     }
 
@@ -119,6 +124,7 @@ impl WarpFlags {
         set(&self.point_weight, &mut register.point_weight);
         set(&self.stay_weight, &mut register.stay_weight);
         set(&self.damping, &mut register.damping);
+        set(&self.refine_iterations, &mut register.refine_iterations);
         if !(register.damping > 0.0 && register.damping.is_finite()) {
             anyhow::bail!("--damping must be a positive number");
         }

@@ -139,7 +139,7 @@ pub use real::Real;
 pub use residual::{Jacobians, Residual, Var};
 pub use robust::RobustKernel;
 pub use summary::{IterationSummary, Observer, Summary, Termination};
-pub use system::BlockSystem;
+pub use system::{BlockSystem, Refined};
 
 #[doc = include_str!("../../docs/solver_guide.md")]
 pub mod guide {

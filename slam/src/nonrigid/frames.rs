@@ -69,6 +69,7 @@ impl Default for FrameSettings {
                 point_weight: 0.1,
                 stay_weight: 0.01,
                 damping: 1e-4,
+                refine_iterations: 0,
             },
             features: Some(FeatureParams::default()),
             data_stride: 2,

@@ -17,17 +17,17 @@
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::register::{DepthTarget, RegisterParams, RegisterSummary, WarpOptimiser};
 use super::surface::mesh_points;
+use super::voxel_bindings::{BlockGeometry, CachedWarp, VoxelBindings};
 use crate::camera::Camera;
 use crate::image::{valid, ColorImage, Image};
 use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
-use crate::tsdf::{TsdfParams, TsdfVolume, VoxelWarp};
-use dynamap_residuals::deform::{rigid_motion, transform_point, MAX_NEIGHBOURS};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use crate::tsdf::{TsdfParams, TsdfVolume, BLOCK};
+use dynamap_residuals::deform::{rigid_motion, transform_point};
+use kiddo::ImmutableKdTree;
 use nalgebra::{DualQuaternion, Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
-use std::num::NonZero;
 use std::time::Instant;
 
 /// Settings of the non-rigid pipeline.
@@ -83,6 +83,7 @@ impl Default for FusionParams {
                 point_weight: 0.1,
                 stay_weight: 0.01,
                 damping: 1e-6,
+                refine_iterations: 4,
             },
             data_level: 1,
             data_spacing: 0.01,
@@ -146,6 +147,7 @@ pub struct NonRigidFusion {
     masked: Image<u16>,
     band: Vec<Vector3<f64>>,
     backup: Vec<DualQuaternion<f64>>,
+    voxel_bindings: VoxelBindings,
 }
 
 impl NonRigidFusion {
@@ -165,6 +167,7 @@ impl NonRigidFusion {
             masked: Image::new(0, 0),
             band: Vec::new(),
             backup: Vec::new(),
+            voxel_bindings: VoxelBindings::default(),
         }
     }
 
@@ -302,6 +305,7 @@ impl NonRigidFusion {
         report.added_nodes = graph.nodes.len();
         self.volume = volume;
         self.graph = Some(graph);
+        self.voxel_bindings.clear();
         self.resample(&surface);
         report.times.surface = t.elapsed().as_secs_f64();
         Ok(())
@@ -352,21 +356,31 @@ impl NonRigidFusion {
         }
         let t = Instant::now();
         let level = &self.pre.levels[0];
+        let stride = band_stride(&level.depth, &self.camera, self.params.tsdf.voxel_size);
         inverse_warp(
             graph,
             &level.vertices.data,
-            2,
+            stride,
             level.vertices.width,
             &mut self.band,
         );
-        let warp = GraphWarp::new(graph);
+        let touched = self.volume.blocks_near(&self.band);
+        let geometry = BlockGeometry {
+            voxel: self.params.tsdf.voxel_size as f64,
+            block: BLOCK,
+        };
+        self.voxel_bindings.update(graph, &touched, geometry);
+        let warp = CachedWarp {
+            graph,
+            bindings: &self.voxel_bindings,
+        };
         self.volume
             .integrate_warped(
                 &level.depth,
                 &level.normals,
                 color,
                 &self.camera,
-                &self.band,
+                &touched,
                 &warp,
             )
             .map_err(|e| e.to_string())?;
@@ -400,6 +414,27 @@ impl NonRigidFusion {
         self.bindings = graph.bind_all(&self.points);
         self.since_refresh = 0;
     }
+}
+
+/// The pixel stride at which the live surface, carried back, samples the canonical band about as
+/// densely as the voxels: a voxel edge over the footprint of one pixel at the median depth
+/// (every 7th pixel of each 7th row). The blocks within the truncation distance of these samples
+/// then miss at most half a voxel of the surface's band.
+fn band_stride(depth: &Image<f32>, camera: &Camera, voxel: f32) -> usize {
+    let mut z: Vec<f32> = depth
+        .data
+        .iter()
+        .step_by(7)
+        .copied()
+        .filter(|d| *d > 0.0 && d.is_finite())
+        .collect();
+    if z.is_empty() {
+        return 1;
+    }
+    let mid = z.len() / 2;
+    let median = *z.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
+    let footprint = median / camera.fx.abs().max(camera.fy.abs()).max(1e-9);
+    ((voxel as f64 / footprint).floor() as usize).max(1)
 }
 
 /// Carries every `stride`-th live vertex (camera frame) back into the canonical frame: bound to
@@ -438,73 +473,4 @@ fn inverse_warp(
                 })
             }),
     );
-}
-
-/// The graph's warp as a voxel warp. For a block, the candidate nodes are those within
-/// `d₄ + 2h` of its centre (d₄: the centre's K-th nearest node, h: the block's half-diagonal),
-/// which holds every voxel's K nearest; voxels farther than two node radii from every node are
-/// left alone.
-struct GraphWarp<'a> {
-    graph: &'a DeformationGraph,
-    reach: f64,
-}
-
-impl<'a> GraphWarp<'a> {
-    fn new(graph: &'a DeformationGraph) -> Self {
-        let r = graph.nodes.iter().map(|n| n.radius).fold(0.0, f64::max);
-        Self {
-            graph,
-            reach: 2.0 * r,
-        }
-    }
-}
-
-impl VoxelWarp for GraphWarp<'_> {
-    type Scratch = Vec<u32>;
-
-    fn prepare(&self, centre: &Vector3<f64>, radius: f64, scratch: &mut Vec<u32>) -> bool {
-        let Some(k) = NonZero::new(self.graph.neighbours()) else {
-            return false;
-        };
-        let q: [f64; 3] = (*centre).into();
-        let nearest = self.graph.tree.nearest_n::<SquaredEuclidean>(&q, k);
-        let (Some(first), Some(last)) = (nearest.first(), nearest.last()) else {
-            return false;
-        };
-        if first.distance.sqrt() > self.reach + radius {
-            return false;
-        }
-        let r = last.distance.sqrt() + 2.0 * radius;
-        scratch.clear();
-        scratch.extend(
-            self.graph
-                .tree
-                .within_unsorted::<SquaredEuclidean>(&q, r * r)
-                .iter()
-                .map(|n| n.item as u32),
-        );
-        true
-    }
-
-    fn warp(&self, p: &Vector3<f64>, scratch: &Vec<u32>) -> Option<Vector3<f64>> {
-        let k = self.graph.neighbours();
-        // the K nearest candidates, by insertion into a short sorted list
-        let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
-        for &c in scratch {
-            let d2 = (self.graph.nodes[c as usize].position - p).norm_squared();
-            if d2 < best[k - 1].1 {
-                let mut i = k - 1;
-                while i > 0 && best[i - 1].1 > d2 {
-                    best[i] = best[i - 1];
-                    i -= 1;
-                }
-                best[i] = (c, d2);
-            }
-        }
-        if best[0].1.sqrt() > self.reach {
-            return None;
-        }
-        let b = self.graph.binding(&best[..k]);
-        Some(transform_point(&self.graph.blend(&b), p))
-    }
 }

@@ -25,6 +25,7 @@ pub mod graph;
 pub mod register;
 pub mod surface;
 mod system;
+mod voxel_bindings;
 
 pub use boundary::rim_matches;
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};

@@ -14,7 +14,7 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::graph::{Binding, DeformationGraph};
-use super::system::{match_terms, WarpSystem, WarpTerms};
+use super::system::{match_terms, Steps, WarpSystem, WarpTerms};
 use crate::camera::Camera;
 use crate::image::{valid, NormalMap, VertexMap};
 use dynamap_residuals::deform::{
@@ -155,6 +155,11 @@ pub struct RegisterParams {
     /// 1e-4, the solver's). Tracking from the last frame's field starts near the optimum, where a
     /// small τ lets the first steps go most of the way.
     pub damping: f64,
+    /// Conjugate-gradient iterations a step may take, preconditioned by the last factorisation of
+    /// the system (an earlier iteration's or frame's), before the system is factorised anew
+    /// (default 0: every step factorises). Tracking, where H changes little from one step or
+    /// frame to the next, uses it.
+    pub refine_iterations: usize,
 }
 
 impl Default for RegisterParams {
@@ -171,6 +176,7 @@ impl Default for RegisterParams {
             point_weight: 0.1,
             stay_weight: 0.0,
             damping: 1e-4,
+            refine_iterations: 0,
         }
     }
 }
@@ -348,14 +354,14 @@ impl WarpOptimiser {
                     stay_weight: self.params.stay_weight,
                 };
                 let mut evaluate = 0.0;
-                let done = self.system.minimise(
-                    &terms,
-                    seeded.map_or(self.params.iterations, |s| {
+                let steps = Steps {
+                    iterations: seeded.map_or(self.params.iterations, |s| {
                         s.iterations.max(self.params.iterations)
                     }),
-                    self.params.damping,
-                    &mut evaluate,
-                )?;
+                    damping: self.params.damping,
+                    refine_iterations: self.params.refine_iterations,
+                };
+                let done = self.system.minimise(&terms, steps, &mut evaluate)?;
                 iterations += done.iterations;
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`

@@ -94,6 +94,21 @@ pub(crate) struct WarpTerms<'a> {
 /// that gained less, or a rejected one whose model promised less.
 const FUNCTION_TOLERANCE: f64 = 1e-10;
 
+/// Relative residual `‖(H + μI)δ + g‖ / ‖g‖` at which a step solved by conjugate gradients
+/// (preconditioned by an earlier factorisation) is taken instead of factorising anew.
+const REFINE_TOLERANCE: f64 = 1e-3;
+
+/// How [`WarpSystem::minimise`] steps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Steps {
+    /// Levenberg-Marquardt iterations at most.
+    pub iterations: usize,
+    /// Initial damping τ, a fraction of H's largest diagonal element.
+    pub damping: f64,
+    /// Conjugate-gradient iterations a step may take on an earlier factorisation (0: none).
+    pub refine_iterations: usize,
+}
+
 /// What one call of [`WarpSystem::minimise`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Minimised {
@@ -226,15 +241,14 @@ impl WarpSystem {
         s.num_entries() * PACKED + s.num_blocks() * 8
     }
 
-    /// Up to `iterations` Levenberg-Marquardt iterations from the current motions (Madsen, Nielsen
-    /// & Tingleff's damping update from μ₀ = `damping` · max diag H). Returns the iterations taken
-    /// and whether any step was; adds the seconds spent linearising and costing trial points to
-    /// `evaluate_seconds` (the rest is factorising and solving).
+    /// Up to `steps.iterations` Levenberg-Marquardt iterations from the current motions (Madsen,
+    /// Nielsen & Tingleff's damping update from μ₀ = `steps.damping` · max diag H). Returns the
+    /// iterations taken and whether any step was; adds the seconds spent linearising and costing
+    /// trial points to `evaluate_seconds` (the rest is factorising and solving).
     pub fn minimise(
         &mut self,
         terms: &WarpTerms<'_>,
-        iterations: usize,
-        damping: f64,
+        steps: Steps,
         evaluate_seconds: &mut f64,
     ) -> Result<Minimised, SolveError> {
         let clock = Instant::now();
@@ -243,21 +257,18 @@ impl WarpSystem {
         if !cost.is_finite() {
             return Err(SolveError::NonFiniteInitialCost(0));
         }
-        let mut lm =
-            LevenbergDamping::new(damping * self.system().max_diagonal().max(f64::MIN_POSITIVE));
+        let mut lm = LevenbergDamping::new(
+            steps.damping * self.system().max_diagonal().max(f64::MIN_POSITIVE),
+        );
         let (mut done, mut moved) = (0, false);
-        while done < iterations {
+        while done < steps.iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
-            let solved = self
-                .system
-                .as_mut()
-                .expect("prepared")
-                .solve(Damping::Identity(lm.mu()), &mut step);
+            let solved = self.solve_step(lm.mu(), steps.refine_iterations, &mut step);
             let clock = Instant::now();
             // a failed factorisation is a rejected step
             let trial = match solved {
-                Ok(()) => self.try_step(terms, &step, lm.mu(), cost),
+                Ok(predicted) => self.try_step(terms, &step, predicted, cost),
                 Err(_) => Trial::Rejected { negligible: false },
             };
             self.step = step;
@@ -267,7 +278,7 @@ impl WarpSystem {
                     gain,
                     converged,
                 } => {
-                    cost = if done < iterations && !converged {
+                    cost = if done < steps.iterations && !converged {
                         self.linearise(terms)
                     } else {
                         new_cost
@@ -293,12 +304,38 @@ impl WarpSystem {
         })
     }
 
+    /// Writes the step solving `(H + μI)δ = −g` into `step` and returns the decrease the
+    /// quadratic model predicts for it: by conjugate gradients preconditioned with the last
+    /// factorisation when `refine_iterations` > 0 and they reach [`REFINE_TOLERANCE`] within
+    /// them, otherwise by a new factorisation.
+    fn solve_step(
+        &mut self,
+        mu: f64,
+        refine_iterations: usize,
+        step: &mut [f64],
+    ) -> Result<f64, SolveError> {
+        let system = self.system.as_mut().expect("prepared");
+        let damping = Damping::Identity(mu);
+        if refine_iterations > 0 && system.has_factorisation() {
+            let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, refine_iterations);
+            if refined.converged {
+                return Ok(system.model_decrease(step));
+            }
+        }
+        system.solve(damping, step)?;
+        // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
+        Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()))
+    }
+
     /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`) and takes them when
     /// the cost falls ([`Trial`]).
-    fn try_step(&mut self, terms: &WarpTerms<'_>, step: &[f64], mu: f64, cost: f64) -> Trial {
-        // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
-        let g = self.system().gradient();
-        let predicted = Damping::Identity(mu).predicted_decrease(step, g, std::iter::empty());
+    fn try_step(
+        &mut self,
+        terms: &WarpTerms<'_>,
+        step: &[f64],
+        predicted: f64,
+        cost: f64,
+    ) -> Trial {
         self.trial.clear();
         self.trial.extend(
             self.motions
@@ -829,6 +866,15 @@ mod tests {
     }
 
     /// A system prepared for `graph` and started from its nodes' motions.
+    /// `iterations` Levenberg-Marquardt steps from τ = 1e-4, each on a new factorisation.
+    fn exact_steps(iterations: usize) -> Steps {
+        Steps {
+            iterations,
+            damping: 1e-4,
+            refine_iterations: 0,
+        }
+    }
+
     fn system_at(graph: &DeformationGraph, bindings: &[Binding]) -> WarpSystem {
         let mut ws = WarpSystem::default();
         ws.prepare(graph, bindings).unwrap();
@@ -849,7 +895,7 @@ mod tests {
         let mut ws = system_at(&graph, &bindings);
         let before = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         let mut seconds = 0.0;
-        let taken = ws.minimise(&terms, 5, 1e-4, &mut seconds).unwrap();
+        let taken = ws.minimise(&terms, exact_steps(5), &mut seconds).unwrap();
         assert!(taken.iterations >= 1 && taken.moved);
         let after = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         assert!(after < 0.5 * before, "{before} -> {after}");
@@ -876,7 +922,7 @@ mod tests {
         let mut ws = system_at(&graph, &bindings);
         let start = ws.motions.clone();
         let mut seconds = 0.0;
-        let done = ws.minimise(&terms, 6, 1e-4, &mut seconds).unwrap();
+        let done = ws.minimise(&terms, exact_steps(6), &mut seconds).unwrap();
         assert!(!done.moved && done.iterations >= 1, "{done:?}");
         assert_eq!(ws.motions, start);
         // one match moved off: the same call now moves
@@ -886,7 +932,11 @@ mod tests {
             matches: &off,
             ..terms
         };
-        assert!(ws.minimise(&terms, 6, 1e-4, &mut seconds).unwrap().moved);
+        assert!(
+            ws.minimise(&terms, exact_steps(6), &mut seconds)
+                .unwrap()
+                .moved
+        );
         assert_ne!(ws.motions, start);
     }
 }

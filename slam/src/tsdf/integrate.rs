@@ -539,17 +539,20 @@ impl<'a> FrameView<'a> {
 pub trait VoxelWarp: Sync {
     /// Per-thread scratch, reused from block to block.
     type Scratch: Send + Default;
-    /// Prepares the warp of the voxels within `radius` of `centre` (one block, volume frame).
-    /// `false` leaves the block alone (nothing there can be warped reliably).
-    fn prepare(&self, centre: &Vector3<f64>, radius: f64, scratch: &mut Self::Scratch) -> bool;
-    /// Where the voxel centre `p` of the prepared block lands in the live camera frame, `None` for a
-    /// voxel that cannot be warped reliably.
-    fn warp(&self, p: &Vector3<f64>, scratch: &Self::Scratch) -> Option<Vector3<f64>>;
+    /// Prepares the warp of the voxels of block `block` (volume frame; voxel (x, y, z) of it is
+    /// the volume's voxel `block · BLOCK + (x, y, z)`). `false` leaves the block alone (nothing
+    /// there can be warped reliably).
+    fn prepare(&self, block: [i32; 3], scratch: &mut Self::Scratch) -> bool;
+    /// Where the centre `p` of voxel `voxel` (index `x + 8 (y + 8 z)` in the prepared block) lands
+    /// in the live camera frame, `None` for a voxel that cannot be warped reliably.
+    fn warp(&self, voxel: usize, p: &Vector3<f64>, scratch: &Self::Scratch)
+        -> Option<Vector3<f64>>;
 }
 
 impl TsdfVolume {
-    /// The blocks within μ of any of `points` (volume frame), sorted and deduplicated.
-    fn blocks_near(&self, points: &[Vector3<f64>]) -> Vec<[i32; 3]> {
+    /// The blocks within μ of any of `points` (volume frame), sorted and deduplicated: the blocks
+    /// [`Self::integrate_warped`] updates for a live surface carried back into the volume's frame.
+    pub fn blocks_near(&self, points: &[Vector3<f64>]) -> Vec<[i32; 3]> {
         let mu = self.params.truncation() as f64;
         let block_size = (self.params.voxel_size * BLOCK as f32) as f64;
         let mut coords: Vec<[i32; 3]> = points
@@ -568,8 +571,9 @@ impl TsdfVolume {
         coords
     }
 
-    /// Fuses a live frame through a non-rigid warp (DynamicFusion, sec. 3.3): the blocks within μ
-    /// of `band` (the live surface carried back into the volume's frame) are allocated and updated;
+    /// Fuses a live frame through a non-rigid warp (DynamicFusion, sec. 3.3): the blocks `touched`
+    /// (each once; [`Self::blocks_near`] the live surface carried back into the volume's frame)
+    /// are allocated and updated;
     /// each of their voxel centres is warped into the live camera frame, projected, and its
     /// projective signed distance `D(u) − z` fused as in [`Self::integrate`], with the same weights.
     pub fn integrate_warped<W: VoxelWarp>(
@@ -578,18 +582,16 @@ impl TsdfVolume {
         normals: &NormalMap,
         color: Option<&ColorImage>,
         camera: &Camera,
-        band: &[Vector3<f64>],
+        touched: &[[i32; 3]],
         warp: &W,
     ) -> Result<IntegrateStats, TsdfError> {
         check_sizes(depth, normals, color, camera)?;
-        let touched = self.blocks_near(band);
         // no viewpoint in the canonical frame to evict by: a full budget is an error here
-        let (new_blocks, evicted_blocks) = self.allocate(&touched, None)?;
+        let (new_blocks, evicted_blocks) = self.allocate(touched, None)?;
         self.pixel_samples(depth, normals, color, camera);
         let params = self.params;
         let none = (depth.width * depth.height) as u32;
         let voxel = params.voxel_size as f64;
-        let half_diag = 0.5 * voxel * BLOCK as f64 * 3f64.sqrt();
         let updated = std::sync::atomic::AtomicUsize::new(0);
         let active = &self.active;
         let frame = FrameView::new(
@@ -608,8 +610,7 @@ impl TsdfVolume {
                     (blk.coord[1] * BLOCK) as f64,
                     (blk.coord[2] * BLOCK) as f64,
                 ) * voxel;
-                let centre = base + Vector3::repeat(0.5 * voxel * (BLOCK - 1) as f64);
-                if !warp.prepare(&centre, half_diag, scratch) {
+                if !warp.prepare(blk.coord, scratch) {
                     return;
                 }
                 let mut any = false;
@@ -621,7 +622,7 @@ impl TsdfVolume {
                         let mut depths = [0.0f32; BLOCK as usize];
                         for x in 0..BLOCK {
                             let p = base + Vector3::new(x as f64, y as f64, z as f64) * voxel;
-                            let Some(q) = warp.warp(&p, scratch) else {
+                            let Some(q) = warp.warp(local_index(x, y, z), &p, scratch) else {
                                 continue;
                             };
                             let Some((u, v)) = camera.project_to_pixel(&q.into()) else {

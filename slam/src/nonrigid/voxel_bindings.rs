@@ -1,0 +1,366 @@
+//! Each canonical voxel's K nearest deformation nodes and their weights, kept across frames for the
+//! warped fusion ([`TsdfVolume::integrate_warped`](crate::tsdf::TsdfVolume::integrate_warped)).
+//!
+//! Nodes never move in the canonical frame and keep their indices as the graph grows, so a voxel's
+//! binding changes only when a node is added near it. DynamicFusion (Newcombe et al., CVPR 2015,
+//! sec. 3.4) keeps the same K-nearest-node field over its volume for this reason. Here a block's
+//! bindings are computed when the block first enters the band the frame updates, and again only
+//! when a node has been added within the block's *candidate radius* `d_K + 2h` (d_K: the block
+//! centre's K-th nearest node, h: the block's half-diagonal): a node farther than that from the
+//! centre is farther from every voxel of the block than the voxel's K-th nearest node, so it cannot
+//! enter any voxel's binding. Blocks the band leaves are dropped, so memory follows the band
+//! (16 bytes of node indices and 16 of weights per voxel: 16 KiB per 8³ block).
+
+use super::graph::{Binding, DeformationGraph};
+use crate::tsdf::VoxelWarp;
+use dynamap_residuals::deform::{transform_point, MAX_NEIGHBOURS};
+use kiddo::SquaredEuclidean;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+use std::num::NonZero;
+
+/// No node.
+const NONE: u32 = u32::MAX;
+
+/// One voxel's nodes (unused slots [`NONE`]; all [`NONE`]: out of every node's reach) and their
+/// normalised weights.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct VoxelBinding {
+    nodes: [u32; MAX_NEIGHBOURS],
+    weights: [f32; MAX_NEIGHBOURS],
+}
+
+const UNBOUND: VoxelBinding = VoxelBinding {
+    nodes: [NONE; MAX_NEIGHBOURS],
+    weights: [0.0; MAX_NEIGHBOURS],
+};
+
+/// The bindings of one block's voxels, in the volume's voxel order (x fastest).
+struct BlockBindings {
+    /// Nodes in the graph when the bindings were computed.
+    nodes_seen: usize,
+    /// K when they were computed (less than the graph's setting while it had fewer nodes).
+    neighbours: usize,
+    /// Block centre and candidate radius `d_K + 2h`.
+    centre: Vector3<f64>,
+    radius: f64,
+    /// Empty when no voxel is within reach of a node.
+    voxels: Vec<VoxelBinding>,
+}
+
+/// The block geometry the cache is laid out for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BlockGeometry {
+    /// Voxel edge, metres.
+    pub voxel: f64,
+    /// Voxels along a block edge.
+    pub block: i32,
+}
+
+impl BlockGeometry {
+    /// The centre of voxel (0, 0, 0) of block `coord`.
+    fn origin(&self, coord: [i32; 3]) -> Vector3<f64> {
+        Vector3::new(coord[0] as f64, coord[1] as f64, coord[2] as f64)
+            * (self.block as f64 * self.voxel)
+    }
+
+    fn centre(&self, coord: [i32; 3]) -> Vector3<f64> {
+        self.origin(coord) + Vector3::repeat(0.5 * self.voxel * (self.block - 1) as f64)
+    }
+
+    fn half_diagonal(&self) -> f64 {
+        0.5 * self.voxel * self.block as f64 * 3f64.sqrt()
+    }
+
+    fn voxels(&self) -> usize {
+        (self.block * self.block * self.block) as usize
+    }
+}
+
+/// The cache: bindings of the blocks the last frame updated.
+#[derive(Default)]
+pub(crate) struct VoxelBindings {
+    geometry: Option<BlockGeometry>,
+    slots: FxHashMap<[i32; 3], usize>,
+    blocks: Vec<BlockBindings>,
+    /// Blocks whose bindings were (re)computed by the last update.
+    pub computed: usize,
+}
+
+impl VoxelBindings {
+    /// Forgets every binding (a new graph).
+    pub fn clear(&mut self) {
+        self.slots.clear();
+        self.blocks.clear();
+    }
+
+    /// Readies the bindings of the blocks `coords` (each once) for `graph`: kept where no node was
+    /// added within a block's candidate radius since they were computed, computed otherwise.
+    /// Blocks not in `coords` are dropped.
+    pub fn update(&mut self, graph: &DeformationGraph, coords: &[[i32; 3]], geo: BlockGeometry) {
+        if self.geometry != Some(geo) {
+            self.clear();
+            self.geometry = Some(geo);
+        }
+        let mut old = std::mem::take(&mut self.blocks);
+        let mut taken: Vec<Option<BlockBindings>> = coords
+            .iter()
+            .map(|c| self.slots.get(c).map(|&s| std::mem::take(&mut old[s])))
+            .map(|b| b.filter(|b| b.nodes_seen > 0))
+            .collect();
+        let reach = reach(graph);
+        let updated: Vec<(BlockBindings, bool)> = coords
+            .par_iter()
+            .zip(taken.par_iter_mut())
+            .map(|(&c, kept)| match kept.take() {
+                Some(b) if still_valid(&b, graph) => (
+                    BlockBindings {
+                        nodes_seen: graph.nodes.len(),
+                        ..b
+                    },
+                    false,
+                ),
+                _ => (bind_block(graph, geo, c, reach), true),
+            })
+            .collect();
+        self.computed = updated.iter().filter(|u| u.1).count();
+        self.blocks = updated.into_iter().map(|u| u.0).collect();
+        self.slots.clear();
+        self.slots
+            .extend(coords.iter().enumerate().map(|(s, &c)| (c, s)));
+    }
+}
+
+impl Default for BlockBindings {
+    fn default() -> Self {
+        Self {
+            nodes_seen: 0,
+            neighbours: 0,
+            centre: Vector3::zeros(),
+            radius: 0.0,
+            voxels: Vec::new(),
+        }
+    }
+}
+
+/// Voxels farther than this from every node are not warped: two node radii.
+fn reach(graph: &DeformationGraph) -> f64 {
+    2.0 * graph.nodes.iter().map(|n| n.radius).fold(0.0, f64::max)
+}
+
+/// Whether `b` still holds for `graph`: K unchanged and no node added within its radius.
+fn still_valid(b: &BlockBindings, graph: &DeformationGraph) -> bool {
+    let r2 = b.radius * b.radius;
+    b.neighbours == graph.neighbours()
+        && graph.nodes[b.nodes_seen.min(graph.nodes.len())..]
+            .iter()
+            .all(|n| (n.position - b.centre).norm_squared() > r2)
+}
+
+/// Computes the bindings of block `coord`: the candidates are the nodes within `d_K + 2h` of its
+/// centre, and each voxel takes its K nearest among them.
+fn bind_block(
+    graph: &DeformationGraph,
+    geo: BlockGeometry,
+    coord: [i32; 3],
+    reach: f64,
+) -> BlockBindings {
+    let centre = geo.centre(coord);
+    let k = graph.neighbours();
+    let mut out = BlockBindings {
+        nodes_seen: graph.nodes.len(),
+        neighbours: k,
+        centre,
+        radius: f64::INFINITY,
+        voxels: Vec::new(),
+    };
+    let Some(nk) = NonZero::new(k) else {
+        return out;
+    };
+    let h = geo.half_diagonal();
+    let q: [f64; 3] = centre.into();
+    let nearest = graph.tree.nearest_n::<SquaredEuclidean>(&q, nk);
+    let (Some(first), Some(last)) = (nearest.first(), nearest.last()) else {
+        return out;
+    };
+    out.radius = last.distance.sqrt() + 2.0 * h;
+    if first.distance.sqrt() > reach + h {
+        return out;
+    }
+    let candidates: Vec<u32> = graph
+        .tree
+        .within_unsorted::<SquaredEuclidean>(&q, out.radius * out.radius)
+        .iter()
+        .map(|n| n.item as u32)
+        .collect();
+    let origin = geo.origin(coord);
+    out.voxels = (0..geo.voxels())
+        .map(|i| {
+            let b = geo.block as usize;
+            let (x, y, z) = (i % b, (i / b) % b, i / (b * b));
+            let p = origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
+            bind_voxel(graph, &candidates, &p, k, reach)
+        })
+        .collect();
+    out
+}
+
+/// The K nearest of `candidates` to `p`, by insertion into a short sorted list, as a binding;
+/// [`UNBOUND`] when the nearest is beyond `reach`.
+fn bind_voxel(
+    graph: &DeformationGraph,
+    candidates: &[u32],
+    p: &Vector3<f64>,
+    k: usize,
+    reach: f64,
+) -> VoxelBinding {
+    let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
+    for &c in candidates {
+        let d2 = (graph.nodes[c as usize].position - p).norm_squared();
+        if d2 < best[k - 1].1 {
+            let mut i = k - 1;
+            while i > 0 && best[i - 1].1 > d2 {
+                best[i] = best[i - 1];
+                i -= 1;
+            }
+            best[i] = (c, d2);
+        }
+    }
+    if best[0].1.sqrt() > reach {
+        return UNBOUND;
+    }
+    let b = graph.binding(&best[..k]);
+    let mut out = UNBOUND;
+    for s in 0..b.count {
+        out.nodes[s] = b.nodes[s];
+        out.weights[s] = b.weights[s] as f32;
+    }
+    out
+}
+
+/// The graph's warp through the cached bindings, as a [`VoxelWarp`]. The scratch is the block's
+/// slot in the cache.
+pub(crate) struct CachedWarp<'a> {
+    pub graph: &'a DeformationGraph,
+    pub bindings: &'a VoxelBindings,
+}
+
+impl VoxelWarp for CachedWarp<'_> {
+    type Scratch = usize;
+
+    fn prepare(&self, block: [i32; 3], slot: &mut usize) -> bool {
+        match self.bindings.slots.get(&block) {
+            Some(&s) if !self.bindings.blocks[s].voxels.is_empty() => {
+                *slot = s;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    fn warp(&self, voxel: usize, p: &Vector3<f64>, slot: &usize) -> Option<Vector3<f64>> {
+        let v = &self.bindings.blocks[*slot].voxels[voxel];
+        if v.nodes[0] == NONE {
+            return None;
+        }
+        let mut b = Binding {
+            nodes: [0; MAX_NEIGHBOURS],
+            weights: [0.0; MAX_NEIGHBOURS],
+            count: 0,
+        };
+        for (s, (&n, &w)) in v.nodes.iter().zip(&v.weights).enumerate() {
+            if n == NONE {
+                break;
+            }
+            b.nodes[s] = n;
+            b.weights[s] = w as f64;
+            b.count = s + 1;
+        }
+        Some(transform_point(&self.graph.blend(&b), p))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nonrigid::GraphParams;
+
+    /// A 1 cm grid over the square [x0, x1] × [0, 0.4] of the plane z = 0.3, each point moved by
+    /// up to 1 mm (so that no two nodes are equally far from a voxel).
+    fn plane(x0: f64, x1: f64) -> Vec<Vector3<f64>> {
+        let steps = ((x1 - x0) / 0.01).round() as usize;
+        (0..=steps)
+            .flat_map(|i| (0..=40).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let (a, b) = (i as f64 * 0.01 + x0, j as f64 * 0.01);
+                let jitter = Vector3::new((37.0 * a + 11.0 * b).sin(), (53.0 * b).cos(), 0.0);
+                Vector3::new(a, b, 0.3) + 1e-3 * jitter
+            })
+            .collect()
+    }
+
+    /// Every cached voxel of `cache` is bound as [`DeformationGraph::bind`] binds it, or unbound
+    /// exactly when its nearest node is beyond the reach.
+    fn assert_matches_fresh_bindings(cache: &VoxelBindings, graph: &DeformationGraph) {
+        let geo = cache.geometry.unwrap();
+        let reach = reach(graph);
+        let mut bound = 0;
+        for (&coord, &slot) in &cache.slots {
+            let block = &cache.blocks[slot];
+            for (i, v) in block.voxels.iter().enumerate() {
+                let b = geo.block as usize;
+                let (x, y, z) = (i % b, (i / b) % b, i / (b * b));
+                let p = geo.origin(coord) + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
+                let fresh = graph.bind(&p);
+                let nearest = (graph.nodes[fresh.nodes[0] as usize].position - p).norm();
+                if nearest > reach {
+                    assert_eq!(v.nodes[0], NONE, "{coord:?} voxel {i}");
+                    continue;
+                }
+                bound += 1;
+                for s in 0..fresh.count {
+                    assert_eq!(v.nodes[s], fresh.nodes[s], "{coord:?} voxel {i}");
+                    assert!((v.weights[s] as f64 - fresh.weights[s]).abs() < 1e-6);
+                }
+            }
+        }
+        assert!(bound > 1000, "{bound} voxels bound");
+    }
+
+    /// The cache holds the bindings a fresh K-nearest search gives, keeps them while no node is
+    /// added, recomputes only the blocks a new node can reach, and drops blocks the band left.
+    #[test]
+    fn cached_bindings_are_the_fresh_ones_across_graph_growth() {
+        let params = GraphParams {
+            spacing: 0.05,
+            ..GraphParams::default()
+        };
+        let mut graph = DeformationGraph::sample(&plane(0.0, 0.4), params).unwrap();
+        let geo = BlockGeometry {
+            voxel: 0.01,
+            block: 8,
+        };
+        let coords: Vec<[i32; 3]> = (0..5)
+            .flat_map(|x| (0..5).map(move |y| [x, y, 3]))
+            .collect();
+        let mut cache = VoxelBindings::default();
+        cache.update(&graph, &coords, geo);
+        assert_eq!(cache.computed, coords.len());
+        assert_matches_fresh_bindings(&cache, &graph);
+        cache.update(&graph, &coords, geo);
+        assert_eq!(cache.computed, 0);
+        // new surface beyond x = 0.4: nodes there reach the blocks at x = 4 (and 3), not x = 0
+        assert!(graph.extend(&plane(0.4, 0.6)) > 0);
+        let grown: Vec<[i32; 3]> = coords.iter().copied().chain([[6, 2, 3]]).collect();
+        cache.update(&graph, &grown, geo);
+        assert!(
+            cache.computed > 1 && cache.computed < 15,
+            "{}",
+            cache.computed
+        );
+        assert_matches_fresh_bindings(&cache, &graph);
+        cache.update(&graph, &grown[..3], geo);
+        assert_eq!((cache.computed, cache.blocks.len()), (0, 3));
+    }
+}
