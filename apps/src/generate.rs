@@ -17,6 +17,7 @@
 //! flow/ (per-pixel scene flow). Prints one JSON line last.
 
 use crate::cli;
+use crate::deform_flags::{DeformMotion, SurfaceArg};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -47,20 +48,6 @@ enum RigidMotion {
 enum SensorArg {
     Kinect,
     Ideal,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum DeformMotion {
-    Bend,
-    Twist,
-    Wave,
-}
-
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum SurfaceArg {
-    Plane,
-    Cylinder,
-    Sphere,
 }
 
 /// What both kinds of sequence take.
@@ -310,16 +297,8 @@ fn write_deforming(
     mesh: Option<&Path>,
 ) -> Result<usize> {
     let cam = common.camera()?;
-    let field = match m {
-        DeformMotion::Bend => Field::Bend,
-        DeformMotion::Twist => Field::Twist,
-        DeformMotion::Wave => Field::Wave,
-    };
-    let kind = match surface {
-        SurfaceArg::Plane => SurfaceKind::Plane,
-        SurfaceArg::Cylinder => SurfaceKind::Cylinder,
-        SurfaceArg::Sphere => SurfaceKind::Sphere,
-    };
+    let field = Field::from(m);
+    let kind = SurfaceKind::from(surface);
     let canonical = match mesh {
         Some(path) => {
             let mut m = dynamap_slam::io::ply::read(path).bad_input()?;

@@ -25,7 +25,8 @@
 //!
 //! - [`cli`]: the flags every binary has (`--config`, `--print-config`, `-v`/`-q`), the progress
 //!   bar, Ctrl-C, and the exit codes (0 ok, 1 failure, 2 bad input, 130 interrupted);
-//! - [`warp_flags`]: the warp-field flags of the two non-rigid applications;
+//! - [`warp_flags`]: the warp-field flags of the two non-rigid applications; [`deform_flags`]:
+//!   the generated deforming scene's field and surface;
 //! - [`iterations`]: the solver's iteration table; [`preview`]: `--preview` pictures;
 //!   [`rerun_log`]: `--rerun` logging (with the `rerun` feature); [`bench`](mod@bench): the benchmarks' setup.
 //!
@@ -34,6 +35,7 @@
 
 pub mod bench;
 pub mod cli;
+pub mod deform_flags;
 pub mod iterations;
 pub mod preview;
 pub mod rerun_log;

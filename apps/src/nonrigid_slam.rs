@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! cargo run --release --example nonrigid_slam                  # a generated bending plate, error vs ground truth
+//! cargo run --release --example nonrigid_slam -- --field wave --surface cylinder --max-frames 100
 //! cargo run --release --example nonrigid_slam -- DIR [--masks MASKS] [--output OUT]
 //! ```
 //! DIR is a TUM-layout, ICL-NUIM or plain folder of frames, told apart by its files
@@ -18,6 +19,7 @@ use crate::preview;
 use crate::rerun_log;
 use crate::warp_flags;
 
+use crate::deform_flags::{DeformMotion, SurfaceArg};
 use anyhow::{Context, Result};
 use clap::Parser;
 use cli::{InputError, Session};
@@ -29,7 +31,7 @@ use dynamap_slam::io::sequence::{OpenOptions, Sequence};
 use dynamap_slam::io::{ply, write_atomic};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
-use dynamap_slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
+use dynamap_slam::synthetic::deform::{surface, DeformingScene};
 use dynamap_slam::synthetic::noise::SensorNoise;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::fmt::Write as _;
@@ -54,6 +56,16 @@ struct Args {
     /// Frames to process at most [default: all; 30 for the generated sequence].
     #[arg(long)]
     max_frames: Option<usize>,
+    /// Without DIR: the field that deforms the generated surface.
+    #[arg(long, value_enum, default_value_t = DeformMotion::Bend)]
+    field: DeformMotion,
+    /// Without DIR: the generated surface.
+    #[arg(long, value_enum, default_value_t = SurfaceArg::Plane)]
+    surface: SurfaceArg,
+    /// Without DIR: the seed of the surface's texture and of the sensor noise [default: 3 for
+    /// the texture, 0 for the noise].
+    #[arg(long)]
+    seed: Option<u64>,
     /// A folder for pictures: the canonical model shaded from three viewpoints and, for the
     /// generated sequence, the tracking error per frame.
     #[arg(long, value_name = "DIR")]
@@ -319,9 +331,16 @@ fn run(args: Args, session: &Session) -> Result<()> {
 fn open_source(args: &Args) -> Result<Source> {
     Ok(match &args.dir {
         None => Source::Generated {
-            scene: DeformingScene::new(surface(SurfaceKind::Plane, 60), Field::Bend, 3),
+            scene: DeformingScene::new(
+                surface(args.surface.into(), 60),
+                args.field.into(),
+                args.seed.unwrap_or(3),
+            ),
             camera: Camera::tum_default(),
-            noise: SensorNoise::default(),
+            noise: SensorNoise {
+                seed: args.seed.unwrap_or(0),
+                ..SensorNoise::default()
+            },
             frames: args.max_frames.unwrap_or(30),
         },
         Some(d) => Source::Folder {

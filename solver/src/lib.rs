@@ -125,6 +125,7 @@ mod summary;
 mod system;
 
 pub use autodiff::{AutoDiff, CostFunctor};
+pub use cholesky::FactorPrecision;
 pub use covariance::covariance;
 pub use damping::{Damping, LevenbergDamping};
 pub use error::{ProblemError, SolveError};

@@ -11,7 +11,7 @@
 //! way for everything else.
 
 use crate::block::BlockSparse;
-use crate::cholesky::Cholesky;
+use crate::cholesky::{Cholesky, FactorPrecision};
 use crate::damping::Damping;
 use crate::error::SolveError;
 use crate::parallel::dot;
@@ -24,11 +24,18 @@ pub struct BlockSystem {
     entry_col: Vec<usize>,
     gradient: Vec<f64>,
     cholesky: Cholesky,
+    /// Whether a solve with the factor is exact up to rounding (f64, or dense).
+    exact: bool,
     /// Whether `cholesky` holds a factorisation (of an earlier H of this structure).
     factored: bool,
     /// Conjugate-gradient buffers: residual, preconditioned residual, direction, product.
     cg: [Vec<f64>; 4],
 }
+
+/// Relative residual to which [`BlockSystem::solve`] iterates on a single-precision factor.
+const SINGLE_PRECISION_TOLERANCE: f64 = 1e-12;
+/// Conjugate-gradient iterations [`BlockSystem::solve`] allows on a single-precision factor.
+const SINGLE_PRECISION_ITERATIONS: usize = 50;
 
 /// What [`BlockSystem::solve_refined`] did.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -57,6 +64,17 @@ impl BlockSystem {
         sizes: &[usize],
         pairs: impl IntoIterator<Item = (usize, usize)>,
     ) -> Result<Self, SolveError> {
+        Self::with_precision(sizes, pairs, FactorPrecision::Double)
+    }
+
+    /// [`Self::new`] with a sparse factor kept in `precision`. With
+    /// [`FactorPrecision::Single`], [`Self::solve`] iterates on the factor to full precision;
+    /// callers content with less use [`Self::factorise`] and [`Self::solve_refined`].
+    pub fn with_precision(
+        sizes: &[usize],
+        pairs: impl IntoIterator<Item = (usize, usize)>,
+        precision: FactorPrecision,
+    ) -> Result<Self, SolveError> {
         let n = sizes.len();
         let mut columns: Vec<Vec<usize>> = (0..n).map(|j| vec![j]).collect();
         for (i, j) in pairs {
@@ -81,11 +99,13 @@ impl BlockSystem {
             .flat_map(|j| std::iter::repeat_n(j, h.entry_ptr[j + 1] - h.entry_ptr[j]))
             .collect();
         // dense up to the solver's default threshold, as on its own sparse path
-        let cholesky = Cholesky::new(&h, h.dim() <= Options::default().dense_threshold)?;
+        let dense = h.dim() <= Options::default().dense_threshold;
+        let cholesky = Cholesky::with_precision(&h, dense, precision)?;
         Ok(Self {
             gradient: vec![0.0; h.dim()],
             h,
             entry_col,
+            exact: dense || precision == FactorPrecision::Double,
             cholesky,
             factored: false,
             cg: Default::default(),
@@ -179,9 +199,38 @@ impl BlockSystem {
     }
 
     /// Writes the step δ solving `(H + μD) δ = −g` into `step` (length [`Self::dim`]). Fails when
-    /// the damped matrix is not numerically positive definite (raise the damping and retry).
+    /// the damped matrix is not numerically positive definite (raise the damping and retry), or
+    /// when conjugate gradients on a single-precision factor do not reach a relative residual of
+    /// 1e-12 in 50 iterations.
     pub fn solve(&mut self, damping: Damping, step: &mut [f64]) -> Result<(), SolveError> {
         assert_eq!(step.len(), self.dim(), "step length");
+        self.factorise(damping)?;
+        if !self.exact {
+            let refined = self.solve_refined(
+                damping,
+                step,
+                SINGLE_PRECISION_TOLERANCE,
+                SINGLE_PRECISION_ITERATIONS,
+            );
+            return match refined.converged {
+                true => Ok(()),
+                false => Err(SolveError::LinearSolver(format!(
+                    "conjugate gradients on the single-precision factor did not converge in {} \
+                     iterations",
+                    refined.iterations
+                ))),
+            };
+        }
+        for (s, g) in step.iter_mut().zip(&self.gradient) {
+            *s = -g;
+        }
+        self.cholesky.solve(step);
+        Ok(())
+    }
+
+    /// Factorises `H + μD` (for [`Self::solve_refined`], or inside [`Self::solve`]). Fails when
+    /// it is not numerically positive definite.
+    pub fn factorise(&mut self, damping: Damping) -> Result<(), SolveError> {
         self.factored = false;
         self.cholesky
             .factor(&self.h, damping)
@@ -194,10 +243,6 @@ impl BlockSystem {
                 ),
             })?;
         self.factored = true;
-        for (s, g) in step.iter_mut().zip(&self.gradient) {
-            *s = -g;
-        }
-        self.cholesky.solve(step);
         Ok(())
     }
 
@@ -459,6 +504,26 @@ mod tests {
         let capped = s.solve_refined(Damping::Identity(0.5), &mut step, 1e-12, 1);
         assert_eq!((capped.iterations, capped.converged), (1, false));
         assert!(step.iter().any(|v| *v != 0.0));
+    }
+
+    /// With a single-precision factor, `solve` still gives the f64 solution (it iterates on the
+    /// factor), and a refined solve on a fresh single factor reaches a loose tolerance in a few
+    /// iterations.
+    #[test]
+    fn a_single_precision_factor_solves_to_double_precision() {
+        let (dense, g) = chain_matrix(60, 9);
+        let nb = dense.nrows() / 6;
+        let pairs = (0..nb).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
+        let single = BlockSystem::with_precision(&vec![6; nb], pairs, FactorPrecision::Single);
+        let mut s = chain_system(Some(single.unwrap()), &dense, &g);
+        let mut step = vec![0.0; dense.nrows()];
+        s.solve(Damping::Identity(0.25), &mut step).unwrap();
+        let expect = dense_step(&dense, &g, 0.25);
+        let err = (nalgebra::DVector::from_column_slice(&step) - &expect).amax();
+        assert!(err < 1e-9 * (1.0 + expect.amax()), "{err}");
+        s.factorise(Damping::Identity(0.25)).unwrap();
+        let refined = s.solve_refined(Damping::Identity(0.25), &mut step, 1e-3, 4);
+        assert!(refined.converged && refined.iterations <= 2, "{refined:?}");
     }
 
     #[test]

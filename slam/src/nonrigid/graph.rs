@@ -132,8 +132,21 @@ impl DeformationGraph {
         for (k, n) in self.nodes.iter().enumerate() {
             tree.add(&n.position.into(), k as u64);
         }
+        // points within the spacing of an existing node are never taken: dropped in parallel
+        let candidates: Vec<&Vector3<f64>> = points
+            .par_iter()
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .filter(|p| {
+                self.nodes.is_empty()
+                    || self
+                        .tree
+                        .nearest_one::<SquaredEuclidean>(&(**p).into())
+                        .distance
+                        >= r2
+            })
+            .collect();
         let mut added = Vec::new();
-        for p in points.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
+        for p in candidates {
             let q: [f64; 3] = (*p).into();
             if self.nodes.len() + added.len() > 0
                 && tree.nearest_one::<SquaredEuclidean>(&q).distance < r2

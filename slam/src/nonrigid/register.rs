@@ -24,6 +24,7 @@ use dynamap_residuals::icp::{point_to_plane, RigidMotion};
 use dynamap_solver::dense::{self, DenseOptions, DenseTerms, DenseWorkspace, Group};
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
+use dynamap_solver::FactorPrecision;
 use dynamap_solver::{SolveError, SE3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -398,7 +399,12 @@ impl WarpOptimiser {
         graph: &DeformationGraph,
         bindings: &[Binding],
     ) -> Result<(), RegisterError> {
-        self.system.prepare(graph, bindings)?;
+        // steps that iterate on a factorisation take it in single precision
+        let precision = match self.params.refine_iterations {
+            0 => FactorPrecision::Double,
+            _ => FactorPrecision::Single,
+        };
+        self.system.prepare(graph, bindings, precision)?;
         self.system
             .set_motions(graph.nodes.iter().map(|n| rigid_motion(&n.motion)));
         self.anchors.clear();

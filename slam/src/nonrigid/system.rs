@@ -33,8 +33,10 @@ use dynamap_residuals::deform::{
 };
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Tukey;
-use dynamap_solver::{BlockSystem, Damping, LevenbergDamping, RobustKernel, SolveError};
-use nalgebra::{DualQuaternion, Isometry3, Matrix6, SMatrix, Vector3, Vector6};
+use dynamap_solver::{
+    BlockSystem, Damping, FactorPrecision, LevenbergDamping, RobustKernel, SolveError,
+};
+use nalgebra::{DualQuaternion, Isometry3, SMatrix, Vector3, Vector6};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -136,6 +138,8 @@ enum Trial {
 #[derive(Default)]
 pub(crate) struct WarpSystem {
     system: Option<BlockSystem>,
+    /// The number type of its factorisation.
+    precision: FactorPrecision,
     /// Regulariser pairs the structure was built with.
     edge_pairs: Vec<(u32, u32)>,
     /// Per point: the entry of each of its binding pairs ([`SLOT_PAIRS`] order).
@@ -152,6 +156,8 @@ pub(crate) struct WarpSystem {
     trial: Vec<Isometry3<f64>>,
     trial_dqs: Vec<DualQuaternion<f64>>,
     step: Vec<f64>,
+    /// The regularisers' terms of the last linearisation.
+    priors: Vec<PriorTerms>,
 }
 
 impl WarpSystem {
@@ -161,6 +167,7 @@ impl WarpSystem {
         &mut self,
         graph: &DeformationGraph,
         bindings: &[Binding],
+        precision: FactorPrecision,
     ) -> Result<(), SolveError> {
         let nodes = graph.nodes.len();
         let edge_pairs: Vec<(u32, u32)> = graph
@@ -176,7 +183,8 @@ impl WarpSystem {
             .system
             .as_ref()
             .is_some_and(|s| s.num_blocks() == nodes)
-            && self.edge_pairs == edge_pairs;
+            && self.edge_pairs == edge_pairs
+            && self.precision == precision;
         if !same_graph {
             self.system = None;
         }
@@ -202,13 +210,14 @@ impl WarpSystem {
                     }
                 }
             }
-            let system = BlockSystem::new(&vec![6; nodes], pairs)?;
+            let system = BlockSystem::with_precision(&vec![6; nodes], pairs, precision)?;
             for (slots, b) in self.slots.iter_mut().zip(bindings) {
                 let ok = fill_slots(&system, b, slots);
                 debug_assert!(ok, "every binding pair was given");
             }
             self.system = Some(system);
             self.edge_pairs = edge_pairs;
+            self.precision = precision;
         }
         let stride = self.stride();
         let s = self.system.as_ref().expect("built above");
@@ -305,9 +314,9 @@ impl WarpSystem {
     }
 
     /// Writes the step solving `(H + μI)δ = −g` into `step` and returns the decrease the
-    /// quadratic model predicts for it: by conjugate gradients preconditioned with the last
-    /// factorisation when `refine_iterations` > 0 and they reach [`REFINE_TOLERANCE`] within
-    /// them, otherwise by a new factorisation.
+    /// quadratic model predicts for it. With `refine_iterations` > 0: by conjugate gradients
+    /// preconditioned with the last factorisation if they reach [`REFINE_TOLERANCE`] within them,
+    /// else with a new one (an error if even then they do not); otherwise by a new factorisation.
     fn solve_step(
         &mut self,
         mu: f64,
@@ -316,15 +325,26 @@ impl WarpSystem {
     ) -> Result<f64, SolveError> {
         let system = self.system.as_mut().expect("prepared");
         let damping = Damping::Identity(mu);
-        if refine_iterations > 0 && system.has_factorisation() {
+        if refine_iterations == 0 {
+            system.solve(damping, step)?;
+            // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
+            return Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()));
+        }
+        if system.has_factorisation() {
             let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, refine_iterations);
             if refined.converged {
                 return Ok(system.model_decrease(step));
             }
         }
-        system.solve(damping, step)?;
-        // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
-        Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()))
+        system.factorise(damping)?;
+        let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, refine_iterations);
+        if refined.converged {
+            return Ok(system.model_decrease(step));
+        }
+        Err(SolveError::LinearSolver(format!(
+            "conjugate gradients did not reach {REFINE_TOLERANCE} on a new factorisation in \
+             {refine_iterations} iterations"
+        )))
     }
 
     /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`) and takes them when
@@ -419,6 +439,20 @@ impl WarpSystem {
                 let h = perturb[i].transpose() * a * perturb[j];
                 out.copy_from_slice(h.as_slice());
             });
+        // the regularisers' blocks, each prior in parallel, added in their order
+        prior_terms(terms, &self.motions, sys, &mut self.priors);
+        // summed as `regulariser_cost` sums them, so that the two costs agree to the bit
+        let priors: f64 = self.priors.iter().fold(0.0, |c, p| c + p.cost);
+        let cost = costs.iter().sum::<f64>() + priors;
+        for p in &self.priors {
+            for (&e, b) in p.entries.iter().zip(&p.blocks) {
+                if e != NONE {
+                    for (o, v) in self.blocks[e as usize].iter_mut().zip(b) {
+                        *o += v;
+                    }
+                }
+            }
+        }
         system.clear();
         for (e, b) in self.blocks.iter().enumerate() {
             system.add_to_entry(e, b);
@@ -428,8 +462,15 @@ impl WarpSystem {
             let g8 = SMatrix::<f64, 8, 1>::from_column_slice(&grads[k * 8..k * 8 + 8]);
             gradient[6 * k..6 * k + 6].copy_from_slice((p.transpose() * g8).as_slice());
         }
-        let mut cost: f64 = costs.iter().sum();
-        cost += add_regularisers(terms, &self.motions, Some(system));
+        for p in &self.priors {
+            for (&k, g) in p.nodes.iter().zip(&p.grads) {
+                if k != NONE {
+                    for (o, v) in gradient[6 * k as usize..][..6].iter_mut().zip(g) {
+                        *o += v;
+                    }
+                }
+            }
+        }
         cost
     }
 }
@@ -562,61 +603,102 @@ pub(crate) fn cost_at(
             .map(|i| data_terms(terms, i, dqs, None))
             .sum();
     });
-    costs.iter().sum::<f64>() + add_regularisers(terms, motions, None)
+    costs.iter().sum::<f64>() + regulariser_cost(terms, motions)
 }
 
-/// ½ Σ |r|² of the as-rigid-as-possible edges and the stay priors; with `system`, their 6 × 6
-/// Gauss-Newton blocks and gradients added to it.
-fn add_regularisers(
-    terms: &WarpTerms<'_>,
-    motions: &[Isometry3<f64>],
-    mut system: Option<&mut BlockSystem>,
-) -> f64 {
+/// ½ Σ |r|² of the as-rigid-as-possible edges and the stay priors.
+fn regulariser_cost(terms: &WarpTerms<'_>, motions: &[Isometry3<f64>]) -> f64 {
     let mut cost = 0.0;
     for &(i, j, gj, weight) in terms.edges {
-        let (i, j) = (i as usize, j as usize);
-        let (r, ji, jj) = as_rigid_as_possible(&motions[i], &motions[j], &gj);
+        let (ti, tj) = (&motions[i as usize], &motions[j as usize]);
+        let r = ti * nalgebra::Point3::from(gj) - tj * nalgebra::Point3::from(gj);
         cost += 0.5 * weight * r.norm_squared();
-        if let Some(s) = system.as_deref_mut() {
-            let (ji, jj) = (ji * weight.sqrt(), jj * weight.sqrt());
-            let r = r * weight.sqrt();
-            add_block(s, i, i, &(ji.transpose() * ji));
-            add_block(s, j, j, &(jj.transpose() * jj));
-            if i < j {
-                add_block(s, i, j, &(ji.transpose() * jj));
-            } else {
-                add_block(s, j, i, &(jj.transpose() * ji));
-            }
-            add_gradient(s, i, &(ji.transpose() * r));
-            add_gradient(s, j, &(jj.transpose() * r));
-        }
     }
     if terms.stay_weight > 0.0 {
-        let w = terms.stay_weight;
-        for (k, (anchor, motion)) in terms.anchors.iter().zip(motions).enumerate() {
-            let e = se3::log(&(anchor * motion));
-            cost += 0.5 * w * e.norm_squared();
-            if let Some(s) = system.as_deref_mut() {
-                let j = se3::right_jacobian_inv(&e);
-                add_block(s, k, k, &(j.transpose() * j * w));
-                add_gradient(s, k, &(j.transpose() * e * w));
-            }
+        for (anchor, motion) in terms.anchors.iter().zip(motions) {
+            cost += 0.5 * terms.stay_weight * se3::log(&(anchor * motion)).norm_squared();
         }
     }
     cost
 }
 
-fn add_block(s: &mut BlockSystem, i: usize, j: usize, h: &Matrix6<f64>) {
-    let e = s
-        .entry(i, j)
-        .expect("regulariser pairs are in the structure");
-    s.add_to_entry(e, h.as_slice());
+/// One regulariser's share of H and g: an edge's blocks (i, i), (j, j) and (min, max) and its
+/// two gradients, or a stay prior's diagonal block and gradient (unused slots [`NONE`]).
+#[derive(Clone, Copy)]
+struct PriorTerms {
+    cost: f64,
+    entries: [u32; 3],
+    blocks: [[f64; 36]; 3],
+    nodes: [u32; 2],
+    grads: [[f64; 6]; 2],
 }
 
-fn add_gradient(s: &mut BlockSystem, k: usize, g: &Vector6<f64>) {
-    for (o, v) in s.gradient_mut()[6 * k..6 * k + 6].iter_mut().zip(g.iter()) {
-        *o += v;
+impl Default for PriorTerms {
+    fn default() -> Self {
+        Self {
+            cost: 0.0,
+            entries: [NONE; 3],
+            blocks: [[0.0; 36]; 3],
+            nodes: [NONE; 2],
+            grads: [[0.0; 6]; 2],
+        }
     }
+}
+
+/// Fills `out` with the terms of every as-rigid-as-possible edge (eq. 4.5-4.7), then of every
+/// stay prior `√w Log(A₀⁻¹ A)` (when weighted), each computed in parallel.
+fn prior_terms(
+    terms: &WarpTerms<'_>,
+    motions: &[Isometry3<f64>],
+    s: &BlockSystem,
+    out: &mut Vec<PriorTerms>,
+) {
+    let stays = if terms.stay_weight > 0.0 {
+        terms.anchors.len()
+    } else {
+        0
+    };
+    out.resize(terms.edges.len() + stays, PriorTerms::default());
+    let entry = |i: usize, j: usize| {
+        s.entry(i, j)
+            .expect("regulariser pairs are in the structure") as u32
+    };
+    out.par_iter_mut()
+        .enumerate()
+        .with_min_len(64)
+        .for_each(|(x, p)| {
+            if let Some(&(i, j, gj, weight)) = terms.edges.get(x) {
+                let (i, j) = (i as usize, j as usize);
+                let (r, ji, jj) = as_rigid_as_possible(&motions[i], &motions[j], &gj);
+                p.cost = 0.5 * weight * r.norm_squared();
+                let (ji, jj, r) = (ji * weight.sqrt(), jj * weight.sqrt(), r * weight.sqrt());
+                let off = match i < j {
+                    true => ji.transpose() * jj,
+                    false => jj.transpose() * ji,
+                };
+                p.entries = [entry(i, i), entry(j, j), entry(i.min(j), i.max(j))];
+                for (o, h) in
+                    p.blocks
+                        .iter_mut()
+                        .zip([ji.transpose() * ji, jj.transpose() * jj, off])
+                {
+                    o.copy_from_slice(h.as_slice());
+                }
+                p.nodes = [i as u32, j as u32];
+                p.grads[0].copy_from_slice((ji.transpose() * r).as_slice());
+                p.grads[1].copy_from_slice((jj.transpose() * r).as_slice());
+            } else {
+                let k = x - terms.edges.len();
+                let w = terms.stay_weight;
+                let e = se3::log(&(terms.anchors[k] * motions[k]));
+                p.cost = 0.5 * w * e.norm_squared();
+                let jac = se3::right_jacobian_inv(&e);
+                p.entries = [entry(k, k), NONE, NONE];
+                p.blocks[0].copy_from_slice((jac.transpose() * jac * w).as_slice());
+                p.nodes = [k as u32, NONE];
+                p.grads[0].copy_from_slice((jac.transpose() * e * w).as_slice());
+            }
+        });
 }
 
 #[cfg(test)]
@@ -629,6 +711,7 @@ mod tests {
     use dynamap_residuals::pose_graph::Prior3;
     use dynamap_solver::{Jacobians, Manifold, Residual, Var, SE3};
     use nalgebra::DMatrix;
+    use nalgebra::Matrix6;
 
     /// A graph over a wavy patch with nodes moved off the identity, points bound to it, and
     /// partners near their warped positions (some beyond Tukey's c, some unmatched).
@@ -781,7 +864,8 @@ mod tests {
             stay_weight: stay,
         };
         let mut ws = WarpSystem::default();
-        ws.prepare(&graph, &bindings).unwrap();
+        ws.prepare(&graph, &bindings, FactorPrecision::Double)
+            .unwrap();
         ws.set_motions(motions.iter().copied());
         let cost = ws.linearise(&terms);
         assert_eq!(cost, cost_at(&terms, &motions, &ws.dqs.clone()));
@@ -835,12 +919,10 @@ mod tests {
         let scale = h.amax();
         for r in 0..dim {
             for c in 0..dim {
-                let d = (s.get(r, c) - h[(r, c)]).abs();
+                let (got, want) = (s.get(r, c), h[(r, c)]);
                 assert!(
-                    d < 1e-10 * scale,
-                    "H({r}, {c}): {} vs {}",
-                    s.get(r, c),
-                    h[(r, c)]
+                    (got - want).abs() < 1e-10 * scale,
+                    "H({r}, {c}): {got} vs {want}"
                 );
             }
             assert!((s.gradient()[r] - g[r]).abs() < 1e-10 * g.amax(), "g({r})");
@@ -877,7 +959,8 @@ mod tests {
 
     fn system_at(graph: &DeformationGraph, bindings: &[Binding]) -> WarpSystem {
         let mut ws = WarpSystem::default();
-        ws.prepare(graph, bindings).unwrap();
+        ws.prepare(graph, bindings, FactorPrecision::Double)
+            .unwrap();
         ws.set_motions(
             graph
                 .nodes
@@ -900,7 +983,8 @@ mod tests {
         let after = cost_at(&terms, &ws.motions.clone(), &ws.dqs.clone());
         assert!(after < 0.5 * before, "{before} -> {after}");
         let entries = ws.system().num_entries();
-        ws.prepare(&graph, &bindings[..50]).unwrap();
+        ws.prepare(&graph, &bindings[..50], FactorPrecision::Double)
+            .unwrap();
         assert_eq!(ws.system().num_entries(), entries);
     }
 

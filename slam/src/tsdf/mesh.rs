@@ -3,7 +3,7 @@
 //! neighbouring blocks, and vertices are shared through a key per lattice edge, so the mesh is
 //! watertight across blocks.
 
-use super::{local_index, TsdfVolume, BLOCK};
+use super::{local_index, Block, TsdfVolume, BLOCK};
 use crate::mesh::Mesh;
 use marching_cubes::tables::{EDGE_TABLE, TRI_TABLE};
 use nalgebra::Point3;
@@ -45,17 +45,36 @@ struct Corner {
     color: [u8; 3],
 }
 
-impl TsdfVolume {
-    fn corner(&self, g: [i32; 3]) -> Option<Corner> {
-        let (b, l) = super::split(g);
-        let blk = self.block(&b)?;
-        let i = local_index(l[0], l[1], l[2]);
+/// A block and its seven neighbours towards +x, +y and +z (where allocated): every corner the
+/// block's cubes read, looked up once per block instead of once per corner.
+struct Neighbourhood<'a> {
+    blocks: [Option<&'a Block>; 8],
+}
+
+impl<'a> Neighbourhood<'a> {
+    fn of(volume: &'a TsdfVolume, coord: [i32; 3]) -> Self {
+        Self {
+            blocks: std::array::from_fn(|k| {
+                let d = [(k & 1) as i32, ((k >> 1) & 1) as i32, ((k >> 2) & 1) as i32];
+                volume.block(&[coord[0] + d[0], coord[1] + d[1], coord[2] + d[2]])
+            }),
+        }
+    }
+
+    /// The voxel at `l` (0..=BLOCK on each axis) from the block's first voxel, if observed.
+    #[inline]
+    fn corner(&self, l: [i32; 3]) -> Option<Corner> {
+        let (bx, by, bz) = (l[0] / BLOCK, l[1] / BLOCK, l[2] / BLOCK);
+        let blk = self.blocks[(bx + 2 * by + 4 * bz) as usize]?;
+        let i = local_index(l[0] - bx * BLOCK, l[1] - by * BLOCK, l[2] - bz * BLOCK);
         (blk.voxels[i].weight > 0.0).then(|| Corner {
             tsdf: blk.voxels[i].tsdf,
             color: [blk.color[i][0], blk.color[i][1], blk.color[i][2]],
         })
     }
+}
 
+impl TsdfVolume {
     /// The zero level set of the TSDF as a coloured triangle mesh (world frame, normals from the
     /// faces), watertight across blocks. Cubes with an unobserved corner, or with a sign change
     /// between two corners both at the truncation limit (|tsdf| ≥ 1, a band edge, not a surface), are
@@ -67,6 +86,7 @@ impl TsdfVolume {
             .par_iter()
             .map(|blk| {
                 let mut part = BlockMesh::default();
+                let hood = Neighbourhood::of(self, blk.coord);
                 let base = [
                     blk.coord[0] * BLOCK,
                     blk.coord[1] * BLOCK,
@@ -75,7 +95,7 @@ impl TsdfVolume {
                 for z in 0..BLOCK {
                     for y in 0..BLOCK {
                         for x in 0..BLOCK {
-                            self.march_cube([base[0] + x, base[1] + y, base[2] + z], &mut part);
+                            self.march_cube(&hood, base, [x, y, z], &mut part);
                         }
                     }
                 }
@@ -85,14 +105,22 @@ impl TsdfVolume {
         weld(&parts)
     }
 
-    /// Marching cubes on the cube whose lowest corner is voxel `g`: its triangles (as edge keys)
-    /// and their vertices added to `part`; nothing when a corner is unobserved or a crossing lies
-    /// between two corners at the truncation limit.
-    fn march_cube(&self, g: [i32; 3], part: &mut BlockMesh) {
+    /// Marching cubes on the cube whose lowest corner is voxel `l` of the block whose first voxel
+    /// is `base` (global voxel `g = base + l`): its triangles (as edge keys) and their vertices
+    /// added to `part`; nothing when a corner is unobserved or a crossing lies between two
+    /// corners at the truncation limit.
+    fn march_cube(
+        &self,
+        hood: &Neighbourhood<'_>,
+        base: [i32; 3],
+        l: [i32; 3],
+        part: &mut BlockMesh,
+    ) {
+        let g = [base[0] + l[0], base[1] + l[1], base[2] + l[2]];
         let mut c: [Option<Corner>; 8] = Default::default();
         let mut index = 0usize;
         for (k, off) in CORNERS.iter().enumerate() {
-            let Some(corner) = self.corner([g[0] + off[0], g[1] + off[1], g[2] + off[2]]) else {
+            let Some(corner) = hood.corner([l[0] + off[0], l[1] + off[1], l[2] + off[2]]) else {
                 return;
             };
             if corner.tsdf < 0.0 {
