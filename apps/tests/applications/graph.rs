@@ -22,3 +22,35 @@ fn rigid_slam_writes_its_keyframe_graph_as_g2o() {
     assert_eq!(graph.edges.len(), keyframes - 1 + loops);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A graph with an indefinite information matrix (as SE-Sync's cubicle has) is solved with the
+/// edge repaired, named in a warning and counted in the JSON line; `--strict` refuses it, naming
+/// the line.
+#[test]
+fn pose_graph_repairs_an_indefinite_information_matrix_unless_strict() {
+    let dir = scratch("indefinite");
+    let path = dir.join("indefinite.g2o");
+    // edge 0-1's information has eigenvalue -1e-6; the triangle's measurements disagree a little
+    let text_g2o = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1.1 0 0\nVERTEX_SE2 2 2 0.3 0\n\
+                    EDGE_SE2 0 1 1 0 0 1 0 0 1 0 -1e-6\n\
+                    EDGE_SE2 1 2 1 0.1 0 100 0 0 100 0 100\n\
+                    EDGE_SE2 0 2 2 0.1 0 100 0 0 100 0 100\n";
+    std::fs::write(&path, text_g2o).unwrap();
+    let file = path.to_str().unwrap();
+    let out = run("pose_graph", &[file]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = result_json(&out);
+    assert_eq!(json["repaired_edges"], 1, "{json}");
+    assert_eq!(json["converged"], true, "{json}");
+    assert!(json["chi2_final"].as_f64().unwrap() < json["chi2_initial"].as_f64().unwrap());
+    let log = text(&out.stderr) + &text(&out.stdout);
+    assert!(log.contains("line 4 (edge 0 -> 1)"), "{log}");
+    let strict = run("pose_graph", &[file, "--strict", "-q"]);
+    assert_eq!(strict.status.code(), Some(2));
+    let err = text(&strict.stderr);
+    assert!(
+        err.contains("indefinite.g2o:4:") && err.contains("not positive definite"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

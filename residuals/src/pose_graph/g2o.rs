@@ -7,6 +7,7 @@
 //! on writing, as GTSAM's `readG2o` does.
 
 use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
+use super::information::{self, InformationRepair};
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
 use std::fmt::Write as _;
@@ -124,8 +125,29 @@ impl LineParser<'_> {
     }
 }
 
-/// Reads a g2o pose graph from a file.
+/// What reading does with an edge whose information matrix is not positive definite.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum InformationPolicy {
+    /// Refuse the file, naming the line.
+    #[default]
+    Refuse,
+    /// Replace the matrix by the nearest positive-definite one ([`information::repair`]) and
+    /// report the edge; a matrix with no positive eigenvalue is still refused.
+    Repair,
+}
+
+/// Reads a g2o pose graph from a file, refusing information matrices that are not positive
+/// definite.
 pub fn read(path: impl AsRef<Path>) -> Result<PoseGraph, G2oError> {
+    read_with(path, InformationPolicy::Refuse).map(|(g, _)| g)
+}
+
+/// Reads a g2o pose graph from a file under `policy`, with the edges whose information matrix
+/// was repaired.
+pub fn read_with(
+    path: impl AsRef<Path>,
+    policy: InformationPolicy,
+) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
     let path = path.as_ref();
     let name = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|e| G2oError {
@@ -133,7 +155,7 @@ pub fn read(path: impl AsRef<Path>) -> Result<PoseGraph, G2oError> {
         line: 0,
         message: format!("cannot read: {e}"),
     })?;
-    parse(&text, &name)
+    parse_with(&text, &name, policy)
 }
 
 fn upper<const N: usize>(values: &[f64]) -> nalgebra::SMatrix<f64, N, N> {
@@ -154,8 +176,19 @@ fn swap_halves(m: &Matrix6<f64>) -> Matrix6<f64> {
     Matrix6::from_fn(|i, j| m[((i + 3) % 6, (j + 3) % 6)])
 }
 
-/// Parses g2o text; `path` names the source in errors.
+/// Parses g2o text; `path` names the source in errors. Information matrices that are not
+/// positive definite are refused.
 pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
+    parse_with(text, path, InformationPolicy::Refuse).map(|(g, _)| g)
+}
+
+/// [`parse`] under `policy`, with the edges whose information matrix was repaired.
+pub fn parse_with(
+    text: &str,
+    path: &str,
+    policy: InformationPolicy,
+) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
+    let mut repairs = Vec::new();
     let mut graph = PoseGraph::new(Dimension::Two);
     graph.source = path.to_string();
     let mut dimension: Option<(Dimension, usize)> = None;
@@ -175,7 +208,11 @@ pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
                 let (id, pose) = parse_vertex(&p, tag, &rest)?;
                 add_vertex(&mut graph, &p, id, pose)?;
             }
-            "EDGE_SE2" | "EDGE_SE3:QUAT" => graph.edges.push(parse_edge(&p, tag, &rest, &edge3)?),
+            "EDGE_SE2" | "EDGE_SE3:QUAT" => {
+                let (edge, repair) = parse_edge(&p, tag, &rest, &edge3, policy)?;
+                graph.edges.push(edge);
+                repairs.extend(repair);
+            }
             "FIX" => {
                 if rest.is_empty() {
                     return Err(p.err("FIX needs at least one vertex id"));
@@ -208,7 +245,7 @@ pub fn parse(text: &str, path: &str) -> Result<PoseGraph, G2oError> {
             message: format!("FIX names vertex {f}, which has no VERTEX line"),
         });
     }
-    Ok(graph)
+    Ok((graph, repairs))
 }
 
 /// Notes the graph's dimension from the first tag that has one; an error when `tag` is of the
@@ -280,15 +317,16 @@ fn add_vertex(
     }
 }
 
-/// An EDGE_SE2 or EDGE_SE3:QUAT line; its information matrix must be positive definite and it
-/// must join two vertices.
+/// An EDGE_SE2 or EDGE_SE3:QUAT line, which must join two vertices; an information matrix that is
+/// not positive definite is refused or repaired as `policy` says.
 fn parse_edge(
     p: &LineParser<'_>,
     tag: &str,
     rest: &[&str],
     edge3: &[String],
-) -> Result<Edge, G2oError> {
-    let measurement = if tag == "EDGE_SE2" {
+    policy: InformationPolicy,
+) -> Result<(Edge, Option<InformationRepair>), G2oError> {
+    let mut measurement = if tag == "EDGE_SE2" {
         p.count(tag, rest, SE2_EDGE)?;
         let v = p.nums(&rest[2..], &SE2_EDGE[2..])?;
         Measurement::Se2 {
@@ -304,24 +342,55 @@ fn parse_edge(
             information: swap_halves(&upper::<6>(&v[7..28])),
         }
     };
-    let pd = match &measurement {
-        Measurement::Se2 { information, .. } => nalgebra::Cholesky::new(*information).is_some(),
-        Measurement::Se3 { information, .. } => nalgebra::Cholesky::new(*information).is_some(),
-    };
-    if !pd {
-        return Err(p.err("fields I11..: the information matrix is not positive definite"));
-    }
     let from = p.id(rest[0], "from")?;
     let to = p.id(rest[1], "to")?;
     if from == to {
         return Err(p.err(format!("edge from vertex {from} to itself")));
     }
-    Ok(Edge {
+    let repaired = match &mut measurement {
+        Measurement::Se2 { information, .. } => definite(information, policy),
+        Measurement::Se3 { information, .. } => definite(information, policy),
+    };
+    let repair = match repaired {
+        Ok(None) => None,
+        Ok(Some((smallest_eigenvalue, raised, floor))) => Some(InformationRepair {
+            line: p.line,
+            from,
+            to,
+            smallest_eigenvalue,
+            raised,
+            floor,
+        }),
+        Err(why) => return Err(p.err(format!("fields I11..: {why}"))),
+    };
+    let edge = Edge {
         from,
         to,
         measurement,
         line: p.line,
-    })
+    };
+    Ok((edge, repair))
+}
+
+/// Leaves a positive-definite `information` as it is; otherwise refuses it or, under
+/// [`InformationPolicy::Repair`], replaces it and gives (smallest eigenvalue, raised, floor).
+fn definite<const N: usize>(
+    information: &mut nalgebra::SMatrix<f64, N, N>,
+    policy: InformationPolicy,
+) -> Result<Option<(f64, usize, f64)>, &'static str> {
+    if nalgebra::Cholesky::new(*information).is_some() {
+        return Ok(None);
+    }
+    if policy == InformationPolicy::Refuse {
+        return Err(
+            "the information matrix is not positive definite (read with repair to take \
+                    the nearest positive-definite one)",
+        );
+    }
+    let (m, smallest, raised, floor) = information::repair(information)
+        .ok_or("the information matrix has no positive eigenvalue; nothing to repair")?;
+    *information = m;
+    Ok(Some((smallest, raised, floor)))
 }
 
 /// Formats a pose graph as g2o text with the vertices in `poses` (all digits needed to read each
@@ -440,6 +509,36 @@ mod tests {
             }
             assert_eq!(back.edges.len(), g.edges.len());
         }
+    }
+
+    /// Under the repair policy an indefinite information matrix is replaced by a positive-definite
+    /// one and reported with its line and edge; one with no positive eigenvalue is still refused;
+    /// the strict reading refuses both.
+    #[test]
+    fn indefinite_information_is_repaired_and_reported_or_refused() {
+        let text = "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n\
+                    EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 \
+                    1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 -1e-7\n";
+        let (g, repairs) = parse_with(text, "c.g2o", InformationPolicy::Repair).unwrap();
+        assert_eq!(repairs.len(), 1);
+        let r = &repairs[0];
+        assert_eq!((r.line, r.from, r.to, r.raised), (3, 0, 1, 1));
+        assert!((r.smallest_eigenvalue + 1e-7).abs() < 1e-15, "{r:?}");
+        let Measurement::Se3 { information, .. } = &g.edges[0].measurement else {
+            unreachable!()
+        };
+        assert!(nalgebra::Cholesky::new(*information).is_some());
+        assert!(g.build_problem(&g.vertices).is_ok());
+        let strict = parse(text, "c.g2o").unwrap_err().to_string();
+        assert!(
+            strict.starts_with(
+                "c.g2o:3: fields I11..: the information matrix is not positive definite"
+            ),
+            "{strict}"
+        );
+        let hopeless = "VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 1 1 0 0 -1 0 0 -1 0 -1\n";
+        let err = parse_with(hopeless, "h.g2o", InformationPolicy::Repair).unwrap_err();
+        assert!(err.to_string().contains("no positive eigenvalue"), "{err}");
     }
 
     #[test]

@@ -8,6 +8,7 @@
 mod factors;
 pub mod g2o;
 mod graph;
+pub mod information;
 pub mod init;
 pub mod synthetic;
 
