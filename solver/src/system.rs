@@ -246,14 +246,14 @@ impl BlockSystem {
         Ok(())
     }
 
-    /// Whether a factorisation from an earlier [`Self::solve`] is held (for
-    /// [`Self::solve_refined`]).
+    /// Whether a factorisation from an earlier [`Self::solve`] or [`Self::factorise`] is held
+    /// (for [`Self::solve_refined`]).
     pub fn has_factorisation(&self) -> bool {
         self.factored
     }
 
     /// Solves `(H + μD) δ = −g` by conjugate gradients preconditioned with the factorisation of
-    /// the last [`Self::solve`], whose matrix (an earlier H of the same structure, its damping)
+    /// the last [`Self::solve`] or [`Self::factorise`], whose matrix (an earlier H of the same structure, its damping)
     /// need not be the current one: a factorisation of a nearby matrix is a preconditioner that
     /// leaves few distinct eigenvalues, so a few iterations replace a new factorisation
     /// (Hestenes & Stiefel 1952; Saad, *Iterative Methods for Sparse Linear Systems*, 2003,

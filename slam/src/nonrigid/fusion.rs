@@ -5,7 +5,8 @@
 //! 2. warp the canonical surface samples by the current field and optimise the field against the
 //!    live depth (projective association, [`WarpOptimiser`]), starting from the last frame's field;
 //! 3. fuse the live depth into the canonical volume through the warp: each voxel centre near the
-//!    surface is carried into the live frame, projected, and its projective signed distance fused
+//!    surface is carried into the live frame by the blend of its K nearest nodes (kept across
+//!    frames, `voxel_bindings`), projected, and its projective signed distance fused
 //!    ([`TsdfVolume::integrate_warped`]); the blocks to update are found by carrying the live
 //!    surface back into the canonical frame by the inverse of its blended node motion;
 //! 4. extract the canonical surface, extend the graph where it has grown beyond the nodes' reach,

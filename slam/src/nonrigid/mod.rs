@@ -6,8 +6,9 @@
 //! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
 //!   as-rigid-as-possible regularisation under a decreasing weight, solved on the solver's
 //!   block-sparse Cholesky from normal equations assembled in the blend's coordinates (`system`).
-//! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp, the
-//!   field tracked frame to frame against live depth, the graph grown with the surface.
+//! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp (each
+//!   voxel's nodes cached across frames, `voxel_bindings`), the field tracked frame to frame
+//!   against live depth, the graph grown with the surface.
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
 //!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
 //!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
