@@ -149,11 +149,13 @@ fn reach(graph: &DeformationGraph) -> f64 {
     2.0 * graph.nodes.iter().map(|n| n.radius).fold(0.0, f64::max)
 }
 
-/// Whether `b` still holds for `graph`: K unchanged and no node added within its radius.
+/// Whether `b` still holds for `graph`: K unchanged, no node removed (a graph that shrank is
+/// another graph) and no node added within its radius.
 fn still_valid(b: &BlockBindings, graph: &DeformationGraph) -> bool {
     let r2 = b.radius * b.radius;
     b.neighbours == graph.neighbours()
-        && graph.nodes[b.nodes_seen.min(graph.nodes.len())..]
+        && b.nodes_seen <= graph.nodes.len()
+        && graph.nodes[b.nodes_seen..]
             .iter()
             .all(|n| (n.position - b.centre).norm_squared() > r2)
 }
