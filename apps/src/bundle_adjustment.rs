@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! cargo run --release --example bundle_adjustment -- problem.txt [--huber 1.0 | --kernel cauchy:1]
-//!        [--linear-solver schur-dense|schur-sparse|schur-iterative|cholesky] [--max-iterations 50]
+//!        [--linear-solver schur-dense|schur-sparse|schur-iterative|auto|cholesky] [--max-iterations 50]
+//!        [--pcg-tolerance 1e-6]
 //! cargo run --release --example bundle_adjustment     # a generated problem with a known optimum
 //! ```
 //!
@@ -24,13 +25,15 @@ use dynamap_residuals::bal::{
     BalProblem,
 };
 use dynamap_solver::robust::NamedKernel;
-use dynamap_solver::{LinearSolverKind, Solver, Summary};
+use dynamap_solver::{LinearSolverKind, Options, Solver, Summary};
 use iterations::IterationLog;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum LinearKind {
+    /// Schur complement, the reduced camera system's solver chosen by its size and sparsity.
+    Auto,
     /// Schur complement, reduced camera system by dense Cholesky.
     SchurDense,
     /// Schur complement, reduced camera system by sparse Cholesky.
@@ -61,6 +64,10 @@ struct Args {
     /// Iteration limit (accepted and rejected steps both count, as in Ceres).
     #[arg(long, default_value_t = 50)]
     max_iterations: usize,
+    /// schur-iterative: conjugate gradients stop at this residual relative to the right-hand
+    /// side [default: the solver's].
+    #[arg(long)]
+    pcg_tolerance: Option<f64>,
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -112,6 +119,28 @@ fn write_preview(
     )
 }
 
+/// The solver's settings from the flags: the linear solver, the iteration limit and the
+/// conjugate gradients' tolerance.
+fn solver_options(args: &Args) -> Result<Options> {
+    let linear_solver = match args.linear_solver {
+        LinearKind::Auto => LinearSolverKind::Schur,
+        LinearKind::SchurDense => LinearSolverKind::SchurDense,
+        LinearKind::SchurSparse => LinearSolverKind::SchurSparse,
+        LinearKind::SchurIterative => LinearSolverKind::SchurIterative,
+        LinearKind::Cholesky => LinearSolverKind::Sparse,
+    };
+    let mut options = bal::options(linear_solver, args.max_iterations);
+    if let Some(t) = args.pcg_tolerance {
+        if !(t > 0.0 && t < 1.0) {
+            return Err(cli::bad_input(format!(
+                "--pcg-tolerance must lie in (0, 1), got {t}"
+            )));
+        }
+        options.pcg_tolerance = t;
+    }
+    Ok(options)
+}
+
 fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(h) = args.huber {
         if !(h > 0.0 && h.is_finite()) {
@@ -124,13 +153,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     cli::set_threads(args.threads)?;
     let (mut data, name) = load_problem(args.problem.as_deref())?;
     let mut solve = data.build(kernel).bad_input()?;
-    let linear_solver = match args.linear_solver {
-        LinearKind::SchurDense => LinearSolverKind::SchurDense,
-        LinearKind::SchurSparse => LinearSolverKind::SchurSparse,
-        LinearKind::SchurIterative => LinearSolverKind::SchurIterative,
-        LinearKind::Cholesky => LinearSolverKind::Sparse,
-    };
-    let options = bal::options(linear_solver, args.max_iterations);
+    let options = solver_options(&args)?;
     let quiet = session.quiet;
     if !quiet {
         println!(

@@ -29,31 +29,48 @@ enum Shape {
     Sphere,
 }
 
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum BalLayout {
+    /// Cameras on a ring around a cloud of points.
+    Ring,
+    /// A walk through a grid of streets photographing the façades; the city grows with the
+    /// number of cameras (as BAL's Venice and Final sets).
+    Streets,
+}
+
+/// The `bal` subcommand's settings.
+#[derive(clap::Args, Debug)]
+struct BalArgs {
+    /// Output file.
+    out: PathBuf,
+    /// Where the cameras stand.
+    #[arg(long, value_enum, default_value = "ring")]
+    layout: BalLayout,
+    /// Number of cameras.
+    #[arg(long, default_value_t = 50)]
+    cameras: usize,
+    /// Points per camera (the number of points is cameras × this).
+    #[arg(long, default_value_t = 40)]
+    points_per_camera: usize,
+    /// How many cameras see each point, LO:HI: neighbours on the ring, or cameras that have
+    /// the point in view in the streets [default: 3:12 on the ring, 2:20 in the streets].
+    #[arg(long, value_parser = parse_range)]
+    views: Option<(usize, usize)>,
+    /// Standard deviation of the pixel noise.
+    #[arg(long, default_value_t = 1.0)]
+    pixel_noise: f64,
+    /// Fraction of observations replaced by gross outliers (10 to 60 pixels off).
+    #[arg(long, default_value_t = 0.02)]
+    outliers: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
 #[derive(Subcommand, Debug)]
 enum Kind {
-    /// A bundle adjustment in BAL's format: cameras on a ring around a cloud of points.
-    Bal {
-        /// Output file.
-        out: PathBuf,
-        /// Number of cameras.
-        #[arg(long, default_value_t = 50)]
-        cameras: usize,
-        /// Points per camera (the number of points is cameras × this).
-        #[arg(long, default_value_t = 40)]
-        points_per_camera: usize,
-        /// How many neighbouring cameras see each point, LO:HI.
-        #[arg(long, default_value = "3:12", value_parser = parse_range)]
-        views: (usize, usize),
-        /// Standard deviation of the pixel noise.
-        #[arg(long, default_value_t = 1.0)]
-        pixel_noise: f64,
-        /// Fraction of observations replaced by gross outliers (10 to 60 pixels off).
-        #[arg(long, default_value_t = 0.02)]
-        outliers: f64,
-        /// Random seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-    },
+    /// A bundle adjustment in BAL's format (cameras on a ring, or a walk through streets).
+    Bal(BalArgs),
     /// A pose graph in g2o's format with exact measurements and optional wrong loop closures.
     PoseGraph {
         /// Output file.
@@ -116,40 +133,7 @@ pub fn main() -> ExitCode {
 
 fn run(args: Args, _session: &Session) -> Result<()> {
     let summary = match args.kind {
-        Kind::Bal {
-            out,
-            cameras,
-            points_per_camera,
-            views,
-            pixel_noise,
-            outliers,
-            seed,
-        } => {
-            if cameras < 2 || views.1 > cameras {
-                return Err(cli::bad_input(format!(
-                    "--cameras {cameras} must be at least 2 and at least the largest --views count {}",
-                    views.1
-                )));
-            }
-            if !((0.0..=1.0).contains(&outliers) && pixel_noise >= 0.0 && pixel_noise.is_finite()) {
-                return Err(cli::bad_input(
-                    "--outliers must lie in [0, 1] and --pixel-noise be a finite non-negative number",
-                ));
-            }
-            let s = bal_synthetic::generate(&bal_synthetic::SyntheticOptions {
-                cameras,
-                points: cameras * points_per_camera,
-                pixel_noise,
-                outlier_fraction: outliers,
-                views: Some(views),
-                seed,
-                ..Default::default()
-            });
-            bal::file::write(&out, &s.start)?;
-            serde_json::json!({"kind": "bal", "out": out.display().to_string(), "cameras": cameras,
-                "points": s.start.points.len(), "observations": s.start.observations.len(),
-                "outliers": s.outlier.iter().filter(|&&b| b).count()})
-        }
+        Kind::Bal(a) => write_bal(a)?,
         Kind::PoseGraph {
             out,
             from,
@@ -183,4 +167,39 @@ fn run(args: Args, _session: &Session) -> Result<()> {
     };
     println!("{summary}");
     Ok(())
+}
+
+/// `bal`: generates the problem and writes it; the summary line.
+fn write_bal(a: BalArgs) -> Result<serde_json::Value> {
+    let (layout, views) = match a.layout {
+        BalLayout::Ring => (bal_synthetic::Layout::Ring, a.views.unwrap_or((3, 12))),
+        BalLayout::Streets => (bal_synthetic::Layout::Streets, a.views.unwrap_or((2, 20))),
+    };
+    if a.cameras < 2 || (matches!(a.layout, BalLayout::Ring) && views.1 > a.cameras) {
+        return Err(cli::bad_input(format!(
+            "--cameras {} must be at least 2 and, on the ring, at least the largest --views count {}",
+            a.cameras, views.1
+        )));
+    }
+    if !((0.0..=1.0).contains(&a.outliers) && a.pixel_noise >= 0.0 && a.pixel_noise.is_finite()) {
+        return Err(cli::bad_input(
+            "--outliers must lie in [0, 1] and --pixel-noise be a finite non-negative number",
+        ));
+    }
+    let s = bal_synthetic::generate(&bal_synthetic::SyntheticOptions {
+        layout,
+        cameras: a.cameras,
+        points: a.cameras * a.points_per_camera,
+        pixel_noise: a.pixel_noise,
+        outlier_fraction: a.outliers,
+        views: Some(views),
+        seed: a.seed,
+        ..Default::default()
+    });
+    bal::file::write(&a.out, &s.start)?;
+    Ok(
+        serde_json::json!({"kind": "bal", "out": a.out.display().to_string(), "cameras": a.cameras,
+        "points": s.start.points.len(), "observations": s.start.observations.len(),
+        "outliers": s.outlier.iter().filter(|&&b| b).count()}),
+    )
 }

@@ -68,6 +68,13 @@ pub struct Options {
     pub pcg_tolerance: f64,
     /// Iterative Schur: most conjugate-gradient iterations per step (default 500).
     pub pcg_max_iterations: usize,
+    /// Iterative Schur: the truncated-Newton forcing η. Conjugate gradients also stop once the
+    /// quadratic `Q(y) = ½ yᵀS y − bᵀy` they minimise stalls, `i (Q_i − Q_{i−1}) / Q_i < η` at
+    /// iteration i (Nash and Sofer, *Assessing a search direction within a truncated-Newton
+    /// method*, Oper. Res. Lett. 9, 1990), as Ceres' ITERATIVE_SCHUR does with its `eta`. The
+    /// trust-region step takes the inexact solution's own model decrease. 0 solves to
+    /// `pcg_tolerance` alone (default 0.1).
+    pub pcg_forcing: f64,
 }
 
 impl Default for Options {
@@ -88,6 +95,7 @@ impl Default for Options {
             elimination: Elimination::Auto,
             pcg_tolerance: 1e-6,
             pcg_max_iterations: 500,
+            pcg_forcing: 0.1,
         }
     }
 }

@@ -201,7 +201,11 @@ proptest! {
         ne.assemble();
         let eliminate = elimination_set(&problem, &ne, &Elimination::Auto).unwrap();
         prop_assert!(eliminate.iter().any(|&e| e), "something is eliminated");
-        let schur = SchurOptions { pcg_tolerance: 1e-12, pcg_max_iterations: 1000 };
+        let schur = SchurOptions {
+            pcg_tolerance: 1e-12,
+            pcg_max_iterations: 1000,
+            pcg_forcing: 0.0,
+        };
         for (kind, tolerance) in [
             (LinearSolverKind::Dense, 1e-9),
             (LinearSolverKind::Sparse, 1e-9),

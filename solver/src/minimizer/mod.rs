@@ -91,6 +91,7 @@ impl Solver {
             SchurOptions {
                 pcg_tolerance: self.options.pcg_tolerance,
                 pcg_max_iterations: self.options.pcg_max_iterations,
+                pcg_forcing: self.options.pcg_forcing,
             },
         )?;
         let n = ne.dim();

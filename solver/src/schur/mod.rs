@@ -46,6 +46,8 @@ pub(crate) struct SchurOptions {
     pub pcg_tolerance: f64,
     /// Largest number of conjugate-gradient iterations per solve.
     pub pcg_max_iterations: usize,
+    /// Truncated-Newton forcing η (see [`crate::Options::pcg_forcing`]); 0 disables.
+    pub pcg_forcing: f64,
 }
 
 /// A kept block next to an eliminated one.

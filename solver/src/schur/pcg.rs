@@ -139,7 +139,9 @@ impl Schur {
             self.apply_preconditioner(&pcg, &r, &mut z);
             p.copy_from_slice(&z);
             let mut rz = dot(&r, &z);
-            for _ in 0..pcg.options.pcg_max_iterations.max(1) {
+            // Q(y) = ½ yᵀS y − bᵀy = −½ yᵀ(b + r) with r = b − S y; Q₀ = 0.
+            let mut quadratic = 0.0;
+            for iteration in 1..=pcg.options.pcg_max_iterations.max(1) {
                 self.implicit_product(ne.h(), &mut pcg, &p, &mut q);
                 let pq = dot(&p, &q);
                 if pq <= 0.0 || !pq.is_finite() {
@@ -153,6 +155,13 @@ impl Schur {
                 if dot(&r, &r).sqrt() <= pcg.options.pcg_tolerance * b_norm {
                     break;
                 }
+                // Q falls by ½ α rᵀz each iteration (Saad, alg. 9.1 with y₀ = 0).
+                let next = quadratic - 0.5 * alpha * rz;
+                let forcing = pcg.options.pcg_forcing;
+                if forcing > 0.0 && iteration as f64 * (next - quadratic) / next < forcing {
+                    break;
+                }
+                quadratic = next;
                 self.apply_preconditioner(&pcg, &r, &mut z);
                 let rz_next = dot(&r, &z);
                 let beta = rz_next / rz;
@@ -212,6 +221,7 @@ impl Pcg {
             options: SchurOptions {
                 pcg_tolerance: 0.0,
                 pcg_max_iterations: 0,
+                pcg_forcing: 0.0,
             },
         }
     }
