@@ -24,8 +24,10 @@ pub(crate) struct BlockSparse {
     /// Entries of block column j: `entries[entry_ptr[j]..entry_ptr[j + 1]]`.
     pub entry_ptr: Vec<usize>,
     pub entries: Vec<Entry>,
+    /// Start of every scalar column in `values` (the scalar row indices are not stored: they
+    /// follow from the blocks, and only a sparse factorisation needs them, see
+    /// [`Self::row_indices`]; H of a large bundle adjustment saves 8 bytes per element).
     pub col_ptr: Vec<usize>,
-    pub row_idx: Vec<usize>,
     /// Position of every diagonal element in `values`.
     pub diag_pos: Vec<usize>,
     pub values: Vec<f64>,
@@ -39,11 +41,10 @@ impl BlockSparse {
         let mut entry_ptr = vec![0];
         let mut entries = Vec::new();
         let mut col_ptr = vec![0];
-        let mut row_idx = Vec::new();
+        let mut len = 0;
         let mut diag_pos = vec![0; *block_start.last().unwrap_or(&0)];
         for (j, rows) in columns.iter().enumerate() {
             debug_assert_eq!(rows.last(), Some(&j), "block column {j} lacks its diagonal");
-            let first = entries.len();
             let mut pos = 0;
             for &row in rows {
                 entries.push(Entry {
@@ -54,28 +55,52 @@ impl BlockSparse {
             }
             entry_ptr.push(entries.len());
             for c in 0..dim(j) {
-                for e in &entries[first..] {
-                    let rows = if e.row_block == j {
-                        c + 1
-                    } else {
-                        dim(e.row_block)
-                    };
-                    let start = block_start[e.row_block];
-                    row_idx.extend(start..start + rows);
-                }
-                diag_pos[block_start[j] + c] = row_idx.len() - 1;
-                col_ptr.push(row_idx.len());
+                // The blocks above the diagonal, then the diagonal block's rows 0..=c.
+                len += pos + c + 1;
+                diag_pos[block_start[j] + c] = len - 1;
+                col_ptr.push(len);
             }
         }
         Self {
-            values: vec![0.0; row_idx.len()],
+            values: vec![0.0; len],
             block_start,
             entry_ptr,
             entries,
             col_ptr,
-            row_idx,
             diag_pos,
         }
+    }
+
+    /// Calls `f(start, row, rows, c)` for every run of stored elements, in storage order: the
+    /// `rows` elements of scalar column `c` from `values[start]`, rows `row..row + rows`.
+    fn for_each_run(&self, mut f: impl FnMut(usize, usize, usize, usize)) {
+        for j in 0..self.num_blocks() {
+            let entries = &self.entries[self.entry_ptr[j]..self.entry_ptr[j + 1]];
+            for dc in 0..self.block_dim(j) {
+                let c = self.block_start[j] + dc;
+                for e in entries {
+                    let rows = if e.row_block == j {
+                        dc + 1
+                    } else {
+                        self.block_dim(e.row_block)
+                    };
+                    f(
+                        self.col_ptr[c] + e.pos,
+                        self.block_start[e.row_block],
+                        rows,
+                        c,
+                    );
+                }
+            }
+        }
+    }
+
+    /// The scalar row index of every stored element, in storage order (the compressed-column
+    /// pattern with [`Self::col_ptr`]).
+    pub fn row_indices(&self) -> Vec<usize> {
+        let mut rows = Vec::with_capacity(self.values.len());
+        self.for_each_run(|_, row, n, _| rows.extend(row..row + n));
+        rows
     }
 
     /// Scalar size.
@@ -112,26 +137,25 @@ impl BlockSparse {
     /// y = A x with A symmetric, stored as its upper triangle.
     pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
-        for c in 0..self.dim() {
-            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
-                let (r, v) = (self.row_idx[p], self.values[p]);
+        self.for_each_run(|start, row, rows, c| {
+            let values = &self.values[start..start + rows];
+            for (r, &v) in (row..row + rows).zip(values) {
                 y[r] += v * x[c];
                 if r != c {
                     y[c] += v * x[r];
                 }
             }
-        }
+        });
     }
 
     /// Calls `f(r, c, v)` for every stored element (r ≤ c) of A + damping.
     pub fn for_each_damped(&self, damping: Damping, mut f: impl FnMut(usize, usize, f64)) {
-        for c in 0..self.dim() {
-            for p in self.col_ptr[c]..self.col_ptr[c + 1] {
-                let r = self.row_idx[p];
-                let v = self.values[p];
+        self.for_each_run(|start, row, rows, c| {
+            let values = &self.values[start..start + rows];
+            for (r, &v) in (row..row + rows).zip(values) {
                 f(r, c, if r == c { damping.apply(v) } else { v });
             }
-        }
+        });
     }
 
     /// Writes the diagonal block `b` of A + damping, both triangles, into `out` (d × d,
@@ -175,10 +199,12 @@ mod tests {
         assert_eq!(m.find(0, 2), Some(2));
         assert_eq!(m.find(1, 2), None);
         // column of scalar 4 (block 2, c = 1): rows 0, 1 of block 0, then rows 3, 4 of block 2
+        let rows = m.row_indices();
+        assert_eq!(rows.len(), m.values.len());
         let p = m.col_ptr[4];
-        assert_eq!(&m.row_idx[p..m.col_ptr[5]], &[0, 1, 3, 4]);
+        assert_eq!(&rows[p..m.col_ptr[5]], &[0, 1, 3, 4]);
         assert_eq!(m.column_start(2, 3, 1), p + 2);
-        assert_eq!(m.row_idx[m.diag_pos[4]], 4);
+        assert_eq!(rows[m.diag_pos[4]], 4);
         assert_eq!(m.values.len(), 3 + 1 + 2 * 3 + 6);
     }
 }

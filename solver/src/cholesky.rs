@@ -27,6 +27,8 @@ enum Kind {
     },
     Sparse {
         symbolic: Box<SymbolicCholesky<usize>>,
+        /// The scalar row indices of the matrices factorised (their compressed-column pattern).
+        row_idx: Vec<usize>,
         l_values: Vec<f64>,
         work: Vec<f64>,
         /// The single-precision factor, its input and a right-hand side, when one is kept
@@ -100,7 +102,8 @@ impl Cholesky {
             });
         }
         let (fwd, inv) = block_amd(a)?;
-        let pattern = SymbolicSparseColMatRef::new_checked(n, n, &a.col_ptr, None, &a.row_idx);
+        let row_idx = a.row_indices();
+        let pattern = SymbolicSparseColMatRef::new_checked(n, n, &a.col_ptr, None, &row_idx);
         let perm_ref = faer::perm::PermRef::new_checked(&fwd, &inv, n);
         let symbolic = factorize_symbolic_cholesky(
             pattern,
@@ -134,6 +137,7 @@ impl Cholesky {
         Ok(Self {
             kind: Kind::Sparse {
                 symbolic: Box::new(symbolic),
+                row_idx,
                 l_values,
                 work: vec![0.0; a.values.len()],
                 single,
@@ -171,6 +175,7 @@ impl Cholesky {
             }
             Kind::Sparse {
                 symbolic,
+                row_idx,
                 l_values,
                 work,
                 single,
@@ -181,7 +186,7 @@ impl Cholesky {
                 }
                 let pattern = unsafe {
                     SymbolicSparseColMatRef::new_unchecked(
-                        self.n, self.n, &m.col_ptr, None, &m.row_idx,
+                        self.n, self.n, &m.col_ptr, None, row_idx,
                     )
                 };
                 let factored = match single {

@@ -90,8 +90,13 @@ impl NormalEquations {
         pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
         grad_list.sort_unstable_by_key(|g| (g.0, g.1));
         let (columns, contrib_ptr, contribs) = hessian_contributions(&pairs, nb);
+        // The lists are the largest temporaries (48 and 40 bytes per pair and gradient entry):
+        // freed before H and the Jacobian buffer are allocated, they do not add to the peak.
+        drop(pairs);
         let (grad_ptr, grads) = gradient_contributions(&grad_list, nb);
+        drop(grad_list);
         let h = BlockSparse::new(block_start, &columns);
+        drop(columns);
         Ok(Self {
             gradient: vec![0.0; h.dim()],
             residuals: vec![0.0; *res_offset.last().unwrap()],
@@ -353,13 +358,27 @@ struct ResidualLayout {
 
 impl ResidualLayout {
     fn new(problem: &Problem, block_of_var: &[usize], nb: usize) -> Self {
+        // Sized exactly: grown by doubling, the lists of a large problem kept up to twice their
+        // size.
+        let (mut num_pairs, mut num_grads) = (0, 0);
+        for block in &problem.blocks {
+            let free = block
+                .vars
+                .iter()
+                .filter(|&&v| block_of_var[v] != usize::MAX)
+                .count();
+            num_pairs += free * (free + 1) / 2;
+            num_grads += free;
+        }
         let mut out = Self {
-            res_offset: vec![0],
-            jac_offset: vec![0],
-            pairs: Vec::new(),
-            grad_list: Vec::new(),
+            res_offset: Vec::with_capacity(problem.blocks.len() + 1),
+            jac_offset: Vec::with_capacity(problem.blocks.len() + 1),
+            pairs: Vec::with_capacity(num_pairs),
+            grad_list: Vec::with_capacity(num_grads),
             touched: vec![false; nb],
         };
+        out.res_offset.push(0);
+        out.jac_offset.push(0);
         for (k, block) in problem.blocks.iter().enumerate() {
             let m = block.residual.dim();
             let (r0, j0) = (
@@ -398,7 +417,7 @@ fn hessian_contributions(
 ) -> (Vec<Vec<usize>>, Vec<usize>, Vec<Contribution>) {
     let mut columns: Vec<Vec<usize>> = vec![Vec::new(); nb];
     let mut contrib_ptr = vec![0];
-    let mut contribs = Vec::new();
+    let mut contribs = Vec::with_capacity(pairs.len());
     let mut i = 0;
     while i < pairs.len() {
         let (col, row) = (pairs[i].0, pairs[i].1);
