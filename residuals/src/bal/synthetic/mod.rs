@@ -6,7 +6,8 @@
 //! whose city grows with the number of cameras so that every camera sees a similar number of
 //! points and the walk returns to streets it has seen, as in BAL's Venice and Final sets. With
 //! exact observations the ground truth has cost 0 and is an optimum (up to the similarity gauge
-//! of bundle adjustment); the start is the truth with seeded noise on every camera and point.
+//! of bundle adjustment); the start is the truth with seeded noise on every camera (turned about
+//! its own centre, then moved) and point.
 //! Optionally the observations get Gaussian pixel noise and a fraction of them is replaced by
 //! gross outliers.
 
@@ -111,6 +112,12 @@ pub(crate) fn look_camera(
     [w.x, w.y, w.z, t.x, t.y, t.z, focal, -0.02, 0.001]
 }
 
+/// The centre `−Rᵀt` of a BAL camera.
+pub(crate) fn camera_centre(cam: &[f64; 9]) -> Vector3<f64> {
+    let w = Vector3::new(-cam[0], -cam[1], -cam[2]);
+    -rotate(&w, &Vector3::new(cam[3], cam[4], cam[5]))
+}
+
 /// A point in the frame of BAL camera `cam`.
 pub(crate) fn in_camera(cam: &[f64; 9], point: &[f64; 3]) -> Vector3<f64> {
     rotate(
@@ -189,11 +196,15 @@ fn perturbed(truth: &BalProblem, o: &SyntheticOptions, rng: &mut ChaCha8Rng) -> 
     let unit = Normal::new(0.0, 1.0).expect("unit normal");
     let mut start = truth.clone();
     for c in &mut start.cameras {
+        // The rotation turns the camera about its own centre (t = −R c), so that the start's
+        // error does not grow with the camera's distance from the world's origin.
+        let centre = camera_centre(c);
         for x in &mut c[..3] {
             *x += o.rotation_noise * unit.sample(rng);
         }
-        for x in &mut c[3..6] {
-            *x += o.position_noise * unit.sample(rng);
+        let t = -rotate(&Vector3::new(c[0], c[1], c[2]), &centre);
+        for (k, x) in c[3..6].iter_mut().enumerate() {
+            *x = t[k] + o.position_noise * unit.sample(rng);
         }
     }
     for p in &mut start.points {

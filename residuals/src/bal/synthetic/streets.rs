@@ -19,7 +19,7 @@
 //! cameras, is drawn again (at most 50 draws per point wanted, so a camera looking at little
 //! yields fewer).
 
-use super::{in_camera, look_camera, Scene, SyntheticOptions};
+use super::{camera_centre, in_camera, look_camera, Scene, SyntheticOptions};
 use nalgebra::{Vector2, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
@@ -337,12 +337,6 @@ pub(crate) fn scene(o: &SyntheticOptions, rng: &mut ChaCha8Rng) -> Scene {
         points,
         seen_by,
     }
-}
-
-/// The centre `−Rᵀt` of a BAL camera.
-fn camera_centre(cam: &[f64; 9]) -> Vector3<f64> {
-    let w = Vector3::new(-cam[0], -cam[1], -cam[2]);
-    -super::rotate(&w, &Vector3::new(cam[3], cam[4], cam[5]))
 }
 
 #[cfg(test)]
