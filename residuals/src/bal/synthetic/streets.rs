@@ -20,7 +20,7 @@
 //! yields fewer).
 
 use super::{camera_centre, in_camera, look_camera, Scene, SyntheticOptions};
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{SVector, Vector2, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
@@ -63,36 +63,51 @@ impl City {
         (lo, hi)
     }
 
+    /// The block (along one axis) holding coordinate `x`, clamped to the grid.
+    fn cell(&self, x: f64) -> usize {
+        ((x / BLOCK).floor().max(0.0) as usize).min(self.m - 1)
+    }
+
     /// True when the segment from `a` to `b` (in plan) passes through a building.
     fn blocked(&self, a: Vector2<f64>, b: Vector2<f64>) -> bool {
-        let cell = |x: f64| ((x / BLOCK).floor().max(0.0) as usize).min(self.m - 1);
-        let (i0, i1) = (cell(a.x.min(b.x)), cell(a.x.max(b.x)));
-        let (j0, j1) = (cell(a.y.min(b.y)), cell(a.y.max(b.y)));
+        let (i0, i1) = (self.cell(a.x.min(b.x)), self.cell(a.x.max(b.x)));
+        let (j0, j1) = (self.cell(a.y.min(b.y)), self.cell(a.y.max(b.y)));
         (i0..=i1).any(|i| {
             (j0..=j1).any(|j| {
                 let (lo, hi) = self.footprint(i, j);
-                segment_hits_box(a, b, lo, hi)
+                slab(a, b - a, lo, hi, 1.0).is_some_and(|(t0, t1, _)| t1 - t0 > 1e-9)
             })
         })
     }
 }
 
-/// True when the segment `a → b` meets the open box `(lo, hi)` (slab test).
-fn segment_hits_box(a: Vector2<f64>, b: Vector2<f64>, lo: Vector2<f64>, hi: Vector2<f64>) -> bool {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for k in 0..2 {
+/// The slab test: the interval `[t₀, t₁]` of `t ∈ [0, t_max]` over which `o + t d` lies in the
+/// box `(lo, hi)`, and the axis whose face bounds it from below (`usize::MAX` if none: `o` is
+/// inside on every axis that moves). `None` when the line runs parallel to an axis outside or on
+/// the box's faces. The interval is empty when `t₀ ≥ t₁`.
+fn slab<const N: usize>(
+    o: SVector<f64, N>,
+    d: SVector<f64, N>,
+    lo: SVector<f64, N>,
+    hi: SVector<f64, N>,
+    t_max: f64,
+) -> Option<(f64, f64, usize)> {
+    let (mut t0, mut t1, mut axis) = (0.0f64, t_max, usize::MAX);
+    for k in 0..N {
         if d[k].abs() < 1e-12 {
-            if a[k] <= lo[k] || a[k] >= hi[k] {
-                return false;
+            if o[k] <= lo[k] || o[k] >= hi[k] {
+                return None;
             }
             continue;
         }
-        let (ta, tb) = ((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]);
-        t0 = t0.max(ta.min(tb));
+        let (ta, tb) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+        if ta.min(tb) > t0 {
+            t0 = ta.min(tb);
+            axis = k;
+        }
         t1 = t1.min(ta.max(tb));
     }
-    t1 - t0 > 1e-9
+    Some((t0, t1, axis))
 }
 
 /// The walk: a camera every [`STEP`] metres along the streets from the corner (0, 0), turning
@@ -169,19 +184,21 @@ fn photograph(
 /// façade's outward normal (in plan); `None` if it meets the ground, a roof or nothing first.
 fn cast(city: &City, origin: Vector3<f64>, dir: Vector3<f64>) -> Option<([f64; 3], Vector2<f64>)> {
     let far = origin + dir * RANGE;
-    let cell = |x: f64| ((x / BLOCK).floor().max(0.0) as usize).min(city.m - 1);
     let ground = if dir.z < 0.0 {
         -origin.z / dir.z
     } else {
         f64::INFINITY
     };
     let mut best: Option<(f64, usize)> = None;
-    for i in cell(origin.x.min(far.x))..=cell(origin.x.max(far.x)) {
-        for j in cell(origin.y.min(far.y))..=cell(origin.y.max(far.y)) {
+    for i in city.cell(origin.x.min(far.x))..=city.cell(origin.x.max(far.x)) {
+        for j in city.cell(origin.y.min(far.y))..=city.cell(origin.y.max(far.y)) {
             let (lo, hi) = city.footprint(i, j);
             let lo = Vector3::new(lo.x, lo.y, 0.0);
             let hi = Vector3::new(hi.x, hi.y, city.heights[i * city.m + j]);
-            if let Some((t, axis)) = entry(origin, dir, lo, hi) {
+            // Entered through a face (not starting inside) before leaving.
+            let entered = slab(origin, dir, lo, hi, f64::INFINITY)
+                .filter(|&(t0, t1, axis)| axis != usize::MAX && t0 < t1);
+            if let Some((t, _, axis)) = entered {
                 if t <= RANGE && t < ground && best.is_none_or(|(b, _)| t < b) {
                     best = Some((t, axis));
                 }
@@ -196,31 +213,6 @@ fn cast(city: &City, origin: Vector3<f64>, dir: Vector3<f64>) -> Option<([f64; 3
     let mut normal = Vector2::zeros();
     normal[axis] = -dir[axis].signum();
     Some(([p.x, p.y, p.z], normal))
-}
-
-/// Where a ray from outside enters the box `(lo, hi)` and through which axis' face (slab test).
-fn entry(
-    o: Vector3<f64>,
-    d: Vector3<f64>,
-    lo: Vector3<f64>,
-    hi: Vector3<f64>,
-) -> Option<(f64, usize)> {
-    let (mut t0, mut t1, mut axis) = (0.0f64, f64::INFINITY, usize::MAX);
-    for k in 0..3 {
-        if d[k].abs() < 1e-12 {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return None;
-            }
-            continue;
-        }
-        let (ta, tb) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-        if ta.min(tb) > t0 {
-            t0 = ta.min(tb);
-            axis = k;
-        }
-        t1 = t1.min(ta.max(tb));
-    }
-    (axis != usize::MAX && t0 < t1).then_some((t0, axis))
 }
 
 /// A façade point through a random pixel of camera `cam` at `centre`, if the pixel shows one.
