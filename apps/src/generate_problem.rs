@@ -4,8 +4,9 @@
 //! ```text
 //! cargo run --release --example generate_problem -- bal OUT.txt --cameras 200 [--points-per-camera 40]
 //!        [--views 3:12] [--pixel-noise 1] [--outliers 0.02] [--seed 1]
-//! cargo run --release --example generate_problem -- pose-graph OUT.g2o [--shape circle|sphere]
-//!        [--rings 10 --per-ring 100] [--false-loops 20] [--seed 1]
+//! cargo run --release --example generate_problem -- pose-graph OUT.g2o
+//!        [--shape circle|sphere|city|corridor] [--dim 2|3] [--poses N | --rings 10 --per-ring 100]
+//!        [--measurements exact|noisy] [--start perturbed|odometry] [--false-loops 20] [--seed 1]
 //! ```
 //! The file holds the perturbed start; the JSON line last says what was written. Bundle adjustment
 //! comes from `residuals::bal::synthetic`, pose graphs from `residuals::pose_graph::synthetic`
@@ -17,7 +18,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 use cli::{InputError, Session};
 use dynamap_residuals::bal::{self, synthetic as bal_synthetic};
-use dynamap_residuals::pose_graph::{g2o, synthetic as pg_synthetic};
+use dynamap_residuals::pose_graph::{g2o, synthetic as pg_synthetic, Dimension, PoseGraph};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -27,6 +28,10 @@ enum Shape {
     Circle,
     /// SE(3): rings on a sphere, each pose tied to the one a ring above.
     Sphere,
+    /// A walk through a grid of streets closing loops at intersections it returns to.
+    City,
+    /// Passes up and down a long corridor with loops only at a few doors.
+    Corridor,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -67,34 +72,68 @@ struct BalArgs {
     seed: u64,
 }
 
+/// The `pose-graph` subcommand's settings.
+#[derive(clap::Args, Debug)]
+struct PoseGraphArgs {
+    /// Output file.
+    out: PathBuf,
+    /// Add the wrong loop closures to this g2o graph instead of generating one (the layout's
+    /// settings are then ignored).
+    #[arg(long)]
+    from: Option<PathBuf>,
+    /// Layout (circle is SE(2), sphere SE(3); city and corridor take --dim).
+    #[arg(long, value_enum, default_value = "circle")]
+    shape: Shape,
+    /// Dimension of a city or corridor: 2 (SE(2)) or 3 (SE(3)).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=3))]
+    dim: u8,
+    /// Number of poses (rings and poses per ring are then both about its square root).
+    #[arg(long)]
+    poses: Option<usize>,
+    /// Laps or rings, without --poses.
+    #[arg(long, default_value_t = 10)]
+    rings: usize,
+    /// Poses per lap or ring, without --poses.
+    #[arg(long, default_value_t = 100)]
+    per_ring: usize,
+    /// Measurements exact (the truth is the optimum) or drawn from each edge's Gaussian [default:
+    /// exact on rings, noisy in a city or corridor].
+    #[arg(long, value_enum)]
+    measurements: Option<Measurements>,
+    /// Where the vertices in the file start.
+    #[arg(long, value_enum, default_value = "perturbed")]
+    start: StartKind,
+    /// Wrong loop closures added between random poses.
+    #[arg(long, default_value_t = 0)]
+    false_loops: usize,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
+enum Measurements {
+    /// Exact: the ground truth is the optimum, chi2 0.
+    Exact,
+    /// Drawn from N(truth, Ω⁻¹).
+    Noisy,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum StartKind {
+    /// The truth with noise on every pose but the first.
+    Perturbed,
+    /// The measurements composed along the odometry chain, as published graphs start.
+    Odometry,
+}
+
 #[derive(Subcommand, Debug)]
 enum Kind {
     /// A bundle adjustment in BAL's format (cameras on a ring, or a walk through streets).
     Bal(BalArgs),
-    /// A pose graph in g2o's format with exact measurements and optional wrong loop closures.
-    PoseGraph {
-        /// Output file.
-        out: PathBuf,
-        /// Add the wrong loop closures to this g2o graph instead of generating one (--shape,
-        /// --rings and --per-ring are then ignored).
-        #[arg(long)]
-        from: Option<PathBuf>,
-        /// Layout (and dimension).
-        #[arg(long, value_enum, default_value = "circle")]
-        shape: Shape,
-        /// Laps or rings.
-        #[arg(long, default_value_t = 10)]
-        rings: usize,
-        /// Poses per lap or ring.
-        #[arg(long, default_value_t = 100)]
-        per_ring: usize,
-        /// Wrong loop closures added between random poses.
-        #[arg(long, default_value_t = 0)]
-        false_loops: usize,
-        /// Random seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-    },
+    /// A pose graph in g2o's format: rings, a city walk or a corridor, with optional wrong loop
+    /// closures.
+    PoseGraph(PoseGraphArgs),
 }
 
 /// Write a generated problem for other solvers.
@@ -134,36 +173,7 @@ pub fn main() -> ExitCode {
 fn run(args: Args, _session: &Session) -> Result<()> {
     let summary = match args.kind {
         Kind::Bal(a) => write_bal(a)?,
-        Kind::PoseGraph {
-            out,
-            from,
-            shape,
-            rings,
-            per_ring,
-            false_loops,
-            seed,
-        } => {
-            if from.is_none() && (rings < 2 || per_ring < 3) {
-                return Err(cli::bad_input(
-                    "--rings must be at least 2 and --per-ring at least 3",
-                ));
-            }
-            let o = pg_synthetic::SyntheticOptions {
-                rings,
-                per_ring,
-                seed,
-                ..Default::default()
-            };
-            let mut graph = match (&from, shape) {
-                (Some(path), _) => g2o::read(path).bad_input()?,
-                (None, Shape::Circle) => pg_synthetic::circle(&o).graph,
-                (None, Shape::Sphere) => pg_synthetic::sphere(&o).graph,
-            };
-            pg_synthetic::add_false_loops(&mut graph, false_loops, seed.wrapping_add(1));
-            g2o::write(&out, &graph, &graph.vertices)?;
-            serde_json::json!({"kind": "pose-graph", "out": out.display().to_string(),
-                "poses": graph.vertices.len(), "edges": graph.edges.len(), "false_loops": false_loops})
-        }
+        Kind::PoseGraph(a) => write_pose_graph(a)?,
     };
     println!("{summary}");
     Ok(())
@@ -202,4 +212,101 @@ fn write_bal(a: BalArgs) -> Result<serde_json::Value> {
         "points": s.start.points.len(), "observations": s.start.observations.len(),
         "outliers": s.outlier.iter().filter(|&&b| b).count()}),
     )
+}
+
+/// `pose-graph`: generates (or reads) the graph, adds the wrong loops and writes it; the summary.
+fn write_pose_graph(a: PoseGraphArgs) -> Result<serde_json::Value> {
+    let mut graph = match &a.from {
+        Some(path) => g2o::read(path).bad_input()?,
+        None => generate_pose_graph(&a)?,
+    };
+    pg_synthetic::add_false_loops(&mut graph, a.false_loops, a.seed.wrapping_add(1));
+    g2o::write(&a.out, &graph, &graph.vertices)?;
+    Ok(
+        serde_json::json!({"kind": "pose-graph", "out": a.out.display().to_string(),
+        "shape": format!("{:?}", a.shape).to_lowercase(), "poses": graph.vertices.len(),
+        "edges": graph.edges.len(), "false_loops": a.false_loops}),
+    )
+}
+
+/// The generated graph of a layout.
+fn generate_pose_graph(a: &PoseGraphArgs) -> Result<PoseGraph> {
+    let rings = matches!(a.shape, Shape::Circle | Shape::Sphere);
+    let noisy = a.measurements.unwrap_or(if rings {
+        Measurements::Exact
+    } else {
+        Measurements::Noisy
+    }) == Measurements::Noisy;
+    let start = match a.start {
+        StartKind::Perturbed => pg_synthetic::Start::Perturbed {
+            rotation: 0.05,
+            translation: 0.2,
+        },
+        StartKind::Odometry => pg_synthetic::Start::Odometry,
+    };
+    let noise = pg_synthetic::Noise {
+        noisy,
+        start,
+        seed: a.seed,
+        ..Default::default()
+    };
+    let dimension = if a.dim == 3 {
+        Dimension::Three
+    } else {
+        Dimension::Two
+    };
+    let poses = a.poses.unwrap_or(10_000);
+    let generated = match a.shape {
+        Shape::Circle | Shape::Sphere => return ring_graph(a, noisy, start),
+        Shape::City => pg_synthetic::city(&pg_synthetic::CityOptions {
+            poses,
+            dimension,
+            noise,
+            ..Default::default()
+        }),
+        Shape::Corridor => pg_synthetic::corridor(&pg_synthetic::CorridorOptions {
+            poses,
+            dimension,
+            noise,
+            ..Default::default()
+        }),
+    };
+    Ok(generated.map_err(cli::bad_input)?.graph)
+}
+
+/// A circle or sphere of --rings × --per-ring poses, or of about --poses.
+fn ring_graph(a: &PoseGraphArgs, noisy: bool, start: pg_synthetic::Start) -> Result<PoseGraph> {
+    let (rings, per_ring) = match a.poses {
+        Some(n) => {
+            let per_ring = (n as f64).sqrt().round().max(3.0) as usize;
+            (n.div_ceil(per_ring).max(2), per_ring)
+        }
+        None => (a.rings, a.per_ring),
+    };
+    if rings < 2 || per_ring < 3 {
+        return Err(cli::bad_input(
+            "--rings must be at least 2 and --per-ring at least 3",
+        ));
+    }
+    let pg_synthetic::Start::Perturbed {
+        rotation,
+        translation,
+    } = start
+    else {
+        return Err(cli::bad_input(
+            "--start odometry is for city and corridor graphs",
+        ));
+    };
+    let o = pg_synthetic::SyntheticOptions {
+        rings,
+        per_ring,
+        rotation_noise: rotation,
+        translation_noise: translation,
+        noisy,
+        seed: a.seed,
+    };
+    Ok(match a.shape {
+        Shape::Sphere => pg_synthetic::sphere(&o).graph,
+        _ => pg_synthetic::circle(&o).graph,
+    })
 }

@@ -113,6 +113,7 @@ mod minimizer;
 mod normal;
 mod numeric;
 mod options;
+mod ordering;
 mod parallel;
 mod problem;
 #[cfg(test)]

@@ -11,6 +11,7 @@ mod chi2_agreement;
 mod exposure;
 mod g2o_files;
 mod kinect;
+mod large_pose_graphs;
 mod loops;
 mod nonrigid;
 mod relocalise;

@@ -11,6 +11,7 @@ use super::information::{self, InformationRepair};
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
 use std::fmt::Write as _;
+use std::io::BufRead as _;
 use std::path::Path;
 use thiserror::Error;
 
@@ -150,12 +151,13 @@ pub fn read_with(
 ) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| G2oError {
+    let file = std::fs::File::open(path).map_err(|e| G2oError {
         path: name.clone(),
         line: 0,
         message: format!("cannot read: {e}"),
     })?;
-    parse_with(&text, &name, policy)
+    // line by line: a million-pose graph's text is never held whole
+    parse_lines(std::io::BufReader::new(file).lines(), &name, policy)
 }
 
 fn upper<const N: usize>(values: &[f64]) -> nalgebra::SMatrix<f64, N, N> {
@@ -188,14 +190,24 @@ pub fn parse_with(
     path: &str,
     policy: InformationPolicy,
 ) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
+    parse_lines(text.lines().map(Ok), path, policy)
+}
+
+/// Parses lines of g2o text (an unreadable line is an error naming it).
+fn parse_lines<S: AsRef<str>>(
+    lines: impl Iterator<Item = std::io::Result<S>>,
+    path: &str,
+    policy: InformationPolicy,
+) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
     let mut repairs = Vec::new();
     let mut graph = PoseGraph::new(Dimension::Two);
     graph.source = path.to_string();
     let mut dimension: Option<(Dimension, usize)> = None;
     let edge3 = se3_edge_fields();
-    for (i, raw) in text.lines().enumerate() {
+    for (i, raw) in lines.enumerate() {
         let p = LineParser { path, line: i + 1 };
-        let content = raw.split('#').next().unwrap_or("").trim();
+        let raw = raw.map_err(|e| p.err(format!("cannot read: {e}")))?;
+        let content = raw.as_ref().split('#').next().unwrap_or("").trim();
         if content.is_empty() {
             continue;
         }
