@@ -83,11 +83,22 @@ const HEADINGS: [[i64; 2]; 4] = [[1, 0], [0, 1], [-1, 0], [0, -1]];
 /// A city walk of `o.poses` poses.
 pub fn city(o: &CityOptions) -> Result<SyntheticGraph, SyntheticError> {
     check(o.poses, 2, &o.noise)?;
+    let probability = |p: f64| (0.0..=1.0).contains(&p);
+    let settings_ok = probability(o.turn)
+        && probability(o.stairs)
+        && probability(o.loop_probability)
+        && o.visits >= 1.0
+        && o.visits.is_finite();
+    if !settings_ok {
+        return Err(SyntheticError::Setting(
+            "turn, stairs and loop_probability must lie in [0, 1] and visits be at least 1",
+        ));
+    }
     let floors = match o.dimension {
         Dimension::Two => 1,
         Dimension::Three => o.floors,
     };
-    let grid = Grid::for_cells(o.poses as f64 / o.visits.max(1.0), floors);
+    let grid = Grid::for_cells(o.poses as f64 / o.visits, floors);
     let mut rng = ChaCha8Rng::seed_from_u64(o.noise.seed.wrapping_add(0x5717));
     let mut last_visit = vec![u32::MAX; (grid.side * grid.side * grid.floors) as usize];
     let mut at = [grid.side / 2, grid.side / 2, 0];
@@ -103,7 +114,7 @@ pub fn city(o: &CityOptions) -> Result<SyntheticGraph, SyntheticError> {
         let before = last_visit[cell];
         if before != u32::MAX
             && i - before as usize >= o.min_loop_gap
-            && rng.random_bool(o.loop_probability.clamp(0.0, 1.0))
+            && rng.random_bool(o.loop_probability)
         {
             loops.push((before as usize, i));
         }
@@ -121,7 +132,7 @@ fn step(
     o: &CityOptions,
     rng: &mut ChaCha8Rng,
 ) -> ([i64; 3], usize) {
-    if grid.floors > 1 && rng.random_bool(o.stairs.clamp(0.0, 1.0)) {
+    if grid.floors > 1 && rng.random_bool(o.stairs) {
         let dz = if rng.random_bool(0.5) { 1 } else { -1 };
         for dz in [dz, -dz] {
             let next = [at[0], at[1], at[2] + dz];
@@ -130,8 +141,7 @@ fn step(
             }
         }
     }
-    let turn = o.turn.clamp(0.0, 1.0);
-    let first = if rng.random_bool(turn) {
+    let first = if rng.random_bool(o.turn) {
         heading + if rng.random_bool(0.5) { 1 } else { 3 }
     } else {
         heading
@@ -286,6 +296,13 @@ mod tests {
             let mut o = CityOptions::default();
             o.noise.rotation_sigma = sigma;
             assert_eq!(bad(o), Some(SyntheticError::Noise));
+        }
+        for turn in [-0.1, 1.5, f64::NAN] {
+            let o = CityOptions {
+                turn,
+                ..Default::default()
+            };
+            assert!(matches!(bad(o), Some(SyntheticError::Setting(_))));
         }
     }
 }

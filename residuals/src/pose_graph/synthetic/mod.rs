@@ -263,4 +263,7 @@ pub enum SyntheticError {
     /// A sigma that is not finite and positive (start noise may be zero).
     #[error("measurement sigmas must be finite and positive, start noise finite and non-negative")]
     Noise,
+    /// A layout's setting out of its range.
+    #[error("{0}")]
+    Setting(&'static str),
 }
