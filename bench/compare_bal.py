@@ -5,13 +5,16 @@ alternating, in one invocation.
 
 usage: bench/compare_bal.py [--runs N] [--threads T] [--max-iterations N] [--huber D]
                             [--ours schur-dense,schur-sparse,...] [--ceres sparse_schur,...]
-                            [--timeout S] FILE...
+                            [--timeout S] [--json OUT] FILE...
 
 Prints one Markdown table per file: for every configuration the initial and final cost, the
 iterations, the median seconds of the solve alone and the largest peak resident set (the child's
 ru_maxrss, which includes reading the file); then the best of ours against the best of Ceres (time
 and memory ratios, and the relative difference of the final costs), and ours with --linear-solver
-auto against the best of ours. A run that exceeds --timeout seconds is reported as such.
+auto against the best of ours. A run that exceeds --timeout seconds is reported as such. With
+--json, every configuration's figures are also written to OUT (a list of records: file,
+configuration, seconds, rss_mb, cost_final, iterations; seconds null for a run that timed out), the
+input of bench/scaling.py.
 """
 import argparse, json, os, statistics, subprocess, sys, time
 
@@ -89,6 +92,15 @@ def table(f, a):
                 timed_out.add(k)
             else:
                 res[k].append(r)
+    for k, rs in res.items():
+        a.records.append({
+            "file": os.path.basename(f),
+            "configuration": k,
+            "seconds": statistics.median(r["seconds"] for r in rs) if rs else None,
+            "rss_mb": max(r["rss_mb"] for r in rs) if rs else None,
+            "cost_final": rs[0]["cost_final"] if rs else None,
+            "iterations": rs[0]["iterations"] if rs else None,
+        })
     print(f"\n{os.path.basename(f)}\n")
     print(f"| configuration | cost initial | cost final | iterations | termination | seconds (median of {a.runs}) | peak RSS MB |")
     print("|---|---|---|---|---|---|---|")
@@ -131,13 +143,21 @@ def main():
     ap.add_argument("--ours", default="schur-dense,schur-sparse,schur-iterative,auto")
     ap.add_argument("--ceres", default="dense_schur,sparse_schur,iterative_schur")
     ap.add_argument("--timeout", type=float, default=600.0)
+    ap.add_argument("--json", help="also write every configuration's figures here")
     a = ap.parse_args()
+    a.records = []
     for tool in (ours, ceres):
         if not os.path.exists(tool):
             sys.exit(f"{tool} is missing (cargo build --release -p dynamap-apps; ../shared/bench/peers/setup.sh)")
     print(f"threads {a.threads}, {a.max_iterations} iterations, huber {a.huber or 'none'}, {time.strftime('%Y-%m-%d')}")
     for f in a.files:
         table(f, a)
+        if a.json:
+            # rewritten after every file, so a long run stopped part way keeps what it measured
+            tmp = a.json + ".tmp"
+            with open(tmp, "w") as out:
+                json.dump(a.records, out, indent=1)
+            os.replace(tmp, a.json)
 
 
 if __name__ == "__main__":

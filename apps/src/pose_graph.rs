@@ -26,11 +26,12 @@ use dynamap_residuals::pose_graph::{
     g2o::{self, InformationPolicy},
     init,
     synthetic::{self, SyntheticOptions},
-    Dimension, Pose, PoseGraph,
+    Dimension, Pose, PoseGraph, PoseGraphProblem,
 };
 use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{Algorithm, DampingKind, Options, SolveError, Solver};
 use iterations::IterationLog;
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -104,6 +105,12 @@ struct Args {
     /// ("repaired_edges").
     #[arg(long)]
     strict: bool,
+    /// Marginal covariances of these vertices at the optimum (comma-separated ids), in the JSON
+    /// line ("covariance"): 3 × 3 for SE(2) in the tangent order [v_x, v_y, ω], 6 × 6 for SE(3)
+    /// in [ω; v], the perturbation X Exp(δ) (GTSAM's Marginals). One factorisation of H serves
+    /// all of them; each costs a few solves with it.
+    #[arg(long, value_delimiter = ',', value_name = "ID,...")]
+    covariance: Vec<usize>,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -221,6 +228,38 @@ fn solve_error(e: SolveError, graph: &PoseGraph, ids: &[usize]) -> anyhow::Error
     }
 }
 
+/// `--covariance`: each named vertex's marginal covariance (row-major) and the seconds they took;
+/// an id that is not a vertex, or is held fixed, is a clear error.
+fn marginals(args: &Args, graph: &PoseGraph, pg: &PoseGraphProblem) -> Result<serde_json::Value> {
+    if args.covariance.is_empty() {
+        return Ok(serde_json::Value::Null);
+    }
+    let clock = Instant::now();
+    let vars = args
+        .covariance
+        .iter()
+        .map(|id| match pg.ids.binary_search(id) {
+            Ok(k) => Ok(pg.vars[k]),
+            Err(_) => Err(cli::bad_input(format!(
+                "--covariance: {} has no vertex {id}",
+                graph.source
+            ))),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let matrices = dynamap_solver::covariance(&pg.problem, &vars)
+        .map_err(|e| cli::bad_input(format!("--covariance: {}: {e}", graph.source)))?;
+    let blocks: Vec<_> = args
+        .covariance
+        .iter()
+        .zip(&matrices)
+        .map(|(id, m)| {
+            let rows: Vec<Vec<f64>> = m.row_iter().map(|r| r.iter().copied().collect()).collect();
+            serde_json::json!({ "vertex": id, "matrix": rows })
+        })
+        .collect();
+    Ok(serde_json::json!({ "seconds": clock.elapsed().as_secs_f64(), "blocks": blocks }))
+}
+
 /// `--preview`: chi2 per iteration.
 fn write_preview(dir: &Path, args: &Args, log: &IterationLog) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -250,16 +289,21 @@ fn log_after(
     rec.flush()
 }
 
-/// The poses the solve starts from: the file's, or by odometry or chordal relaxation.
-fn initial_poses(graph: &PoseGraph, init_kind: InitKind) -> Result<BTreeMap<usize, Pose>> {
+/// The poses the solve starts from: the file's (not copied), or by odometry or chordal
+/// relaxation.
+fn initial_poses(graph: &PoseGraph, init_kind: InitKind) -> Result<Cow<'_, BTreeMap<usize, Pose>>> {
     Ok(match init_kind {
-        InitKind::File => graph.vertices.clone(),
-        InitKind::Odometry => init::odometry(graph)
-            .map_err(anyhow::Error::msg)
-            .bad_input()?,
-        InitKind::Chordal => init::chordal(graph)
-            .map_err(anyhow::Error::msg)
-            .bad_input()?,
+        InitKind::File => Cow::Borrowed(&graph.vertices),
+        InitKind::Odometry => Cow::Owned(
+            init::odometry(graph)
+                .map_err(anyhow::Error::msg)
+                .bad_input()?,
+        ),
+        InitKind::Chordal => Cow::Owned(
+            init::chordal(graph)
+                .map_err(anyhow::Error::msg)
+                .bad_input()?,
+        ),
     })
 }
 
@@ -342,6 +386,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(out) = &args.output {
         g2o::write(out, &graph, &poses)?;
     }
+    let covariance = marginals(&args, &graph, &pg)?;
     println!(
         "{}",
         serde_json::json!({
@@ -361,6 +406,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "init_seconds": init_seconds,
             "termination": summary.termination.to_string(),
             "repaired_edges": repaired,
+            "covariance": covariance,
         })
     );
     Ok(())

@@ -38,11 +38,14 @@ impl BlockSparse {
     /// increasing, each ≤ j, ending with j itself). Values start at zero.
     pub fn new(block_start: Vec<usize>, columns: &[Vec<usize>]) -> Self {
         let dim = |b: usize| block_start[b + 1] - block_start[b];
-        let mut entry_ptr = vec![0];
-        let mut entries = Vec::new();
-        let mut col_ptr = vec![0];
+        let n = *block_start.last().unwrap_or(&0);
+        let mut entry_ptr = Vec::with_capacity(columns.len() + 1);
+        entry_ptr.push(0);
+        let mut entries = Vec::with_capacity(columns.iter().map(Vec::len).sum());
+        let mut col_ptr = Vec::with_capacity(n + 1);
+        col_ptr.push(0);
         let mut len = 0;
-        let mut diag_pos = vec![0; *block_start.last().unwrap_or(&0)];
+        let mut diag_pos = vec![0; n];
         for (j, rows) in columns.iter().enumerate() {
             debug_assert_eq!(rows.last(), Some(&j), "block column {j} lacks its diagonal");
             let mut pos = 0;
@@ -73,7 +76,7 @@ impl BlockSparse {
 
     /// Calls `f(start, row, rows, c)` for every run of stored elements, in storage order: the
     /// `rows` elements of scalar column `c` from `values[start]`, rows `row..row + rows`.
-    fn for_each_run(&self, mut f: impl FnMut(usize, usize, usize, usize)) {
+    pub fn for_each_run(&self, mut f: impl FnMut(usize, usize, usize, usize)) {
         for j in 0..self.num_blocks() {
             let entries = &self.entries[self.entry_ptr[j]..self.entry_ptr[j + 1]];
             for dc in 0..self.block_dim(j) {

@@ -97,6 +97,13 @@ impl Problem {
         Self::default()
     }
 
+    /// Reserves room for `variables` more variables and `blocks` more residual blocks, so that
+    /// building a large problem does not leave up to twice the memory it needs.
+    pub fn reserve(&mut self, variables: usize, blocks: usize) {
+        self.variables.reserve_exact(variables);
+        self.blocks.reserve_exact(blocks);
+    }
+
     /// Adds a variable with initial value `value` (ambient coordinates) on `manifold`.
     pub fn add_variable(
         &mut self,

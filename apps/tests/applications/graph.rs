@@ -54,3 +54,48 @@ fn pose_graph_repairs_an_indefinite_information_matrix_unless_strict() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--covariance`: a vertex one edge from the anchor has the edge's covariance Ω⁻¹ (the residual's
+/// Jacobian in X Exp(δ) is the identity at the optimum); a vertex that does not exist, or the
+/// fixed anchor, is refused with a clear error.
+#[test]
+fn pose_graph_prints_marginal_covariances_of_chosen_vertices() {
+    let dir = scratch("covariance");
+    let path = dir.join("chain.g2o");
+    let text_g2o = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1.2 0.1 0.05\nVERTEX_SE2 2 2 0 0\n\
+                    EDGE_SE2 0 1 1 0 0 100 0 0 50 0 25\n\
+                    EDGE_SE2 1 2 1 0 0 100 0 0 100 0 100\n";
+    std::fs::write(&path, text_g2o).unwrap();
+    let file = path.to_str().unwrap();
+    let out = run("pose_graph", &[file, "--covariance", "1,2", "-q"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = result_json(&out);
+    let blocks = json["covariance"]["blocks"].as_array().unwrap();
+    assert_eq!(blocks.len(), 2, "{json}");
+    assert_eq!(blocks[0]["vertex"], 1);
+    let expected = [[0.01, 0.0, 0.0], [0.0, 0.02, 0.0], [0.0, 0.0, 0.04]];
+    for (r, row) in expected.iter().enumerate() {
+        for (c, want) in row.iter().enumerate() {
+            let got = blocks[0]["matrix"][r][c].as_f64().unwrap();
+            assert!(
+                (got - want).abs() < 1e-9,
+                "({r}, {c}): {got} against {want}"
+            );
+        }
+    }
+    // the next vertex is less certain than the one before it in every coordinate
+    let diagonal = |b: &serde_json::Value| -> Vec<f64> {
+        (0..3)
+            .map(|k| b["matrix"][k][k].as_f64().unwrap())
+            .collect()
+    };
+    let (near, far) = (diagonal(&blocks[0]), diagonal(&blocks[1]));
+    assert!(near.iter().zip(&far).all(|(a, b)| b > a), "{json}");
+    for (ids, mention) in [("7", "no vertex 7"), ("0", "fixed")] {
+        let bad = run("pose_graph", &[file, "--covariance", ids, "-q"]);
+        assert_eq!(bad.status.code(), Some(2), "{}", text(&bad.stderr));
+        let err = text(&bad.stderr);
+        assert!(err.contains(mention) && err.contains("chain.g2o"), "{err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -257,6 +257,8 @@ fn parse_lines<S: AsRef<str>>(
             message: format!("FIX names vertex {f}, which has no VERTEX line"),
         });
     }
+    // the edges are kept through the solve: not at up to twice their size
+    graph.edges.shrink_to_fit();
     Ok((graph, repairs))
 }
 

@@ -249,8 +249,12 @@ impl PoseGraph {
             ));
         }
         let mut problem = Problem::new();
+        problem.reserve(poses.len(), self.edges.len());
         let mut index = BTreeMap::new();
-        let (mut ids, mut vars) = (Vec::new(), Vec::new());
+        let (mut ids, mut vars) = (
+            Vec::with_capacity(poses.len()),
+            Vec::with_capacity(poses.len()),
+        );
         for (&id, pose) in poses {
             let value = pose.coordinates();
             let var = match pose {
