@@ -207,6 +207,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "cost_final": summary.final_cost,
             "iterations": summary.num_iterations(),
             "seconds": summary.total_seconds,
+            "timing": crate::iterations::timing_json(&summary.timing),
             "threads": rayon::current_num_threads(),
             "termination": summary.termination.to_string(),
             "converged": summary.termination.converged(),

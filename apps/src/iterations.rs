@@ -58,3 +58,14 @@ impl IterationLog {
         self.bar.finish_and_clear();
     }
 }
+
+/// Where the solve's time went ([`dynamap_solver::Timing`]), for the JSON line.
+pub fn timing_json(t: &dynamap_solver::Timing) -> serde_json::Value {
+    serde_json::json!({
+        "setup": t.setup,
+        "evaluate": t.evaluate,
+        "assemble": t.assemble,
+        "factorise": t.factorise,
+        "step": t.step,
+    })
+}

@@ -273,6 +273,21 @@ fn write_preview(dir: &Path, args: &Args, log: &IterationLog) -> Result<()> {
     Ok(())
 }
 
+/// Opens the recording of `--rerun` (if any) and logs the graph at the start to it.
+fn log_before(
+    args: &Args,
+    graph: &PoseGraph,
+    start: &BTreeMap<usize, Pose>,
+) -> Result<rerun_log::Recorder> {
+    let rec = rerun_log::Recorder::open(&args.rerun, "dynamap pose_graph")?;
+    if rec.enabled() {
+        let (points, edges) = layout(graph, start);
+        rec.at("iteration", 0);
+        rec.graph("world/before", &points, &edges)?;
+    }
+    Ok(rec)
+}
+
 /// Logs chi2 per iteration and the graph after the solve to the recording.
 fn log_after(
     rec: &rerun_log::Recorder,
@@ -348,16 +363,13 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Some(_) => graph.chi2(&start),
     };
     let options = solver_options(&args);
-    let rec = rerun_log::Recorder::open(&args.rerun, "dynamap pose_graph")?;
-    if rec.enabled() {
-        let (points, edges) = layout(&graph, &start);
-        rec.at("iteration", 0);
-        rec.graph("world/before", &points, &edges)?;
-    }
+    let rec = log_before(&args, &graph, &start)?;
     let log = IterationLog::new(session, args.max_iterations);
     let mut solver = Solver::new(options).with_observer(log.observer());
     let solved = solver.solve(&mut pg.problem);
     log.finish();
+    // its factorisation and buffers are not needed for what follows (and would add to the peak)
+    drop(solver);
     let summary = solved.map_err(|e| solve_error(e, &graph, &pg.ids))?;
     let poses = pg.poses();
     let chi2_final = graph.chi2(&poses);
@@ -403,6 +415,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "costs": summary.iterations.iter().map(|it| it.cost).collect::<Vec<_>>(),
             "iterations": summary.num_iterations(),
             "seconds": summary.total_seconds,
+            "timing": iterations::timing_json(&summary.timing),
             "init_seconds": init_seconds,
             "termination": summary.termination.to_string(),
             "repaired_edges": repaired,

@@ -48,7 +48,7 @@ pub fn covariance(problem: &Problem, variables: &[VarId]) -> Result<Vec<DMatrix<
     }
     ne.assemble();
     let dense = ne.dim() <= Options::default().dense_threshold;
-    let mut linear = LinearSolver::Direct(Cholesky::new(ne.h(), dense)?);
+    let mut linear = LinearSolver::direct(Cholesky::new(ne.h(), dense)?);
     if diagnose::has_unanchored_component(problem, &ne) {
         diagnose::check_rank(problem, &ne, &mut linear)?;
     }

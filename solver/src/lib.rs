@@ -140,7 +140,7 @@ pub use problem::{Problem, ResidualId, VarId};
 pub use real::Real;
 pub use residual::{Jacobians, Residual, Var};
 pub use robust::RobustKernel;
-pub use summary::{IterationSummary, Observer, Summary, Termination};
+pub use summary::{IterationSummary, Observer, Summary, Termination, Timing};
 pub use system::{BlockSystem, Refined};
 
 #[doc = include_str!("../../docs/solver_guide.md")]

@@ -8,9 +8,16 @@ use crate::error::SolveError;
 use crate::normal::NormalEquations;
 use crate::options::LinearSolverKind;
 use crate::schur::{Schur, SchurOptions};
+use std::time::Instant;
 
-/// The solver of the damped normal equations chosen by [`LinearSolverKind`].
-pub(crate) enum LinearSolver {
+/// The solver of the damped normal equations chosen by [`LinearSolverKind`], with the time its
+/// factorisations took.
+pub(crate) struct LinearSolver {
+    inner: Inner,
+    factor_seconds: f64,
+}
+
+enum Inner {
     /// Cholesky of H itself.
     Direct(Cholesky),
     /// Elimination of independent blocks, then the reduced system.
@@ -28,51 +35,72 @@ impl LinearSolver {
         schur: SchurOptions,
     ) -> Result<Self, SolveError> {
         let n = ne.dim();
-        Ok(match kind {
-            LinearSolverKind::Dense => Self::Direct(Cholesky::new(ne.h(), true)?),
-            LinearSolverKind::Sparse => Self::Direct(Cholesky::new(ne.h(), false)?),
-            LinearSolverKind::Auto => Self::Direct(Cholesky::new(ne.h(), n <= dense_threshold)?),
-            _ => Self::Schur(Box::new(Schur::new(
+        let inner = match kind {
+            LinearSolverKind::Dense => Inner::Direct(Cholesky::new(ne.h(), true)?),
+            LinearSolverKind::Sparse => Inner::Direct(Cholesky::new(ne.h(), false)?),
+            LinearSolverKind::Auto => Inner::Direct(Cholesky::new(ne.h(), n <= dense_threshold)?),
+            _ => Inner::Schur(Box::new(Schur::new(
                 ne,
                 eliminate,
                 kind,
                 dense_threshold,
                 schur,
             )?)),
+        };
+        Ok(Self {
+            inner,
+            factor_seconds: 0.0,
         })
+    }
+
+    /// A Cholesky of H itself.
+    pub fn direct(cholesky: Cholesky) -> Self {
+        Self {
+            inner: Inner::Direct(cholesky),
+            factor_seconds: 0.0,
+        }
+    }
+
+    /// Seconds spent in [`Self::factor`] since this solver was made (for a Schur solver, the
+    /// elimination and the reduced system's factorisation).
+    pub fn factor_seconds(&self) -> f64 {
+        self.factor_seconds
     }
 
     /// A name for summaries: "dense", "sparse", "schur-dense", "schur-sparse", "schur-iterative".
     pub fn name(&self) -> &'static str {
-        match self {
-            Self::Direct(c) if c.is_sparse() => "sparse",
-            Self::Direct(_) => "dense",
-            Self::Schur(s) => s.name(),
+        match &self.inner {
+            Inner::Direct(c) if c.is_sparse() => "sparse",
+            Inner::Direct(_) => "dense",
+            Inner::Schur(s) => s.name(),
         }
     }
 
     /// True when [`Self::solve`] is exact up to rounding (false for conjugate gradients).
     pub fn is_exact(&self) -> bool {
-        match self {
-            Self::Direct(_) => true,
-            Self::Schur(s) => s.is_exact(),
+        match &self.inner {
+            Inner::Direct(_) => true,
+            Inner::Schur(s) => s.is_exact(),
         }
     }
 
     /// Factorises H + μD (or prepares the reduced system). On failure returns the index of an
     /// unknown where positive definiteness failed.
     pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
-        match self {
-            Self::Direct(c) => c.factor(ne.h(), damping),
-            Self::Schur(s) => s.factor(ne, damping),
-        }
+        let clock = Instant::now();
+        let factored = match &mut self.inner {
+            Inner::Direct(c) => c.factor(ne.h(), damping),
+            Inner::Schur(s) => s.factor(ne, damping),
+        };
+        self.factor_seconds += clock.elapsed().as_secs_f64();
+        factored
     }
 
     /// Solves with the last factorisation, overwriting `x` (the right-hand side) with the solution.
     pub fn solve(&mut self, ne: &NormalEquations, x: &mut [f64]) {
-        match self {
-            Self::Direct(c) => c.solve(x),
-            Self::Schur(s) => s.solve(ne, x),
+        match &mut self.inner {
+            Inner::Direct(c) => c.solve(x),
+            Inner::Schur(s) => s.solve(ne, x),
         }
     }
 }

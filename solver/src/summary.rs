@@ -71,6 +71,26 @@ impl fmt::Display for Termination {
     }
 }
 
+/// Where a solve's time went, in wall-clock seconds (after the time report of Ceres'
+/// `Solver::Summary::FullReport`). The parts add up to [`Summary::total_seconds`] but for the
+/// minimiser's own bookkeeping (convergence tests, step updates, the observer).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Timing {
+    /// The normal equations' layout, the fill-reducing ordering and the symbolic factorisation
+    /// (0 when the solver reused them from a solve of the same structure).
+    pub setup: f64,
+    /// Residuals and Jacobians, at the start and at every trial point.
+    pub evaluate: f64,
+    /// H = JᵀJ and g = Jᵀr from them.
+    pub assemble: f64,
+    /// Numeric factorisations of H + μD (with a Schur solver, the elimination and the reduced
+    /// system's factorisation or preconditioner).
+    pub factorise: f64,
+    /// The rest of each step's linear algebra: triangular solves, conjugate gradients, the
+    /// dogleg's Cauchy point and predicted decrease.
+    pub step: f64,
+}
+
 /// The outcome of a solve.
 #[derive(Clone, Debug)]
 pub struct Summary {
@@ -82,8 +102,10 @@ pub struct Summary {
     pub iterations: Vec<IterationSummary>,
     /// Why it stopped.
     pub termination: Termination,
-    /// Wall-clock seconds of the whole solve.
+    /// Wall-clock seconds of the whole solve, the setup ([`Timing::setup`]) included.
     pub total_seconds: f64,
+    /// How [`Self::total_seconds`] divides.
+    pub timing: Timing,
     /// Number of unknowns (tangent dimensions of the free variables).
     pub unknowns: usize,
     /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative".
@@ -121,6 +143,11 @@ impl Summary {
             self.total_seconds,
             self.unknowns,
             self.linear_solver
+        ));
+        let t = &self.timing;
+        s.push_str(&format!(
+            "\ntime: setup {:.4} s, evaluate {:.4} s, assemble {:.4} s, factorise {:.4} s, step {:.4} s",
+            t.setup, t.evaluate, t.assemble, t.factorise, t.step
         ));
         if let Some(block) = self.non_finite_block {
             s.push_str(&format!(

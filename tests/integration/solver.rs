@@ -7,7 +7,7 @@ use dynamap::solver::robust::Tukey;
 use dynamap::solver::{
     check_jacobians, Algorithm, AutoDiff, CostFunctor, Euclidean, Jacobians, LinearSolverKind,
     Manifold, NumericDiff, Options, Problem, Real, Residual, SolveError, Solver, Termination,
-    UnitQuaternionManifold, Var, SE3, SO3,
+    Timing, UnitQuaternionManifold, Var, SE3, SO3,
 };
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
@@ -279,6 +279,37 @@ fn a_solver_reuses_its_structure_and_restarts_cleanly() {
     let mut pg2 = other.graph.build_problem(&other.graph.vertices).unwrap();
     solver.solve(&mut pg2.problem).unwrap();
     assert!(max_pose_error(&pg2.poses(), &other.truth).0 < 1e-7);
+}
+
+/// The time report: every part measured, the parts within the total, and a solve that reuses its
+/// structure spends (almost) nothing on setup.
+#[test]
+fn the_time_report_divides_the_total_and_a_reused_structure_needs_no_setup() {
+    let s = synthetic::sphere(&small());
+    let options = Options {
+        linear_solver: LinearSolverKind::Sparse,
+        ..Options::default()
+    };
+    let mut solver = Solver::new(options);
+    let mut pg = s.graph.build_problem(&s.graph.vertices).unwrap();
+    let first = solver.solve(&mut pg.problem).unwrap();
+    let parts = |t: &Timing| [t.setup, t.evaluate, t.assemble, t.factorise, t.step];
+    let t = first.timing;
+    assert!(parts(&t).iter().all(|&p| p > 0.0), "{t:?}");
+    let sum: f64 = parts(&t).iter().sum();
+    assert!(
+        sum <= first.total_seconds * (1.0 + 1e-9) + 1e-9,
+        "{t:?} {}",
+        first.total_seconds
+    );
+    for &v in &pg.vars[1..] {
+        let mut x = pg.problem.value(v).to_vec();
+        x[0] += 0.1;
+        pg.problem.set_value(v, &x).unwrap();
+    }
+    let second = solver.solve(&mut pg.problem).unwrap();
+    assert!(second.timing.setup < t.setup, "{:?} {t:?}", second.timing);
+    assert!(second.timing.factorise > 0.0);
 }
 
 /// A user-defined manifold: the unit circle S¹ embedded in R², stored as (cos θ, sin θ).

@@ -10,7 +10,6 @@ use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
 use super::information::{self, InformationRepair};
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
-use std::fmt::Write as _;
 use std::io::BufRead as _;
 use std::path::Path;
 use thiserror::Error;
@@ -410,21 +409,32 @@ fn definite<const N: usize>(
 /// Formats a pose graph as g2o text with the vertices in `poses` (all digits needed to read each
 /// number back exactly: Rust's shortest round-trip form, as precise as `%.17g`).
 pub fn format(graph: &PoseGraph, poses: &std::collections::BTreeMap<usize, Pose>) -> String {
-    let mut s = String::with_capacity(64 * (poses.len() + graph.edges.len()));
+    let mut bytes = Vec::with_capacity(64 * (poses.len() + graph.edges.len()));
+    // writing to memory cannot fail, and every number and tag is ASCII
+    let _ = format_into(&mut bytes, graph, poses);
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+/// [`format`] written to `s` line by line.
+fn format_into(
+    s: &mut dyn std::io::Write,
+    graph: &PoseGraph,
+    poses: &std::collections::BTreeMap<usize, Pose>,
+) -> std::io::Result<()> {
     for (id, pose) in poses {
         let c = pose.coordinates();
         let tag = match pose {
             Pose::Se2(_) => "VERTEX_SE2",
             Pose::Se3(_) => "VERTEX_SE3:QUAT",
         };
-        let _ = write!(s, "{tag} {id}");
+        write!(s, "{tag} {id}")?;
         for v in c {
-            let _ = write!(s, " {v:?}");
+            write!(s, " {v:?}")?;
         }
-        s.push('\n');
+        writeln!(s)?;
     }
     for f in &graph.fixed {
-        let _ = writeln!(s, "FIX {f}");
+        writeln!(s, "FIX {f}")?;
     }
     for e in &graph.edges {
         let (tag, z, info): (_, Vec<f64>, Vec<f64>) = match &e.measurement {
@@ -448,13 +458,13 @@ pub fn format(graph: &PoseGraph, poses: &std::collections::BTreeMap<usize, Pose>
                 )
             }
         };
-        let _ = write!(s, "{tag} {} {}", e.from, e.to);
+        write!(s, "{tag} {} {}", e.from, e.to)?;
         for v in z.iter().chain(&info) {
-            let _ = write!(s, " {v:?}");
+            write!(s, " {v:?}")?;
         }
-        s.push('\n');
+        writeln!(s)?;
     }
-    s
+    Ok(())
 }
 
 /// Writes the graph with vertices `poses` to `path` through a temporary file renamed into place, so
@@ -470,7 +480,7 @@ pub fn write(
         line: 0,
         message: format!("cannot write: {e}"),
     };
-    crate::atomic::write(path, format(graph, poses).as_bytes()).map_err(err)
+    crate::atomic::write_with(path, |w| format_into(w, graph, poses)).map_err(err)
 }
 
 #[cfg(test)]

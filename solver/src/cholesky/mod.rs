@@ -16,14 +16,18 @@ use crate::ordering::{block_amd, block_nested_dissection, Permutation};
 use dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{LltError, LltRegularization};
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw,
+    SymmetricOrdering,
 };
 use faer::sparse::{FaerError, SymbolicSparseColMatRef};
 use faer::{Conj, Index, Mat, MatMut, Par, Side};
 use sparse::SparseFactor;
 
-/// Factor entries above which the sparse factorisation runs on all threads.
-const PARALLEL_FACTOR_ENTRIES: usize = 8_000_000;
+/// A sparse factorisation runs on all threads when it takes at least this many floating-point
+/// operations and at least [`PARALLEL_FLOPS_PER_ENTRY`] per factor entry (dense supernodes).
+const PARALLEL_MIN_FLOPS: f64 = 1e9;
+/// See [`PARALLEL_MIN_FLOPS`].
+const PARALLEL_FLOPS_PER_ENTRY: f64 = 700.0;
 
 enum Kind {
     Dense {
@@ -89,9 +93,14 @@ impl Cholesky {
             return Ok(Self { kind });
         }
         let analysed = analyse(a, CholeskySymbolicParams::default())?;
-        // Measured on the pose-graph benchmarks (2 cores): below a few million factor entries the
-        // supernodes are too small for threads to pay; sequential was 10-40 % faster.
-        let par = if threads > 1 && analysed.len_val() > PARALLEL_FACTOR_ENTRIES {
+        // Measured on 2 cores (NOTES 73): faer's parallel supernodal factorisation was 12-77 %
+        // slower than the sequential one on pose graphs with 300-500 operations per factor entry
+        // (9 M to 32 M entries), 15-31 % faster on those with 1,000-1,300 (127 M and 139 M) and
+        // on a bundle adjustment's reduced camera system (1,270 per entry, 17 M entries).
+        let flops = analysed.flops();
+        let dense_enough = flops >= PARALLEL_MIN_FLOPS
+            && flops >= PARALLEL_FLOPS_PER_ENTRY * analysed.len_val() as f64;
+        let par = if threads > 1 && dense_enough {
             Par::rayon(0)
         } else {
             Par::Seq
@@ -165,6 +174,29 @@ impl Analysed {
             Analysed::Wide(s) => s.len_val(),
         }
     }
+
+    /// The floating-point operations of one numeric factorisation, counted over the supernodes
+    /// (c columns and p rows below them: c³/3 + c²p + cp²); 0 for a simplicial factor.
+    fn flops(&self) -> f64 {
+        match self {
+            Analysed::Narrow(s) => supernodal_flops(s),
+            Analysed::Wide(s) => supernodal_flops(s),
+        }
+    }
+}
+
+fn supernodal_flops<I: Index>(symbolic: &SymbolicCholesky<I>) -> f64 {
+    let SymbolicCholeskyRaw::Supernodal(s) = symbolic.raw() else {
+        return 0.0;
+    };
+    let (begin, end) = (s.supernode_begin(), s.supernode_end());
+    (0..s.n_supernodes())
+        .map(|k| {
+            let c = (end[k].zx() - begin[k].zx()) as f64;
+            let p = s.supernode(k).pattern().len() as f64;
+            c * c * c / 3.0 + c * c * p + c * p * p
+        })
+        .sum()
 }
 
 /// Block graphs from this many blocks on are also ordered by nested dissection, and the order
@@ -199,6 +231,7 @@ fn analyse(a: &BlockSparse, params: CholeskySymbolicParams) -> Result<Analysed, 
         entries_h = a.values.len(),
         entries_l = chosen.len_val(),
         entries_l_nested_dissection = nested,
+        flops = chosen.flops(),
         index_bits = if matches!(chosen, Analysed::Narrow(_)) {
             32
         } else {

@@ -23,7 +23,7 @@ use crate::options::{Algorithm, Options};
 use crate::parallel::dot;
 use crate::problem::Problem;
 use crate::schur::{self, SchurOptions};
-use crate::summary::{IterationSummary, Observer, Summary, Termination};
+use crate::summary::{IterationSummary, Observer, Summary, Termination, Timing};
 use context::{Context, Proposal};
 use method::Method;
 use std::ops::ControlFlow;
@@ -108,16 +108,23 @@ impl Solver {
 
     /// Minimises `problem` from its current values, which are replaced by the result.
     pub fn solve(&mut self, problem: &mut Problem) -> Result<Summary, SolveError> {
+        let clock = Instant::now();
         let mut ws = self.prepare(problem)?;
-        let result = self.run(problem, &mut ws);
+        let result = self.run(problem, &mut ws, clock);
         self.workspace = Some(ws);
         result
     }
 
-    /// Runs the minimiser on a prepared workspace: the start point, the iterations, the summary.
-    fn run(&mut self, problem: &mut Problem, ws: &mut Workspace) -> Result<Summary, SolveError> {
+    /// Runs the minimiser on a prepared workspace (prepared since `clock`): the start point, the
+    /// iterations, the summary.
+    fn run(
+        &mut self,
+        problem: &mut Problem,
+        ws: &mut Workspace,
+        clock: Instant,
+    ) -> Result<Summary, SolveError> {
         let opts = self.options.clone();
-        let (mut run, mut step_box) = self.start(problem, ws, &opts)?;
+        let (mut run, mut step_box) = self.start(problem, ws, &opts, clock)?;
         let mut method = Method::new(&opts, run.max_diag, &mut ws.gauss_newton);
         let outcome = self.iterations(problem, ws, &mut method, &mut step_box, &mut run);
         // the dogleg's buffer goes back to the workspace whether or not the loop failed
@@ -164,8 +171,12 @@ impl Solver {
         problem: &Problem,
         ws: &mut Workspace,
         opts: &Options,
+        clock: Instant,
     ) -> Result<(Run, Option<StepBox>), SolveError> {
-        let start = Instant::now();
+        let mut timing = Timing {
+            setup: clock.elapsed().as_secs_f64(),
+            ..Timing::default()
+        };
         let Workspace {
             ne, linear, trial, ..
         } = ws;
@@ -177,11 +188,16 @@ impl Solver {
                 ne.first_non_finite().unwrap_or(0),
             ));
         }
+        timing.evaluate = t0.elapsed().as_secs_f64();
         ne.assemble();
         let evaluate_seconds = t0.elapsed().as_secs_f64();
+        timing.assemble = evaluate_seconds - timing.evaluate;
+        let t_rank = Instant::now();
         if opts.check_rank && diagnose::has_unanchored_component(problem, ne) {
             diagnose::check_rank(problem, ne, linear)?;
         }
+        // the rank diagnosis (its factorisations and solves included) counts as setup
+        timing.setup += t_rank.elapsed().as_secs_f64();
         // The step's box moves with the current point only: rebuilt when a step is accepted.
         let step_box = StepBox::new(problem, ne);
         if step_box.is_some() && opts.algorithm == Algorithm::Dogleg {
@@ -191,7 +207,9 @@ impl Solver {
         }
         let gnorm = gradient_norm(step_box.as_ref(), ne);
         let max_diag = ne.h().diagonal().fold(0.0f64, f64::max);
-        let mut run = Run::new(start, cost, gnorm, max_diag);
+        let mut run = Run::new(clock, cost, gnorm, max_diag);
+        run.timing = timing;
+        run.factor_seconds = linear.factor_seconds();
         let first = run.iteration(0, 0.0, 0.0, 0.0, true, evaluate_seconds, 0.0);
         self.record(&mut run, first);
         run.termination = if run.stop {
@@ -230,13 +248,13 @@ impl Solver {
             Proposal::Step { predicted, damping } => (predicted, damping),
             Proposal::Exhausted { damping } => {
                 run.termination = Termination::NoProgress;
-                let solve = t_solve.elapsed().as_secs_f64();
+                let solve = run.linear_time(t_solve, ws.linear.factor_seconds());
                 let it = run.iteration(iteration, 0.0, 0.0, damping, false, 0.0, solve);
                 self.record(run, it);
                 return Ok(ControlFlow::Continue(()));
             }
         };
-        let solve_seconds = t_solve.elapsed().as_secs_f64();
+        let solve_seconds = run.linear_time(t_solve, ws.linear.factor_seconds());
         let step_norm = dot(&ws.step, &ws.step).sqrt();
         let step_floor = opts.step_tolerance * (free_norm(problem, &ws.ne) + opts.step_tolerance);
         if step_norm <= step_floor {
@@ -260,13 +278,16 @@ impl Solver {
         apply_step(problem, ne, step, trial);
         bounds::clamp(problem, trial);
         let new_cost = ne.evaluate(problem, trial, true);
+        run.timing.evaluate += t_eval.elapsed().as_secs_f64();
         let actual = run.cost - new_cost;
         let gain = actual / predicted;
         let accept = new_cost.is_finite() && method.takes(gain, predicted);
         run.non_finite.count(new_cost, ne, iteration);
         if accept {
             problem.values.copy_from_slice(trial);
+            let t_assemble = Instant::now();
             ne.assemble();
+            run.timing.assemble += t_assemble.elapsed().as_secs_f64();
             *step_box = StepBox::new(problem, ne);
             run.moved(new_cost, gradient_norm(step_box.as_ref(), ne), opts);
             method.taken(gain, step_norm);
@@ -345,9 +366,23 @@ struct Run {
     stop: bool,
     log: Vec<IterationSummary>,
     non_finite: NonFinite,
+    timing: Timing,
+    /// The linear solver's [`LinearSolver::factor_seconds`] at the last reading.
+    factor_seconds: f64,
 }
 
 impl Run {
+    /// Adds a step's linear algebra since `since` (whose factorisations brought the solver's
+    /// factorisation clock to `factor_seconds`) to the timing, and returns its seconds.
+    fn linear_time(&mut self, since: Instant, factor_seconds: f64) -> f64 {
+        let seconds = since.elapsed().as_secs_f64();
+        let factorise = factor_seconds - self.factor_seconds;
+        self.factor_seconds = factor_seconds;
+        self.timing.factorise += factorise;
+        self.timing.step += (seconds - factorise).max(0.0);
+        seconds
+    }
+
     fn new(start: Instant, cost: f64, gnorm: f64, max_diag: f64) -> Self {
         Self {
             start,
@@ -359,6 +394,8 @@ impl Run {
             stop: false,
             log: Vec::new(),
             non_finite: NonFinite::default(),
+            timing: Timing::default(),
+            factor_seconds: 0.0,
         }
     }
 
@@ -418,6 +455,7 @@ impl Run {
             iterations: self.log,
             termination: self.termination,
             total_seconds: self.start.elapsed().as_secs_f64(),
+            timing: self.timing,
             unknowns: ne.dim(),
             linear_solver: linear.name(),
             non_finite_steps: self.non_finite.steps,
