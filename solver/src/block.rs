@@ -99,10 +99,10 @@ impl BlockSparse {
     }
 
     /// The scalar row index of every stored element, in storage order (the compressed-column
-    /// pattern with [`Self::col_ptr`]).
-    pub fn row_indices(&self) -> Vec<usize> {
+    /// pattern with [`Self::col_ptr`]), each as `index(row)` (a narrower integer type, say).
+    pub fn row_indices<T>(&self, index: impl Fn(usize) -> T) -> Vec<T> {
         let mut rows = Vec::with_capacity(self.values.len());
-        self.for_each_run(|_, row, n, _| rows.extend(row..row + n));
+        self.for_each_run(|_, row, n, _| rows.extend((row..row + n).map(&index)));
         rows
     }
 
@@ -202,7 +202,7 @@ mod tests {
         assert_eq!(m.find(0, 2), Some(2));
         assert_eq!(m.find(1, 2), None);
         // column of scalar 4 (block 2, c = 1): rows 0, 1 of block 0, then rows 3, 4 of block 2
-        let rows = m.row_indices();
+        let rows = m.row_indices(|r| r);
         assert_eq!(rows.len(), m.values.len());
         let p = m.col_ptr[4];
         assert_eq!(&rows[p..m.col_ptr[5]], &[0, 1, 3, 4]);

@@ -99,7 +99,7 @@ impl StepBox {
         for &p in &h.diag_pos {
             values[p] = damping.apply(values[p]);
         }
-        let p = CscMatrix::new(n, n, h.col_ptr.clone(), h.row_indices(), values);
+        let p = CscMatrix::new(n, n, h.col_ptr.clone(), h.row_indices(|r| r), values);
         // A δ + s = b, s ≥ 0: rows δ_k ≤ hi_k and −δ_k ≤ −lo_k for the finite sides.
         let mut col_ptr = vec![0];
         let (mut rows, mut vals, mut b) = (Vec::new(), Vec::new(), Vec::new());

@@ -274,8 +274,7 @@ fn symbolic_of<I: Index>(
 ) -> Result<SymbolicCholesky<I>, FaerError> {
     let n = a.dim();
     let narrow = |v: &[usize]| v.iter().map(|&x| I::truncate(x)).collect::<Vec<I>>();
-    let mut row_idx = Vec::with_capacity(a.values.len());
-    a.for_each_run(|_, row, rows, _| row_idx.extend((row..row + rows).map(I::truncate)));
+    let row_idx = a.row_indices(I::truncate);
     let col_ptr = narrow(&a.col_ptr);
     let (fwd, inv) = (narrow(fwd), narrow(inv));
     let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);

@@ -44,8 +44,6 @@ pub(super) struct SparseFactor<I: Index> {
     next: Vec<I>,
     /// The new position of every scalar.
     inv: Vec<I>,
-    /// Whether the permuted triangle is the lower one (supernodal) or the upper one.
-    lower: bool,
     values: Values,
     mem: MemBuffer,
     par: Par,
@@ -56,7 +54,7 @@ impl<I: Index> SparseFactor<I> {
     /// the factor and the workspace in `single` or double precision.
     pub fn new(a: &BlockSparse, symbolic: SymbolicCholesky<I>, single: bool, par: Par) -> Self {
         let n = a.dim();
-        let lower = matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_));
+        let lower = is_lower(&symbolic);
         let inv = inverse(&symbolic, n);
         let mut col_ptr = vec![I::truncate(0); n + 1];
         for_each_placed(a, &inv, lower, |_, col, _| {
@@ -98,7 +96,6 @@ impl<I: Index> SparseFactor<I> {
             row_idx,
             next,
             inv,
-            lower,
             values,
             mem: MemBuffer::new(req),
             par,
@@ -115,7 +112,7 @@ impl<I: Index> SparseFactor<I> {
         let pattern = unsafe {
             SymbolicSparseColMatRef::new_unchecked(n, n, &self.col_ptr, None, &self.row_idx)
         };
-        let (inv, lower, next) = (&self.inv, self.lower, &mut self.next);
+        let (inv, lower, next) = (&self.inv, is_lower(&self.symbolic), &mut self.next);
         let symbolic = &self.symbolic;
         let stack = MemStack::new(&mut self.mem);
         let factored = match &mut self.values {
@@ -180,6 +177,12 @@ impl<I: Index> SparseFactor<I> {
             }
         }
     }
+}
+
+/// Whether faer's numeric factorisation of `symbolic` reads the lower triangle (supernodal) or
+/// the upper one (simplicial).
+fn is_lower<I: Index>(symbolic: &SymbolicCholesky<I>) -> bool {
+    matches!(symbolic.raw(), SymbolicCholeskyRaw::Supernodal(_))
 }
 
 /// The new position of every scalar under `symbolic`'s order.
