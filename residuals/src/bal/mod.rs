@@ -94,6 +94,10 @@ impl BalProblem {
     /// [`SnavelyReprojection`] per observation, under `kernel` if given (Ceres' `loss_function`).
     pub fn build(&self, kernel: Option<NamedKernel>) -> Result<BalSolve, ProblemError> {
         let mut problem = Problem::new();
+        problem.reserve(
+            self.cameras.len() + self.points.len(),
+            self.observations.len(),
+        );
         let cameras = self
             .cameras
             .iter()

@@ -200,21 +200,29 @@ fn supernodal_flops<I: Index>(symbolic: &SymbolicCholesky<I>) -> f64 {
 }
 
 /// Block graphs from this many blocks on are also ordered by nested dissection, and the order
-/// with the smaller factor is kept; below it minimum degree alone, so that the small problems
-/// (the real pose graphs, bundle adjustments' reduced systems, deformation graphs) keep the
-/// path their benchmarks measured. Nested dissection already gave the smaller factor on the
+/// with the smaller factor is kept. Nested dissection already gave the smaller factor on the
 /// generated 10,000-pose graphs (NOTES 72).
 const NESTED_DISSECTION_MIN_BLOCKS: usize = 2_000;
 
+/// Smaller graphs are also ordered by nested dissection when minimum degree's factor needs this
+/// many operations: its factorisation then takes tens of milliseconds or more per call, against
+/// about a millisecond for METIS on a graph of a thousand blocks (the reduced camera system of a
+/// bundle adjustment: 23 % fewer operations at 1,000 cameras, NOTES 74). Below both, the small
+/// problems (the real pose graphs, deformation graphs, small bundle adjustments) keep minimum
+/// degree alone and its cheaper analysis.
+const NESTED_DISSECTION_MIN_FLOPS: f64 = 1e9;
+
 /// The symbolic Cholesky factorisation of `a`'s pattern under the ordering with the fewer
-/// factor entries: block AMD, or METIS nested dissection on large graphs.
+/// factor entries: block AMD, or METIS nested dissection on large graphs or costly factors.
 fn analyse(a: &BlockSparse, params: CholeskySymbolicParams) -> Result<Analysed, SolveError> {
     let clock = std::time::Instant::now();
     let amd = symbolic(a, &block_amd(a)?, params)?;
     let amd_s = clock.elapsed().as_secs_f64();
     let mut chosen = amd;
     let mut nested = None;
-    if a.num_blocks() >= NESTED_DISSECTION_MIN_BLOCKS {
+    if a.num_blocks() >= NESTED_DISSECTION_MIN_BLOCKS
+        || chosen.flops() >= NESTED_DISSECTION_MIN_FLOPS
+    {
         // an ordering only changes the speed: if METIS fails, AMD's factor is used, and said so
         match block_nested_dissection(a).and_then(|p| symbolic(a, &p, params)) {
             Ok(nd) => {

@@ -7,12 +7,12 @@ pub(super) const MAX_PRODUCT: usize = 256;
 /// Largest size of an eliminated block (its scratch vectors live on the stack).
 pub(super) const MAX_ELIMINATED: usize = 16;
 
-/// u = H_ee⁻¹ H_jᵀ (d_e × d_j) from the symmetric inverse (d_e × d_e) and H_j (d_j × d_e), all
-/// column-major.
+/// u = H_ee⁻¹ H_jᵀ (d_e × d_j) from the symmetric inverse (d_e × d_e) and H_j (d_j × d_e), both
+/// column-major; `hj(k)` is column k of H_j (d_j values).
 #[inline(always)]
-pub(super) fn inverse_times_transpose(
+pub(super) fn inverse_times_transpose<'a>(
     inv: &[f64],
-    hj: &[f64],
+    hj: impl Fn(usize) -> &'a [f64],
     u: &mut [f64],
     de: usize,
     dj: usize,
@@ -25,16 +25,18 @@ pub(super) fn inverse_times_transpose(
 }
 
 #[inline(always)]
-fn inverse_times_transpose_fixed<const DE: usize, const DJ: usize>(
+fn inverse_times_transpose_fixed<'a, const DE: usize, const DJ: usize>(
     inv: &[f64],
-    hj: &[f64],
+    hj: impl Fn(usize) -> &'a [f64],
     u: &mut [f64],
 ) {
-    let (inv, hj, u) = (&inv[..DE * DE], &hj[..DJ * DE], &mut u[..DE * DJ]);
+    let columns: [&[f64; DJ]; DE] =
+        std::array::from_fn(|k| hj(k)[..DJ].try_into().expect("DJ rows"));
+    let (inv, u) = (&inv[..DE * DE], &mut u[..DE * DJ]);
     for c in 0..DJ {
         let mut acc = [0.0f64; DE];
         for k in 0..DE {
-            let h = hj[c + k * DJ];
+            let h = columns[k][c];
             for (a, iv) in acc.iter_mut().zip(&inv[k * DE..(k + 1) * DE]) {
                 *a += iv * h;
             }
@@ -43,22 +45,32 @@ fn inverse_times_transpose_fixed<const DE: usize, const DJ: usize>(
     }
 }
 
-fn inverse_times_transpose_any(inv: &[f64], hj: &[f64], u: &mut [f64], de: usize, dj: usize) {
-    for c in 0..dj {
-        for r in 0..de {
-            u[r + c * de] = (0..de).map(|k| inv[r + k * de] * hj[c + k * dj]).sum();
+fn inverse_times_transpose_any<'a>(
+    inv: &[f64],
+    hj: impl Fn(usize) -> &'a [f64],
+    u: &mut [f64],
+    de: usize,
+    dj: usize,
+) {
+    u[..de * dj].fill(0.0);
+    for k in 0..de {
+        let column = &hj(k)[..dj];
+        for (c, &h) in column.iter().enumerate() {
+            for r in 0..de {
+                u[r + c * de] += inv[r + k * de] * h;
+            }
         }
     }
 }
 
-/// S_ij −= H_i u for one block, with H_i d_i × d_e and u = H_ee⁻¹ H_jᵀ d_e × d_j (column-major);
-/// column c of the block starts at `out[starts(c)]` (only rows ≤ c on the diagonal). The common
-/// sizes run through a fixed-size kernel.
+/// S_ij −= H_i u for one block, with H_i d_i × d_e (`hi(k)` its column k) and u = H_ee⁻¹ H_jᵀ
+/// d_e × d_j (column-major); column c of the block starts at `out[starts(c)]` (only rows ≤ c on
+/// the diagonal). The common sizes run through a fixed-size kernel.
 #[inline(always)]
-pub(super) fn subtract_block(
+pub(super) fn subtract_block<'a>(
     out: &mut [f64],
     starts: impl Fn(usize) -> usize,
-    hi: &[f64],
+    hi: impl Fn(usize) -> &'a [f64],
     u: &[f64],
     (di, dj, de): (usize, usize, usize),
     diagonal: bool,
@@ -73,7 +85,7 @@ pub(super) fn subtract_block(
                 let o = &mut out[start..start + rows];
                 for k in 0..de {
                     let uv = u[k + c * de];
-                    for (ov, hv) in o.iter_mut().zip(&hi[k * di..k * di + rows]) {
+                    for (ov, hv) in o.iter_mut().zip(&hi(k)[..rows]) {
                         *ov -= hv * uv;
                     }
                 }
@@ -84,19 +96,21 @@ pub(super) fn subtract_block(
 
 /// [`subtract_block`] for fixed sizes, each column formed in registers first.
 #[inline(always)]
-fn subtract_fixed<const DI: usize, const DJ: usize, const DE: usize>(
+fn subtract_fixed<'a, const DI: usize, const DJ: usize, const DE: usize>(
     out: &mut [f64],
     starts: impl Fn(usize) -> usize,
-    hi: &[f64],
+    hi: impl Fn(usize) -> &'a [f64],
     u: &[f64],
     diagonal: bool,
 ) {
-    let (hi, u) = (&hi[..DI * DE], &u[..DE * DJ]);
+    let columns: [&[f64; DI]; DE] =
+        std::array::from_fn(|k| hi(k)[..DI].try_into().expect("DI rows"));
+    let u = &u[..DE * DJ];
     for c in 0..DJ {
         let mut acc = [0.0f64; DI];
         for k in 0..DE {
             let uv = u[k + c * DE];
-            for (a, hv) in acc.iter_mut().zip(&hi[k * DI..(k + 1) * DI]) {
+            for (a, hv) in acc.iter_mut().zip(columns[k]) {
                 *a += hv * uv;
             }
         }

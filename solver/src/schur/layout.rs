@@ -92,26 +92,37 @@ pub(super) struct Neighbours {
     /// Scalar offset of each eliminated block inside the eliminated part, with the total last.
     pub elim_start: Vec<usize>,
     pub inv_offset: Vec<usize>,
-    /// Lengths of the H_ee⁻¹ and H_ce buffers.
+    /// Lengths of the H_ee⁻¹ and H_ce buffers (the latter 0 when H_ce is read in place).
     pub inv_len: usize,
     pub buf_len: usize,
+    /// True when the H_ce blocks are read in place in H.
+    pub in_place: bool,
 }
 
 impl Neighbours {
-    /// Lays out `adjacency` (sorted here); an error for a block too large to eliminate.
+    /// Lays out `adjacency` (sorted here), H_ce read in place in H unless `gather`; an error
+    /// for a block too large to eliminate.
     pub fn new(
         ne: &NormalEquations,
         split: &Split,
         mut adjacency: Vec<Vec<Adjacent>>,
+        gather: bool,
     ) -> Result<Self, SolveError> {
-        let dim = |b: usize| ne.h().block_dim(b);
+        let h = ne.h();
+        let dim = |b: usize| h.block_dim(b);
+        // H_ce is read in place unless some block is stored transposed (a kept block after an
+        // eliminated one) or the products are iterated: conjugate gradients read every block
+        // twice per product, and from the gathered copy their products took two thirds of the
+        // time (NOTES 74); otherwise every block is gathered into a copy of H_ce.
+        let in_place = !gather && adjacency.iter().flatten().all(|a| !a.3);
         let mut out = Self {
             nbr_ptr: vec![0],
-            nbrs: Vec::new(),
+            nbrs: Vec::with_capacity(adjacency.iter().map(Vec::len).sum()),
             elim_start: vec![0],
             inv_offset: Vec::with_capacity(split.elim.len()),
             inv_len: 0,
             buf_len: 0,
+            in_place,
         };
         for (q, list) in adjacency.iter_mut().enumerate() {
             list.sort_unstable_by_key(|n| n.0);
@@ -127,14 +138,31 @@ impl Neighbours {
                 )));
             }
             for &(k, h_entry, h_column, transposed) in list.iter() {
+                let dc = dim(split.kept[k]);
+                let (offset, step) = if in_place {
+                    // H's block column holds R rows above its diagonal block in every column,
+                    // and column k of the diagonal block k + 1: column k starts k R + k(k+1)/2
+                    // after column 0
+                    let first = h.column_start(h_column, h_entry, 0);
+                    let c0 = h.block_start[h_column];
+                    let above = h.col_ptr[c0 + 1] - h.col_ptr[c0] - 1;
+                    debug_assert!((0..de).all(|k| h.column_start(h_column, h_entry, k)
+                        == first + k * above + k * (k + 1) / 2));
+                    (first, above)
+                } else {
+                    (out.buf_len, dc)
+                };
                 out.nbrs.push(Neighbour {
                     kept: k,
-                    offset: out.buf_len,
+                    offset,
+                    step,
                     h_entry,
                     h_column,
                     transposed,
                 });
-                out.buf_len += dim(split.kept[k]) * de;
+                if !in_place {
+                    out.buf_len += dc * de;
+                }
             }
             out.nbr_ptr.push(out.nbrs.len());
             out.inv_offset.push(out.inv_len);

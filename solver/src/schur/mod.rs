@@ -55,8 +55,11 @@ pub(crate) struct SchurOptions {
 struct Neighbour {
     /// Reduced block index of the kept variable.
     kept: usize,
-    /// Offset of H_ce (d_c × d_e, column-major) in its buffer.
+    /// Position of column 0 of H_ce (d_c × d_e) in H's values, or in `Schur::hce` when H_ce is
+    /// gathered; column k starts `k step` after it, plus k(k+1)/2 in H (whose columns grow by
+    /// one row each on the diagonal).
     offset: usize,
+    step: usize,
     /// H entry holding the block, and whether it is stored as H_ec (the kept block comes later).
     h_entry: usize,
     h_column: usize,
@@ -82,7 +85,9 @@ pub(crate) struct Schur {
     /// Offset of each eliminated block's H_ee⁻¹ in `hinv`.
     inv_offset: Vec<usize>,
     hinv: Vec<f64>,
+    /// A copy of the H_ce blocks when they cannot be read in place (`in_place` false).
     hce: Vec<f64>,
+    in_place: bool,
     /// H_ee⁻¹ b_e during a solve, indexed like the eliminated scalars.
     ze: Vec<f64>,
     /// The reduced system (for the iterative solver only its H_cc part).
@@ -125,15 +130,16 @@ impl Schur {
         let h = ne.h();
         debug_assert_eq!(eliminate.len(), h.num_blocks());
         let split = Split::new(eliminate);
-        let nbrs = Neighbours::new(ne, &split, layout::adjacency(ne, eliminate, &split)?)?;
-        let touch_lists = nbrs.touch_lists(split.kept.len());
         let iterative = kind == LinearSolverKind::SchurIterative;
+        let adjacency = layout::adjacency(ne, eliminate, &split)?;
+        let nbrs = Neighbours::new(ne, &split, adjacency, iterative)?;
+        let touch_lists = nbrs.touch_lists(split.kept.len());
         let s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
         let (direct_ptr, direct) = layout::direct_copies(h, eliminate, &split, &s);
         let points = PointMajor::new(&s, &nbrs, split.elim.len(), iterative);
         let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
         let elim_scalars = *nbrs.elim_start.last().unwrap();
-        let (reduced, kind) = reduced_solver(&s, kind, dense_threshold, elim_scalars, options)?;
+        let (reduced, kind) = reduced_solver(&s, kind, dense_threshold, &nbrs.nbr_ptr, options)?;
         let chunks = points.chunk_bounds.len() - 1;
         Ok(Self {
             kind,
@@ -146,6 +152,7 @@ impl Schur {
             inv_offset: nbrs.inv_offset,
             hinv: vec![0.0; nbrs.inv_len],
             hce: vec![0.0; nbrs.buf_len],
+            in_place: nbrs.in_place,
             ze: vec![0.0; elim_scalars],
             direct_ptr,
             direct,
@@ -178,8 +185,9 @@ impl Schur {
         matches!(self.reduced, ReducedSolver::Factored(_))
     }
 
-    /// Inverts the damped H_ee blocks and gathers the H_ce blocks, then forms S (or the
-    /// preconditioner) and factorises it. On failure returns the H scalar index where definiteness failed.
+    /// Inverts the damped H_ee blocks and, unless H_ce is read in place, gathers its blocks,
+    /// then forms S (or the preconditioner) and factorises it. On failure returns the H scalar
+    /// index where definiteness failed.
     pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
         let h = ne.h();
         let hinv = SyncPtr::new(&mut self.hinv);
@@ -191,6 +199,7 @@ impl Schur {
             &self.inv_offset,
             &self.kept,
         );
+        let gather = !self.in_place;
         (0..elim.len())
             .into_par_iter()
             .with_min_len(64)
@@ -203,8 +212,12 @@ impl Schur {
                 if let Err(k) = invert_spd(inv, de) {
                     return Err(h.block_start[b] + k);
                 }
+                if !gather {
+                    return Ok(());
+                }
                 for n in &nbrs[nbr_ptr[q]..nbr_ptr[q + 1]] {
                     let dc = h.block_dim(kept[n.kept]);
+                    // SAFETY: block q owns its neighbours' ranges of hce.
                     let block = unsafe { hce.slice(n.offset, dc * de) };
                     if n.transposed {
                         for r in 0..dc {
@@ -263,7 +276,7 @@ impl Schur {
                     let (e0, de) = (h.block_start[b], h.block_dim(b));
                     // SAFETY: eliminated block q owns x[e0..e0 + de]; kept ranges are not read.
                     let xe = unsafe { out.slice(e0, de) };
-                    this.eliminated_update(q, de, xe, y);
+                    this.eliminated_update(h, q, de, xe, y);
                 });
         }
         for (k, &b) in self.kept.iter().enumerate() {
@@ -273,35 +286,71 @@ impl Schur {
         self.rhs = rhs;
     }
 
+    /// Column k (d_c values) of the H_ce block of neighbour `n`: in place in H, or from the
+    /// gathered copy.
+    #[inline(always)]
+    fn hce_column<'a>(
+        &'a self,
+        h: &'a BlockSparse,
+        n: &Neighbour,
+        dc: usize,
+        k: usize,
+    ) -> &'a [f64] {
+        if self.in_place {
+            &h.values[n.offset + k * n.step + k * (k + 1) / 2..][..dc]
+        } else {
+            &self.hce[n.offset + k * n.step..][..dc]
+        }
+    }
+
+    /// Calls `f(k, column k)` for the d_e columns (d_c values each) of the H_ce block of
+    /// neighbour `n`, in order; the columns' starts are stepped, not recomputed.
+    #[inline(always)]
+    fn for_each_hce_column<'a>(
+        &'a self,
+        h: &'a BlockSparse,
+        n: &Neighbour,
+        (dc, de): (usize, usize),
+        mut f: impl FnMut(usize, &'a [f64]),
+    ) {
+        let (source, grow) = if self.in_place {
+            (&h.values[..], 1)
+        } else {
+            (&self.hce[..], 0)
+        };
+        let mut at = n.offset;
+        for k in 0..de {
+            f(k, &source[at..at + dc]);
+            at += n.step + grow * (k + 1);
+        }
+    }
+
     /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and its neighbour j, written into the
     /// front of `scratch`.
     #[inline(always)]
     fn inverse_times_neighbour<'a>(
         &'a self,
+        h: &BlockSparse,
         q: usize,
         n: &Neighbour,
-        de: usize,
-        dj: usize,
+        (de, dj): (usize, usize),
         scratch: &'a mut [f64; MAX_PRODUCT],
     ) -> &'a [f64] {
-        let hj = &self.hce[n.offset..][..dj * de];
         let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         let u = &mut scratch[..de * dj];
-        inverse_times_transpose(inv, hj, u, de, dj);
+        inverse_times_transpose(inv, |k| self.hce_column(h, n, dj, k), u, de, dj);
         u
     }
 
     /// `v ← H_ee⁻¹ (v − H_ec y)` for eliminated block q (d_e unknowns), y in reduced order.
-    fn eliminated_update(&self, q: usize, de: usize, v: &mut [f64], y: &[f64]) {
+    fn eliminated_update(&self, h: &BlockSparse, q: usize, de: usize, v: &mut [f64], y: &[f64]) {
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
         t.copy_from_slice(v);
         for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
             let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-            let hb = &self.hce[n.offset..][..dc * de];
-            for (k, tk) in t.iter_mut().enumerate() {
-                *tk -= dot(&hb[k * dc..(k + 1) * dc], &y[c0..c0 + dc]);
-            }
+            let yc = &y[c0..c0 + dc];
+            self.for_each_hce_column(h, n, (dc, de), |k, column| t[k] -= dot(column, yc));
         }
         let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         for (r, o) in v.iter_mut().enumerate() {
@@ -316,11 +365,11 @@ fn reduced_solver(
     s: &BlockSparse,
     kind: LinearSolverKind,
     dense_threshold: usize,
-    eliminated_scalars: usize,
+    nbr_ptr: &[usize],
     options: SchurOptions,
 ) -> Result<(ReducedSolver, LinearSolverKind), SolveError> {
     if kind == LinearSolverKind::SchurIterative {
-        let pcg = Pcg::new(s, eliminated_scalars, options);
+        let pcg = Pcg::new(s, nbr_ptr, options);
         return Ok((ReducedSolver::Iterative(pcg), kind));
     }
     let dense = match kind {

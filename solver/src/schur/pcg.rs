@@ -2,7 +2,7 @@
 //! `S x = H_cc x − H_ce (H_ee⁻¹ (H_ec x))` and the block-Jacobi preconditioner diag(S)⁻¹
 //! (Agarwal et al., *Bundle Adjustment in the Large*, 2010, sec. 4.3); S is never formed.
 
-use super::kernels::{invert_spd, subtract_block, MAX_PRODUCT};
+use super::kernels::{invert_spd, subtract_block, MAX_ELIMINATED, MAX_PRODUCT};
 use super::{ReducedSolver, Schur, SchurOptions};
 use crate::block::BlockSparse;
 use crate::damping::Damping;
@@ -19,8 +19,10 @@ pub(super) struct Pcg {
     z: Vec<f64>,
     p: Vec<f64>,
     q: Vec<f64>,
-    /// H_ee⁻¹ H_ec x for the implicit product, indexed like the eliminated scalars.
-    eliminated: Vec<f64>,
+    /// Eliminated-block ranges of about equal neighbour counts, with the total last; one
+    /// private copy of the implicit product per range.
+    chunk_bounds: Vec<usize>,
+    chunk_y: Vec<Vec<f64>>,
     damping: Damping,
     options: SchurOptions,
 }
@@ -57,8 +59,9 @@ impl Schur {
                     let (q, nj) = this.touch[t];
                     let de = h.block_dim(this.elim[q]);
                     let mut u = [0.0; MAX_PRODUCT];
-                    let u = this.inverse_times_neighbour(q, &this.nbrs[nj], de, dj, &mut u);
-                    let hj = &this.hce[this.nbrs[nj].offset..][..dj * de];
+                    let n = &this.nbrs[nj];
+                    let u = this.inverse_times_neighbour(h, q, n, (de, dj), &mut u);
+                    let hj = |k| this.hce_column(h, n, dj, k);
                     subtract_block(p, |c| c * dj, hj, u, (dj, dj, de), false);
                 }
                 invert_spd(p, dj).map_err(|k| h.block_start[this.kept[j]] + k)
@@ -75,6 +78,10 @@ impl Schur {
     }
 
     /// y = S x = (H_cc + damping) x − H_ce (H_ee⁻¹ (H_ec x)), never forming S.
+    ///
+    /// One pass over the eliminated blocks: each forms t_e = −H_ee⁻¹ H_ec x and adds H_ce t_e
+    /// to its chunk's private copy of y while its H_ce blocks are still in cache, so that H_ce
+    /// is read once per product, in storage order; the copies are summed at the end.
     pub(super) fn implicit_product(
         &self,
         h: &BlockSparse,
@@ -82,45 +89,48 @@ impl Schur {
         x: &[f64],
         y: &mut [f64],
     ) {
-        {
-            let tmp = SyncPtr::new(&mut pcg.eliminated);
-            (0..self.elim.len())
-                .into_par_iter()
-                .with_min_len(64)
-                .for_each(|q| {
-                    let de = h.block_dim(self.elim[q]);
-                    // SAFETY: block q owns its range of the eliminated buffer.
-                    let out = unsafe { tmp.slice(self.elim_start[q], de) };
-                    out.fill(0.0);
-                    // tmp_e = −H_ee⁻¹ H_ec x
-                    self.eliminated_update(q, de, out, x);
-                });
-        }
+        let bounds = &pcg.chunk_bounds;
+        pcg.chunk_y.par_iter_mut().enumerate().for_each(|(c, acc)| {
+            acc.fill(0.0);
+            for q in bounds[c]..bounds[c + 1] {
+                self.add_eliminated_product(h, q, x, acc);
+            }
+        });
         self.s.multiply(x, y);
         for (&p, (yi, xi)) in self.s.diag_pos.iter().zip(y.iter_mut().zip(x)) {
             let v = self.s.values[p];
             *yi += (pcg.damping.apply(v) - v) * xi;
         }
-        let out = SyncPtr::new(y);
-        let tmp = &pcg.eliminated;
-        (0..self.kept.len())
-            .into_par_iter()
-            .with_min_len(16)
-            .for_each(|j| {
-                let (r0, dj) = (self.s.block_start[j], self.s.block_dim(j));
-                // SAFETY: block j owns y[r0..r0 + dj].
-                let yj = unsafe { out.slice(r0, dj) };
-                for &(q, nj) in &self.touch[self.touch_ptr[j]..self.touch_ptr[j + 1]] {
-                    let de = h.block_dim(self.elim[q]);
-                    let hj = &self.hce[self.nbrs[nj].offset..][..dj * de];
-                    for k in 0..de {
-                        let t = tmp[self.elim_start[q] + k];
-                        for (o, hv) in yj.iter_mut().zip(&hj[k * dj..(k + 1) * dj]) {
-                            *o += hv * t;
-                        }
+        let copies = &pcg.chunk_y;
+        y.par_chunks_mut(SUM_RANGE)
+            .enumerate()
+            .for_each(|(i, part)| {
+                let r0 = i * SUM_RANGE;
+                for copy in copies {
+                    for (o, a) in part.iter_mut().zip(&copy[r0..]) {
+                        *o += a;
                     }
                 }
             });
+    }
+
+    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours.
+    #[inline]
+    fn add_eliminated_product(&self, h: &BlockSparse, q: usize, x: &[f64], acc: &mut [f64]) {
+        let de = h.block_dim(self.elim[q]);
+        let mut t = [0.0f64; MAX_ELIMINATED];
+        let t = &mut t[..de];
+        // t = −H_ee⁻¹ H_ec x
+        self.eliminated_update(h, q, de, t, x);
+        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
+            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+            let out = &mut acc[c0..c0 + dc];
+            self.for_each_hce_column(h, n, (dc, de), |k, column| {
+                for (o, hv) in out.iter_mut().zip(column) {
+                    *o += hv * t[k];
+                }
+            });
+        }
     }
 
     /// Preconditioned conjugate gradients on S y = b, overwriting `b` with y (Saad, *Iterative
@@ -187,8 +197,10 @@ impl Schur {
 }
 
 impl Pcg {
-    /// Buffers for a reduced system shaped like `s` and `eliminated` eliminated unknowns.
-    pub(super) fn new(s: &BlockSparse, eliminated: usize, options: SchurOptions) -> Self {
+    /// Buffers for a reduced system shaped like `s`, whose eliminated blocks have the
+    /// neighbour lists delimited by `nbr_ptr`.
+    pub(super) fn new(s: &BlockSparse, nbr_ptr: &[usize], options: SchurOptions) -> Self {
+        let chunk_bounds = chunk_bounds(nbr_ptr, PRODUCT_CHUNKS * rayon::current_num_threads());
         let nr = s.dim();
         let mut precond_offset = vec![0];
         for k in 0..s.num_blocks() {
@@ -202,7 +214,8 @@ impl Pcg {
             z: vec![0.0; nr],
             p: vec![0.0; nr],
             q: vec![0.0; nr],
-            eliminated: vec![0.0; eliminated],
+            chunk_y: vec![vec![0.0; nr]; chunk_bounds.len() - 1],
+            chunk_bounds,
             damping: Damping::None,
             options,
         }
@@ -216,7 +229,8 @@ impl Pcg {
             z: Vec::new(),
             p: Vec::new(),
             q: Vec::new(),
-            eliminated: Vec::new(),
+            chunk_bounds: vec![0],
+            chunk_y: Vec::new(),
             damping: Damping::None,
             options: SchurOptions {
                 pcg_tolerance: 0.0,
@@ -224,5 +238,53 @@ impl Pcg {
                 pcg_forcing: 0.0,
             },
         }
+    }
+}
+
+/// Chunks of the implicit product per worker thread (for balance).
+const PRODUCT_CHUNKS: usize = 2;
+
+/// Scalars of y summed per task when the chunks' products are added.
+const SUM_RANGE: usize = 4096;
+
+/// Bounds of at most `chunks` ranges of eliminated blocks with about equal numbers of
+/// neighbours (the product's work), the total last.
+fn chunk_bounds(nbr_ptr: &[usize], chunks: usize) -> Vec<usize> {
+    let eliminated = nbr_ptr.len() - 1;
+    let per_chunk = nbr_ptr[eliminated].div_ceil(chunks.max(1)).max(1);
+    let mut bounds = vec![0];
+    for (q, &before) in nbr_ptr.iter().enumerate().take(eliminated).skip(1) {
+        if before >= per_chunk * bounds.len() {
+            bounds.push(q);
+        }
+    }
+    bounds.push(eliminated);
+    bounds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chunk_bounds;
+
+    #[test]
+    fn the_product_chunks_cover_every_eliminated_block_once_with_about_equal_work() {
+        // 100 blocks of 1..=10 neighbours
+        let mut nbr_ptr = vec![0];
+        for q in 0..100 {
+            nbr_ptr.push(nbr_ptr[q] + 1 + q % 10);
+        }
+        for chunks in [1, 2, 4, 7] {
+            let bounds = chunk_bounds(&nbr_ptr, chunks);
+            assert_eq!((bounds[0], *bounds.last().unwrap()), (0, 100));
+            assert!(bounds.windows(2).all(|w| w[0] < w[1]));
+            assert!(bounds.len() - 1 <= chunks);
+            let work: Vec<usize> = bounds
+                .windows(2)
+                .map(|w| nbr_ptr[w[1]] - nbr_ptr[w[0]])
+                .collect();
+            let ideal = nbr_ptr[100].div_ceil(chunks);
+            assert!(work.iter().all(|&w| w <= ideal + 10), "{chunks}: {work:?}");
+        }
+        assert_eq!(chunk_bounds(&[0], 4), vec![0, 0]);
     }
 }
