@@ -594,7 +594,8 @@ fn deepdeform_seq017_is_masked_by_its_nodes_and_its_verdict_agrees_with_the_surf
     }
 }
 
-/// The dense Schur solver with `bal::options`, as the example runs it.
+/// The dense Schur solver with `bal::options`, as the example runs it with
+/// `--linear-solver schur-dense`.
 fn solve_bal(
     data: &dynamap::residuals::bal::BalProblem,
     max_iterations: usize,

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release --example bundle_adjustment -- problem.txt [--huber 1.0 | --kernel cauchy:1]
-//!        [--linear-solver schur-dense|schur-sparse|schur-iterative|auto|cholesky] [--max-iterations 50]
+//!        [--linear-solver auto|schur-dense|schur-sparse|schur-iterative|cholesky] [--max-iterations 50]
 //!        [--pcg-tolerance 1e-6]
 //! cargo run --release --example bundle_adjustment     # a generated problem with a known optimum
 //! ```
@@ -32,7 +32,9 @@ use std::process::ExitCode;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum LinearKind {
-    /// Schur complement, the reduced camera system's solver chosen by its size and sparsity.
+    /// Schur complement, the reduced camera system's solver chosen by its size and sparsity:
+    /// dense or sparse Cholesky, or conjugate gradients where a sparse factorisation would cost
+    /// more than 100 operations per scalar of H_ce.
     Auto,
     /// Schur complement, reduced camera system by dense Cholesky.
     SchurDense,
@@ -59,7 +61,7 @@ struct Args {
     #[arg(long, value_name = "NAME:SCALE")]
     kernel: Option<NamedKernel>,
     /// Linear solver.
-    #[arg(long, value_enum, default_value = "schur-dense")]
+    #[arg(long, value_enum, default_value = "auto")]
     linear_solver: LinearKind,
     /// Iteration limit (accepted and rejected steps both count, as in Ceres).
     #[arg(long, default_value_t = 50)]

@@ -111,7 +111,9 @@ pub enum LinearSolverKind {
     Sparse,
     /// Schur complement: eliminate independent variables (see [`crate::Elimination`]), solve the
     /// reduced system by dense Cholesky below [`crate::Options::dense_threshold`] unknowns and
-    /// sparse Cholesky above.
+    /// sparse Cholesky above, or by conjugate gradients ([`Self::SchurIterative`]) when the
+    /// sparse factorisation would cost more than 100 operations per scalar of the eliminated
+    /// blocks' coupling H_ce (large bundle adjustments; NOTES 74).
     Schur,
     /// Schur complement with a dense Cholesky of the reduced system.
     SchurDense,

@@ -92,7 +92,13 @@ impl Cholesky {
             };
             return Ok(Self { kind });
         }
-        let analysed = analyse(a, CholeskySymbolicParams::default())?;
+        let analysed = Analysed::new(a)?;
+        Ok(Self::from_analysis(a, analysed, precision))
+    }
+
+    /// A sparse factorisation of matrices with `a`'s structure from its symbolic analysis (the
+    /// factor's storage is allocated here, not by the analysis).
+    pub fn from_analysis(a: &BlockSparse, analysed: Analysed, precision: FactorPrecision) -> Self {
         // Measured on 2 cores (NOTES 73): faer's parallel supernodal factorisation was 12-77 %
         // slower than the sequential one on pose graphs with 300-500 operations per factor entry
         // (9 M to 32 M entries), 15-31 % faster on those with 1,000-1,300 (127 M and 139 M) and
@@ -100,7 +106,7 @@ impl Cholesky {
         let flops = analysed.flops();
         let dense_enough = flops >= PARALLEL_MIN_FLOPS
             && flops >= PARALLEL_FLOPS_PER_ENTRY * analysed.len_val() as f64;
-        let par = if threads > 1 && dense_enough {
+        let par = if rayon::current_num_threads() > 1 && dense_enough {
             Par::rayon(0)
         } else {
             Par::Seq
@@ -110,7 +116,7 @@ impl Cholesky {
             Analysed::Narrow(s) => Kind::Sparse32(Box::new(SparseFactor::new(a, s, single, par))),
             Analysed::Wide(s) => Kind::Sparse64(Box::new(SparseFactor::new(a, s, single, par))),
         };
-        Ok(Self { kind })
+        Self { kind }
     }
 
     /// True for the sparse path.
@@ -162,12 +168,26 @@ impl Cholesky {
 }
 
 /// A symbolic factorisation with the narrowest indices that hold it.
-enum Analysed {
+pub(crate) enum Analysed {
     Narrow(SymbolicCholesky<u32>),
     Wide(SymbolicCholesky<usize>),
 }
 
 impl Analysed {
+    /// The symbolic factorisation of `a`'s pattern under the better of the orderings tried
+    /// (see [`analyse`]).
+    pub fn new(a: &BlockSparse) -> Result<Self, SolveError> {
+        analyse(a, f64::INFINITY)
+    }
+
+    /// [`Self::new`], but minimum degree's analysis alone when its factorisation would take more
+    /// than `enough` operations: for a caller that only factorises below a bound far under
+    /// `enough` (nested dissection saved 23 % of the operations on a bundle adjustment's
+    /// reduced system, NOTES 74, so it cannot bring such a factor under that bound).
+    pub fn unless_costlier(a: &BlockSparse, enough: f64) -> Result<Self, SolveError> {
+        analyse(a, enough)
+    }
+
     fn len_val(&self) -> usize {
         match self {
             Analysed::Narrow(s) => s.len_val(),
@@ -177,7 +197,7 @@ impl Analysed {
 
     /// The floating-point operations of one numeric factorisation, counted over the supernodes
     /// (c columns and p rows below them: c³/3 + c²p + cp²); 0 for a simplicial factor.
-    fn flops(&self) -> f64 {
+    pub fn flops(&self) -> f64 {
         match self {
             Analysed::Narrow(s) => supernodal_flops(s),
             Analysed::Wide(s) => supernodal_flops(s),
@@ -214,14 +234,16 @@ const NESTED_DISSECTION_MIN_FLOPS: f64 = 1e9;
 
 /// The symbolic Cholesky factorisation of `a`'s pattern under the ordering with the fewer
 /// factor entries: block AMD, or METIS nested dissection on large graphs or costly factors.
-fn analyse(a: &BlockSparse, params: CholeskySymbolicParams) -> Result<Analysed, SolveError> {
+fn analyse(a: &BlockSparse, enough: f64) -> Result<Analysed, SolveError> {
+    let params = CholeskySymbolicParams::default();
     let clock = std::time::Instant::now();
     let amd = symbolic(a, &block_amd(a)?, params)?;
     let amd_s = clock.elapsed().as_secs_f64();
     let mut chosen = amd;
     let mut nested = None;
-    if a.num_blocks() >= NESTED_DISSECTION_MIN_BLOCKS
-        || chosen.flops() >= NESTED_DISSECTION_MIN_FLOPS
+    let amd_flops = chosen.flops();
+    if (a.num_blocks() >= NESTED_DISSECTION_MIN_BLOCKS || amd_flops >= NESTED_DISSECTION_MIN_FLOPS)
+        && amd_flops <= enough
     {
         // an ordering only changes the speed: if METIS fails, AMD's factor is used, and said so
         match block_nested_dissection(a).and_then(|p| symbolic(a, &p, params)) {

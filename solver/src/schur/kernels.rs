@@ -128,14 +128,33 @@ fn subtract_fixed<'a, const DI: usize, const DJ: usize, const DE: usize>(
     }
 }
 
+/// A pivot at most this fraction of its column's diagonal marks the matrix as numerically
+/// singular.
+const PIVOT_FLOOR: f64 = 1e-13;
+
 /// Inverts a symmetric positive definite `d × d` matrix in place by Gauss-Jordan elimination
 /// (no pivoting is needed for such matrices: every pivot is a Schur complement's diagonal).
 /// On a pivot that is not clearly positive returns its index.
+///
+/// Pivot k is tested against a_kk, its own diagonal, not against the largest: the test is then
+/// the same for D A D with any positive diagonal D (Jacobi scaling), so an unknown whose
+/// entries are small beside the others' (a camera's focal length, 0.1 against 10¹² for its
+/// rotation) is not taken for a singular one (NOTES 74).
 pub(crate) fn invert_spd(a: &mut [f64], d: usize) -> Result<(), usize> {
-    let scale = (0..d).map(|i| a[i + i * d].abs()).fold(0.0f64, f64::max);
+    let mut diagonal = [0.0f64; MAX_PRODUCT];
+    for (i, v) in diagonal.iter_mut().enumerate().take(d) {
+        *v = a[i + i * d];
+    }
+    // blocks wider than the scratch (none that a Schur layout admits) test against the largest
+    let largest = diagonal.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     for k in 0..d {
         let pivot = a[k + k * d];
-        if pivot.is_nan() || pivot <= 1e-13 * scale || !pivot.is_finite() {
+        let reference = if k < MAX_PRODUCT {
+            diagonal[k]
+        } else {
+            largest
+        };
+        if pivot.is_nan() || pivot <= PIVOT_FLOOR * reference || !pivot.is_finite() {
             return Err(k);
         }
         let inv = 1.0 / pivot;
@@ -176,6 +195,31 @@ mod tests {
             }
         }
         let mut singular = [1.0, 1.0, 1.0, 1.0];
+        assert_eq!(invert_spd(&mut singular, 2), Err(1));
+        let mut negative = [1.0, 0.0, 0.0, -1e-20];
+        assert_eq!(invert_spd(&mut negative, 2), Err(1));
+    }
+
+    /// The inverse of D M D is D⁻¹ M⁻¹ D⁻¹ for scales 10⁻⁶…10⁶ (a camera's focal length beside
+    /// its rotation), and a matrix singular up to rounding stays refused at any scale.
+    #[test]
+    fn gauss_jordan_treats_scaled_unknowns_alike() {
+        let m = [4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0];
+        let mut m_inv = m;
+        invert_spd(&mut m_inv, 3).unwrap();
+        let d = [1e6, 1e-6, 3.0];
+        let mut scaled: Vec<f64> = (0..9).map(|i| d[i % 3] * m[i] * d[i / 3]).collect();
+        invert_spd(&mut scaled, 3).unwrap();
+        for i in 0..9 {
+            let expected = m_inv[i] / (d[i % 3] * d[i / 3]);
+            assert!(
+                (scaled[i] - expected).abs() <= 1e-12 * expected.abs(),
+                "{i}"
+            );
+        }
+        // rank 1: [1, 2]ᵀ[1, 2] scaled by diag(1e6, 1e-6)
+        let v = [1e6, 2e-6];
+        let mut singular = [v[0] * v[0], v[1] * v[0], v[0] * v[1], v[1] * v[1]];
         assert_eq!(invert_spd(&mut singular, 2), Err(1));
     }
 }

@@ -31,7 +31,7 @@ pub(crate) use ordering::elimination_set;
 use pcg::Pcg;
 
 use crate::block::BlockSparse;
-use crate::cholesky::Cholesky;
+use crate::cholesky::{Analysed, Cholesky, FactorPrecision};
 use crate::damping::Damping;
 use crate::error::SolveError;
 use crate::normal::NormalEquations;
@@ -135,11 +135,20 @@ impl Schur {
         let nbrs = Neighbours::new(ne, &split, adjacency, iterative)?;
         let touch_lists = nbrs.touch_lists(split.kept.len());
         let s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
+        let (reduced, kind) = match kind {
+            LinearSolverKind::Schur => match choose_reduced(&s, dense_threshold, &nbrs)? {
+                Some(chosen) => chosen,
+                // the iterative layout differs (H_ce gathered, S's pattern only H_cc's)
+                None => {
+                    return Self::new(ne, eliminate, LinearSolverKind::SchurIterative, 0, options)
+                }
+            },
+            kind => reduced_solver(&s, kind, &nbrs.nbr_ptr, options)?,
+        };
         let (direct_ptr, direct) = layout::direct_copies(h, eliminate, &split, &s);
         let points = PointMajor::new(&s, &nbrs, split.elim.len(), iterative);
         let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
         let elim_scalars = *nbrs.elim_start.last().unwrap();
-        let (reduced, kind) = reduced_solver(&s, kind, dense_threshold, &nbrs.nbr_ptr, options)?;
         let chunks = points.chunk_bounds.len() - 1;
         Ok(Self {
             kind,
@@ -359,29 +368,68 @@ impl Schur {
     }
 }
 
-/// The solver of the reduced system, and the kind named for it ("schur" resolved to dense or
-/// sparse by `dense_threshold`).
+/// The solver of the reduced system for an explicit `kind`.
 fn reduced_solver(
     s: &BlockSparse,
     kind: LinearSolverKind,
-    dense_threshold: usize,
     nbr_ptr: &[usize],
     options: SchurOptions,
 ) -> Result<(ReducedSolver, LinearSolverKind), SolveError> {
-    if kind == LinearSolverKind::SchurIterative {
-        let pcg = Pcg::new(s, nbr_ptr, options);
-        return Ok((ReducedSolver::Iterative(pcg), kind));
+    let reduced = match kind {
+        LinearSolverKind::SchurIterative => ReducedSolver::Iterative(Pcg::new(s, nbr_ptr, options)),
+        kind => ReducedSolver::Factored(Cholesky::new(s, kind == LinearSolverKind::SchurDense)?),
+    };
+    Ok((reduced, kind))
+}
+
+/// Conjugate gradients are chosen when one sparse factorisation of S would take more than this
+/// many operations per scalar of H_ce. One product with S reads H_ce twice (about 4 operations
+/// per scalar) and a step took 2-50 products on the street walks, while a factorisation runs
+/// several times faster per operation than the memory-bound products. Set between the 50-camera
+/// street walk (15 per scalar, where the factorisation was the faster) and the 200-camera one
+/// (222, conjugate gradients 21 % faster); verified on other layouts in NOTES 74.
+const ITERATIVE_FLOPS_PER_HCE_SCALAR: f64 = 100.0;
+
+/// The automatic choice ([`LinearSolverKind::Schur`]) for the reduced pattern `s`: dense
+/// Cholesky up to `dense_threshold` unknowns; above, sparse Cholesky (its symbolic analysis done
+/// here and kept; the factor's storage allocated only once chosen), unless its factorisation would cost more than
+/// [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce: then `None`, for conjugate gradients.
+fn choose_reduced(
+    s: &BlockSparse,
+    dense_threshold: usize,
+    nbrs: &Neighbours,
+) -> Result<Option<(ReducedSolver, LinearSolverKind)>, SolveError> {
+    if s.dim() <= dense_threshold {
+        let chol = Cholesky::new(s, true)?;
+        return Ok(Some((
+            ReducedSolver::Factored(chol),
+            LinearSolverKind::SchurDense,
+        )));
     }
-    let dense = match kind {
-        LinearSolverKind::SchurDense => true,
-        LinearSolverKind::SchurSparse => false,
-        _ => s.dim() <= dense_threshold,
-    };
-    let chol = Cholesky::new(s, dense)?;
-    let kind = match kind {
-        LinearSolverKind::Schur if chol.is_sparse() => LinearSolverKind::SchurSparse,
-        LinearSolverKind::Schur => LinearSolverKind::SchurDense,
-        k => k,
-    };
-    Ok((ReducedSolver::Factored(chol), kind))
+    let hce_scalars = (0..nbrs.nbr_ptr.len() - 1)
+        .map(|q| {
+            let cameras = &nbrs.nbrs[nbrs.nbr_ptr[q]..nbrs.nbr_ptr[q + 1]];
+            let de = nbrs.elim_start[q + 1] - nbrs.elim_start[q];
+            de * cameras.iter().map(|n| s.block_dim(n.kept)).sum::<usize>()
+        })
+        .sum::<usize>()
+        .max(1) as f64;
+    let bound = ITERATIVE_FLOPS_PER_HCE_SCALAR * hce_scalars;
+    let analysed = Analysed::unless_costlier(s, 4.0 * bound)?;
+    let flops = analysed.flops();
+    let per_scalar = flops / hce_scalars;
+    tracing::debug!(
+        flops,
+        hce_scalars,
+        per_scalar,
+        "reduced camera system: sparse factorisation's cost per scalar of H_ce"
+    );
+    if flops > bound {
+        return Ok(None);
+    }
+    let chol = Cholesky::from_analysis(s, analysed, FactorPrecision::Double);
+    Ok(Some((
+        ReducedSolver::Factored(chol),
+        LinearSolverKind::SchurSparse,
+    )))
 }
