@@ -100,21 +100,18 @@ pub(super) struct Neighbours {
 }
 
 impl Neighbours {
-    /// Lays out `adjacency` (sorted here), H_ce read in place in H unless `gather`; an error
-    /// for a block too large to eliminate.
+    /// Lays out `adjacency` (sorted here), H_ce read in place in H where it can be; an error for
+    /// a block too large to eliminate.
     pub fn new(
         ne: &NormalEquations,
         split: &Split,
         mut adjacency: Vec<Vec<Adjacent>>,
-        gather: bool,
     ) -> Result<Self, SolveError> {
         let h = ne.h();
         let dim = |b: usize| h.block_dim(b);
         // H_ce is read in place unless some block is stored transposed (a kept block after an
-        // eliminated one) or the products are iterated: conjugate gradients read every block
-        // twice per product, and from the gathered copy their products took two thirds of the
-        // time (NOTES 74); otherwise every block is gathered into a copy of H_ce.
-        let in_place = !gather && adjacency.iter().flatten().all(|a| !a.3);
+        // eliminated one); then every block is gathered into a copy of H_ce (NOTES 74).
+        let in_place = adjacency.iter().flatten().all(|a| !a.3);
         let mut out = Self {
             nbr_ptr: vec![0],
             nbrs: Vec::with_capacity(adjacency.iter().map(Vec::len).sum()),

@@ -132,19 +132,22 @@ impl Schur {
         let split = Split::new(eliminate);
         let iterative = kind == LinearSolverKind::SchurIterative;
         let adjacency = layout::adjacency(ne, eliminate, &split)?;
-        let nbrs = Neighbours::new(ne, &split, adjacency, iterative)?;
+        let nbrs = Neighbours::new(ne, &split, adjacency)?;
         let touch_lists = nbrs.touch_lists(split.kept.len());
-        let s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
+        let mut s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
         let (reduced, kind) = match kind {
             LinearSolverKind::Schur => match choose_reduced(&s, dense_threshold, &nbrs)? {
                 Some(chosen) => chosen,
-                // the iterative layout differs (H_ce gathered, S's pattern only H_cc's)
                 None => {
-                    return Self::new(ne, eliminate, LinearSolverKind::SchurIterative, 0, options)
+                    // conjugate gradients keep only H_cc's pattern
+                    s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, true);
+                    let kind = LinearSolverKind::SchurIterative;
+                    reduced_solver(&s, kind, &nbrs.nbr_ptr, options)?
                 }
             },
             kind => reduced_solver(&s, kind, &nbrs.nbr_ptr, options)?,
         };
+        let iterative = kind == LinearSolverKind::SchurIterative;
         let (direct_ptr, direct) = layout::direct_copies(h, eliminate, &split, &s);
         let points = PointMajor::new(&s, &nbrs, split.elim.len(), iterative);
         let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
