@@ -390,13 +390,14 @@ fn reduced_solver(
 /// per scalar) and a step took 2-50 products on the street walks, while a factorisation runs
 /// several times faster per operation than the memory-bound products. Set between the 50-camera
 /// street walk (15 per scalar, where the factorisation was the faster) and the 200-camera one
-/// (222, conjugate gradients 21 % faster); verified on other layouts in NOTES 74.
+/// (222, conjugate gradients 17-26 % faster); verified on other layouts in NOTES 74.
 const ITERATIVE_FLOPS_PER_HCE_SCALAR: f64 = 100.0;
 
 /// The automatic choice ([`LinearSolverKind::Schur`]) for the reduced pattern `s`: dense
 /// Cholesky up to `dense_threshold` unknowns; above, sparse Cholesky (its symbolic analysis done
-/// here and kept; the factor's storage allocated only once chosen), unless its factorisation would cost more than
-/// [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce: then `None`, for conjugate gradients.
+/// here and kept, the factor's storage allocated only once chosen), unless its factorisation
+/// would cost more than [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce: then `None`, for
+/// conjugate gradients.
 fn choose_reduced(
     s: &BlockSparse,
     dense_threshold: usize,
