@@ -23,6 +23,8 @@ pub(super) struct Pcg {
     /// private copy of the implicit product per range.
     chunk_bounds: Vec<usize>,
     chunk_y: Vec<Vec<f64>>,
+    /// One private copy of the preconditioner's blocks per range, while they are formed.
+    chunk_p: Vec<Vec<f64>>,
     damping: Damping,
     options: SchurOptions,
 }
@@ -30,6 +32,11 @@ pub(super) struct Pcg {
 impl Schur {
     /// Copies the H_cc blocks into S's values and inverts the diagonal blocks of S for the
     /// block-Jacobi preconditioner.
+    ///
+    /// The points' parts −H_je H_ee⁻¹ H_ejᵀ are formed point by point, in the chunks of the
+    /// implicit product, into each chunk's private copy of the diagonal blocks (their upper
+    /// triangles only), so that every point's H_ce column and H_ee⁻¹ are read once and in storage
+    /// order; each camera then sums the copies onto its damped H_cc block and inverts it.
     pub(super) fn precondition(
         &mut self,
         ne: &NormalEquations,
@@ -43,31 +50,58 @@ impl Schur {
         self.s.values = values;
         let mut pcg = self.take_pcg();
         pcg.damping = damping;
-        let out = SyncPtr::new(&mut pcg.preconditioner);
-        let offsets = &pcg.precond_offset;
         let this = &*self;
+        let (bounds, offsets) = (&pcg.chunk_bounds, &pcg.precond_offset);
+        pcg.chunk_p.par_iter_mut().enumerate().for_each(|(c, acc)| {
+            acc.fill(0.0);
+            for q in bounds[c]..bounds[c + 1] {
+                this.add_point_to_preconditioner(h, q, offsets, acc);
+            }
+        });
+        let out = SyncPtr::new(&mut pcg.preconditioner);
+        let copies = &pcg.chunk_p;
         let s = &this.s;
         let result = (0..this.kept.len())
             .into_par_iter()
-            .with_min_len(4)
+            .with_min_len(16)
             .try_for_each(|j| {
                 let dj = s.block_dim(j);
                 // SAFETY: block j owns its preconditioner range.
                 let p = unsafe { out.slice(offsets[j], dj * dj) };
                 s.damped_diagonal_block(j, damping, p);
-                for t in this.touch_ptr[j]..this.touch_ptr[j + 1] {
-                    let (q, nj) = this.touch[t];
-                    let de = h.block_dim(this.elim[q]);
-                    let mut u = [0.0; MAX_PRODUCT];
-                    let n = &this.nbrs[nj];
-                    let u = this.inverse_times_neighbour(h, q, n, (de, dj), &mut u);
-                    let hj = |k| this.hce_column(h, n, dj, k);
-                    subtract_block(p, |c| c * dj, hj, u, (dj, dj, de), false);
+                for c in 0..dj {
+                    for r in 0..=c {
+                        let at = offsets[j] + r + c * dj;
+                        let v = p[r + c * dj] + copies.iter().map(|copy| copy[at]).sum::<f64>();
+                        p[r + c * dj] = v;
+                        p[c + r * dj] = v;
+                    }
                 }
                 invert_spd(p, dj).map_err(|k| h.block_start[this.kept[j]] + k)
             });
         self.reduced = ReducedSolver::Iterative(pcg);
         result
+    }
+
+    /// acc_j ← acc_j − H_je H_ee⁻¹ H_ejᵀ (upper triangle) for every neighbour j of eliminated
+    /// block q, block j at `offsets[j]` (d_j × d_j, column-major).
+    #[inline]
+    fn add_point_to_preconditioner(
+        &self,
+        h: &BlockSparse,
+        q: usize,
+        offsets: &[usize],
+        acc: &mut [f64],
+    ) {
+        let de = h.block_dim(self.elim[q]);
+        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
+            let dj = self.s.block_dim(n.kept);
+            let mut u = [0.0; MAX_PRODUCT];
+            let u = self.inverse_times_neighbour(h, q, n, (de, dj), &mut u);
+            let hj = |k| self.hce_column(h, n, dj, k);
+            let block = &mut acc[offsets[n.kept]..offsets[n.kept] + dj * dj];
+            subtract_block(block, |c| c * dj, hj, u, (dj, dj, de), true);
+        }
     }
 
     pub(super) fn take_pcg(&mut self) -> Pcg {
@@ -257,14 +291,16 @@ impl Pcg {
             let d = s.block_dim(k);
             precond_offset.push(precond_offset.last().unwrap() + d * d);
         }
+        let blocks = *precond_offset.last().unwrap();
         Self {
-            preconditioner: vec![0.0; *precond_offset.last().unwrap()],
+            preconditioner: vec![0.0; blocks],
             precond_offset,
             r: vec![0.0; nr],
             z: vec![0.0; nr],
             p: vec![0.0; nr],
             q: vec![0.0; nr],
             chunk_y: vec![vec![0.0; nr]; chunk_bounds.len() - 1],
+            chunk_p: vec![vec![0.0; blocks]; chunk_bounds.len() - 1],
             chunk_bounds,
             damping: Damping::None,
             options,
@@ -281,6 +317,7 @@ impl Pcg {
             q: Vec::new(),
             chunk_bounds: vec![0],
             chunk_y: Vec::new(),
+            chunk_p: Vec::new(),
             damping: Damping::None,
             options: SchurOptions {
                 pcg_tolerance: 0.0,
