@@ -132,6 +132,9 @@ fn subtract_fixed<'a, const DI: usize, const DJ: usize, const DE: usize>(
 /// singular.
 const PIVOT_FLOOR: f64 = 1e-13;
 
+/// Blocks up to this size keep their diagonal on the stack during [`invert_spd`].
+const STACK_DIAGONAL: usize = 16;
+
 /// Inverts a symmetric positive definite `d × d` matrix in place by Gauss-Jordan elimination
 /// (no pivoting is needed for such matrices: every pivot is a Schur complement's diagonal).
 /// On a pivot that is not clearly positive returns its index.
@@ -141,20 +144,21 @@ const PIVOT_FLOOR: f64 = 1e-13;
 /// entries are small beside the others' (a camera's focal length, 0.1 against 10¹² for its
 /// rotation) is not taken for a singular one (NOTES 74).
 pub(crate) fn invert_spd(a: &mut [f64], d: usize) -> Result<(), usize> {
-    let mut diagonal = [0.0f64; MAX_PRODUCT];
-    for (i, v) in diagonal.iter_mut().enumerate().take(d) {
+    // the original diagonal, on the stack for the common sizes (cameras, points, poses)
+    let mut stack = [0.0f64; STACK_DIAGONAL];
+    let mut heap = Vec::new();
+    let diagonal = if d <= STACK_DIAGONAL {
+        &mut stack[..d]
+    } else {
+        heap.resize(d, 0.0);
+        &mut heap[..]
+    };
+    for (i, v) in diagonal.iter_mut().enumerate() {
         *v = a[i + i * d];
     }
-    // blocks wider than the scratch (none that a Schur layout admits) test against the largest
-    let largest = diagonal.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     for k in 0..d {
         let pivot = a[k + k * d];
-        let reference = if k < MAX_PRODUCT {
-            diagonal[k]
-        } else {
-            largest
-        };
-        if pivot.is_nan() || pivot <= PIVOT_FLOOR * reference || !pivot.is_finite() {
+        if pivot.is_nan() || pivot <= PIVOT_FLOOR * diagonal[k] || !pivot.is_finite() {
             return Err(k);
         }
         let inv = 1.0 / pivot;

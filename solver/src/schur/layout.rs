@@ -134,6 +134,10 @@ impl Neighbours {
                     ne.var_of_block()[split.elim[q]]
                 )));
             }
+            // the gathered copy is laid out like H's block column: column k of every
+            // neighbour's block in one run of `rows` values
+            let rows: usize = list.iter().map(|n| dim(split.kept[n.0])).sum();
+            let base = out.buf_len;
             for &(k, h_entry, h_column, transposed) in list.iter() {
                 let dc = dim(split.kept[k]);
                 let (offset, step) = if in_place {
@@ -147,7 +151,7 @@ impl Neighbours {
                         == first + k * above + k * (k + 1) / 2));
                     (first, above)
                 } else {
-                    (out.buf_len, dc)
+                    (out.buf_len, rows)
                 };
                 out.nbrs.push(Neighbour {
                     kept: k,
@@ -158,8 +162,11 @@ impl Neighbours {
                     transposed,
                 });
                 if !in_place {
-                    out.buf_len += dc * de;
+                    out.buf_len += dc;
                 }
+            }
+            if !in_place {
+                out.buf_len = base + rows * de;
             }
             out.nbr_ptr.push(out.nbrs.len());
             out.inv_offset.push(out.inv_len);

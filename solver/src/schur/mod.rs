@@ -57,7 +57,8 @@ struct Neighbour {
     kept: usize,
     /// Position of column 0 of H_ce (d_c × d_e) in H's values, or in `Schur::hce` when H_ce is
     /// gathered; column k starts `k step` after it, plus k(k+1)/2 in H (whose columns grow by
-    /// one row each on the diagonal).
+    /// one row each on the diagonal). `step` is the rows of all the eliminated block's
+    /// neighbours: their blocks lie one under another, in H and in the copy alike.
     offset: usize,
     step: usize,
     /// H entry holding the block, and whether it is stored as H_ec (the kept block comes later).
@@ -229,19 +230,16 @@ impl Schur {
                 }
                 for n in &nbrs[nbr_ptr[q]..nbr_ptr[q + 1]] {
                     let dc = h.block_dim(kept[n.kept]);
-                    // SAFETY: block q owns its neighbours' ranges of hce.
-                    let block = unsafe { hce.slice(n.offset, dc * de) };
-                    if n.transposed {
-                        for r in 0..dc {
-                            let from = h.column_start(n.h_column, n.h_entry, r);
-                            for k in 0..de {
-                                block[r + k * dc] = h.values[from + k];
+                    for k in 0..de {
+                        // SAFETY: block q owns its neighbours' columns in hce.
+                        let column = unsafe { hce.slice(n.offset + k * n.step, dc) };
+                        if n.transposed {
+                            for (r, v) in column.iter_mut().enumerate() {
+                                *v = h.values[h.column_start(n.h_column, n.h_entry, r) + k];
                             }
-                        }
-                    } else {
-                        for k in 0..de {
+                        } else {
                             let from = h.column_start(n.h_column, n.h_entry, k);
-                            block[k * dc..(k + 1) * dc].copy_from_slice(&h.values[from..from + dc]);
+                            column.copy_from_slice(&h.values[from..from + dc]);
                         }
                     }
                 }
@@ -315,26 +313,15 @@ impl Schur {
         }
     }
 
-    /// Calls `f(k, column k)` for the d_e columns (d_c values each) of the H_ce block of
-    /// neighbour `n`, in order; the columns' starts are stepped, not recomputed.
+    /// Column k of all the H_ce blocks of eliminated block q, one under another in neighbour
+    /// order (Σ d_c values): in place in H's block column of q, or from the gathered copy, which
+    /// is laid out alike.
     #[inline(always)]
-    fn for_each_hce_column<'a>(
-        &'a self,
-        h: &'a BlockSparse,
-        n: &Neighbour,
-        (dc, de): (usize, usize),
-        mut f: impl FnMut(usize, &'a [f64]),
-    ) {
-        let (source, grow) = if self.in_place {
-            (&h.values[..], 1)
-        } else {
-            (&self.hce[..], 0)
+    fn hce_run<'a>(&'a self, h: &'a BlockSparse, q: usize, k: usize) -> &'a [f64] {
+        let Some(first) = self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]].first() else {
+            return &[];
         };
-        let mut at = n.offset;
-        for k in 0..de {
-            f(k, &source[at..at + dc]);
-            at += n.step + grow * (k + 1);
-        }
+        self.hce_column(h, first, first.step, k)
     }
 
     /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and its neighbour j, written into the
@@ -359,10 +346,15 @@ impl Schur {
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
         t.copy_from_slice(v);
-        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
-            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-            let yc = &y[c0..c0 + dc];
-            self.for_each_hce_column(h, n, (dc, de), |k, column| t[k] -= dot(column, yc));
+        let nbrs = &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]];
+        for (k, tk) in t.iter_mut().enumerate() {
+            let run = self.hce_run(h, q, k);
+            let mut at = 0;
+            for n in nbrs {
+                let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+                *tk -= dot(&run[at..at + dc], &y[c0..c0 + dc]);
+                at += dc;
+            }
         }
         let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         for (r, o) in v.iter_mut().enumerate() {

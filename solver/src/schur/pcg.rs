@@ -148,69 +148,24 @@ impl Schur {
             });
     }
 
-    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours.
+    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours. Their blocks lie
+    /// one under another (in H's block column of q or in the copy laid out alike), so column k
+    /// of all of them is one run of values, walked in storage order.
     #[inline]
     fn add_eliminated_product(&self, h: &BlockSparse, q: usize, x: &[f64], acc: &mut [f64]) {
-        if self.in_place {
-            return self.add_eliminated_product_in_place(h, q, x, acc);
-        }
         let de = h.block_dim(self.elim[q]);
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
         // t = −H_ee⁻¹ H_ec x
         self.eliminated_update(h, q, de, t, x);
-        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
-            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-            let out = &mut acc[c0..c0 + dc];
-            self.for_each_hce_column(h, n, (dc, de), |k, column| {
-                for (o, hv) in out.iter_mut().zip(column) {
-                    *o += hv * t[k];
-                }
-            });
-        }
-    }
-
-    /// [`Self::add_eliminated_product`] with H_ce read in place: q's neighbours' blocks lie one
-    /// under another in q's block column of H, so column k of all of them is one run of values,
-    /// walked in storage order.
-    #[inline]
-    fn add_eliminated_product_in_place(
-        &self,
-        h: &BlockSparse,
-        q: usize,
-        x: &[f64],
-        acc: &mut [f64],
-    ) {
-        let de = h.block_dim(self.elim[q]);
         let nbrs = &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]];
-        let Some(first) = nbrs.first() else {
-            return;
-        };
-        let column = |k: usize| first.offset + k * first.step + k * (k + 1) / 2;
-        let mut t = [0.0f64; MAX_ELIMINATED];
-        for (k, tk) in t.iter_mut().enumerate().take(de) {
-            let mut at = column(k);
-            let mut sum = 0.0;
+        for (k, &tk) in t.iter().enumerate() {
+            let run = self.hce_run(h, q, k);
+            let mut at = 0;
             for n in nbrs {
                 let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-                debug_assert!(k > 0 || at == n.offset, "neighbours not contiguous in H");
-                sum += dot(&h.values[at..at + dc], &x[c0..c0 + dc]);
-                at += dc;
-            }
-            *tk = -sum;
-        }
-        // u = H_ee⁻¹ t = −H_ee⁻¹ H_ec x
-        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
-        let mut u = [0.0f64; MAX_ELIMINATED];
-        for (r, ur) in u.iter_mut().enumerate().take(de) {
-            *ur = (0..de).map(|k| inv[r + k * de] * t[k]).sum();
-        }
-        for (k, &uk) in u.iter().enumerate().take(de) {
-            let mut at = column(k);
-            for n in nbrs {
-                let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-                for (o, hv) in acc[c0..c0 + dc].iter_mut().zip(&h.values[at..at + dc]) {
-                    *o += hv * uk;
+                for (o, hv) in acc[c0..c0 + dc].iter_mut().zip(&run[at..at + dc]) {
+                    *o += hv * tk;
                 }
                 at += dc;
             }
