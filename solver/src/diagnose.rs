@@ -108,7 +108,7 @@ pub(crate) fn check_rank(
     let mut hv = vec![0.0; n];
     let mut t = DMatrix::zeros(k, k);
     for j in 0..k {
-        ne.h().multiply(&basis[j], &mut hv);
+        ne.multiply(&basis[j], &mut hv);
         for i in 0..k {
             t[(i, j)] = dot(&basis[i], &hv);
         }

@@ -25,27 +25,27 @@ enum Inner {
 }
 
 impl LinearSolver {
-    /// Prepares a solver for `ne`'s structure. `eliminate` marks the H blocks the Schur solvers
-    /// eliminate (ignored by the direct ones).
+    /// Prepares a solver for `ne`'s structure. The Schur solvers eliminate the blocks `ne` was
+    /// made with ([`NormalEquations::with_elimination`]); the direct ones need H whole.
     pub fn new(
         ne: &NormalEquations,
         kind: LinearSolverKind,
         dense_threshold: usize,
-        eliminate: &[bool],
         schur: SchurOptions,
     ) -> Result<Self, SolveError> {
         let n = ne.dim();
+        if !kind.is_schur() && !ne.couplings().in_h && !ne.couplings().kept.is_empty() {
+            return Err(SolveError::LinearSolver(
+                "a direct solver needs H whole, but these normal equations leave the blocks \
+                 of eliminated variables out"
+                    .to_string(),
+            ));
+        }
         let inner = match kind {
             LinearSolverKind::Dense => Inner::Direct(Cholesky::new(ne.h(), true)?),
             LinearSolverKind::Sparse => Inner::Direct(Cholesky::new(ne.h(), false)?),
             LinearSolverKind::Auto => Inner::Direct(Cholesky::new(ne.h(), n <= dense_threshold)?),
-            _ => Inner::Schur(Box::new(Schur::new(
-                ne,
-                eliminate,
-                kind,
-                dense_threshold,
-                schur,
-            )?)),
+            _ => Inner::Schur(Box::new(Schur::new(ne, kind, dense_threshold, schur)?)),
         };
         Ok(Self {
             inner,

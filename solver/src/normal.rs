@@ -9,7 +9,10 @@
 //!    upper triangle of H in compressed-column form (the layout faer's sparse Cholesky reads).
 
 use crate::block::BlockSparse;
+use crate::coupling::{Couplings, Term};
+use crate::elimination::elimination_set;
 use crate::error::SolveError;
+use crate::options::Elimination;
 use crate::parallel::{dot, SyncPtr};
 use crate::problem::Problem;
 use rayon::prelude::*;
@@ -49,6 +52,10 @@ pub(crate) struct NormalEquations {
     residuals: Vec<f64>,
     jacobians: Vec<f64>,
     costs: Vec<f64>,
+    /// The blocks marked for elimination (empty without an elimination).
+    eliminate: Vec<bool>,
+    /// The blocks between an eliminated and a kept block, applied from J (see [`Couplings`]).
+    couplings: Couplings,
 }
 
 impl NormalEquations {
@@ -72,8 +79,26 @@ impl NormalEquations {
         &self.var_of_block
     }
 
-    /// Lays out the structure of `problem`'s normal equations.
+    /// Lays out the structure of `problem`'s normal equations, every block of H assembled.
     pub fn new(problem: &Problem) -> Result<Self, SolveError> {
+        Self::build(problem, None)
+    }
+
+    /// Lays out the normal equations of a Schur solve: the blocks `elimination` marks, and the
+    /// blocks that couple them to kept ones left out of H (unless `couplings_in_h`) and applied
+    /// from J ([`Self::couplings`]). An error when two eliminated blocks share a residual.
+    pub fn with_elimination(
+        problem: &Problem,
+        elimination: &Elimination,
+        couplings_in_h: bool,
+    ) -> Result<Self, SolveError> {
+        Self::build(problem, Some((elimination, couplings_in_h)))
+    }
+
+    fn build(
+        problem: &Problem,
+        elimination: Option<(&Elimination, bool)>,
+    ) -> Result<Self, SolveError> {
         let (block_of_var, var_of_block, block_start) = free_blocks(problem);
         let nb = var_of_block.len();
         let layout = ResidualLayout::new(problem, &block_of_var, nb);
@@ -89,12 +114,22 @@ impl NormalEquations {
         } = layout;
         pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
         grad_list.sort_unstable_by_key(|g| (g.0, g.1));
-        let (columns, contrib_ptr, contribs) = hessian_contributions(&pairs, nb);
+        let (mut columns, mut contrib_ptr, mut contribs) = hessian_contributions(&pairs, nb);
         // The lists are the largest temporaries (48 and 40 bytes per pair and gradient entry):
         // freed before H and the Jacobian buffer are allocated, they do not add to the peak.
         drop(pairs);
         let (grad_ptr, grads) = gradient_contributions(&grad_list, nb);
         drop(grad_list);
+        let (eliminate, couplings) = match elimination {
+            Some((elimination, in_h)) => {
+                let dim = |b: usize| block_start[b + 1] - block_start[b];
+                let eliminate = elimination_set(&block_of_var, &columns, dim, elimination)?;
+                let lists = (&mut columns, &mut contrib_ptr, &mut contribs);
+                let couplings = split_couplings(lists, &eliminate, in_h, &var_of_block)?;
+                (eliminate, couplings)
+            }
+            None => (Vec::new(), Couplings::default()),
+        };
         let h = BlockSparse::new(block_start, &columns);
         drop(columns);
         Ok(Self {
@@ -111,7 +146,85 @@ impl NormalEquations {
             contribs,
             grad_ptr,
             grads,
+            eliminate,
+            couplings,
         })
+    }
+
+    /// The blocks marked for elimination (empty unless made by [`Self::with_elimination`]).
+    pub fn eliminated(&self) -> &[bool] {
+        &self.eliminate
+    }
+
+    /// The blocks coupling eliminated to kept blocks, applied from [`Self::jacobians`].
+    pub fn couplings(&self) -> &Couplings {
+        &self.couplings
+    }
+
+    /// True when solves read the Jacobian buffer (the couplings are applied from it), so that it
+    /// must hold the Jacobians of the point H was assembled at.
+    pub fn reads_jacobians(&self) -> bool {
+        !self.couplings.in_h && !self.couplings.kept.is_empty()
+    }
+
+    /// The kernel-corrected Jacobian blocks as evaluated, each m × d column-major.
+    pub fn jacobians(&self) -> &[f64] {
+        &self.jacobians
+    }
+
+    /// y = H x, the coupling blocks included.
+    pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
+        self.h.multiply(x, y);
+        if self.couplings.in_h {
+            return;
+        }
+        let (h, cp, jac) = (&self.h, &self.couplings, &self.jacobians);
+        for e in 0..h.num_blocks() {
+            let (e0, de) = (h.block_start[e], h.block_dim(e));
+            for c in cp.of(e) {
+                let k = cp.kept[c];
+                let (c0, dc) = (h.block_start[k], h.block_dim(k));
+                cp.add_ec(jac, c, &x[c0..c0 + dc], &mut y[e0..e0 + de]);
+                cp.add_ce(jac, c, &x[e0..e0 + de], &mut y[c0..c0 + dc]);
+            }
+        }
+    }
+
+    /// xᵀ H x, the coupling blocks included; `scratch` (the system's size) is overwritten.
+    pub fn quadratic(&self, x: &[f64], scratch: &mut [f64]) -> f64 {
+        self.h.multiply(x, scratch);
+        let explicit = dot(x, scratch);
+        if self.couplings.in_h || self.couplings.kept.is_empty() {
+            return explicit;
+        }
+        // 2 Σ x_eᵀ H_ec x_c, summed over fixed ranges of blocks so that the bits do not depend
+        // on the threads.
+        let (h, cp, jac) = (&self.h, &self.couplings, &self.jacobians);
+        let nb = h.num_blocks();
+        let partial: Vec<f64> = (0..nb.div_ceil(QUADRATIC_RANGE))
+            .into_par_iter()
+            .map(|r| {
+                let mut sum = 0.0;
+                for e in r * QUADRATIC_RANGE..((r + 1) * QUADRATIC_RANGE).min(nb) {
+                    let (e0, de) = (h.block_start[e], h.block_dim(e));
+                    let (mut stack, mut heap) = ([0.0f64; 16], Vec::new());
+                    let t: &mut [f64] = if de <= 16 {
+                        &mut stack[..de]
+                    } else {
+                        heap.resize(de, 0.0);
+                        &mut heap
+                    };
+                    for c in cp.of(e) {
+                        let k = cp.kept[c];
+                        let (c0, dc) = (h.block_start[k], h.block_dim(k));
+                        cp.add_ec(jac, c, &x[c0..c0 + dc], t);
+                    }
+                    sum += dot(t, &x[e0..e0 + de]);
+                }
+                sum
+            })
+            .collect();
+        explicit + 2.0 * partial.iter().sum::<f64>()
     }
 
     /// Scalar size of the system.
@@ -267,6 +380,111 @@ impl NormalEquations {
             }
         }
     }
+}
+
+/// Blocks per task of [`NormalEquations::quadratic`]'s coupling sum.
+const QUADRATIC_RANGE: usize = 4096;
+
+/// H's block columns, entry pointers and contributions as laid out by [`hessian_contributions`].
+type HessianLists<'a> = (
+    &'a mut Vec<Vec<usize>>,
+    &'a mut Vec<usize>,
+    &'a mut Vec<Contribution>,
+);
+
+/// Takes the blocks between an eliminated and a kept block out of the lists (unless `in_h`)
+/// and returns them as [`Couplings`], grouped by eliminated block; an error when two eliminated
+/// blocks share a residual.
+fn split_couplings(
+    (columns, contrib_ptr, contribs): HessianLists,
+    eliminate: &[bool],
+    in_h: bool,
+    var_of_block: &[usize],
+) -> Result<Couplings, SolveError> {
+    let nb = columns.len();
+    // (eliminated block, kept block, entry), in the entries' order: per eliminated block this
+    // lists its kept neighbours ascending (those before it from its own column, then the later
+    // columns in order).
+    let mut found = Vec::new();
+    let mut entry = 0;
+    for (j, rows) in columns.iter().enumerate() {
+        for &i in rows {
+            if i != j && eliminate[i] && eliminate[j] {
+                return Err(SolveError::LinearSolver(format!(
+                    "variables {} and {} are both marked for elimination but share a residual: \
+                     eliminated variables must be independent",
+                    var_of_block[i], var_of_block[j]
+                )));
+            }
+            if eliminate[i] != eliminate[j] {
+                let (e, c) = if eliminate[j] { (j, i) } else { (i, j) };
+                found.push((e, c, entry));
+            }
+            entry += 1;
+        }
+    }
+    found.sort_by_key(|&(e, _, _)| e);
+    let mut out = Couplings {
+        ptr: vec![0; nb + 1],
+        kept: Vec::with_capacity(found.len()),
+        term_ptr: Vec::with_capacity(found.len() + 1),
+        terms: Vec::new(),
+        in_h,
+    };
+    out.term_ptr.push(0);
+    let terms: usize = found
+        .iter()
+        .map(|&(_, _, x)| contrib_ptr[x + 1] - contrib_ptr[x])
+        .sum();
+    out.terms.reserve_exact(terms);
+    for &(e, c, x) in &found {
+        out.ptr[e + 1] += 1;
+        out.kept.push(c);
+        for k in &contribs[contrib_ptr[x]..contrib_ptr[x + 1]] {
+            // the contribution's `ja` is the row block's Jacobian, `jb` the column block's
+            let (jc, je) = if e > c { (k.ja, k.jb) } else { (k.jb, k.ja) };
+            out.terms.push(Term { jc, je, m: k.m });
+        }
+        out.term_ptr.push(out.terms.len());
+    }
+    for b in 0..nb {
+        out.ptr[b + 1] += out.ptr[b];
+    }
+    if !in_h {
+        remove_entries(columns, contrib_ptr, contribs, |j, i| {
+            eliminate[i] != eliminate[j]
+        });
+    }
+    Ok(out)
+}
+
+/// Removes the entries (row i, column j) for which `drop(j, i)` holds, with their contributions,
+/// in place.
+fn remove_entries(
+    columns: &mut [Vec<usize>],
+    contrib_ptr: &mut Vec<usize>,
+    contribs: &mut Vec<Contribution>,
+    drop: impl Fn(usize, usize) -> bool,
+) {
+    let (mut entry, mut write) = (0, 0);
+    let mut ptr = vec![0];
+    for (j, rows) in columns.iter_mut().enumerate() {
+        rows.retain(|&i| {
+            let keep = !drop(j, i);
+            if keep {
+                for x in contrib_ptr[entry]..contrib_ptr[entry + 1] {
+                    contribs[write] = contribs[x];
+                    write += 1;
+                }
+                ptr.push(write);
+            }
+            entry += 1;
+            keep
+        });
+    }
+    contribs.truncate(write);
+    contribs.shrink_to_fit();
+    *contrib_ptr = ptr;
 }
 
 /// How many contributions ahead [`NormalEquations::assemble`] prefetches Jacobians.

@@ -9,7 +9,7 @@ use crate::normal::NormalEquations;
 use crate::options::{Elimination, LinearSolverKind};
 use crate::problem::{Problem, VarId};
 use crate::residual::{Jacobians, Residual, Var};
-use crate::schur::{elimination_set, SchurOptions};
+use crate::schur::SchurOptions;
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
 
@@ -63,6 +63,22 @@ impl Rng {
 fn random_problem(seed: u64, cameras: usize, points: usize) -> (Problem, DMatrix<f64>) {
     let mut rng = Rng(seed | 1);
     let mut problem = Problem::new();
+    // half the seeds put the points first, so that kept blocks follow eliminated ones
+    let points_first = seed & 2 != 0;
+    let add_points = |rng: &mut Rng, problem: &mut Problem| -> Vec<VarId> {
+        (0..points)
+            .map(|_| {
+                problem
+                    .add_variable(&rng.values(3), Euclidean::<3>)
+                    .unwrap()
+            })
+            .collect()
+    };
+    let early = if points_first {
+        add_points(&mut rng, &mut problem)
+    } else {
+        Vec::new()
+    };
     let cams: Vec<VarId> = (0..cameras)
         .map(|_| {
             problem
@@ -70,13 +86,11 @@ fn random_problem(seed: u64, cameras: usize, points: usize) -> (Problem, DMatrix
                 .unwrap()
         })
         .collect();
-    let pts: Vec<VarId> = (0..points)
-        .map(|_| {
-            problem
-                .add_variable(&rng.values(3), Euclidean::<3>)
-                .unwrap()
-        })
-        .collect();
+    let pts = if points_first {
+        early
+    } else {
+        add_points(&mut rng, &mut problem)
+    };
     let add = |rng: &mut Rng, problem: &mut Problem, vars: &[VarId], dims: &[usize], m| {
         let a = dims.iter().map(|d| rng.values(m * d)).collect();
         let b = rng.values(m);
@@ -87,8 +101,13 @@ fn random_problem(seed: u64, cameras: usize, points: usize) -> (Problem, DMatrix
         if seen.is_empty() {
             seen.push(((rng.next() + 1.0) * 0.5 * cameras as f64) as usize % cameras);
         }
-        for c in seen {
+        for &c in &seen {
             add(&mut rng, &mut problem, &[cams[c], p], &[6, 3], 2);
+        }
+        // a residual of two cameras and the point (a relative observation)
+        if seen.len() >= 2 && rng.next() > 0.3 {
+            let vars = [cams[seen[0]], p, cams[seen[1]]];
+            add(&mut rng, &mut problem, &vars, &[6, 3, 6], 3);
         }
         add(&mut rng, &mut problem, &[p], &[3], 3);
     }
@@ -196,11 +215,16 @@ proptest! {
         let n = h.nrows();
         let damped = &h + DMatrix::<f64>::identity(n, n) * mu;
         let expected = damped.cholesky().unwrap().solve(&(-&g));
-        let mut ne = NormalEquations::new(&problem).unwrap();
-        ne.evaluate(&problem, &problem.values, true);
-        ne.assemble();
-        let eliminate = elimination_set(&problem, &ne, &Elimination::Auto).unwrap();
-        prop_assert!(eliminate.iter().any(|&e| e), "something is eliminated");
+        let mut whole = NormalEquations::new(&problem).unwrap();
+        // the Schur solvers' normal equations leave the coupling blocks out of H (or, with
+        // bounds, keep them in too)
+        let mut split = NormalEquations::with_elimination(&problem, &Elimination::Auto, false).unwrap();
+        let mut both = NormalEquations::with_elimination(&problem, &Elimination::Auto, true).unwrap();
+        for ne in [&mut whole, &mut split, &mut both] {
+            ne.evaluate(&problem, &problem.values, true);
+            ne.assemble();
+        }
+        prop_assert!(split.eliminated().iter().any(|&e| e), "something is eliminated");
         let schur = SchurOptions {
             pcg_tolerance: 1e-12,
             pcg_max_iterations: 1000,
@@ -213,15 +237,30 @@ proptest! {
             (LinearSolverKind::SchurSparse, 1e-9),
             (LinearSolverKind::SchurIterative, 1e-6),
         ] {
-            let mut solver = LinearSolver::new(&ne, kind, 200, &eliminate, schur).unwrap();
-            solver.factor(&ne, Damping::Identity(mu)).unwrap();
-            let mut x: Vec<f64> = ne.gradient().iter().map(|v| -v).collect();
-            solver.solve(&ne, &mut x);
-            let err = (DVector::from_column_slice(&x) - &expected).amax();
-            prop_assert!(
-                err <= tolerance * (1.0 + expected.amax()),
-                "{kind:?}: off by {err:e}"
-            );
+            let systems = if kind.is_schur() { vec![&split, &both] } else { vec![&whole] };
+            for ne in systems {
+                let mut solver = LinearSolver::new(ne, kind, 200, schur).unwrap();
+                solver.factor(ne, Damping::Identity(mu)).unwrap();
+                let mut x: Vec<f64> = ne.gradient().iter().map(|v| -v).collect();
+                solver.solve(ne, &mut x);
+                let err = (DVector::from_column_slice(&x) - &expected).amax();
+                prop_assert!(
+                    err <= tolerance * (1.0 + expected.amax()),
+                    "{kind:?}: off by {err:e}"
+                );
+            }
+        }
+        // H x and xᵀ H x with the couplings applied from J equal the dense products
+        let x: Vec<f64> = (0..n).map(|i| ((i * 7 + 3) % 11) as f64 - 5.0).collect();
+        let xv = DVector::from_column_slice(&x);
+        let hx = &h * &xv;
+        for ne in [&whole, &split, &both] {
+            let mut y = vec![0.0; n];
+            ne.multiply(&x, &mut y);
+            let scale = 1.0 + hx.amax();
+            prop_assert!((DVector::from_column_slice(&y) - &hx).amax() <= 1e-12 * scale, "H x");
+            let q = ne.quadratic(&x, &mut y);
+            prop_assert!((q - xv.dot(&hx)).abs() <= 1e-12 * (1.0 + xv.dot(&hx).abs()) * scale, "xᵀ H x");
         }
     }
 }

@@ -83,8 +83,7 @@ fn dogleg_step(
     if gn_norm <= radius {
         step.copy_from_slice(gn);
     } else {
-        ne.h().multiply(g, hg);
-        let ghg = dot(g, hg);
+        let ghg = ne.quadratic(g, hg);
         // Cauchy point: −α g with α = ‖g‖² / gᵀHg.
         let alpha = if ghg > 0.0 {
             g2 / ghg
@@ -101,8 +100,7 @@ fn dogleg_step(
             blend(gn, g, alpha, g2, radius, step);
         }
     }
-    ne.h().multiply(step, hg);
-    -dot(g, step) - 0.5 * dot(step, hg)
+    -dot(g, step) - 0.5 * ne.quadratic(step, hg)
 }
 
 /// δ = a + β(b − a) with a = −αg, b = δ_gn and ‖δ‖ = radius.

@@ -22,7 +22,7 @@ use crate::normal::NormalEquations;
 use crate::options::{Algorithm, Options};
 use crate::parallel::dot;
 use crate::problem::Problem;
-use crate::schur::{self, SchurOptions};
+use crate::schur::SchurOptions;
 use crate::summary::{IterationSummary, Observer, Summary, Termination, Timing};
 use context::{Context, Proposal};
 use method::Method;
@@ -77,17 +77,17 @@ impl Solver {
                 return Ok(ws);
             }
         }
-        let ne = NormalEquations::new(problem)?;
-        let eliminate = if self.options.linear_solver.is_schur() {
-            schur::elimination_set(problem, &ne, &self.options.elimination)?
+        let ne = if self.options.linear_solver.is_schur() {
+            // a box-constrained step reads H whole, the coupling blocks included
+            let bounded = problem.variables.iter().any(|v| !v.lower.is_empty());
+            NormalEquations::with_elimination(problem, &self.options.elimination, bounded)?
         } else {
-            Vec::new()
+            NormalEquations::new(problem)?
         };
         let linear = LinearSolver::new(
             &ne,
             self.options.linear_solver,
             self.options.dense_threshold,
-            &eliminate,
             SchurOptions {
                 pcg_tolerance: self.options.pcg_tolerance,
                 pcg_max_iterations: self.options.pcg_max_iterations,
@@ -283,13 +283,8 @@ impl Solver {
         let gain = actual / predicted;
         let accept = new_cost.is_finite() && method.takes(gain, predicted);
         run.non_finite.count(new_cost, ne, iteration);
+        settle(problem, ne, (trial, new_cost), accept, run, step_box, opts);
         if accept {
-            problem.values.copy_from_slice(trial);
-            let t_assemble = Instant::now();
-            ne.assemble();
-            run.timing.assemble += t_assemble.elapsed().as_secs_f64();
-            *step_box = StepBox::new(problem, ne);
-            run.moved(new_cost, gradient_norm(step_box.as_ref(), ne), opts);
             method.taken(gain, step_norm);
         } else if method.rejected(step_floor) {
             run.termination = Termination::NoProgress;
@@ -461,5 +456,29 @@ impl Run {
             non_finite_steps: self.non_finite.steps,
             non_finite_block: if stuck { self.non_finite.block } else { None },
         }
+    }
+}
+
+/// Moves to the trial point (`trial` values at cost `cost`) and assembles there when `accept`;
+/// otherwise, where solves read the Jacobian buffer, restores the current point's Jacobians,
+/// which the trial's evaluation replaced.
+fn settle(
+    problem: &mut Problem,
+    ne: &mut NormalEquations,
+    (trial, cost): (&[f64], f64),
+    accept: bool,
+    run: &mut Run,
+    step_box: &mut Option<StepBox>,
+    opts: &Options,
+) {
+    if accept {
+        problem.values.copy_from_slice(trial);
+        let t_assemble = Instant::now();
+        ne.assemble();
+        run.timing.assemble += t_assemble.elapsed().as_secs_f64();
+        *step_box = StepBox::new(problem, ne);
+        run.moved(cost, gradient_norm(step_box.as_ref(), ne), opts);
+    } else if ne.reads_jacobians() {
+        ne.evaluate(problem, &problem.values, true);
     }
 }

@@ -33,8 +33,7 @@ pub(super) fn constrain_step(
 
 /// The decrease of the undamped model, L(0) − L(δ) = −gᵀδ − ½ δᵀHδ, for any δ.
 pub(super) fn model_decrease(ne: &NormalEquations, step: &[f64], scratch: &mut [f64]) -> f64 {
-    ne.h().multiply(step, scratch);
-    -dot(ne.gradient(), step) - 0.5 * dot(step, scratch)
+    -dot(ne.gradient(), step) - 0.5 * ne.quadratic(step, scratch)
 }
 
 fn max_abs(v: &[f64]) -> f64 {

@@ -41,14 +41,15 @@ impl Schur {
                 let mut entries = this.pair_entry[this.pair_ptr[q]..this.pair_ptr[q + 1]].iter();
                 for nb in list {
                     let (j, dj) = (nb.kept, s.block_dim(nb.kept));
-                    let u = this.inverse_times_neighbour(h, q, nb, (de, dj), &mut u);
+                    let hj = |k| this.hce_column(nb, dj, k);
+                    let u = this.inverse_times_neighbour(q, hj, (de, dj), &mut u);
                     for na in list {
                         if na.kept > j {
                             break;
                         }
                         let se = *entries.next().expect("one S entry per pair");
                         let di = s.block_dim(na.kept);
-                        let hi = |k| this.hce_column(h, na, di, k);
+                        let hi = |k| this.hce_column(na, di, k);
                         let at = this.block_offset[se];
                         let block = &mut values[at..at + di * dj];
                         subtract_block(block, |c| c * di, hi, u, (di, dj, de), false);
@@ -109,7 +110,8 @@ impl Schur {
                     let (q, nj) = this.touch[t];
                     let de = h.block_dim(this.elim[q]);
                     let mut u = [0.0; MAX_PRODUCT];
-                    let u = this.inverse_times_neighbour(h, q, &this.nbrs[nj], (de, dj), &mut u);
+                    let hj = |k| this.hce_column(&this.nbrs[nj], dj, k);
+                    let u = this.inverse_times_neighbour(q, hj, (de, dj), &mut u);
                     let first = this.nbr_ptr[q];
                     for (x, &se) in this.update[this.update_ptr[t]..this.update_ptr[t + 1]]
                         .iter()
@@ -117,7 +119,7 @@ impl Schur {
                     {
                         let ni = this.nbrs[first + x];
                         let di = s.block_dim(ni.kept);
-                        let hi = |k| this.hce_column(h, &ni, di, k);
+                        let hi = |k| this.hce_column(&ni, di, k);
                         let diagonal = ni.kept == j;
                         let starts = |c: usize| s.column_start(j, se, c) - c0;
                         subtract_block(column, starts, hi, u, (di, dj, de), diagonal);
@@ -177,7 +179,7 @@ impl Schur {
                     let (c0, dc) = (this.s.block_start[n.kept], this.s.block_dim(n.kept));
                     let o = &mut out[c0..c0 + dc];
                     for (k, zk) in z[..de].iter().enumerate() {
-                        for (ov, hv) in o.iter_mut().zip(this.hce_column(h, n, dc, k)) {
+                        for (ov, hv) in o.iter_mut().zip(this.hce_column(n, dc, k)) {
                             *ov += hv * zk;
                         }
                     }
@@ -232,7 +234,7 @@ impl Schur {
                     let n = &this.nbrs[nj];
                     let z = &this.ze[this.elim_start[q]..][..de];
                     for (k, zk) in z.iter().enumerate() {
-                        for (o, hv) in out.iter_mut().zip(this.hce_column(h, n, dj, k)) {
+                        for (o, hv) in out.iter_mut().zip(this.hce_column(n, dj, k)) {
                             *o -= hv * zk;
                         }
                     }

@@ -18,7 +18,6 @@ pub(super) struct Split {
     pub elim: Vec<usize>,
     pub kept: Vec<usize>,
     pub reduced_of: Vec<usize>,
-    pub elim_of: Vec<usize>,
 }
 
 impl Split {
@@ -27,62 +26,15 @@ impl Split {
         let elim: Vec<usize> = (0..nb).filter(|&b| eliminate[b]).collect();
         let kept: Vec<usize> = (0..nb).filter(|&b| !eliminate[b]).collect();
         let mut reduced_of = vec![usize::MAX; nb];
-        let mut elim_of = vec![usize::MAX; nb];
         for (k, &b) in kept.iter().enumerate() {
             reduced_of[b] = k;
-        }
-        for (q, &b) in elim.iter().enumerate() {
-            elim_of[b] = q;
         }
         Self {
             elim,
             kept,
             reduced_of,
-            elim_of,
         }
     }
-}
-
-/// A kept neighbour of an eliminated block as found in H: (reduced index, H entry, H column,
-/// stored as H_ec).
-type Adjacent = (usize, usize, usize, bool);
-
-/// The kept neighbours of each eliminated block, from both halves of the symmetric pattern; an
-/// error when two eliminated blocks share a residual.
-pub(super) fn adjacency(
-    ne: &NormalEquations,
-    eliminate: &[bool],
-    split: &Split,
-) -> Result<Vec<Vec<Adjacent>>, SolveError> {
-    let h = ne.h();
-    let mut adjacency: Vec<Vec<Adjacent>> = vec![Vec::new(); split.elim.len()];
-    for j in 0..h.num_blocks() {
-        for e in h.entry_ptr[j]..h.entry_ptr[j + 1] {
-            let i = h.entries[e].row_block;
-            if i == j {
-                continue;
-            }
-            match (eliminate[i], eliminate[j]) {
-                (true, true) => {
-                    return Err(SolveError::LinearSolver(format!(
-                        "variables {} and {} are both marked for elimination but share a \
-                         residual: eliminated variables must be independent",
-                        ne.var_of_block()[i],
-                        ne.var_of_block()[j]
-                    )))
-                }
-                // H_ij with i eliminated, j kept: stored as H_ec.
-                (true, false) => {
-                    adjacency[split.elim_of[i]].push((split.reduced_of[j], e, j, true))
-                }
-                (false, true) => {
-                    adjacency[split.elim_of[j]].push((split.reduced_of[i], e, j, false))
-                }
-                (false, false) => {}
-            }
-        }
-    }
-    Ok(adjacency)
 }
 
 /// Each eliminated block's neighbours with their H_ce offsets, and its H_ee⁻¹ offset.
@@ -92,82 +44,60 @@ pub(super) struct Neighbours {
     /// Scalar offset of each eliminated block inside the eliminated part, with the total last.
     pub elim_start: Vec<usize>,
     pub inv_offset: Vec<usize>,
-    /// Lengths of the H_ee⁻¹ and H_ce buffers (the latter 0 when H_ce is read in place).
+    /// Lengths of the H_ee⁻¹ buffer and of a copy of H_ce.
     pub inv_len: usize,
     pub buf_len: usize,
-    /// True when the H_ce blocks are read in place in H.
-    pub in_place: bool,
 }
 
 impl Neighbours {
-    /// Lays out `adjacency` (sorted here), H_ce read in place in H where it can be; an error for
-    /// a block too large to eliminate.
-    pub fn new(
-        ne: &NormalEquations,
-        split: &Split,
-        mut adjacency: Vec<Vec<Adjacent>>,
-    ) -> Result<Self, SolveError> {
+    /// Lays out the kept neighbours of every eliminated block from `ne`'s couplings; an error
+    /// for a block too large to eliminate.
+    pub fn new(ne: &NormalEquations, split: &Split) -> Result<Self, SolveError> {
         let h = ne.h();
         let dim = |b: usize| h.block_dim(b);
-        // H_ce is read in place unless some block is stored transposed (a kept block after an
-        // eliminated one); then every block is gathered into a copy of H_ce (NOTES 74).
-        let in_place = adjacency.iter().flatten().all(|a| !a.3);
+        let couplings = ne.couplings();
         let mut out = Self {
-            nbr_ptr: vec![0],
-            nbrs: Vec::with_capacity(adjacency.iter().map(Vec::len).sum()),
-            elim_start: vec![0],
+            nbr_ptr: Vec::with_capacity(split.elim.len() + 1),
+            nbrs: Vec::with_capacity(couplings.kept.len()),
+            elim_start: Vec::with_capacity(split.elim.len() + 1),
             inv_offset: Vec::with_capacity(split.elim.len()),
             inv_len: 0,
             buf_len: 0,
-            in_place,
         };
-        for (q, list) in adjacency.iter_mut().enumerate() {
-            list.sort_unstable_by_key(|n| n.0);
-            let de = dim(split.elim[q]);
-            let widest = list.iter().map(|n| dim(split.kept[n.0])).max().unwrap_or(0);
+        out.nbr_ptr.push(0);
+        out.elim_start.push(0);
+        for &e in &split.elim {
+            let de = dim(e);
+            let list = couplings.of(e);
+            let widest = list
+                .clone()
+                .map(|c| dim(couplings.kept[c]))
+                .max()
+                .unwrap_or(0);
             if de > MAX_ELIMINATED || de * widest > MAX_PRODUCT {
                 return Err(SolveError::LinearSolver(format!(
                     "variable {} ({de} unknowns, next to a variable of {widest}) is too large to \
                      eliminate: the Schur solvers take eliminated variables of at most \
                      {MAX_ELIMINATED} unknowns and products of sizes up to {MAX_PRODUCT}; use \
                      the sparse Cholesky",
-                    ne.var_of_block()[split.elim[q]]
+                    ne.var_of_block()[e]
                 )));
             }
-            // the gathered copy is laid out like H's block column: column k of every
+            // the copy of H_ce is laid out like H's block column: column k of every
             // neighbour's block in one run of `rows` values
-            let rows: usize = list.iter().map(|n| dim(split.kept[n.0])).sum();
-            let base = out.buf_len;
-            for &(k, h_entry, h_column, transposed) in list.iter() {
-                let dc = dim(split.kept[k]);
-                let (offset, step) = if in_place {
-                    // H's block column holds R rows above its diagonal block in every column,
-                    // and column k of the diagonal block k + 1: column k starts k R + k(k+1)/2
-                    // after column 0
-                    let first = h.column_start(h_column, h_entry, 0);
-                    let c0 = h.block_start[h_column];
-                    let above = h.col_ptr[c0 + 1] - h.col_ptr[c0] - 1;
-                    debug_assert!((0..de).all(|k| h.column_start(h_column, h_entry, k)
-                        == first + k * above + k * (k + 1) / 2));
-                    (first, above)
-                } else {
-                    (out.buf_len, rows)
-                };
+            let rows: usize = list.clone().map(|c| dim(couplings.kept[c])).sum();
+            let mut offset = out.buf_len;
+            for c in list {
+                let kept = split.reduced_of[couplings.kept[c]];
                 out.nbrs.push(Neighbour {
-                    kept: k,
+                    kept,
+                    coupling: c,
                     offset,
-                    step,
-                    h_entry,
-                    h_column,
-                    transposed,
+                    step: rows,
                 });
-                if !in_place {
-                    out.buf_len += dc;
-                }
+                offset += dim(couplings.kept[c]);
             }
-            if !in_place {
-                out.buf_len = base + rows * de;
-            }
+            out.buf_len += rows * de;
             out.nbr_ptr.push(out.nbrs.len());
             out.inv_offset.push(out.inv_len);
             out.inv_len += de * de;

@@ -21,13 +21,11 @@
 mod assembly;
 mod kernels;
 mod layout;
-mod ordering;
 mod pcg;
 
 pub(crate) use kernels::invert_spd;
 use kernels::{inverse_times_transpose, MAX_ELIMINATED, MAX_PRODUCT};
 use layout::{Neighbours, PointMajor, Split, Touches};
-pub(crate) use ordering::elimination_set;
 use pcg::Pcg;
 
 use crate::block::BlockSparse;
@@ -55,16 +53,13 @@ pub(crate) struct SchurOptions {
 struct Neighbour {
     /// Reduced block index of the kept variable.
     kept: usize,
-    /// Position of column 0 of H_ce (d_c × d_e) in H's values, or in `Schur::hce` when H_ce is
-    /// gathered; column k starts `k step` after it, plus k(k+1)/2 in H (whose columns grow by
-    /// one row each on the diagonal). `step` is the rows of all the eliminated block's
-    /// neighbours: their blocks lie one under another, in H and in the copy alike.
+    /// The coupling block between them in [`NormalEquations::couplings`].
+    coupling: usize,
+    /// Position of column 0 of H_ce (d_c × d_e) in the exact solvers' copy `Schur::hce`;
+    /// column k starts `k step` after it. `step` is the rows of all the eliminated block's
+    /// neighbours: their blocks lie one under another, as in H's block column.
     offset: usize,
     step: usize,
-    /// H entry holding the block, and whether it is stored as H_ec (the kept block comes later).
-    h_entry: usize,
-    h_column: usize,
-    transposed: bool,
 }
 
 enum ReducedSolver {
@@ -86,9 +81,9 @@ pub(crate) struct Schur {
     /// Offset of each eliminated block's H_ee⁻¹ in `hinv`.
     inv_offset: Vec<usize>,
     hinv: Vec<f64>,
-    /// A copy of the H_ce blocks when they cannot be read in place (`in_place` false).
+    /// The exact solvers' copy of the H_ce blocks, formed from J at each factorisation (empty
+    /// for conjugate gradients, whose products read J).
     hce: Vec<f64>,
-    in_place: bool,
     /// H_ee⁻¹ b_e during a solve, indexed like the eliminated scalars.
     ze: Vec<f64>,
     /// The reduced system (for the iterative solver only its H_cc part).
@@ -120,20 +115,24 @@ pub(crate) struct Schur {
 }
 
 impl Schur {
-    /// Lays out the elimination of the H blocks marked in `eliminate` from `ne`'s structure.
+    /// Lays out the elimination of the blocks `ne` was made to eliminate
+    /// ([`NormalEquations::with_elimination`]).
     pub fn new(
         ne: &NormalEquations,
-        eliminate: &[bool],
         kind: LinearSolverKind,
         dense_threshold: usize,
         options: SchurOptions,
     ) -> Result<Self, SolveError> {
         let h = ne.h();
-        debug_assert_eq!(eliminate.len(), h.num_blocks());
+        let eliminate = ne.eliminated();
+        if eliminate.len() != h.num_blocks() {
+            return Err(SolveError::LinearSolver(
+                "a Schur solver needs normal equations laid out with an elimination".to_string(),
+            ));
+        }
         let split = Split::new(eliminate);
         let iterative = kind == LinearSolverKind::SchurIterative;
-        let adjacency = layout::adjacency(ne, eliminate, &split)?;
-        let nbrs = Neighbours::new(ne, &split, adjacency)?;
+        let nbrs = Neighbours::new(ne, &split)?;
         let touch_lists = nbrs.touch_lists(split.kept.len());
         let mut s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
         let (reduced, kind) = match kind {
@@ -151,6 +150,7 @@ impl Schur {
         let iterative = kind == LinearSolverKind::SchurIterative;
         let (direct_ptr, direct) = layout::direct_copies(h, eliminate, &split, &s);
         let points = PointMajor::new(&s, &nbrs, split.elim.len(), iterative);
+        let touch_lists = if iterative { Vec::new() } else { touch_lists };
         let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
         let elim_scalars = *nbrs.elim_start.last().unwrap();
         let chunks = points.chunk_bounds.len() - 1;
@@ -164,9 +164,8 @@ impl Schur {
             nbrs: nbrs.nbrs,
             inv_offset: nbrs.inv_offset,
             hinv: vec![0.0; nbrs.inv_len],
-            hce: vec![0.0; nbrs.buf_len],
-            in_place: nbrs.in_place,
-            ze: vec![0.0; elim_scalars],
+            hce: vec![0.0; if iterative { 0 } else { nbrs.buf_len }],
+            ze: vec![0.0; if iterative { 0 } else { elim_scalars }],
             direct_ptr,
             direct,
             touch_ptr: touches.touch_ptr,
@@ -198,21 +197,22 @@ impl Schur {
         matches!(self.reduced, ReducedSolver::Factored(_))
     }
 
-    /// Inverts the damped H_ee blocks and, unless H_ce is read in place, gathers its blocks,
+    /// Inverts the damped H_ee blocks and, for the exact solvers, forms the copy of H_ce from J,
     /// then forms S (or the preconditioner) and factorises it. On failure returns the H scalar
     /// index where definiteness failed.
     pub fn factor(&mut self, ne: &NormalEquations, damping: Damping) -> Result<(), usize> {
         let h = ne.h();
+        let (couplings, jac) = (ne.couplings(), ne.jacobians());
         let hinv = SyncPtr::new(&mut self.hinv);
         let hce = SyncPtr::new(&mut self.hce);
-        let (elim, nbrs, nbr_ptr, inv_offset, kept) = (
+        let (elim, nbrs, nbr_ptr, inv_offset, s) = (
             &self.elim,
             &self.nbrs,
             &self.nbr_ptr,
             &self.inv_offset,
-            &self.kept,
+            &self.s,
         );
-        let gather = !self.in_place;
+        let copy = self.is_exact();
         (0..elim.len())
             .into_par_iter()
             .with_min_len(64)
@@ -225,23 +225,16 @@ impl Schur {
                 if let Err(k) = invert_spd(inv, de) {
                     return Err(h.block_start[b] + k);
                 }
-                if !gather {
+                let list = &nbrs[nbr_ptr[q]..nbr_ptr[q + 1]];
+                let Some(first) = list.first().filter(|_| copy) else {
                     return Ok(());
-                }
-                for n in &nbrs[nbr_ptr[q]..nbr_ptr[q + 1]] {
-                    let dc = h.block_dim(kept[n.kept]);
-                    for k in 0..de {
-                        // SAFETY: block q owns its neighbours' columns in hce.
-                        let column = unsafe { hce.slice(n.offset + k * n.step, dc) };
-                        if n.transposed {
-                            for (r, v) in column.iter_mut().enumerate() {
-                                *v = h.values[h.column_start(n.h_column, n.h_entry, r) + k];
-                            }
-                        } else {
-                            let from = h.column_start(n.h_column, n.h_entry, k);
-                            column.copy_from_slice(&h.values[from..from + dc]);
-                        }
-                    }
+                };
+                // SAFETY: block q owns its neighbours' columns in hce, `step × de` values.
+                let own = unsafe { hce.slice(first.offset, first.step * de) };
+                for n in list {
+                    let dc = s.block_dim(n.kept);
+                    let at = n.offset - first.offset;
+                    couplings.block(jac, n.coupling, (dc, de), &mut own[at..], n.step);
                 }
                 Ok(())
             })?;
@@ -263,7 +256,9 @@ impl Schur {
     /// Solves the damped system for the right-hand side `x` (H's scalar order), in place.
     pub fn solve(&mut self, ne: &NormalEquations, x: &mut [f64]) {
         let h = ne.h();
-        if self.chunk_rhs.is_empty() {
+        if !self.is_exact() {
+            self.reduce_rhs_from_jacobians(ne, x);
+        } else if self.chunk_rhs.is_empty() {
             self.reduce_rhs_by_columns(h, x);
         } else {
             self.reduce_rhs_by_points(h, x);
@@ -286,7 +281,7 @@ impl Schur {
                     let (e0, de) = (h.block_start[b], h.block_dim(b));
                     // SAFETY: eliminated block q owns x[e0..e0 + de]; kept ranges are not read.
                     let xe = unsafe { out.slice(e0, de) };
-                    this.eliminated_update(h, q, de, xe, y);
+                    this.eliminated_update(ne, q, de, xe, y);
                 });
         }
         for (k, &b) in self.kept.iter().enumerate() {
@@ -296,65 +291,70 @@ impl Schur {
         self.rhs = rhs;
     }
 
-    /// Column k (d_c values) of the H_ce block of neighbour `n`: in place in H, or from the
-    /// gathered copy.
+    /// Column k (d_c values) of the H_ce block of neighbour `n` in the exact solvers' copy.
     #[inline(always)]
-    fn hce_column<'a>(
-        &'a self,
-        h: &'a BlockSparse,
-        n: &Neighbour,
-        dc: usize,
-        k: usize,
-    ) -> &'a [f64] {
-        if self.in_place {
-            &h.values[n.offset + k * n.step + k * (k + 1) / 2..][..dc]
-        } else {
-            &self.hce[n.offset + k * n.step..][..dc]
-        }
+    fn hce_column(&self, n: &Neighbour, dc: usize, k: usize) -> &[f64] {
+        &self.hce[n.offset + k * n.step..][..dc]
     }
 
-    /// Column k of all the H_ce blocks of eliminated block q, one under another in neighbour
-    /// order (Σ d_c values): in place in H's block column of q, or from the gathered copy, which
-    /// is laid out alike.
+    /// Column k of all the H_ce blocks of eliminated block q in the exact solvers' copy, one
+    /// under another in neighbour order (Σ d_c values).
     #[inline(always)]
-    fn hce_run<'a>(&'a self, h: &'a BlockSparse, q: usize, k: usize) -> &'a [f64] {
+    fn hce_run(&self, q: usize, k: usize) -> &[f64] {
         let Some(first) = self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]].first() else {
             return &[];
         };
-        self.hce_column(h, first, first.step, k)
+        self.hce_column(first, first.step, k)
     }
 
-    /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and its neighbour j, written into the
-    /// front of `scratch`.
+    /// u = H_ee⁻¹ H_jeᵀ (d_e × d_j) for eliminated block q and the H_je block whose column k
+    /// `hj(k)` gives, written into the front of `scratch`.
     #[inline(always)]
-    fn inverse_times_neighbour<'a>(
-        &'a self,
-        h: &BlockSparse,
+    fn inverse_times_neighbour<'a, 'b>(
+        &self,
         q: usize,
-        n: &Neighbour,
+        hj: impl Fn(usize) -> &'b [f64],
         (de, dj): (usize, usize),
         scratch: &'a mut [f64; MAX_PRODUCT],
     ) -> &'a [f64] {
         let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         let u = &mut scratch[..de * dj];
-        inverse_times_transpose(inv, |k| self.hce_column(h, n, dj, k), u, de, dj);
+        inverse_times_transpose(inv, hj, u, de, dj);
         u
     }
 
-    /// `v ← H_ee⁻¹ (v − H_ec y)` for eliminated block q (d_e unknowns), y in reduced order.
-    fn eliminated_update(&self, h: &BlockSparse, q: usize, de: usize, v: &mut [f64], y: &[f64]) {
+    /// `v ← H_ee⁻¹ (v − H_ec y)` for eliminated block q (d_e unknowns), y in reduced order:
+    /// H_ec from the copy for the exact solvers, from J for conjugate gradients.
+    fn eliminated_update(
+        &self,
+        ne: &NormalEquations,
+        q: usize,
+        de: usize,
+        v: &mut [f64],
+        y: &[f64],
+    ) {
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
-        t.copy_from_slice(v);
         let nbrs = &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]];
-        for (k, tk) in t.iter_mut().enumerate() {
-            let run = self.hce_run(h, q, k);
-            let mut at = 0;
+        if self.is_exact() {
+            for (k, tk) in t.iter_mut().enumerate() {
+                let run = self.hce_run(q, k);
+                let mut at = 0;
+                for n in nbrs {
+                    let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+                    *tk += dot(&run[at..at + dc], &y[c0..c0 + dc]);
+                    at += dc;
+                }
+            }
+        } else {
+            let (couplings, jac) = (ne.couplings(), ne.jacobians());
             for n in nbrs {
                 let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-                *tk -= dot(&run[at..at + dc], &y[c0..c0 + dc]);
-                at += dc;
+                couplings.add_ec(jac, n.coupling, &y[c0..c0 + dc], t);
             }
+        }
+        for (tk, vk) in t.iter_mut().zip(v.iter()) {
+            *tk = vk - *tk;
         }
         let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         for (r, o) in v.iter_mut().enumerate() {

@@ -5,6 +5,7 @@
 use super::kernels::{invert_spd, subtract_block, MAX_ELIMINATED, MAX_PRODUCT};
 use super::{ReducedSolver, Schur, SchurOptions};
 use crate::block::BlockSparse;
+use crate::coupling::Couplings;
 use crate::damping::Damping;
 use crate::normal::NormalEquations;
 use crate::parallel::{dot, SyncPtr};
@@ -35,8 +36,8 @@ impl Schur {
     ///
     /// The points' parts −H_je H_ee⁻¹ H_ejᵀ are formed point by point, in the chunks of the
     /// implicit product, into each chunk's private copy of the diagonal blocks (their upper
-    /// triangles only), so that every point's H_ce column and H_ee⁻¹ are read once and in storage
-    /// order; each camera then sums the copies onto its damped H_cc block and inverts it.
+    /// triangles only), each H_je formed from J on the stack; each camera then sums the copies
+    /// onto its damped H_cc block and inverts it.
     pub(super) fn precondition(
         &mut self,
         ne: &NormalEquations,
@@ -55,7 +56,7 @@ impl Schur {
         pcg.chunk_p.par_iter_mut().enumerate().for_each(|(c, acc)| {
             acc.fill(0.0);
             for q in bounds[c]..bounds[c + 1] {
-                this.add_point_to_preconditioner(h, q, offsets, acc);
+                this.add_point_to_preconditioner(ne, q, offsets, acc);
             }
         });
         let out = SyncPtr::new(&mut pcg.preconditioner);
@@ -84,21 +85,24 @@ impl Schur {
     }
 
     /// acc_j ← acc_j − H_je H_ee⁻¹ H_ejᵀ (upper triangle) for every neighbour j of eliminated
-    /// block q, block j at `offsets[j]` (d_j × d_j, column-major).
+    /// block q, block j at `offsets[j]` (d_j × d_j, column-major), H_je formed from J.
     #[inline]
     fn add_point_to_preconditioner(
         &self,
-        h: &BlockSparse,
+        ne: &NormalEquations,
         q: usize,
         offsets: &[usize],
         acc: &mut [f64],
     ) {
-        let de = h.block_dim(self.elim[q]);
+        let (couplings, jac) = (ne.couplings(), ne.jacobians());
+        let de = ne.h().block_dim(self.elim[q]);
         for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
             let dj = self.s.block_dim(n.kept);
+            let mut hje = [0.0; MAX_PRODUCT];
+            couplings.block(jac, n.coupling, (dj, de), &mut hje, dj);
+            let hj = |k: usize| &hje[k * dj..(k + 1) * dj];
             let mut u = [0.0; MAX_PRODUCT];
-            let u = self.inverse_times_neighbour(h, q, n, (de, dj), &mut u);
-            let hj = |k| self.hce_column(h, n, dj, k);
+            let u = self.inverse_times_neighbour(q, hj, (de, dj), &mut u);
             let block = &mut acc[offsets[n.kept]..offsets[n.kept] + dj * dj];
             subtract_block(block, |c| c * dj, hj, u, (dj, dj, de), true);
         }
@@ -111,14 +115,14 @@ impl Schur {
         }
     }
 
-    /// y = S x = (H_cc + damping) x − H_ce (H_ee⁻¹ (H_ec x)), never forming S.
+    /// y = S x = (H_cc + damping) x − H_ce (H_ee⁻¹ (H_ec x)), never forming S nor H_ce.
     ///
     /// One pass over the eliminated blocks: each forms t_e = −H_ee⁻¹ H_ec x and adds H_ce t_e
-    /// to its chunk's private copy of y while its H_ce blocks are still in cache, so that H_ce
-    /// is read once per product, in storage order; the copies are summed at the end.
+    /// to its chunk's private copy of y while its residuals' Jacobian blocks are still in cache,
+    /// so that J is read once per product; the copies are summed at the end.
     pub(super) fn implicit_product(
         &self,
-        h: &BlockSparse,
+        ne: &NormalEquations,
         pcg: &mut Pcg,
         x: &[f64],
         y: &mut [f64],
@@ -127,7 +131,7 @@ impl Schur {
         pcg.chunk_y.par_iter_mut().enumerate().for_each(|(c, acc)| {
             acc.fill(0.0);
             for q in bounds[c]..bounds[c + 1] {
-                self.add_eliminated_product(h, q, x, acc);
+                self.add_eliminated_product(ne, q, x, acc);
             }
         });
         self.s.multiply(x, y);
@@ -135,41 +139,64 @@ impl Schur {
             let v = self.s.values[p];
             *yi += (pcg.damping.apply(v) - v) * xi;
         }
-        let copies = &pcg.chunk_y;
-        y.par_chunks_mut(SUM_RANGE)
-            .enumerate()
-            .for_each(|(i, part)| {
-                let r0 = i * SUM_RANGE;
-                for copy in copies {
-                    for (o, a) in part.iter_mut().zip(&copy[r0..]) {
-                        *o += a;
-                    }
-                }
-            });
+        add_copies(&pcg.chunk_y, y);
     }
 
-    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours. Their blocks lie
-    /// one under another (in H's block column of q or in the copy laid out alike), so column k
-    /// of all of them is one run of values, walked in storage order.
+    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours, from J.
     #[inline]
-    fn add_eliminated_product(&self, h: &BlockSparse, q: usize, x: &[f64], acc: &mut [f64]) {
-        let de = h.block_dim(self.elim[q]);
+    fn add_eliminated_product(&self, ne: &NormalEquations, q: usize, x: &[f64], acc: &mut [f64]) {
+        let de = ne.h().block_dim(self.elim[q]);
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
         // t = −H_ee⁻¹ H_ec x
-        self.eliminated_update(h, q, de, t, x);
-        let nbrs = &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]];
-        for (k, &tk) in t.iter().enumerate() {
-            let run = self.hce_run(h, q, k);
-            let mut at = 0;
-            for n in nbrs {
-                let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
-                for (o, hv) in acc[c0..c0 + dc].iter_mut().zip(&run[at..at + dc]) {
-                    *o += hv * tk;
-                }
-                at += dc;
-            }
+        self.eliminated_update(ne, q, de, t, x);
+        self.add_couplings(ne.couplings(), ne.jacobians(), q, t, acc);
+    }
+
+    /// acc_c += H_ce t over eliminated block q's neighbours c, from J.
+    #[inline(always)]
+    fn add_couplings(
+        &self,
+        couplings: &Couplings,
+        jac: &[f64],
+        q: usize,
+        t: &[f64],
+        acc: &mut [f64],
+    ) {
+        for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
+            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+            couplings.add_ce(jac, n.coupling, t, &mut acc[c0..c0 + dc]);
         }
+    }
+
+    /// The reduced right-hand side b_c − Σ_e H_ce H_ee⁻¹ b_e for conjugate gradients, point by
+    /// point from J into the chunks' private copies, which are then summed onto b_c.
+    pub(super) fn reduce_rhs_from_jacobians(&mut self, ne: &NormalEquations, x: &[f64]) {
+        let mut pcg = self.take_pcg();
+        let (h, couplings, jac) = (ne.h(), ne.couplings(), ne.jacobians());
+        let bounds = &pcg.chunk_bounds;
+        let this = &*self;
+        pcg.chunk_y.par_iter_mut().enumerate().for_each(|(c, acc)| {
+            acc.fill(0.0);
+            for q in bounds[c]..bounds[c + 1] {
+                let b = this.elim[q];
+                let (e0, de) = (h.block_start[b], h.block_dim(b));
+                let inv = &this.hinv[this.inv_offset[q]..][..de * de];
+                let mut z = [0.0f64; MAX_ELIMINATED];
+                for (r, zr) in z[..de].iter_mut().enumerate() {
+                    *zr = -(0..de).map(|k| inv[r + k * de] * x[e0 + k]).sum::<f64>();
+                }
+                this.add_couplings(couplings, jac, q, &z[..de], acc);
+            }
+        });
+        let mut rhs = std::mem::take(&mut self.rhs);
+        for (j, &b) in self.kept.iter().enumerate() {
+            let (r0, h0, d) = (self.s.block_start[j], h.block_start[b], self.s.block_dim(j));
+            rhs[r0..r0 + d].copy_from_slice(&x[h0..h0 + d]);
+        }
+        add_copies(&pcg.chunk_y, &mut rhs);
+        self.rhs = rhs;
+        self.reduced = ReducedSolver::Iterative(pcg);
     }
 
     /// Preconditioned conjugate gradients on S y = b, overwriting `b` with y (Saad, *Iterative
@@ -191,7 +218,7 @@ impl Schur {
             // Q(y) = ½ yᵀS y − bᵀy = −½ yᵀ(b + r) with r = b − S y; Q₀ = 0.
             let mut quadratic = 0.0;
             for iteration in 1..=pcg.options.pcg_max_iterations.max(1) {
-                self.implicit_product(ne.h(), &mut pcg, &p, &mut q);
+                self.implicit_product(ne, &mut pcg, &p, &mut q);
                 let pq = dot(&p, &q);
                 if pq <= 0.0 || !pq.is_finite() {
                     break;
@@ -288,6 +315,20 @@ const PRODUCT_CHUNKS: usize = 2;
 
 /// Scalars of y summed per task when the chunks' products are added.
 const SUM_RANGE: usize = 4096;
+
+/// y += Σ copies, in parallel over ranges of y, the copies in order.
+fn add_copies(copies: &[Vec<f64>], y: &mut [f64]) {
+    y.par_chunks_mut(SUM_RANGE)
+        .enumerate()
+        .for_each(|(i, part)| {
+            let r0 = i * SUM_RANGE;
+            for copy in copies {
+                for (o, a) in part.iter_mut().zip(&copy[r0..]) {
+                    *o += a;
+                }
+            }
+        });
+}
 
 /// Bounds of at most `chunks` ranges of eliminated blocks with about equal numbers of
 /// neighbours (the product's work), the total last.

@@ -1,31 +1,30 @@
 //! Which blocks the Schur solvers eliminate.
 
 use crate::error::SolveError;
-use crate::normal::NormalEquations;
 use crate::options::Elimination;
-use crate::problem::Problem;
 
-/// Marks the H blocks to eliminate: the user's variables, or a greedy maximal independent set of
-/// the block graph taken in order of fewest neighbours, then smallest size (Ceres' Schur ordering
-/// idea; Li & Saad's independent-set orderings).
+/// Marks the blocks to eliminate: the user's variables (`block_of_var` maps them to blocks,
+/// `usize::MAX` for fixed ones, which are skipped), or a greedy maximal independent set of the
+/// block graph taken in order of fewest neighbours, then smallest size (Ceres' Schur ordering
+/// idea; Li & Saad's independent-set orderings). `columns[j]` lists the row blocks i ≤ j of H's
+/// upper triangle in block column j; `dim(b)` is block b's size.
 pub(crate) fn elimination_set(
-    problem: &Problem,
-    ne: &NormalEquations,
+    block_of_var: &[usize],
+    columns: &[Vec<usize>],
+    dim: impl Fn(usize) -> usize,
     elimination: &Elimination,
 ) -> Result<Vec<bool>, SolveError> {
-    let h = ne.h();
-    let nb = h.num_blocks();
+    let nb = columns.len();
     let mut eliminate = vec![false; nb];
     match elimination {
         Elimination::Variables(vars) => {
             for v in vars {
-                if v.0 >= problem.variables.len() {
+                let Some(&b) = block_of_var.get(v.0) else {
                     return Err(SolveError::LinearSolver(format!(
                         "variable {} marked for elimination does not exist",
                         v.0
                     )));
-                }
-                let b = ne.block_of_var()[v.0];
+                };
                 if b != usize::MAX {
                     eliminate[b] = true;
                 }
@@ -33,26 +32,22 @@ pub(crate) fn elimination_set(
         }
         Elimination::Auto => {
             let mut degree = vec![0usize; nb];
-            for j in 0..nb {
-                for e in &h.entries[h.entry_ptr[j]..h.entry_ptr[j + 1]] {
-                    if e.row_block != j {
-                        degree[j] += 1;
-                        degree[e.row_block] += 1;
-                    }
+            for (j, rows) in columns.iter().enumerate() {
+                for &i in rows.iter().filter(|&&i| i != j) {
+                    degree[j] += 1;
+                    degree[i] += 1;
                 }
             }
             let mut neighbours: Vec<Vec<usize>> =
                 degree.iter().map(|&d| Vec::with_capacity(d)).collect();
-            for j in 0..nb {
-                for e in &h.entries[h.entry_ptr[j]..h.entry_ptr[j + 1]] {
-                    if e.row_block != j {
-                        neighbours[j].push(e.row_block);
-                        neighbours[e.row_block].push(j);
-                    }
+            for (j, rows) in columns.iter().enumerate() {
+                for &i in rows.iter().filter(|&&i| i != j) {
+                    neighbours[j].push(i);
+                    neighbours[i].push(j);
                 }
             }
             let mut order: Vec<usize> = (0..nb).collect();
-            order.sort_by_key(|&b| (degree[b], h.block_dim(b), b));
+            order.sort_by_key(|&b| (degree[b], dim(b), b));
             let mut blocked = vec![false; nb];
             for b in order {
                 if !blocked[b] {
