@@ -200,6 +200,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "solver": "dynamap",
             "problem": name,
             "linear_solver": summary.linear_solver,
+            "linear_iterations": summary.linear_iterations,
             "huber": args.huber,
             "kernel": kernel.map(|k| k.to_string()),
             "cameras": data.cameras.len(),

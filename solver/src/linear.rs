@@ -15,6 +15,12 @@ use std::time::Instant;
 pub(crate) struct LinearSolver {
     inner: Inner,
     factor_seconds: f64,
+    /// What a Schur solver is laid out again with, when the automatic choice moves from
+    /// conjugate gradients to a factorisation.
+    dense_threshold: usize,
+    schur: SchurOptions,
+    /// Conjugate-gradient iterations of a solver replaced that way.
+    earlier_iterations: usize,
 }
 
 enum Inner {
@@ -50,6 +56,9 @@ impl LinearSolver {
         Ok(Self {
             inner,
             factor_seconds: 0.0,
+            dense_threshold,
+            schur,
+            earlier_iterations: 0,
         })
     }
 
@@ -58,6 +67,13 @@ impl LinearSolver {
         Self {
             inner: Inner::Direct(cholesky),
             factor_seconds: 0.0,
+            dense_threshold: 0,
+            schur: SchurOptions {
+                pcg_tolerance: 0.0,
+                pcg_max_iterations: 0,
+                pcg_forcing: 0.0,
+            },
+            earlier_iterations: 0,
         }
     }
 
@@ -76,6 +92,14 @@ impl LinearSolver {
         }
     }
 
+    /// Conjugate-gradient iterations so far (0 for the exact solvers).
+    pub fn iterations(&self) -> usize {
+        match &self.inner {
+            Inner::Direct(_) => 0,
+            Inner::Schur(s) => self.earlier_iterations + s.iterations(),
+        }
+    }
+
     /// True when [`Self::solve`] is exact up to rounding (false for conjugate gradients).
     pub fn is_exact(&self) -> bool {
         match &self.inner {
@@ -90,7 +114,26 @@ impl LinearSolver {
         let clock = Instant::now();
         let factored = match &mut self.inner {
             Inner::Direct(c) => c.factor(ne.h(), damping),
-            Inner::Schur(s) => s.factor(ne, damping),
+            Inner::Schur(s) => {
+                if s.wants_factorisation() {
+                    let kind = LinearSolverKind::SchurSparse;
+                    match Schur::new(ne, kind, self.dense_threshold, self.schur) {
+                        Ok(sparse) => {
+                            tracing::debug!(
+                                iterations = s.iterations(),
+                                "conjugate gradients replaced by a sparse factorisation of S"
+                            );
+                            self.earlier_iterations += s.iterations();
+                            **s = sparse;
+                        }
+                        Err(e) => {
+                            tracing::warn!("kept conjugate gradients: {e}");
+                            s.keep_iterating();
+                        }
+                    }
+                }
+                s.factor(ne, damping)
+            }
         };
         self.factor_seconds += clock.elapsed().as_secs_f64();
         factored

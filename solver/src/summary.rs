@@ -108,8 +108,12 @@ pub struct Summary {
     pub timing: Timing,
     /// Number of unknowns (tangent dimensions of the free variables).
     pub unknowns: usize,
-    /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative".
+    /// "dense", "sparse", "schur-dense", "schur-sparse" or "schur-iterative" (the solver in use
+    /// at the end, when the automatic choice changed it during the solve).
     pub linear_solver: &'static str,
+    /// Conjugate-gradient iterations over the whole solve (each one product with the reduced
+    /// system); 0 for the exact solvers.
+    pub linear_iterations: usize,
     /// Steps rejected because a residual block returned NaN or an infinity (in its residual or
     /// its Jacobian) at the trial point; the damping was raised after each.
     pub non_finite_steps: usize,

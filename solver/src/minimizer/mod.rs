@@ -453,6 +453,7 @@ impl Run {
             timing: self.timing,
             unknowns: ne.dim(),
             linear_solver: linear.name(),
+            linear_iterations: linear.iterations(),
             non_finite_steps: self.non_finite.steps,
             non_finite_block: if stuck { self.non_finite.block } else { None },
         }

@@ -112,6 +112,9 @@ pub(crate) struct Schur {
     chunk_rhs: Vec<Vec<f64>>,
     reduced: ReducedSolver,
     rhs: Vec<f64>,
+    /// For the automatic choice's conjugate gradients: the iterations per solve that cost one
+    /// sparse factorisation of S ([`Self::wants_factorisation`]).
+    switch_at: Option<f64>,
 }
 
 impl Schur {
@@ -135,10 +138,12 @@ impl Schur {
         let nbrs = Neighbours::new(ne, &split)?;
         let touch_lists = nbrs.touch_lists(split.kept.len());
         let mut s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, iterative);
+        let mut switch_at = None;
         let (reduced, kind) = match kind {
             LinearSolverKind::Schur => match choose_reduced(&s, dense_threshold, &nbrs)? {
-                Some(chosen) => chosen,
-                None => {
+                Choice::Factor(chosen) => *chosen,
+                Choice::Iterate { switch_at: at } => {
+                    switch_at = at;
                     // conjugate gradients keep only H_cc's pattern
                     s = layout::reduced_pattern(h, eliminate, &split, &nbrs, &touch_lists, true);
                     let kind = LinearSolverKind::SchurIterative;
@@ -180,7 +185,27 @@ impl Schur {
             chunk_bounds: points.chunk_bounds,
             s,
             reduced,
+            switch_at,
         })
+    }
+
+    /// Stops [`Self::wants_factorisation`] from asking again.
+    pub fn keep_iterating(&mut self) {
+        self.switch_at = None;
+    }
+
+    /// True when the automatic choice started with conjugate gradients and their iterations so
+    /// far exceed what factorising S would have cost in their place, plus
+    /// [`SWITCH_MARGIN`] factorisations: the caller then lays the solver out again as
+    /// [`LinearSolverKind::SchurSparse`]. A sum, not a recent average: the truncated solves
+    /// mostly stop at 2 iterations, with an occasional one of tens or hundreds.
+    pub fn wants_factorisation(&self) -> bool {
+        match (&self.reduced, self.switch_at) {
+            (ReducedSolver::Iterative(pcg), Some(at)) => {
+                pcg.iterations as f64 > at * (pcg.solves + SWITCH_MARGIN) as f64
+            }
+            _ => false,
+        }
     }
 
     /// "schur-dense", "schur-sparse" or "schur-iterative".
@@ -189,6 +214,14 @@ impl Schur {
             LinearSolverKind::SchurIterative => "schur-iterative",
             LinearSolverKind::SchurSparse => "schur-sparse",
             _ => "schur-dense",
+        }
+    }
+
+    /// Conjugate-gradient iterations so far (0 for the exact solvers).
+    pub fn iterations(&self) -> usize {
+        match &self.reduced {
+            ReducedSolver::Iterative(pcg) => pcg.iterations,
+            ReducedSolver::Factored(_) => 0,
         }
     }
 
@@ -377,30 +410,46 @@ fn reduced_solver(
     Ok((reduced, kind))
 }
 
-/// Conjugate gradients are chosen when one sparse factorisation of S would take more than this
-/// many operations per scalar of H_ce. One product with S reads H_ce twice (about 4 operations
-/// per scalar) and a step took 2-50 products on the street walks, while a factorisation runs
-/// several times faster per operation than the memory-bound products. Set between the 50-camera
-/// street walk (15 per scalar, where the factorisation was the faster) and the 200-camera one
-/// (222, conjugate gradients 17-26 % faster); verified on other layouts in NOTES 74.
+/// Conjugate gradients are chosen for good when one sparse factorisation of S would take more
+/// than this many operations per scalar of H_ce. One product with S reads H_ce's share of J
+/// twice, and a step took 2-12 products on the street walks (NOTES 75), while a factorisation
+/// runs several times faster per operation than the memory-bound products.
 const ITERATIVE_FLOPS_PER_HCE_SCALAR: f64 = 100.0;
 
+/// Below that bound conjugate gradients start, and S is factorised instead once their recent
+/// iterations per solve pass this many per operation per H_ce scalar of the factorisation: one
+/// factorisation with S's assembly took the time of 0.3-0.45 products per operation per scalar
+/// on the street walks, rings and Ladybug-49 (NOTES 75).
+const PRODUCTS_PER_FLOP_PER_HCE_SCALAR: f64 = 0.4;
+
+/// Factorisations' worth of conjugate-gradient iterations allowed beyond the factorisations'
+/// cost before the automatic choice switches (a hysteresis against the first, costlier solves).
+const SWITCH_MARGIN: usize = 3;
+
+/// The automatic choice's outcome.
+enum Choice {
+    /// A factorisation of S.
+    Factor(Box<(ReducedSolver, LinearSolverKind)>),
+    /// Conjugate gradients, to be replaced by a sparse factorisation when their iterations per
+    /// solve pass `switch_at`.
+    Iterate { switch_at: Option<f64> },
+}
+
 /// The automatic choice ([`LinearSolverKind::Schur`]) for the reduced pattern `s`: dense
-/// Cholesky up to `dense_threshold` unknowns; above, sparse Cholesky (its symbolic analysis done
-/// here and kept, the factor's storage allocated only once chosen), unless its factorisation
-/// would cost more than [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce: then `None`, for
-/// conjugate gradients.
+/// Cholesky up to `dense_threshold` unknowns; above, sparse Cholesky when its symbolic analysis
+/// finds a simplicial factor (a very sparse S); conjugate gradients for good when the
+/// factorisation would cost more than [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce;
+/// otherwise conjugate gradients until their iterations show a factorisation to be cheaper
+/// ([`PRODUCTS_PER_FLOP_PER_HCE_SCALAR`]).
 fn choose_reduced(
     s: &BlockSparse,
     dense_threshold: usize,
     nbrs: &Neighbours,
-) -> Result<Option<(ReducedSolver, LinearSolverKind)>, SolveError> {
+) -> Result<Choice, SolveError> {
     if s.dim() <= dense_threshold {
         let chol = Cholesky::new(s, true)?;
-        return Ok(Some((
-            ReducedSolver::Factored(chol),
-            LinearSolverKind::SchurDense,
-        )));
+        let chosen = (ReducedSolver::Factored(chol), LinearSolverKind::SchurDense);
+        return Ok(Choice::Factor(Box::new(chosen)));
     }
     let hce_scalars = (0..nbrs.nbr_ptr.len() - 1)
         .map(|q| {
@@ -421,11 +470,15 @@ fn choose_reduced(
         "reduced camera system: sparse factorisation's cost per scalar of H_ce"
     );
     if flops > bound {
-        return Ok(None);
+        return Ok(Choice::Iterate { switch_at: None });
     }
-    let chol = Cholesky::from_analysis(s, analysed, FactorPrecision::Double);
-    Ok(Some((
-        ReducedSolver::Factored(chol),
-        LinearSolverKind::SchurSparse,
-    )))
+    if flops == 0.0 {
+        let chol = Cholesky::from_analysis(s, analysed, FactorPrecision::Double);
+        let chosen = (ReducedSolver::Factored(chol), LinearSolverKind::SchurSparse);
+        return Ok(Choice::Factor(Box::new(chosen)));
+    }
+    let switch_at = PRODUCTS_PER_FLOP_PER_HCE_SCALAR * per_scalar;
+    Ok(Choice::Iterate {
+        switch_at: Some(switch_at),
+    })
 }

@@ -28,6 +28,9 @@ pub(super) struct Pcg {
     chunk_p: Vec<Vec<f64>>,
     damping: Damping,
     options: SchurOptions,
+    /// Conjugate-gradient iterations and solves so far.
+    pub(super) iterations: usize,
+    pub(super) solves: usize,
 }
 
 impl Schur {
@@ -211,6 +214,7 @@ impl Schur {
         let mut q = std::mem::take(&mut pcg.q);
         r.copy_from_slice(b);
         b.fill(0.0);
+        pcg.solves += 1;
         if b_norm > 0.0 {
             self.apply_preconditioner(&pcg, &r, &mut z);
             p.copy_from_slice(&z);
@@ -218,6 +222,7 @@ impl Schur {
             // Q(y) = ½ yᵀS y − bᵀy = −½ yᵀ(b + r) with r = b − S y; Q₀ = 0.
             let mut quadratic = 0.0;
             for iteration in 1..=pcg.options.pcg_max_iterations.max(1) {
+                pcg.iterations += 1;
                 self.implicit_product(ne, &mut pcg, &p, &mut q);
                 let pq = dot(&p, &q);
                 if pq <= 0.0 || !pq.is_finite() {
@@ -286,6 +291,8 @@ impl Pcg {
             chunk_bounds,
             damping: Damping::None,
             options,
+            iterations: 0,
+            solves: 0,
         }
     }
 
@@ -306,6 +313,8 @@ impl Pcg {
                 pcg_max_iterations: 0,
                 pcg_forcing: 0.0,
             },
+            iterations: 0,
+            solves: 0,
         }
     }
 }
