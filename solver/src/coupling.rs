@@ -154,15 +154,18 @@ impl Couplings {
         let x: &[f64; DC] = x.try_into().expect("DC values");
         let mut acc = [0.0f64; DE];
         for k in self.terms_of(c) {
-            let m = k.m;
-            let (a, e) = (&jac[k.jc..k.jc + DC * m], &jac[k.je..k.je + DE * m]);
-            for i in 0..m {
-                let mut v = 0.0;
-                for col in 0..DC {
-                    v += a[col * m + i] * x[col];
-                }
-                for r in 0..DE {
-                    acc[r] += e[r * m + i] * v;
+            let (a, e) = (&jac[k.jc..], &jac[k.je..]);
+            // reprojections (2 rows) and 3D residuals get their row count as a constant
+            match k.m {
+                2 => ec_rows::<DC, DE, 2>(a, e, x, &mut acc),
+                3 => ec_rows::<DC, DE, 3>(a, e, x, &mut acc),
+                m => {
+                    for i in 0..m {
+                        let v: f64 = (0..DC).map(|col| a[col * m + i] * x[col]).sum();
+                        for r in 0..DE {
+                            acc[r] += e[r * m + i] * v;
+                        }
+                    }
                 }
             }
         }
@@ -182,20 +185,63 @@ impl Couplings {
         let t: &[f64; DE] = t.try_into().expect("DE values");
         let mut acc = [0.0f64; DC];
         for k in self.terms_of(c) {
-            let m = k.m;
-            let (a, e) = (&jac[k.jc..k.jc + DC * m], &jac[k.je..k.je + DE * m]);
-            for i in 0..m {
-                let mut w = 0.0;
-                for r in 0..DE {
-                    w += e[r * m + i] * t[r];
-                }
-                for col in 0..DC {
-                    acc[col] += a[col * m + i] * w;
+            let (a, e) = (&jac[k.jc..], &jac[k.je..]);
+            match k.m {
+                2 => ce_rows::<DC, DE, 2>(a, e, t, &mut acc),
+                3 => ce_rows::<DC, DE, 3>(a, e, t, &mut acc),
+                m => {
+                    for i in 0..m {
+                        let w: f64 = (0..DE).map(|r| e[r * m + i] * t[r]).sum();
+                        for col in 0..DC {
+                            acc[col] += a[col * m + i] * w;
+                        }
+                    }
                 }
             }
         }
         for (o, a) in y.iter_mut().zip(acc) {
             *o += a;
+        }
+    }
+}
+
+/// acc += J_eᵀ (J_c x) for one residual of M rows (J_c M × DC and J_e M × DE, column-major, at
+/// the fronts of `a` and `e`).
+#[inline(always)]
+fn ec_rows<const DC: usize, const DE: usize, const M: usize>(
+    a: &[f64],
+    e: &[f64],
+    x: &[f64; DC],
+    acc: &mut [f64; DE],
+) {
+    let (a, e) = (&a[..DC * M], &e[..DE * M]);
+    for i in 0..M {
+        let mut v = 0.0;
+        for col in 0..DC {
+            v += a[col * M + i] * x[col];
+        }
+        for r in 0..DE {
+            acc[r] += e[r * M + i] * v;
+        }
+    }
+}
+
+/// acc += J_cᵀ (J_e t) for one residual of M rows (as [`ec_rows`]).
+#[inline(always)]
+fn ce_rows<const DC: usize, const DE: usize, const M: usize>(
+    a: &[f64],
+    e: &[f64],
+    t: &[f64; DE],
+    acc: &mut [f64; DC],
+) {
+    let (a, e) = (&a[..DC * M], &e[..DE * M]);
+    for i in 0..M {
+        let mut w = 0.0;
+        for r in 0..DE {
+            w += e[r * M + i] * t[r];
+        }
+        for col in 0..DC {
+            acc[col] += a[col * M + i] * w;
         }
     }
 }

@@ -17,20 +17,37 @@ use crate::parallel::{dot, SyncPtr};
 use crate::problem::Problem;
 use rayon::prelude::*;
 
-/// A residual's share of an entry: J_aᵀ J_b with `m` rows, Jacobians at these buffer offsets.
+/// A residual's share of an entry: J_aᵀ J_b with `m` rows, Jacobians at these buffer offsets
+/// (32-bit: a quarter of the normal equations' index memory in bundle adjustment; buffers are
+/// refused beyond `u32::MAX` scalars).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Contribution {
-    pub ja: usize,
-    pub jb: usize,
-    pub m: usize,
+    ja: u32,
+    jb: u32,
+    m: u32,
+}
+
+impl Contribution {
+    #[inline(always)]
+    pub fn ja(&self) -> usize {
+        self.ja as usize
+    }
+    #[inline(always)]
+    pub fn jb(&self) -> usize {
+        self.jb as usize
+    }
+    #[inline(always)]
+    pub fn m(&self) -> usize {
+        self.m as usize
+    }
 }
 
 /// A residual's share of a gradient block: J_bᵀ r.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct GradientContribution {
-    pub j: usize,
-    pub r: usize,
-    pub m: usize,
+    j: u32,
+    r: u32,
+    m: u32,
 }
 
 /// The sparsity structure of the normal equations and the buffers they are assembled into.
@@ -112,6 +129,12 @@ impl NormalEquations {
             mut grad_list,
             ..
         } = layout;
+        let scalars = jac_offset.last().copied().unwrap_or(0);
+        if scalars > u32::MAX as usize {
+            return Err(SolveError::LinearSolver(format!(
+                "the Jacobian has {scalars} scalars, more than the 2³² the normal equations index"
+            )));
+        }
         pairs.sort_unstable_by_key(|p| (p.0, p.1, p.2));
         grad_list.sort_unstable_by_key(|g| (g.0, g.1));
         let (mut columns, mut contrib_ptr, mut contribs) = hessian_contributions(&pairs, nb);
@@ -300,13 +323,13 @@ impl NormalEquations {
             // A camera's residuals lie far apart in the Jacobian buffer (BAL lists observations
             // point by point), so the hardware cannot guess the next one: ask for it early.
             if let Some(ahead) = contribs.get(x + PREFETCH_AHEAD) {
-                prefetch(jac, ahead.ja, DI * ahead.m);
+                prefetch(jac, ahead.ja(), DI * ahead.m());
                 if ahead.jb != ahead.ja {
-                    prefetch(jac, ahead.jb, DJ * ahead.m);
+                    prefetch(jac, ahead.jb(), DJ * ahead.m());
                 }
             }
-            let m = k.m;
-            let (a, b) = (&jac[k.ja..k.ja + DI * m], &jac[k.jb..k.jb + DJ * m]);
+            let (m, ja, jb) = (k.m(), k.ja(), k.jb());
+            let (a, b) = (&jac[ja..ja + DI * m], &jac[jb..jb + DJ * m]);
             // Residuals of one to three rows (reprojections, point-to-plane, 3D points) get
             // their row count as a constant, so that every load below is at a fixed offset.
             match m {
@@ -361,10 +384,10 @@ impl NormalEquations {
                 let col = unsafe { h.slice(hm.col_ptr[c0 + c] + entry.pos, rows) };
                 col.fill(0.0);
                 for k in &self.contribs[self.contrib_ptr[e]..self.contrib_ptr[e + 1]] {
-                    let m = k.m;
-                    let b = &jac[k.jb + c * m..k.jb + (c + 1) * m];
+                    let (m, ja, jb) = (k.m(), k.ja(), k.jb());
+                    let b = &jac[jb + c * m..jb + (c + 1) * m];
                     for (r, out) in col.iter_mut().enumerate() {
-                        let a = &jac[k.ja + r * m..k.ja + (r + 1) * m];
+                        let a = &jac[ja + r * m..ja + (r + 1) * m];
                         *out += dot(a, b);
                     }
                 }
@@ -374,9 +397,10 @@ impl NormalEquations {
         let gj = unsafe { g.slice(c0, dj) };
         gj.fill(0.0);
         for k in &self.grads[self.grad_ptr[jb]..self.grad_ptr[jb + 1]] {
-            let r = &res[k.r..k.r + k.m];
+            let (j, m) = (k.j as usize, k.m as usize);
+            let r = &res[k.r as usize..k.r as usize + m];
             for (c, out) in gj.iter_mut().enumerate() {
-                *out += dot(&jac[k.j + c * k.m..k.j + (c + 1) * k.m], r);
+                *out += dot(&jac[j + c * m..j + (c + 1) * m], r);
             }
         }
     }
@@ -443,7 +467,11 @@ fn split_couplings(
         for k in &contribs[contrib_ptr[x]..contrib_ptr[x + 1]] {
             // the contribution's `ja` is the row block's Jacobian, `jb` the column block's
             let (jc, je) = if e > c { (k.ja, k.jb) } else { (k.jb, k.ja) };
-            out.terms.push(Term { jc, je, m: k.m });
+            out.terms.push(Term {
+                jc: jc as usize,
+                je: je as usize,
+                m: k.m(),
+            });
         }
         out.term_ptr.push(out.terms.len());
     }
@@ -642,10 +670,11 @@ fn hessian_contributions(
         columns[col].push(row);
         while i < pairs.len() && pairs[i].0 == col && pairs[i].1 == row {
             let p = pairs[i];
+            // offsets below 2³², checked by `NormalEquations::build`
             contribs.push(Contribution {
-                ja: p.3,
-                jb: p.4,
-                m: p.5,
+                ja: p.3 as u32,
+                jb: p.4 as u32,
+                m: p.5 as u32,
             });
             i += 1;
         }
@@ -664,9 +693,9 @@ fn gradient_contributions(
     for g in grad_list {
         grad_ptr[g.0 + 1] += 1;
         grads.push(GradientContribution {
-            j: g.2,
-            r: g.3,
-            m: g.4,
+            j: g.2 as u32,
+            r: g.3 as u32,
+            m: g.4 as u32,
         });
     }
     for b in 0..nb {

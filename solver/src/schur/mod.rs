@@ -416,10 +416,11 @@ fn reduced_solver(
 /// runs several times faster per operation than the memory-bound products.
 const ITERATIVE_FLOPS_PER_HCE_SCALAR: f64 = 100.0;
 
-/// Below that bound conjugate gradients start, and S is factorised instead once their recent
-/// iterations per solve pass this many per operation per H_ce scalar of the factorisation: one
-/// factorisation with S's assembly took the time of 0.3-0.45 products per operation per scalar
-/// on the street walks, rings and Ladybug-49 (NOTES 75).
+/// Below that bound conjugate gradients start, and S is factorised instead once their
+/// iterations exceed this many per solve per operation per H_ce scalar of the factorisation
+/// ([`Schur::wants_factorisation`]): one factorisation with S's assembly took the time of
+/// 0.23-0.44 products per operation per scalar on the street walks, rings and Ladybug-49
+/// (NOTES 75).
 const PRODUCTS_PER_FLOP_PER_HCE_SCALAR: f64 = 0.4;
 
 /// Factorisations' worth of conjugate-gradient iterations allowed beyond the factorisations'
@@ -430,8 +431,8 @@ const SWITCH_MARGIN: usize = 3;
 enum Choice {
     /// A factorisation of S.
     Factor(Box<(ReducedSolver, LinearSolverKind)>),
-    /// Conjugate gradients, to be replaced by a sparse factorisation when their iterations per
-    /// solve pass `switch_at`.
+    /// Conjugate gradients, to be replaced by a sparse factorisation when their iterations
+    /// exceed `switch_at` per solve (beyond [`SWITCH_MARGIN`]).
     Iterate { switch_at: Option<f64> },
 }
 

@@ -99,12 +99,12 @@ impl Schur {
     ) {
         let (couplings, jac) = (ne.couplings(), ne.jacobians());
         let de = ne.h().block_dim(self.elim[q]);
+        // scratch for one neighbour's H_je and H_ee⁻¹ H_jeᵀ, both overwritten before each read
+        let (mut hje, mut u) = ([0.0; MAX_PRODUCT], [0.0; MAX_PRODUCT]);
         for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
             let dj = self.s.block_dim(n.kept);
-            let mut hje = [0.0; MAX_PRODUCT];
             couplings.block(jac, n.coupling, (dj, de), &mut hje, dj);
             let hj = |k: usize| &hje[k * dj..(k + 1) * dj];
-            let mut u = [0.0; MAX_PRODUCT];
             let u = self.inverse_times_neighbour(q, hj, (de, dj), &mut u);
             let block = &mut acc[offsets[n.kept]..offsets[n.kept] + dj * dj];
             subtract_block(block, |c| c * dj, hj, u, (dj, dj, de), true);
