@@ -139,7 +139,7 @@ impl Couplings {
     }
 
     #[inline(always)]
-    fn terms_of(&self, c: usize) -> &[Term] {
+    pub fn terms_of(&self, c: usize) -> &[Term] {
         &self.terms[self.term_ptr[c]..self.term_ptr[c + 1]]
     }
 
@@ -157,8 +157,8 @@ impl Couplings {
             let (a, e) = (&jac[k.jc..], &jac[k.je..]);
             // reprojections (2 rows) and 3D residuals get their row count as a constant
             match k.m {
-                2 => ec_rows::<DC, DE, 2>(a, e, x, &mut acc),
-                3 => ec_rows::<DC, DE, 3>(a, e, x, &mut acc),
+                2 => ec_rows::<f64, DC, DE, 2>(a, e, x, &mut acc),
+                3 => ec_rows::<f64, DC, DE, 3>(a, e, x, &mut acc),
                 m => {
                     for i in 0..m {
                         let v: f64 = (0..DC).map(|col| a[col * m + i] * x[col]).sum();
@@ -187,8 +187,8 @@ impl Couplings {
         for k in self.terms_of(c) {
             let (a, e) = (&jac[k.jc..], &jac[k.je..]);
             match k.m {
-                2 => ce_rows::<DC, DE, 2>(a, e, t, &mut acc),
-                3 => ce_rows::<DC, DE, 3>(a, e, t, &mut acc),
+                2 => ce_rows::<f64, DC, DE, 2>(a, e, t, &mut acc),
+                3 => ce_rows::<f64, DC, DE, 3>(a, e, t, &mut acc),
                 m => {
                     for i in 0..m {
                         let w: f64 = (0..DE).map(|r| e[r * m + i] * t[r]).sum();
@@ -208,9 +208,9 @@ impl Couplings {
 /// acc += J_eᵀ (J_c x) for one residual of M rows (J_c M × DC and J_e M × DE, column-major, at
 /// the fronts of `a` and `e`).
 #[inline(always)]
-fn ec_rows<const DC: usize, const DE: usize, const M: usize>(
-    a: &[f64],
-    e: &[f64],
+pub(crate) fn ec_rows<T: Copy + Into<f64>, const DC: usize, const DE: usize, const M: usize>(
+    a: &[T],
+    e: &[T],
     x: &[f64; DC],
     acc: &mut [f64; DE],
 ) {
@@ -218,19 +218,19 @@ fn ec_rows<const DC: usize, const DE: usize, const M: usize>(
     for i in 0..M {
         let mut v = 0.0;
         for col in 0..DC {
-            v += a[col * M + i] * x[col];
+            v += a[col * M + i].into() * x[col];
         }
         for r in 0..DE {
-            acc[r] += e[r * M + i] * v;
+            acc[r] += e[r * M + i].into() * v;
         }
     }
 }
 
 /// acc += J_cᵀ (J_e t) for one residual of M rows (as [`ec_rows`]).
 #[inline(always)]
-fn ce_rows<const DC: usize, const DE: usize, const M: usize>(
-    a: &[f64],
-    e: &[f64],
+pub(crate) fn ce_rows<T: Copy + Into<f64>, const DC: usize, const DE: usize, const M: usize>(
+    a: &[T],
+    e: &[T],
     t: &[f64; DE],
     acc: &mut [f64; DC],
 ) {
@@ -238,10 +238,10 @@ fn ce_rows<const DC: usize, const DE: usize, const M: usize>(
     for i in 0..M {
         let mut w = 0.0;
         for r in 0..DE {
-            w += e[r * M + i] * t[r];
+            w += e[r * M + i].into() * t[r];
         }
         for col in 0..DC {
-            acc[col] += a[col * M + i] * w;
+            acc[col] += a[col * M + i].into() * w;
         }
     }
 }

@@ -69,6 +69,10 @@ pub(crate) struct NormalEquations {
     residuals: Vec<f64>,
     jacobians: Vec<f64>,
     costs: Vec<f64>,
+    /// Counts the assemblies, so that copies of the Jacobian buffer can tell when they are
+    /// stale: between two assemblies the buffer holds the Jacobians of one point whenever a
+    /// solve reads it (a rejected trial's are replaced by the current point's again).
+    jacobian_version: u64,
     /// The blocks marked for elimination (empty without an elimination).
     eliminate: Vec<bool>,
     /// The blocks between an eliminated and a kept block, applied from J (see [`Couplings`]).
@@ -160,6 +164,7 @@ impl NormalEquations {
             residuals: vec![0.0; *res_offset.last().unwrap()],
             jacobians: vec![0.0; *jac_offset.last().unwrap()],
             costs: vec![0.0; problem.blocks.len()],
+            jacobian_version: 0,
             block_of_var,
             var_of_block,
             res_offset,
@@ -188,6 +193,11 @@ impl NormalEquations {
     /// must hold the Jacobians of the point H was assembled at.
     pub fn reads_jacobians(&self) -> bool {
         !self.couplings.in_h && !self.couplings.kept.is_empty()
+    }
+
+    /// Changes whenever [`Self::assemble`] forms H from a new Jacobian.
+    pub fn jacobian_version(&self) -> u64 {
+        self.jacobian_version
     }
 
     /// The kernel-corrected Jacobian blocks as evaluated, each m × d column-major.
@@ -294,6 +304,7 @@ impl NormalEquations {
 
     /// Forms H and g from the Jacobian and residual buffers filled by [`Self::evaluate`].
     pub fn assemble(&mut self) {
+        self.jacobian_version += 1;
         let h = SyncPtr::new(&mut self.h.values);
         let g = SyncPtr::new(&mut self.gradient);
         let this = &*self;

@@ -2,19 +2,24 @@
 //! writes, and the dot product every solver uses (one summation order everywhere).
 
 /// A raw pointer that may cross threads; every use writes a range no other task touches.
-#[derive(Clone, Copy)]
-pub(crate) struct SyncPtr(*mut f64);
-unsafe impl Send for SyncPtr {}
-unsafe impl Sync for SyncPtr {}
-impl SyncPtr {
-    pub(crate) fn new(s: &mut [f64]) -> Self {
+pub(crate) struct SyncPtr<T = f64>(*mut T);
+impl<T> Clone for SyncPtr<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for SyncPtr<T> {}
+unsafe impl<T: Send> Send for SyncPtr<T> {}
+unsafe impl<T: Send> Sync for SyncPtr<T> {}
+impl<T> SyncPtr<T> {
+    pub(crate) fn new(s: &mut [T]) -> Self {
         Self(s.as_mut_ptr())
     }
     /// # Safety
     /// The range must lie inside the slice this pointer came from, and no other live reference
     /// may overlap it.
     #[allow(clippy::mut_from_ref)]
-    pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [f64] {
+    pub(crate) unsafe fn slice(&self, start: usize, len: usize) -> &mut [T] {
         std::slice::from_raw_parts_mut(self.0.add(start), len)
     }
 }

@@ -22,11 +22,13 @@ mod assembly;
 mod kernels;
 mod layout;
 mod pcg;
+mod single;
 
 pub(crate) use kernels::invert_spd;
 use kernels::{inverse_times_transpose, MAX_ELIMINATED, MAX_PRODUCT};
 use layout::{Neighbours, PointMajor, Split, Touches};
 use pcg::Pcg;
+use single::SingleJacobians;
 
 use crate::block::BlockSparse;
 use crate::cholesky::{Analysed, Cholesky, FactorPrecision};
@@ -62,6 +64,8 @@ struct Neighbour {
     step: usize,
 }
 
+// One per solver, moved only when the conjugate gradients take their buffers out and back.
+#[allow(clippy::large_enum_variant)]
 enum ReducedSolver {
     Factored(Cholesky),
     Iterative(Pcg),
@@ -159,6 +163,13 @@ impl Schur {
         let touches = Touches::new(&touch_lists, &nbrs, &s, !iterative && !points.active());
         let elim_scalars = *nbrs.elim_start.last().unwrap();
         let chunks = points.chunk_bounds.len() - 1;
+        let mut reduced = reduced;
+        // single precision only for truncated solves, whose steps are inexact by design; a solve
+        // asked for to a tight tolerance keeps double precision (NOTES 75)
+        if let (ReducedSolver::Iterative(pcg), true) = (&mut reduced, options.pcg_forcing > 0.0) {
+            let dims = |q: usize, n: &Neighbour| (s.block_dim(n.kept), h.block_dim(split.elim[q]));
+            pcg.single = SingleJacobians::new(&nbrs.nbrs, &nbrs.nbr_ptr, ne.couplings(), dims);
+        }
         Ok(Self {
             kind,
             rhs: vec![0.0; s.dim()],

@@ -3,6 +3,7 @@
 //! (Agarwal et al., *Bundle Adjustment in the Large*, 2010, sec. 4.3); S is never formed.
 
 use super::kernels::{invert_spd, subtract_block, MAX_ELIMINATED, MAX_PRODUCT};
+use super::single::SingleJacobians;
 use super::{ReducedSolver, Schur, SchurOptions};
 use crate::block::BlockSparse;
 use crate::coupling::Couplings;
@@ -28,6 +29,8 @@ pub(super) struct Pcg {
     chunk_p: Vec<Vec<f64>>,
     damping: Damping,
     options: SchurOptions,
+    /// The couplings' Jacobians in single precision, for the products.
+    pub(super) single: SingleJacobians,
     /// Conjugate-gradient iterations and solves so far.
     pub(super) iterations: usize,
     pub(super) solves: usize,
@@ -55,6 +58,9 @@ impl Schur {
         let mut pcg = self.take_pcg();
         pcg.damping = damping;
         let this = &*self;
+        let dims =
+            |q: usize, n: &super::Neighbour| (this.s.block_dim(n.kept), h.block_dim(this.elim[q]));
+        pcg.single.refresh(ne, &this.nbrs, &this.nbr_ptr, dims);
         let (bounds, offsets) = (&pcg.chunk_bounds, &pcg.precond_offset);
         pcg.chunk_p.par_iter_mut().enumerate().for_each(|(c, acc)| {
             acc.fill(0.0);
@@ -130,11 +136,11 @@ impl Schur {
         x: &[f64],
         y: &mut [f64],
     ) {
-        let bounds = &pcg.chunk_bounds;
+        let (bounds, single) = (&pcg.chunk_bounds, &pcg.single);
         pcg.chunk_y.par_iter_mut().enumerate().for_each(|(c, acc)| {
             acc.fill(0.0);
             for q in bounds[c]..bounds[c + 1] {
-                self.add_eliminated_product(ne, q, x, acc);
+                self.add_eliminated_product(ne, single, q, x, acc);
             }
         });
         self.s.multiply(x, y);
@@ -145,15 +151,43 @@ impl Schur {
         add_copies(&pcg.chunk_y, y);
     }
 
-    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours, from J.
+    /// acc ← acc − H_ce H_ee⁻¹ H_ec x over eliminated block q's neighbours, from the
+    /// single-precision copy of J when there is one, else from J.
     #[inline]
-    fn add_eliminated_product(&self, ne: &NormalEquations, q: usize, x: &[f64], acc: &mut [f64]) {
-        let de = ne.h().block_dim(self.elim[q]);
+    fn add_eliminated_product(
+        &self,
+        ne: &NormalEquations,
+        single: &SingleJacobians,
+        q: usize,
+        x: &[f64],
+        acc: &mut [f64],
+    ) {
+        let (couplings, de) = (ne.couplings(), ne.h().block_dim(self.elim[q]));
+        if !single.is_active() {
+            let mut t = [0.0f64; MAX_ELIMINATED];
+            let t = &mut t[..de];
+            // t = −H_ee⁻¹ H_ec x
+            self.eliminated_update(ne, q, de, t, x);
+            self.add_couplings(couplings, ne.jacobians(), q, t, acc);
+            return;
+        }
         let mut t = [0.0f64; MAX_ELIMINATED];
         let t = &mut t[..de];
-        // t = −H_ee⁻¹ H_ec x
-        self.eliminated_update(ne, q, de, t, x);
-        self.add_couplings(ne.couplings(), ne.jacobians(), q, t, acc);
+        let range = self.nbr_ptr[q]..self.nbr_ptr[q + 1];
+        for (i, n) in range.clone().zip(&self.nbrs[range.clone()]) {
+            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+            single.add_ec(couplings, i, n.coupling, &x[c0..c0 + dc], t);
+        }
+        // u = −H_ee⁻¹ H_ec x
+        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
+        let mut u = [0.0f64; MAX_ELIMINATED];
+        for (r, ur) in u[..de].iter_mut().enumerate() {
+            *ur = -(0..de).map(|k| inv[r + k * de] * t[k]).sum::<f64>();
+        }
+        for (i, n) in range.clone().zip(&self.nbrs[range]) {
+            let (c0, dc) = (self.s.block_start[n.kept], self.s.block_dim(n.kept));
+            single.add_ce(couplings, i, n.coupling, &u[..de], &mut acc[c0..c0 + dc]);
+        }
     }
 
     /// acc_c += H_ce t over eliminated block q's neighbours c, from J.
@@ -293,6 +327,7 @@ impl Pcg {
             options,
             iterations: 0,
             solves: 0,
+            single: SingleJacobians::default(),
         }
     }
 
@@ -315,6 +350,7 @@ impl Pcg {
             },
             iterations: 0,
             solves: 0,
+            single: SingleJacobians::default(),
         }
     }
 }
