@@ -107,12 +107,20 @@ impl Schur {
         let de = ne.h().block_dim(self.elim[q]);
         // scratch for one neighbour's H_je and H_ee⁻¹ H_jeᵀ, both overwritten before each read
         let (mut hje, mut u) = ([0.0; MAX_PRODUCT], [0.0; MAX_PRODUCT]);
+        let inv = &self.hinv[self.inv_offset[q]..][..de * de];
         for n in &self.nbrs[self.nbr_ptr[q]..self.nbr_ptr[q + 1]] {
             let dj = self.s.block_dim(n.kept);
+            let block = &mut acc[offsets[n.kept]..offsets[n.kept] + dj * dj];
+            if let [t] = couplings.terms_of(n.coupling) {
+                // one residual couples them (a reprojection): J_cᵀ (J_e H_ee⁻¹ J_eᵀ) J_c
+                if let (9, 3, 2) = (dj, de, t.m) {
+                    subtract_one_term::<9, 3, 2>(&jac[t.jc..], &jac[t.je..], inv, block);
+                    continue;
+                }
+            }
             couplings.block(jac, n.coupling, (dj, de), &mut hje, dj);
             let hj = |k: usize| &hje[k * dj..(k + 1) * dj];
             let u = self.inverse_times_neighbour(q, hj, (de, dj), &mut u);
-            let block = &mut acc[offsets[n.kept]..offsets[n.kept] + dj * dj];
             subtract_block(block, |c| c * dj, hj, u, (dj, dj, de), true);
         }
     }
@@ -361,6 +369,44 @@ const PRODUCT_CHUNKS: usize = 2;
 /// Scalars of y summed per task when the chunks' products are added.
 const SUM_RANGE: usize = 4096;
 
+/// block −= J_cᵀ W J_c (upper triangle, DC × DC column-major) with W = J_e H_ee⁻¹ J_eᵀ (M × M),
+/// for a coupling of one residual of M rows: H_je H_ee⁻¹ H_jeᵀ with H_je = J_cᵀ J_e, in about
+/// 150 operations for a reprojection against 380 through H_je.
+#[inline(always)]
+fn subtract_one_term<const DC: usize, const DE: usize, const M: usize>(
+    a: &[f64],
+    e: &[f64],
+    inv: &[f64],
+    block: &mut [f64],
+) {
+    let (a, e, inv) = (&a[..DC * M], &e[..DE * M], &inv[..DE * DE]);
+    // p = J_e H_ee⁻¹ (M × DE), w = p J_eᵀ (M × M)
+    let mut p = [[0.0f64; DE]; M];
+    for (i, row) in p.iter_mut().enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = (0..DE).map(|l| e[l * M + i] * inv[l + k * DE]).sum();
+        }
+    }
+    let mut w = [[0.0f64; M]; M];
+    for (i, row) in w.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = (0..DE).map(|k| p[i][k] * e[k * M + j]).sum();
+        }
+    }
+    // v = W J_c (M × DC), then the upper triangle of J_cᵀ v
+    let mut v = [[0.0f64; DC]; M];
+    for (i, row) in v.iter_mut().enumerate() {
+        for (col, x) in row.iter_mut().enumerate() {
+            *x = (0..M).map(|j| w[i][j] * a[col * M + j]).sum();
+        }
+    }
+    for c in 0..DC {
+        for r in 0..=c {
+            block[r + c * DC] -= (0..M).map(|i| a[r * M + i] * v[i][c]).sum::<f64>();
+        }
+    }
+}
+
 /// y += Σ copies, in parallel over ranges of y, the copies in order.
 fn add_copies(copies: &[Vec<f64>], y: &mut [f64]) {
     y.par_chunks_mut(SUM_RANGE)
@@ -392,7 +438,41 @@ fn chunk_bounds(nbr_ptr: &[usize], chunks: usize) -> Vec<usize> {
 
 #[cfg(test)]
 mod tests {
-    use super::chunk_bounds;
+    use super::super::kernels::{inverse_times_transpose, subtract_block};
+    use super::{chunk_bounds, subtract_one_term};
+
+    #[test]
+    fn one_residuals_preconditioner_term_equals_the_product_through_h_je() {
+        // J_c 2 × 9, J_e 2 × 3 (column-major), H_ee⁻¹ symmetric positive definite
+        let value = |k: usize| ((k * 37 + 11) % 23) as f64 / 7.0 - 1.5;
+        let a: Vec<f64> = (0..18).map(value).collect();
+        let e: Vec<f64> = (0..6).map(|k| value(k + 40)).collect();
+        let inv = [2.0, 0.3, -0.1, 0.3, 1.5, 0.2, -0.1, 0.2, 1.2];
+        let mut fast = vec![0.5; 81];
+        subtract_one_term::<9, 3, 2>(&a, &e, &inv, &mut fast);
+        // H_je = J_cᵀ J_e (9 × 3), u = H_ee⁻¹ H_jeᵀ, block −= H_je u
+        let mut hje = [0.0; 27];
+        for k in 0..3 {
+            for r in 0..9 {
+                hje[r + 9 * k] = (0..2).map(|i| a[r * 2 + i] * e[k * 2 + i]).sum();
+            }
+        }
+        let hj = |k: usize| &hje[k * 9..(k + 1) * 9];
+        let mut u = [0.0; 27];
+        inverse_times_transpose(&inv, hj, &mut u, 3, 9);
+        let mut slow = vec![0.5; 81];
+        subtract_block(&mut slow, |c| c * 9, hj, &u, (9, 9, 3), true);
+        for c in 0..9 {
+            for r in 0..=c {
+                let (f, s) = (fast[r + 9 * c], slow[r + 9 * c]);
+                assert!(
+                    (f - s).abs() <= 1e-12 * (1.0 + s.abs()),
+                    "({r}, {c}): {f} vs {s}"
+                );
+            }
+        }
+        assert!((fast[4 * 9 + 2] - 0.5).abs() > 1e-3, "the block changed");
+    }
 
     #[test]
     fn the_product_chunks_cover_every_eliminated_block_once_with_about_equal_work() {
