@@ -200,8 +200,13 @@ impl Problem {
             }
         }
         let var = &mut self.variables[v.0];
+        let first = var.lower.is_empty();
         var.lower = lower.to_vec();
         var.upper = upper.to_vec();
+        if first {
+            // a Schur solver lays out H whole once some variable is bounded (NOTES 75)
+            self.structure_version += 1;
+        }
         Ok(())
     }
 
