@@ -612,7 +612,8 @@ fn solve_bal(
 
 /// BAL's ladybug problem 49-7776: the initial cost matches the reference to 9 digits (SOURCE.txt:
 /// 8.50912460680839605629e+05) and 50 Levenberg-Marquardt iterations with the dense Schur solver
-/// reach 13344.25 or lower (Ceres 2.1 DENSE_SCHUR reaches 13344.2548 in 50 here).
+/// reach Ceres 2.1's DENSE_SCHUR cost after 50 (13344.254795935909 here; ours, with Ceres'
+/// damping since NOTES 76, 13344.254795962903) to 1e-6 relative, or lower.
 #[test]
 fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
     use dynamap::residuals::bal;
@@ -631,8 +632,9 @@ fn bal_ladybug_reaches_the_reference_cost_in_50_iterations() {
     let summary = solve_bal(&data, 50);
     assert!((summary.initial_cost - reference).abs() < 1e-9 * reference);
     assert!(summary.num_iterations() <= 50);
+    let ceres = 13_344.254_795_935_909;
     assert!(
-        summary.final_cost <= 13344.25,
+        summary.final_cost <= ceres * (1.0 + 1e-6),
         "final cost {}",
         summary.final_cost
     );

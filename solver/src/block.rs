@@ -7,7 +7,7 @@
 //! element (r, c) of block (i, j) sits at `values[col_ptr[block_start[j] + c] + pos + r]`, with
 //! `pos` the block's offset inside its columns.
 
-use crate::damping::Damping;
+use crate::damping::{damping_scale, Damping};
 
 /// One block (i, j), i ≤ j, of the upper triangle.
 #[derive(Clone, Copy, Debug)]
@@ -31,6 +31,9 @@ pub(crate) struct BlockSparse {
     /// Position of every diagonal element in `values`.
     pub diag_pos: Vec<usize>,
     pub values: Vec<f64>,
+    /// Each unknown's scale of Marquardt's damping ([`crate::damping::damping_scale`]); empty
+    /// for a scale of 1 everywhere.
+    pub damping_scale: Vec<f64>,
 }
 
 impl BlockSparse {
@@ -71,7 +74,29 @@ impl BlockSparse {
             entries,
             col_ptr,
             diag_pos,
+            damping_scale: Vec::new(),
         }
+    }
+
+    /// The damped value of diagonal element `v` of unknown `i`.
+    #[inline]
+    pub fn damped(&self, damping: Damping, i: usize, v: f64) -> f64 {
+        match self.damping_scale.get(i) {
+            Some(&scale) => damping.apply_scaled(v, scale),
+            None => damping.apply(v),
+        }
+    }
+
+    /// Fixes every unknown's damping scale from the current diagonal (at the start of a solve).
+    pub fn fix_damping_scale(&mut self) {
+        let scales = self.diag_pos.iter().map(|&p| damping_scale(self.values[p]));
+        self.damping_scale = scales.collect();
+    }
+
+    /// The diagonal with each unknown's damping scale, in the unknowns' order.
+    pub fn diagonal_and_scale(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let scale = |i: usize| self.damping_scale.get(i).copied().unwrap_or(1.0);
+        (self.diag_pos.iter().enumerate()).map(move |(i, &p)| (self.values[p], scale(i)))
     }
 
     /// Calls `f(start, row, rows, c)` for every run of stored elements, in storage order: the
@@ -156,7 +181,15 @@ impl BlockSparse {
         self.for_each_run(|start, row, rows, c| {
             let values = &self.values[start..start + rows];
             for (r, &v) in (row..row + rows).zip(values) {
-                f(r, c, if r == c { damping.apply(v) } else { v });
+                f(
+                    r,
+                    c,
+                    if r == c {
+                        self.damped(damping, r, v)
+                    } else {
+                        v
+                    },
+                );
             }
         });
     }
@@ -170,7 +203,11 @@ impl BlockSparse {
             let start = self.column_start(b, diag, c);
             for r in 0..=c {
                 let v = self.values[start + r];
-                let v = if r == c { damping.apply(v) } else { v };
+                let v = if r == c {
+                    self.damped(damping, self.block_start[b] + c, v)
+                } else {
+                    v
+                };
                 out[r + c * d] = v;
                 out[c + r * d] = v;
             }
@@ -193,6 +230,45 @@ impl BlockSparse {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn marquardt_damping_is_that_of_the_columns_scaled_at_the_start() {
+        // Ceres scales J's column i by s = 1 / (1 + √v₀) once, v₀ the diagonal at the start,
+        // and damps the scaled system by μ clamp(s² v, 1e-6, 1e32); unscaled, that is
+        // μ clamp(s² v, 1e-6, 1e32) / s² on the diagonal v.
+        let mut m = BlockSparse::new(vec![0, 2, 4], &[vec![0], vec![1]]);
+        let start = [4.0e6, 9.0, 0.0, 1e-12];
+        let now = [4.0e-3, 90.0, 0.0, 5.0];
+        let set = |m: &mut BlockSparse, v: &[f64]| {
+            for (i, &p) in m.diag_pos.clone().iter().enumerate() {
+                m.values[p] = v[i];
+            }
+        };
+        set(&mut m, &start);
+        m.fix_damping_scale();
+        set(&mut m, &now);
+        let mu = 0.01;
+        for (i, (&v0, &v)) in start.iter().zip(&now).enumerate() {
+            let s2 = (1.0 / (1.0 + v0.sqrt())).powi(2);
+            let ceres = v + mu * (s2 * v).clamp(1e-6, 1e32) / s2;
+            let ours = m.damped(Damping::Diagonal(mu), i, v);
+            assert!(
+                (ours - ceres).abs() <= 1e-12 * ceres,
+                "{i}: {ours} against {ceres}"
+            );
+        }
+        // the unknown whose curvature fell by 1e9 keeps a floor of 1e-6 of its start
+        let collapsed = m.damped(Damping::Diagonal(mu), 0, now[0]) - now[0];
+        assert!((collapsed - mu * 1e-6 * (1.0 + 2e3f64).powi(2)).abs() < 1e-12);
+        let d: Vec<(f64, f64)> = m.diagonal_and_scale().collect();
+        assert_eq!(d[0], (now[0], (1.0 + 2e3f64).powi(2)));
+        // without scales, the floor is 1e-6 itself
+        m.damping_scale.clear();
+        assert_eq!(
+            m.damped(Damping::Diagonal(mu), 0, now[0]),
+            now[0] + mu * now[0]
+        );
+    }
 
     #[test]
     fn layout_places_every_block_element_once() {

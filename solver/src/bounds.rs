@@ -96,8 +96,8 @@ impl StepBox {
         let n = ne.dim();
         let h = ne.h();
         let mut values = h.values.clone();
-        for &p in &h.diag_pos {
-            values[p] = damping.apply(values[p]);
+        for (i, &p) in h.diag_pos.iter().enumerate() {
+            values[p] = h.damped(damping, i, values[p]);
         }
         let p = CscMatrix::new(n, n, h.col_ptr.clone(), h.row_indices(|r| r), values);
         // A δ + s = b, s ≥ 0: rows δ_k ≤ hi_k and −δ_k ≤ −lo_k for the finite sides.

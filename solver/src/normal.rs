@@ -302,6 +302,22 @@ impl NormalEquations {
         self.costs.iter().position(|c| !c.is_finite())
     }
 
+    /// Fixes each unknown's scale of Marquardt's damping from H's current diagonal when `fix`
+    /// (at the start of a solve, as Ceres fixes its Jacobi scaling), else drops the scales.
+    pub fn fix_damping_scale(&mut self, fix: bool) {
+        if fix {
+            self.h.fix_damping_scale();
+        } else {
+            self.h.damping_scale.clear();
+        }
+    }
+
+    /// Sets each unknown's scale of Marquardt's damping (tests).
+    #[cfg(test)]
+    pub(crate) fn set_damping_scale(&mut self, scale: Vec<f64>) {
+        self.h.damping_scale = scale;
+    }
+
     /// Forms H and g from the Jacobian and residual buffers filled by [`Self::evaluate`].
     pub fn assemble(&mut self) {
         self.jacobian_version += 1;

@@ -19,7 +19,9 @@ pub enum Algorithm {
 pub enum DampingKind {
     /// μI.
     Identity,
-    /// μ diag(H).
+    /// μ diag(H) (Marquardt), Ceres' damping: each diagonal element clamped to
+    /// [1e-6 c, 1e32 c], c = (1 + √v₀)² from its value v₀ at the start of the solve, and
+    /// μ ≥ 1e-16 (Ceres' Jacobi scaling, `min_lm_diagonal` and largest trust radius).
     Diagonal,
 }
 

@@ -33,6 +33,8 @@ impl ResidualId {
 
 pub(crate) struct Variable {
     pub offset: usize,
+    /// The manifold's ambient dimension (kept here: evaluation reads it for every block).
+    pub ambient: usize,
     pub manifold: Box<dyn Manifold>,
     pub fixed: bool,
     /// Per-coordinate lower and upper bounds (Euclidean variables only); empty when unbounded.
@@ -130,6 +132,7 @@ impl Problem {
         self.values.extend_from_slice(&v);
         self.variables.push(Variable {
             offset,
+            ambient: manifold.ambient_dim(),
             manifold,
             fixed: false,
             lower: Vec::new(),
@@ -375,7 +378,7 @@ impl Problem {
             .map(|&v| {
                 let var = &self.variables[v];
                 Var {
-                    value: &values[var.offset..var.offset + var.manifold.ambient_dim()],
+                    value: &values[var.offset..var.offset + var.ambient],
                     manifold: var.manifold.as_ref(),
                 }
             })

@@ -213,8 +213,11 @@ proptest! {
         let (problem, jr) = random_problem(seed, cameras, points);
         let (h, g) = dense_normal(&jr);
         let n = h.nrows();
-        let damped = &h + DMatrix::<f64>::identity(n, n) * mu;
-        let expected = damped.cholesky().unwrap().solve(&(-&g));
+        // Marquardt's damping with scales that lift some diagonals to their floor
+        let scale: Vec<f64> = (0..n).map(|i| 10f64.powi((i * 7 % 13) as i32)).collect();
+        let marquardt = DMatrix::from_fn(n, n, |r, c| {
+            if r == c { mu * h[(r, r)].clamp(1e-6 * scale[r], 1e32 * scale[r]) } else { 0.0 }
+        });
         let mut whole = NormalEquations::new(&problem).unwrap();
         // the Schur solvers' normal equations leave the coupling blocks out of H (or, with
         // bounds, keep them in too)
@@ -223,6 +226,7 @@ proptest! {
         for ne in [&mut whole, &mut split, &mut both] {
             ne.evaluate(&problem, &problem.values, true);
             ne.assemble();
+            ne.set_damping_scale(scale.clone());
         }
         prop_assert!(split.eliminated().iter().any(|&e| e), "something is eliminated");
         let schur = SchurOptions {
@@ -230,24 +234,28 @@ proptest! {
             pcg_max_iterations: 1000,
             pcg_forcing: 0.0,
         };
-        for (kind, tolerance) in [
-            (LinearSolverKind::Dense, 1e-9),
-            (LinearSolverKind::Sparse, 1e-9),
-            (LinearSolverKind::SchurDense, 1e-9),
-            (LinearSolverKind::SchurSparse, 1e-9),
-            (LinearSolverKind::SchurIterative, 1e-6),
-        ] {
-            let systems = if kind.is_schur() { vec![&split, &both] } else { vec![&whole] };
-            for ne in systems {
-                let mut solver = LinearSolver::new(ne, kind, 200, schur).unwrap();
-                solver.factor(ne, Damping::Identity(mu)).unwrap();
-                let mut x: Vec<f64> = ne.gradient().iter().map(|v| -v).collect();
-                solver.solve(ne, &mut x);
-                let err = (DVector::from_column_slice(&x) - &expected).amax();
-                prop_assert!(
-                    err <= tolerance * (1.0 + expected.amax()),
-                    "{kind:?}: off by {err:e}"
-                );
+        let identity = DMatrix::<f64>::identity(n, n) * mu;
+        for (damping, added) in [(Damping::Identity(mu), identity), (Damping::Diagonal(mu), marquardt)] {
+            let expected = (&h + added).cholesky().unwrap().solve(&(-&g));
+            for (kind, tolerance) in [
+                (LinearSolverKind::Dense, 1e-9),
+                (LinearSolverKind::Sparse, 1e-9),
+                (LinearSolverKind::SchurDense, 1e-9),
+                (LinearSolverKind::SchurSparse, 1e-9),
+                (LinearSolverKind::SchurIterative, 1e-6),
+            ] {
+                let systems = if kind.is_schur() { vec![&split, &both] } else { vec![&whole] };
+                for ne in systems {
+                    let mut solver = LinearSolver::new(ne, kind, 200, schur).unwrap();
+                    solver.factor(ne, damping).unwrap();
+                    let mut x: Vec<f64> = ne.gradient().iter().map(|v| -v).collect();
+                    solver.solve(ne, &mut x);
+                    let err = (DVector::from_column_slice(&x) - &expected).amax();
+                    prop_assert!(
+                        err <= tolerance * (1.0 + expected.amax()),
+                        "{kind:?} {damping:?}: off by {err:e}"
+                    );
+                }
             }
         }
         // H x and xᵀ H x with the couplings applied from J equal the dense products

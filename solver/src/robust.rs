@@ -294,6 +294,9 @@ pub fn triggs_correct(rho: [f64; 3], residual: &mut [f64], jacobian: Option<&mut
         let alpha = 1.0 - d.sqrt();
         (sqrt_rho1 / (1.0 - alpha), alpha / s)
     };
+    if residual_scale == 1.0 && alpha_sq_norm == 0.0 && sqrt_rho1 == 1.0 {
+        return; // the kernel's quadratic part (an inlier of Huber's): nothing to correct
+    }
     if let Some(j) = jacobian {
         let cols = j.len() / m.max(1);
         for c in 0..cols {

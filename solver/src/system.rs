@@ -336,7 +336,7 @@ fn multiply_damped(h: &BlockSparse, damping: Damping, x: &[f64], y: &mut [f64]) 
     h.multiply(x, y);
     for (i, &at) in h.diag_pos.iter().enumerate() {
         let v = h.values[at];
-        y[i] += (damping.apply(v) - v) * x[i];
+        y[i] += (h.damped(damping, i, v) - v) * x[i];
     }
 }
 

@@ -110,7 +110,9 @@ pub fn reprojection(
         );
         let ab = a * b;
         let (rot, jr) = (rot.unwrap_or_default(), jr.unwrap_or_default());
-        let d_rot = -ab * rot * so3::hat(&x) * jr;
+        // ∂r/∂X = A B R, and ∂r/∂ω = −A B R [X]× J_r(ω)
+        let abr = ab * rot;
+        let d_rot = -(abr * so3::hat(&x)) * jr;
         jc[..6].copy_from_slice(d_rot.as_slice());
         jc[6..12].copy_from_slice(ab.as_slice());
         jc[12] = d * xp;
@@ -119,7 +121,7 @@ pub fn reprojection(
         jc[15] = f * r2 * yp;
         jc[16] = f * r2 * r2 * xp;
         jc[17] = f * r2 * r2 * yp;
-        jx.copy_from_slice((ab * rot).as_slice());
+        jx.copy_from_slice(abr.as_slice());
     }
     r
 }

@@ -268,6 +268,7 @@ impl WarpSystem {
         }
         let mut lm = LevenbergDamping::new(
             steps.damping * self.system().max_diagonal().max(f64::MIN_POSITIVE),
+            0.0,
         );
         let (mut done, mut moved) = (0, false);
         while done < steps.iterations {

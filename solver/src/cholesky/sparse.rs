@@ -57,7 +57,7 @@ impl<I: Index> SparseFactor<I> {
         let lower = is_lower(&symbolic);
         let inv = inverse(&symbolic, n);
         let mut col_ptr = vec![I::truncate(0); n + 1];
-        for_each_placed(a, &inv, lower, |_, col, _| {
+        for_each_placed(a, &inv, lower, |_, col, _, _| {
             col_ptr[col + 1] = I::truncate(col_ptr[col + 1].zx() + 1)
         });
         for c in 0..n {
@@ -65,7 +65,7 @@ impl<I: Index> SparseFactor<I> {
         }
         let mut next = col_ptr[..n].to_vec();
         let mut row_idx = vec![I::truncate(0); a.values.len()];
-        for_each_placed(a, &inv, lower, |_, col, row| {
+        for_each_placed(a, &inv, lower, |_, col, row, _| {
             row_idx[advance(&mut next[col])] = I::truncate(row)
         });
         // checks the pattern once; every factorisation reuses it unchecked
@@ -201,8 +201,9 @@ fn advance<I: Index>(cursor: &mut I) -> usize {
     at
 }
 
-/// Calls `f(source, column, row)` for every stored element of `m`: its position in `m.values`
-/// and its place in the permuted triangle (the lower one if `lower`, else the upper one), in
+/// Calls `f(source, column, row, r)` for every stored element of `m`: its position in
+/// `m.values`, its place in the permuted triangle (the lower one if `lower`, else the upper
+/// one) and its row r in `m`, in
 /// the same order every time. A block order keeps each block's coordinates together and in
 /// order, so a run of rows of one block stays a run after the permutation.
 #[inline]
@@ -210,15 +211,15 @@ fn for_each_placed<I: Index>(
     m: &BlockSparse,
     inv: &[I],
     lower: bool,
-    mut f: impl FnMut(usize, usize, usize),
+    mut f: impl FnMut(usize, usize, usize, usize),
 ) {
     m.for_each_run(|start, row, rows, c| {
         let (r0, cn) = (inv[row].zx(), inv[c].zx());
         debug_assert!(rows == 0 || inv[row + rows - 1].zx() == r0 + rows - 1);
         for k in 0..rows {
             let r = r0 + k;
-            let (col, row) = if (r > cn) == lower { (cn, r) } else { (r, cn) };
-            f(start + k, col, row);
+            let (col, placed) = if (r > cn) == lower { (cn, r) } else { (r, cn) };
+            f(start + k, col, placed, row + k);
         }
     });
 }
@@ -233,9 +234,13 @@ fn scatter<I: Index, T>(
     a: &mut [T],
     cast: impl Fn(f64) -> T,
 ) {
-    for_each_placed(m, inv, lower, |src, col, row| {
+    for_each_placed(m, inv, lower, |src, col, row, unpermuted| {
         let v = m.values[src];
-        let v = if row == col { damping.apply(v) } else { v };
+        let v = if row == col {
+            m.damped(damping, unpermuted, v)
+        } else {
+            v
+        };
         a[advance(&mut next[col])] = cast(v);
     });
 }

@@ -44,8 +44,7 @@ pub(super) fn propose(
     let predicted = if boxed || !linear.is_exact() {
         model_decrease(ne, step, scratch)
     } else {
-        let diagonal = ne.h().diag_pos.iter().map(|&p| ne.h().values[p]);
-        d.predicted_decrease(step, ne.gradient(), diagonal)
+        d.predicted_decrease(step, ne.gradient(), ne.h().diagonal_and_scale())
     };
     Ok(Proposal::Step {
         predicted,

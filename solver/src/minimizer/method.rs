@@ -5,7 +5,7 @@
 use super::context::{Context, Proposal};
 use super::dogleg::Dogleg;
 use super::{gauss_newton, levenberg_marquardt};
-use crate::damping::LevenbergDamping;
+use crate::damping::{LevenbergDamping, MIN_MARQUARDT_MU};
 use crate::error::SolveError;
 use crate::options::{Algorithm, DampingKind, Options};
 
@@ -26,12 +26,16 @@ impl Method {
         match opts.algorithm {
             Algorithm::GaussNewton => Self::GaussNewton,
             Algorithm::LevenbergMarquardt => Self::Levenberg(
-                LevenbergDamping::new(match opts.damping {
-                    DampingKind::Identity => {
-                        opts.initial_damping_tau * max_diag.max(f64::MIN_POSITIVE)
+                match opts.damping {
+                    DampingKind::Identity => LevenbergDamping::new(
+                        opts.initial_damping_tau * max_diag.max(f64::MIN_POSITIVE),
+                        0.0,
+                    ),
+                    // μ of Marquardt's damping has no units: floored as Ceres' trust radius is
+                    DampingKind::Diagonal => {
+                        LevenbergDamping::new(opts.initial_damping_tau, MIN_MARQUARDT_MU)
                     }
-                    DampingKind::Diagonal => opts.initial_damping_tau,
-                }),
+                },
                 0,
             ),
             Algorithm::Dogleg => Self::Dogleg(Dogleg::new(

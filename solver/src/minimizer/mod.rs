@@ -19,7 +19,7 @@ use crate::diagnose;
 use crate::error::SolveError;
 use crate::linear::LinearSolver;
 use crate::normal::NormalEquations;
-use crate::options::{Algorithm, Options};
+use crate::options::{Algorithm, DampingKind, Options};
 use crate::parallel::dot;
 use crate::problem::Problem;
 use crate::schur::SchurOptions;
@@ -190,6 +190,9 @@ impl Solver {
         }
         timing.evaluate = t0.elapsed().as_secs_f64();
         ne.assemble();
+        let marquardt = opts.algorithm == Algorithm::LevenbergMarquardt
+            && opts.damping == DampingKind::Diagonal;
+        ne.fix_damping_scale(marquardt);
         let evaluate_seconds = t0.elapsed().as_secs_f64();
         timing.assemble = evaluate_seconds - timing.evaluate;
         let t_rank = Instant::now();

@@ -150,7 +150,7 @@ impl Schur {
                     put(
                         to + r,
                         if diagonal && r == c {
-                            damping.apply(v)
+                            h.damped(damping, h.block_start[hc] + c, v)
                         } else {
                             v
                         },

@@ -55,6 +55,7 @@ impl Schur {
             self.copy_direct(h, j, Damping::None, |at, v| values[at] = v);
         }
         self.s.values = values;
+        self.copy_damping_scale(h);
         let mut pcg = self.take_pcg();
         pcg.damping = damping;
         let this = &*self;
@@ -91,6 +92,20 @@ impl Schur {
             });
         self.reduced = ReducedSolver::Iterative(pcg);
         result
+    }
+
+    /// S's damping scales: those of the kept unknowns of `h`.
+    fn copy_damping_scale(&mut self, h: &BlockSparse) {
+        self.s.damping_scale.clear();
+        if h.damping_scale.is_empty() {
+            return;
+        }
+        for &b in &self.kept {
+            let range = h.block_start[b]..h.block_start[b + 1];
+            self.s
+                .damping_scale
+                .extend_from_slice(&h.damping_scale[range]);
+        }
     }
 
     /// acc_j ← acc_j − H_je H_ee⁻¹ H_ejᵀ (upper triangle) for every neighbour j of eliminated
@@ -152,9 +167,9 @@ impl Schur {
             }
         });
         self.s.multiply(x, y);
-        for (&p, (yi, xi)) in self.s.diag_pos.iter().zip(y.iter_mut().zip(x)) {
+        for (i, (&p, (yi, xi))) in self.s.diag_pos.iter().zip(y.iter_mut().zip(x)).enumerate() {
             let v = self.s.values[p];
-            *yi += (pcg.damping.apply(v) - v) * xi;
+            *yi += (self.s.damped(pcg.damping, i, v) - v) * xi;
         }
         add_copies(&pcg.chunk_y, y);
     }
