@@ -47,15 +47,9 @@ impl Couplings {
         match (x.len(), t.len()) {
             (9, 3) => self.add_ec_fixed::<9, 3>(jac, c, x, t),
             (6, 3) => self.add_ec_fixed::<6, 3>(jac, c, x, t),
-            (dc, de) => {
+            _ => {
                 for k in self.terms_of(c) {
-                    let m = k.m;
-                    for i in 0..m {
-                        let v: f64 = (0..dc).map(|col| jac[k.jc + col * m + i] * x[col]).sum();
-                        for (r, tr) in t.iter_mut().enumerate().take(de) {
-                            *tr += jac[k.je + r * m + i] * v;
-                        }
-                    }
+                    ec_rows_any(&jac[k.jc..], &jac[k.je..], k.m, x, t);
                 }
             }
         }
@@ -67,15 +61,9 @@ impl Couplings {
         match (y.len(), t.len()) {
             (9, 3) => self.add_ce_fixed::<9, 3>(jac, c, t, y),
             (6, 3) => self.add_ce_fixed::<6, 3>(jac, c, t, y),
-            (dc, de) => {
+            _ => {
                 for k in self.terms_of(c) {
-                    let m = k.m;
-                    for i in 0..m {
-                        let w: f64 = (0..de).map(|r| jac[k.je + r * m + i] * t[r]).sum();
-                        for (col, yc) in y.iter_mut().enumerate().take(dc) {
-                            *yc += jac[k.jc + col * m + i] * w;
-                        }
-                    }
+                    ce_rows_any(&jac[k.jc..], &jac[k.je..], k.m, t, y);
                 }
             }
         }
@@ -159,14 +147,7 @@ impl Couplings {
             match k.m {
                 2 => ec_rows::<f64, DC, DE, 2>(a, e, x, &mut acc),
                 3 => ec_rows::<f64, DC, DE, 3>(a, e, x, &mut acc),
-                m => {
-                    for i in 0..m {
-                        let v: f64 = (0..DC).map(|col| a[col * m + i] * x[col]).sum();
-                        for r in 0..DE {
-                            acc[r] += e[r * m + i] * v;
-                        }
-                    }
-                }
+                m => ec_rows_any(a, e, m, x, &mut acc),
             }
         }
         for (o, a) in t.iter_mut().zip(acc) {
@@ -189,14 +170,7 @@ impl Couplings {
             match k.m {
                 2 => ce_rows::<f64, DC, DE, 2>(a, e, t, &mut acc),
                 3 => ce_rows::<f64, DC, DE, 3>(a, e, t, &mut acc),
-                m => {
-                    for i in 0..m {
-                        let w: f64 = (0..DE).map(|r| e[r * m + i] * t[r]).sum();
-                        for col in 0..DC {
-                            acc[col] += a[col * m + i] * w;
-                        }
-                    }
-                }
+                m => ce_rows_any(a, e, m, t, &mut acc),
             }
         }
         for (o, a) in y.iter_mut().zip(acc) {
@@ -222,6 +196,48 @@ pub(crate) fn ec_rows<T: Copy + Into<f64>, const DC: usize, const DE: usize, con
         }
         for r in 0..DE {
             acc[r] += e[r * M + i].into() * v;
+        }
+    }
+}
+
+/// acc += J_eᵀ (J_c x) for one residual of `m` rows, the sizes read from `x` (d_c) and `acc`
+/// (d_e): [`ec_rows`] for sizes that are not constants.
+#[inline(always)]
+pub(crate) fn ec_rows_any<T: Copy + Into<f64>>(
+    a: &[T],
+    e: &[T],
+    m: usize,
+    x: &[f64],
+    acc: &mut [f64],
+) {
+    for i in 0..m {
+        let mut v = 0.0;
+        for (col, xc) in x.iter().enumerate() {
+            v += a[col * m + i].into() * xc;
+        }
+        for (r, ar) in acc.iter_mut().enumerate() {
+            *ar += e[r * m + i].into() * v;
+        }
+    }
+}
+
+/// acc += J_cᵀ (J_e t) for one residual of `m` rows, the sizes read from `t` (d_e) and `acc`
+/// (d_c): [`ce_rows`] for sizes that are not constants.
+#[inline(always)]
+pub(crate) fn ce_rows_any<T: Copy + Into<f64>>(
+    a: &[T],
+    e: &[T],
+    m: usize,
+    t: &[f64],
+    acc: &mut [f64],
+) {
+    for i in 0..m {
+        let mut w = 0.0;
+        for (r, tr) in t.iter().enumerate() {
+            w += e[r * m + i].into() * tr;
+        }
+        for (col, ac) in acc.iter_mut().enumerate() {
+            *ac += a[col * m + i].into() * w;
         }
     }
 }

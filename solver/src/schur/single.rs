@@ -11,7 +11,7 @@
 //! GPU bundle adjusters, e.g. Ren et al., *MegBA*, 2022).
 
 use super::Neighbour;
-use crate::coupling::{ce_rows, ec_rows, Couplings};
+use crate::coupling::{ce_rows, ce_rows_any, ec_rows, ec_rows_any, Couplings};
 use crate::normal::NormalEquations;
 use crate::parallel::SyncPtr;
 use rayon::prelude::*;
@@ -125,14 +125,7 @@ impl SingleJacobians {
         self.for_terms(couplings, (i, c), (dc, de), |a, e, m| match (dc, de, m) {
             (9, 3, 2) => ec_rows::<f32, 9, 3, 2>(a, e, fixed(x), fixed_mut(t)),
             (6, 3, 3) => ec_rows::<f32, 6, 3, 3>(a, e, fixed(x), fixed_mut(t)),
-            _ => {
-                for i in 0..m {
-                    let v: f64 = (0..dc).map(|col| a[col * m + i] as f64 * x[col]).sum();
-                    for (r, tr) in t.iter_mut().enumerate() {
-                        *tr += e[r * m + i] as f64 * v;
-                    }
-                }
-            }
+            _ => ec_rows_any(a, e, m, x, t),
         });
     }
 
@@ -143,14 +136,7 @@ impl SingleJacobians {
         self.for_terms(couplings, (i, c), (dc, de), |a, e, m| match (dc, de, m) {
             (9, 3, 2) => ce_rows::<f32, 9, 3, 2>(a, e, fixed(t), fixed_mut(y)),
             (6, 3, 3) => ce_rows::<f32, 6, 3, 3>(a, e, fixed(t), fixed_mut(y)),
-            _ => {
-                for i in 0..m {
-                    let w: f64 = (0..de).map(|r| e[r * m + i] as f64 * t[r]).sum();
-                    for (col, yc) in y.iter_mut().enumerate() {
-                        *yc += a[col * m + i] as f64 * w;
-                    }
-                }
-            }
+            _ => ce_rows_any(a, e, m, t, y),
         });
     }
 }
