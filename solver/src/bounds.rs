@@ -42,7 +42,7 @@ impl StepBox {
         if !ne
             .var_of_block()
             .iter()
-            .any(|&v| !problem.variables[v].lower.is_empty())
+            .any(|&v| problem.variables[v].bounds.is_some())
         {
             return None;
         }
@@ -51,14 +51,14 @@ impl StepBox {
         let mut bounded = Vec::new();
         for (b, &v) in ne.var_of_block().iter().enumerate() {
             let var = &problem.variables[v];
-            if var.lower.is_empty() {
+            let Some(bounds) = &var.bounds else {
                 continue;
-            }
+            };
             let x = &problem.values[var.offset..];
-            for (i, xi) in x.iter().take(var.lower.len()).enumerate() {
+            for (i, xi) in x.iter().take(bounds.lower.len()).enumerate() {
                 let k = ne.h().block_start[b] + i;
-                lo[k] = var.lower[i] - xi;
-                hi[k] = var.upper[i] - xi;
+                lo[k] = bounds.lower[i] - xi;
+                hi[k] = bounds.upper[i] - xi;
                 if lo[k].is_finite() || hi[k].is_finite() {
                     bounded.push(k);
                 }
@@ -96,7 +96,7 @@ impl StepBox {
         let n = ne.dim();
         let h = ne.h();
         let mut values = h.values.clone();
-        for (i, &p) in h.diag_pos.iter().enumerate() {
+        for (i, p) in h.diag_pos().enumerate() {
             values[p] = h.damped(damping, i, values[p]);
         }
         let p = CscMatrix::new(n, n, h.col_ptr.clone(), h.row_indices(|r| r), values);
@@ -209,7 +209,8 @@ fn polish(ne: &NormalEquations, damping: Damping, lo: &[f64], hi: &[f64], step: 
 /// coordinate an ulp outside).
 pub(crate) fn clamp(problem: &Problem, values: &mut [f64]) {
     for var in &problem.variables {
-        for (i, (l, u)) in var.lower.iter().zip(&var.upper).enumerate() {
+        let Some(b) = &var.bounds else { continue };
+        for (i, (l, u)) in b.lower.iter().zip(&b.upper).enumerate() {
             let x = &mut values[var.offset + i];
             *x = x.clamp(*l, *u);
         }

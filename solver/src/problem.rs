@@ -37,7 +37,13 @@ pub(crate) struct Variable {
     pub ambient: usize,
     pub manifold: Box<dyn Manifold>,
     pub fixed: bool,
-    /// Per-coordinate lower and upper bounds (Euclidean variables only); empty when unbounded.
+    /// Per-coordinate bounds (Euclidean variables only), boxed: most variables have none, and a
+    /// 1 M-variable problem keeps 8 bytes for each instead of 48.
+    pub bounds: Option<Box<CoordinateBounds>>,
+}
+
+/// Lower and upper bounds of each coordinate of a variable.
+pub(crate) struct CoordinateBounds {
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
 }
@@ -135,8 +141,7 @@ impl Problem {
             ambient: manifold.ambient_dim(),
             manifold,
             fixed: false,
-            lower: Vec::new(),
-            upper: Vec::new(),
+            bounds: None,
         });
         self.structure_version += 1;
         Ok(VarId(id))
@@ -203,9 +208,11 @@ impl Problem {
             }
         }
         let var = &mut self.variables[v.0];
-        let first = var.lower.is_empty();
-        var.lower = lower.to_vec();
-        var.upper = upper.to_vec();
+        let first = var.bounds.is_none();
+        var.bounds = Some(Box::new(CoordinateBounds {
+            lower: lower.to_vec(),
+            upper: upper.to_vec(),
+        }));
         if first {
             // a Schur solver lays out H whole once some variable is bounded (NOTES 75)
             self.structure_version += 1;
@@ -215,8 +222,8 @@ impl Problem {
 
     /// The bounds of a variable, if it has any.
     pub fn bounds(&self, v: VarId) -> Option<(&[f64], &[f64])> {
-        let var = &self.variables[v.0];
-        (!var.lower.is_empty()).then_some((var.lower.as_slice(), var.upper.as_slice()))
+        let b = self.variables[v.0].bounds.as_deref()?;
+        Some((b.lower.as_slice(), b.upper.as_slice()))
     }
 
     /// Whether a variable is held constant.
@@ -243,14 +250,14 @@ impl Problem {
                     variable: v.0,
                     reason,
                 })?;
-        if !var.lower.is_empty() {
+        if let Some(b) = &var.bounds {
             for (i, x) in checked.iter().enumerate() {
-                if *x < var.lower[i] || *x > var.upper[i] {
+                if *x < b.lower[i] || *x > b.upper[i] {
                     return Err(ProblemError::InvalidValue {
                         variable: v.0,
                         reason: format!(
                             "coordinate {i}: value {x} lies outside its bounds [{}, {}]",
-                            var.lower[i], var.upper[i]
+                            b.lower[i], b.upper[i]
                         ),
                     });
                 }

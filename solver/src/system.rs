@@ -334,7 +334,7 @@ impl BlockSystem {
 /// y = (H + μD) x.
 fn multiply_damped(h: &BlockSparse, damping: Damping, x: &[f64], y: &mut [f64]) {
     h.multiply(x, y);
-    for (i, &at) in h.diag_pos.iter().enumerate() {
+    for (i, at) in h.diag_pos().enumerate() {
         let v = h.values[at];
         y[i] += (h.damped(damping, i, v) - v) * x[i];
     }

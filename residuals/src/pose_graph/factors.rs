@@ -6,7 +6,7 @@
 
 use dynamap_solver::lie::{se2, se3};
 use dynamap_solver::{Jacobians, Residual, Var};
-use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6, SMatrix, SVector};
+use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6, SMatrix, SVector, Vector6};
 
 /// The upper-triangular U with UᵀU = Ω, or `None` when Ω is not symmetric positive definite.
 pub fn sqrt_information<const N: usize>(info: &SMatrix<f64, N, N>) -> Option<SMatrix<f64, N, N>> {
@@ -14,6 +14,52 @@ pub fn sqrt_information<const N: usize>(info: &SMatrix<f64, N, N>) -> Option<SMa
         return None;
     }
     nalgebra::Cholesky::new(*info).map(|c| c.l().transpose())
+}
+
+/// An upper-triangular 6 × 6 matrix U stored by its 21 entries row by row (U_ij, j ≥ i): the
+/// square-root information of an SE(3) factor in 168 bytes instead of 288, which a 1 M-edge
+/// graph feels (120 MB), and products that skip the zeros.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Upper6([f64; 21]);
+
+impl Upper6 {
+    /// The upper triangle of `u` (its strictly lower part is ignored).
+    fn new(u: &Matrix6<f64>) -> Self {
+        let mut packed = [0.0; 21];
+        let mut k = 0;
+        for i in 0..6 {
+            for j in i..6 {
+                packed[k] = u[(i, j)];
+                k += 1;
+            }
+        }
+        Self(packed)
+    }
+
+    /// Row i's entries U_ij, j = i..6.
+    fn row(&self, i: usize) -> &[f64] {
+        // rows start at 0, 6, 11, 15, 18, 20
+        let start = i * 6 - i * (i.saturating_sub(1)) / 2;
+        &self.0[start..start + 6 - i]
+    }
+
+    /// U e.
+    fn mul_vector(&self, e: &Vector6<f64>) -> Vector6<f64> {
+        Vector6::from_fn(|i, _| {
+            (self.row(i).iter().enumerate())
+                .map(|(k, u)| u * e[i + k])
+                .sum()
+        })
+    }
+
+    /// U M.
+    fn mul_matrix(&self, m: &Matrix6<f64>) -> Matrix6<f64> {
+        Matrix6::from_fn(|i, c| {
+            (self.row(i).iter().enumerate())
+                .map(|(k, u)| u * m[(i + k, c)])
+                .sum()
+        })
+    }
 }
 
 fn write_block<const N: usize>(jac: &mut Jacobians<'_>, k: usize, m: &SMatrix<f64, N, N>) {
@@ -72,15 +118,16 @@ impl Residual for Between2 {
 #[derive(Clone, Debug)]
 pub struct Between3 {
     z_inv: Isometry3<f64>,
-    sqrt_info: Matrix6<f64>,
+    sqrt_info: Upper6,
 }
 
 impl Between3 {
-    /// A factor with measurement `z` and square-root information `sqrt_info` (UᵀU = Ω, `[ω; v]` order).
+    /// A factor with measurement `z` and square-root information `sqrt_info` (UᵀU = Ω, `[ω; v]`
+    /// order; upper triangular, its strictly lower part is not read).
     pub fn new(z: Isometry3<f64>, sqrt_info: Matrix6<f64>) -> Self {
         Self {
             z_inv: z.inverse(),
-            sqrt_info,
+            sqrt_info: Upper6::new(&sqrt_info),
         }
     }
 }
@@ -102,9 +149,9 @@ impl Residual for Between3 {
         let xj = se3::from_slice(vars[1].value);
         let xij = xi.inverse() * xj;
         let e = se3::log(&(self.z_inv * xij));
-        whiten(&self.sqrt_info, &e, residual);
+        residual[..6].copy_from_slice(self.sqrt_info.mul_vector(&e).as_slice());
         if let Some(jac) = jacobians {
-            let jj = self.sqrt_info * se3::right_jacobian_inv(&e);
+            let jj = self.sqrt_info.mul_matrix(&se3::right_jacobian_inv(&e));
             let ji = -jj * se3::adjoint(&xij.inverse());
             write_block(jac, 0, &ji);
             write_block(jac, 1, &jj);
@@ -154,15 +201,16 @@ impl Residual for Prior2 {
 #[derive(Clone, Debug)]
 pub struct Prior3 {
     z_inv: Isometry3<f64>,
-    sqrt_info: Matrix6<f64>,
+    sqrt_info: Upper6,
 }
 
 impl Prior3 {
-    /// A prior at `z` with square-root information `sqrt_info` (`[ω; v]` order).
+    /// A prior at `z` with square-root information `sqrt_info` (`[ω; v]` order; upper
+    /// triangular, its strictly lower part is not read).
     pub fn new(z: Isometry3<f64>, sqrt_info: Matrix6<f64>) -> Self {
         Self {
             z_inv: z.inverse(),
-            sqrt_info,
+            sqrt_info: Upper6::new(&sqrt_info),
         }
     }
 }
@@ -181,9 +229,13 @@ impl Residual for Prior3 {
         jacobians: Option<&mut Jacobians<'_>>,
     ) {
         let e = se3::log(&(self.z_inv * se3::from_slice(vars[0].value)));
-        whiten(&self.sqrt_info, &e, residual);
+        residual[..6].copy_from_slice(self.sqrt_info.mul_vector(&e).as_slice());
         if let Some(jac) = jacobians {
-            write_block(jac, 0, &(self.sqrt_info * se3::right_jacobian_inv(&e)));
+            write_block(
+                jac,
+                0,
+                &self.sqrt_info.mul_matrix(&se3::right_jacobian_inv(&e)),
+            );
         }
     }
 }
@@ -192,7 +244,7 @@ impl Residual for Prior3 {
 mod tests {
     use super::*;
     use dynamap_solver::{check_jacobians, Manifold, SE2, SE3};
-    use nalgebra::{Vector3, Vector6};
+    use nalgebra::Vector3;
     use proptest::prelude::*;
 
     fn pose3(a: &[f64]) -> Isometry3<f64> {
@@ -255,6 +307,20 @@ mod tests {
             let prior = check_jacobians(&Prior2::new(z, u), &vars[..1]);
             prop_assert!(prior.passes(1e-6), "{prior:?}");
         }
+    }
+
+    #[test]
+    fn the_packed_square_root_information_multiplies_as_the_dense_triangle() {
+        let a: Vec<f64> = (0..36).map(|k| (k as f64 * 0.77).sin()).collect();
+        let u = sqrt_information(&spd::<6>(&a)).unwrap();
+        let packed = Upper6::new(&u);
+        let e = Vector6::from_fn(|i, _| (i as f64 * 1.3).cos());
+        let m = Matrix6::from_fn(|i, j| ((i * 6 + j) as f64 * 0.41).sin());
+        assert!((packed.mul_vector(&e) - u * e).amax() < 1e-14);
+        assert!((packed.mul_matrix(&m) - u * m).amax() < 1e-14);
+        // a full matrix: only its upper triangle is kept
+        let full = Matrix6::from_fn(|i, j| 1.0 + (i + 2 * j) as f64);
+        assert_eq!(Upper6::new(&full).mul_vector(&e), full.upper_triangle() * e);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
 use super::information::{self, InformationRepair};
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
+use std::collections::BTreeMap;
 use std::io::BufRead as _;
 use std::path::Path;
 use thiserror::Error;
@@ -203,6 +204,8 @@ fn parse_lines<S: AsRef<str>>(
     graph.source = path.to_string();
     let mut dimension: Option<(Dimension, usize)> = None;
     let edge3 = se3_edge_fields();
+    // each vertex's line, for the message on a duplicate; dropped once the file is read
+    let mut vertex_lines = BTreeMap::new();
     for (i, raw) in lines.enumerate() {
         let p = LineParser { path, line: i + 1 };
         let raw = raw.map_err(|e| p.err(format!("cannot read: {e}")))?;
@@ -217,7 +220,7 @@ fn parse_lines<S: AsRef<str>>(
         match tag {
             "VERTEX_SE2" | "VERTEX_SE3:QUAT" => {
                 let (id, pose) = parse_vertex(&p, tag, &rest)?;
-                add_vertex(&mut graph, &p, id, pose)?;
+                add_vertex(&mut graph, &mut vertex_lines, &p, id, pose)?;
             }
             "EDGE_SE2" | "EDGE_SE3:QUAT" => {
                 let (edge, repair) = parse_edge(&p, tag, &rest, &edge3, policy)?;
@@ -313,6 +316,7 @@ fn parse_vertex(p: &LineParser<'_>, tag: &str, rest: &[&str]) -> Result<(usize, 
 /// Adds a vertex; an error naming the first definition when the id is taken.
 fn add_vertex(
     graph: &mut PoseGraph,
+    vertex_lines: &mut BTreeMap<usize, usize>,
     p: &LineParser<'_>,
     id: usize,
     pose: Pose,
@@ -320,11 +324,11 @@ fn add_vertex(
     match graph.vertices.entry(id) {
         Entry::Occupied(_) => Err(p.err(format!(
             "duplicate vertex id {id} (first defined on line {})",
-            graph.vertex_lines[&id]
+            vertex_lines[&id]
         ))),
         Entry::Vacant(slot) => {
             slot.insert(pose);
-            graph.vertex_lines.insert(id, p.line);
+            vertex_lines.insert(id, p.line);
             Ok(())
         }
     }

@@ -116,8 +116,6 @@ pub struct PoseGraph {
     pub dimension: Dimension,
     /// Initial poses by vertex id.
     pub vertices: BTreeMap<usize, Pose>,
-    /// Line of each vertex in the source.
-    pub vertex_lines: BTreeMap<usize, usize>,
     /// The edges, in file order.
     pub edges: Vec<Edge>,
     /// Vertices held fixed (g2o's FIX).
@@ -160,7 +158,6 @@ impl PoseGraph {
             source: String::from("<memory>"),
             dimension,
             vertices: BTreeMap::new(),
-            vertex_lines: BTreeMap::new(),
             edges: Vec::new(),
             fixed: BTreeSet::new(),
         }

@@ -19,6 +19,7 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymbolicCholeskyRaw,
     SymmetricOrdering,
 };
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{FaerError, SymbolicSparseColMatRef};
 use faer::{Conj, Index, Mat, MatMut, Par, Side};
 use sparse::SparseFactor;
@@ -177,15 +178,17 @@ impl Analysed {
     /// The symbolic factorisation of `a`'s pattern under the better of the orderings tried
     /// (see [`analyse`]).
     pub fn new(a: &BlockSparse) -> Result<Self, SolveError> {
-        analyse(a, f64::INFINITY)
+        analyse(a, f64::INFINITY, true)
     }
 
     /// [`Self::new`], but minimum degree's analysis alone when its factorisation would take more
     /// than `enough` operations: for a caller that only factorises below a bound far under
     /// `enough` (nested dissection saved 23 % of the operations on a bundle adjustment's
-    /// reduced system, NOTES 74, so it cannot bring such a factor under that bound).
+    /// reduced system, NOTES 74, so it cannot bring such a factor under that bound). The factor's
+    /// kind is faer's own choice here, whatever the blocks' width: the caller reads a simplicial
+    /// factor as a very sparse system ([`Self::flops`] 0).
     pub fn unless_costlier(a: &BlockSparse, enough: f64) -> Result<Self, SolveError> {
-        analyse(a, enough)
+        analyse(a, enough, false)
     }
 
     fn len_val(&self) -> usize {
@@ -232,10 +235,23 @@ const NESTED_DISSECTION_MIN_BLOCKS: usize = 2_000;
 /// degree alone and its cheaper analysis.
 const NESTED_DISSECTION_MIN_FLOPS: f64 = 1e9;
 
+/// Blocks at least this wide on average (SE(3) poses, cameras, deformation nodes) get a
+/// supernodal factor even where faer's flop heuristic would take a simplicial one (a long
+/// corridor's graph): every block's columns share one row structure, so the supernodal factor
+/// stores a sixth of the simplicial one's row indices or less (136 MB of 4.7 GB on the 1 M-pose
+/// 3-D corridor) at the same speed. SE(2) graphs (blocks of 3) keep faer's choice: forced
+/// supernodal, the 100 k-pose 2-D corridor took 20 % longer for 1 % less memory (NOTES 77).
+const SUPERNODAL_MIN_BLOCK_WIDTH: usize = 6;
+
 /// The symbolic Cholesky factorisation of `a`'s pattern under the ordering with the fewer
 /// factor entries: block AMD, or METIS nested dissection on large graphs or costly factors.
-fn analyse(a: &BlockSparse, enough: f64) -> Result<Analysed, SolveError> {
-    let params = CholeskySymbolicParams::default();
+/// Supernodal wherever the blocks are wide, when `wide_supernodal`
+/// ([`SUPERNODAL_MIN_BLOCK_WIDTH`]); otherwise as faer's flop heuristic chooses.
+fn analyse(a: &BlockSparse, enough: f64, wide_supernodal: bool) -> Result<Analysed, SolveError> {
+    let mut params = CholeskySymbolicParams::default();
+    if wide_supernodal && a.dim() >= SUPERNODAL_MIN_BLOCK_WIDTH * a.num_blocks() {
+        params.supernodal_flop_ratio_threshold = SupernodalThreshold::FORCE_SUPERNODAL;
+    }
     let clock = std::time::Instant::now();
     let amd = symbolic(a, &block_amd(a)?, params)?;
     let amd_s = clock.elapsed().as_secs_f64();
@@ -320,7 +336,6 @@ fn symbolic_of<I: Index>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use faer::sparse::linalg::SupernodalThreshold;
 
     /// A diagonally dominant block matrix of 40 blocks of sizes 1 to 3 coupled at random
     /// (a deterministic linear congruential generator), with `negative` diagonal element made
@@ -362,11 +377,12 @@ mod tests {
                 }
             }
         }
-        for (i, &p) in m.diag_pos.iter().enumerate() {
+        let diag: Vec<usize> = m.diag_pos().collect();
+        for (i, &p) in diag.iter().enumerate() {
             m.values[p] = row_sum[i] + 1.0;
         }
         if let Some(i) = negative {
-            m.values[m.diag_pos[i]] = -1.0;
+            m.values[diag[i]] = -1.0;
         }
         m
     }
@@ -407,6 +423,41 @@ mod tests {
             .zip(&expected)
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max)
+    }
+
+    /// A corridor: `nb` blocks of `width` unknowns, each coupled to the next, with a few
+    /// loop closures two blocks back.
+    fn chain(nb: usize, width: usize) -> BlockSparse {
+        let block_start = (0..=nb).map(|b| b * width).collect();
+        let columns: Vec<Vec<usize>> = (0..nb)
+            .map(|j| match j {
+                0 => vec![0],
+                _ if j % 7 == 0 => vec![j - 2, j - 1, j],
+                _ => vec![j - 1, j],
+            })
+            .collect();
+        BlockSparse::new(block_start, &columns)
+    }
+
+    #[test]
+    fn wide_blocks_get_a_supernodal_factor_where_faer_would_take_a_simplicial_one() {
+        let simplicial = |a: &Analysed| a.flops() == 0.0;
+        // a sparse chain: faer's flop heuristic takes a simplicial factor at either width
+        assert!(simplicial(&Analysed::new(&chain(300, 3)).unwrap()));
+        assert!(simplicial(&Analysed::unless_costlier(&chain(300, 6), f64::INFINITY).unwrap()));
+        // blocks of six: supernodal, with a sixth of the row indices or fewer
+        let wide = Analysed::new(&chain(300, 6)).unwrap();
+        assert!(!simplicial(&wide));
+        let Analysed::Narrow(s) = &wide else {
+            panic!("a small factor needs no 64-bit indices")
+        };
+        let SymbolicCholeskyRaw::Supernodal(sn) = s.raw() else {
+            unreachable!()
+        };
+        let indices: usize = (0..sn.n_supernodes())
+            .map(|k| sn.supernode(k).pattern().len())
+            .sum();
+        assert!(6 * indices <= s.len_val(), "{indices} of {}", s.len_val());
     }
 
     #[test]

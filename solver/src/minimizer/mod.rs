@@ -79,7 +79,7 @@ impl Solver {
         }
         let ne = if self.options.linear_solver.is_schur() {
             // a box-constrained step reads H whole, the coupling blocks included
-            let bounded = problem.variables.iter().any(|v| !v.lower.is_empty());
+            let bounded = problem.variables.iter().any(|v| v.bounds.is_some());
             NormalEquations::with_elimination(problem, &self.options.elimination, bounded)?
         } else {
             NormalEquations::new(problem)?

@@ -167,7 +167,7 @@ impl Schur {
             }
         });
         self.s.multiply(x, y);
-        for (i, (&p, (yi, xi))) in self.s.diag_pos.iter().zip(y.iter_mut().zip(x)).enumerate() {
+        for (i, (p, (yi, xi))) in self.s.diag_pos().zip(y.iter_mut().zip(x)).enumerate() {
             let v = self.s.values[p];
             *yi += (self.s.damped(pcg.damping, i, v) - v) * xi;
         }
