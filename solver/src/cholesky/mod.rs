@@ -444,7 +444,9 @@ mod tests {
         let simplicial = |a: &Analysed| a.flops() == 0.0;
         // a sparse chain: faer's flop heuristic takes a simplicial factor at either width
         assert!(simplicial(&Analysed::new(&chain(300, 3)).unwrap()));
-        assert!(simplicial(&Analysed::unless_costlier(&chain(300, 6), f64::INFINITY).unwrap()));
+        assert!(simplicial(
+            &Analysed::unless_costlier(&chain(300, 6), f64::INFINITY).unwrap()
+        ));
         // blocks of six: supernodal, with a sixth of the row indices or fewer
         let wide = Analysed::new(&chain(300, 6)).unwrap();
         assert!(!simplicial(&wide));

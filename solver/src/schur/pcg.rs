@@ -272,6 +272,7 @@ impl Schur {
         r.copy_from_slice(b);
         b.fill(0.0);
         pcg.solves += 1;
+        let before = pcg.iterations;
         if b_norm > 0.0 {
             self.apply_preconditioner(&pcg, &r, &mut z);
             p.copy_from_slice(&z);
@@ -309,6 +310,11 @@ impl Schur {
                 }
             }
         }
+        tracing::debug!(
+            solve = pcg.solves,
+            iterations = pcg.iterations - before,
+            "conjugate gradients"
+        );
         (pcg.r, pcg.z, pcg.p, pcg.q) = (r, z, p, q);
         self.reduced = ReducedSolver::Iterative(pcg);
     }
