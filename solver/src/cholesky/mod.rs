@@ -238,7 +238,7 @@ const NESTED_DISSECTION_MIN_FLOPS: f64 = 1e9;
 /// Blocks at least this wide on average (SE(3) poses, cameras, deformation nodes) get a
 /// supernodal factor even where faer's flop heuristic would take a simplicial one (a long
 /// corridor's graph): every block's columns share one row structure, so the supernodal factor
-/// stores a sixth of the simplicial one's row indices or less (136 MB of 4.7 GB on the 1 M-pose
+/// stores a sixth of the simplicial one's row indices or less (133 MB of 4.7 GB on the 1 M-pose
 /// 3-D corridor) at the same speed. SE(2) graphs (blocks of 3) keep faer's choice: forced
 /// supernodal, the 100 k-pose 2-D corridor took 20 % longer for 1 % less memory (NOTES 77).
 const SUPERNODAL_MIN_BLOCK_WIDTH: usize = 6;
