@@ -222,7 +222,7 @@ pub(crate) fn ec_rows_any<T: Copy + Into<f64>>(
 }
 
 /// acc += J_cᵀ (J_e t) for one residual of `m` rows, the sizes read from `t` (d_e) and `acc`
-/// (d_c): [`ce_rows`] for sizes that are not constants.
+/// (d_c): [`ec_rows_any`] with the blocks' roles exchanged.
 #[inline(always)]
 pub(crate) fn ce_rows_any<T: Copy + Into<f64>>(
     a: &[T],
@@ -231,18 +231,11 @@ pub(crate) fn ce_rows_any<T: Copy + Into<f64>>(
     t: &[f64],
     acc: &mut [f64],
 ) {
-    for i in 0..m {
-        let mut w = 0.0;
-        for (r, tr) in t.iter().enumerate() {
-            w += e[r * m + i].into() * tr;
-        }
-        for (col, ac) in acc.iter_mut().enumerate() {
-            *ac += a[col * m + i].into() * w;
-        }
-    }
+    ec_rows_any(e, a, m, t, acc)
 }
 
-/// acc += J_cᵀ (J_e t) for one residual of M rows (as [`ec_rows`]).
+/// acc += J_cᵀ (J_e t) for one residual of M rows: [`ec_rows`] with the blocks' roles
+/// exchanged (the same operations in the same order).
 #[inline(always)]
 pub(crate) fn ce_rows<T: Copy + Into<f64>, const DC: usize, const DE: usize, const M: usize>(
     a: &[T],
@@ -250,14 +243,5 @@ pub(crate) fn ce_rows<T: Copy + Into<f64>, const DC: usize, const DE: usize, con
     t: &[f64; DE],
     acc: &mut [f64; DC],
 ) {
-    let (a, e) = (&a[..DC * M], &e[..DE * M]);
-    for i in 0..M {
-        let mut w = 0.0;
-        for r in 0..DE {
-            w += e[r * M + i].into() * t[r];
-        }
-        for col in 0..DC {
-            acc[col] += a[col * M + i].into() * w;
-        }
-    }
+    ec_rows::<T, DE, DC, M>(e, a, t, acc)
 }

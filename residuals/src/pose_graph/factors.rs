@@ -38,9 +38,8 @@ impl Upper6 {
 
     /// Row i's entries U_ij, j = i..6.
     fn row(&self, i: usize) -> &[f64] {
-        // rows start at 0, 6, 11, 15, 18, 20
-        let start = i * 6 - i * (i.saturating_sub(1)) / 2;
-        &self.0[start..start + 6 - i]
+        const START: [usize; 6] = [0, 6, 11, 15, 18, 20];
+        &self.0[START[i]..START[i] + 6 - i]
     }
 
     /// U e.
