@@ -3,8 +3,10 @@
 //!
 //! ```text
 //! cargo run --release --example curve_fitting [-- --points 200 --outliers 0.2 --seed 1]
+//! cargo run --release --example curve_fitting -- --data points.txt     # "x y" a line
 //! ```
-//! Prints both estimates against the true (m, c) and, last, one JSON line.
+//! Prints both estimates against the true (m, c) and, last, one JSON line with each fit's
+//! estimate, iterations, final cost and solve seconds.
 
 use crate::cli;
 use crate::iterations;
@@ -50,6 +52,10 @@ struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Fit these observations instead of generated ones: "x y" a line, '#' starts a comment
+    /// (--points, --outliers and --seed are then unused).
+    #[arg(long, value_name = "FILE")]
+    data: Option<PathBuf>,
     /// A folder for a plot of both fits' cost per iteration (cost.png).
     #[arg(long, value_name = "DIR")]
     preview: Option<PathBuf>,
@@ -59,8 +65,15 @@ struct Args {
 
 cli::has_common!(Args);
 
-/// A fit: the estimate (m, c), the iterations taken and the cost per iteration.
-type Fit = ([f64; 2], usize, Vec<(usize, f64)>);
+/// A fit: the estimate (m, c), the iterations taken, the cost per iteration, the final cost and
+/// the solve's seconds.
+struct Fit {
+    estimate: [f64; 2],
+    iterations: usize,
+    costs: Vec<(usize, f64)>,
+    cost: f64,
+    seconds: f64,
+}
 
 /// Fits (m, c), with or without the Cauchy kernel.
 fn fit(data: &[(f64, f64)], robust: bool, session: &Session) -> Result<Fit> {
@@ -81,7 +94,66 @@ fn fit(data: &[(f64, f64)], robust: bool, session: &Session) -> Result<Fit> {
         .solve(&mut problem)?;
     log.finish();
     let v = problem.value(mc);
-    Ok(([v[0], v[1]], summary.num_iterations(), log.costs()))
+    Ok(Fit {
+        estimate: [v[0], v[1]],
+        iterations: summary.num_iterations(),
+        costs: log.costs(),
+        cost: summary.final_cost,
+        seconds: summary.total_seconds,
+    })
+}
+
+/// Observations from a file of "x y" lines; a line that is not two finite numbers is an error
+/// naming the file and line.
+fn read_data(path: &std::path::Path) -> Result<Vec<(f64, f64)>> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| cli::bad_input(format!("{}: cannot read: {e}", path.display())))?;
+    let mut data = Vec::new();
+    for (k, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .filter_map(|t| t.parse().ok())
+            .collect();
+        match v[..] {
+            [x, y] if x.is_finite() && y.is_finite() => data.push((x, y)),
+            _ => {
+                return Err(cli::bad_input(format!(
+                    "{}:{}: expected two finite numbers, x and y",
+                    path.display(),
+                    k + 1
+                )))
+            }
+        }
+    }
+    if data.len() < 2 {
+        return Err(cli::bad_input(format!(
+            "{}: at least two observations are needed",
+            path.display()
+        )));
+    }
+    Ok(data)
+}
+
+/// `--points` observations of exp(m x + c) on [0, 5) with noise σ = 0.02, a fraction
+/// `--outliers` of them replaced by uniform values in [0, 8).
+fn generate(args: &Args, m: f64, c: f64) -> Result<Vec<(f64, f64)>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    let noise = Normal::new(0.0, 0.02)?;
+    Ok((0..args.points)
+        .map(|i| {
+            let x = 5.0 * i as f64 / args.points as f64;
+            let y = if rng.random::<f64>() < args.outliers {
+                rng.random::<f64>() * 8.0
+            } else {
+                (m * x + c).exp() + noise.sample(&mut rng)
+            };
+            (x, y)
+        })
+        .collect())
 }
 
 pub fn main() -> ExitCode {
@@ -95,21 +167,14 @@ fn run(args: Args, session: &Session) -> Result<()> {
         ));
     }
     let (m, c) = (0.3, 0.1);
-    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
-    let noise = Normal::new(0.0, 0.02)?;
-    let data: Vec<(f64, f64)> = (0..args.points)
-        .map(|i| {
-            let x = 5.0 * i as f64 / args.points as f64;
-            let y = if rng.random::<f64>() < args.outliers {
-                rng.random::<f64>() * 8.0
-            } else {
-                (m * x + c).exp() + noise.sample(&mut rng)
-            };
-            (x, y)
-        })
-        .collect();
-    let (plain, it_plain, cost_plain) = fit(&data, false, session)?;
-    let (robust, it_robust, cost_robust) = fit(&data, true, session)?;
+    let data = match &args.data {
+        Some(path) => read_data(path)?,
+        None => generate(&args, m, c)?,
+    };
+    let plain_fit = fit(&data, false, session)?;
+    let robust_fit = fit(&data, true, session)?;
+    let (plain, it_plain) = (plain_fit.estimate, plain_fit.iterations);
+    let (robust, it_robust) = (robust_fit.estimate, robust_fit.iterations);
     if !session.quiet {
         println!("true           m = {m:.5}  c = {c:.5}");
         println!(
@@ -123,7 +188,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
     }
     if let Some(dir) = &args.preview {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let series = [("least squares", cost_plain), ("Cauchy(0.1)", cost_robust)];
+        let series = [
+            ("least squares", plain_fit.costs.clone()),
+            ("Cauchy(0.1)", robust_fit.costs.clone()),
+        ];
         preview::cost_plot(
             &dir.join("cost.png"),
             "curve fitting: y = exp(m x + c)",
@@ -133,8 +201,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let err = |p: [f64; 2]| ((p[0] - m).powi(2) + (p[1] - c).powi(2)).sqrt();
     println!(
         "{}",
-        serde_json::json!({"points": args.points, "outliers": args.outliers,
-            "plain": plain, "robust": robust, "plain_error": err(plain), "robust_error": err(robust)})
+        serde_json::json!({"points": data.len(), "outliers": args.outliers,
+            "data": args.data.as_ref().map(|p| p.display().to_string()),
+            "plain": plain, "robust": robust, "plain_error": err(plain), "robust_error": err(robust),
+            "plain_iterations": it_plain, "robust_iterations": it_robust,
+            "plain_cost": plain_fit.cost, "robust_cost": robust_fit.cost,
+            "plain_seconds": plain_fit.seconds, "robust_seconds": robust_fit.seconds})
     );
     Ok(())
 }

@@ -23,6 +23,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, ValueEnum};
 use cli::{InputError, Session};
 use dynamap_residuals::pose_graph::{
+    self,
     g2o::{self, InformationPolicy},
     init,
     synthetic::{self, SyntheticOptions},
@@ -75,10 +76,10 @@ struct Args {
     #[arg(long, value_enum, default_value = "dogleg")]
     algorithm: AlgorithmKind,
     /// Iteration limit.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = pose_graph::options().max_iterations)]
     max_iterations: usize,
     /// Stop when an accepted step lowers chi2 by less than this fraction.
-    #[arg(long, default_value_t = 1e-9)]
+    #[arg(long, default_value_t = pose_graph::options().function_tolerance)]
     function_tolerance: f64,
     /// Levenberg-Marquardt: initial damping μ₀ = tau · max diag(JᵀJ) (μ₀ = tau with
     /// --diagonal-damping).
@@ -199,32 +200,15 @@ fn solver_options(args: &Args) -> Options {
         } else {
             DampingKind::Identity
         },
-        ..Options::default()
+        ..pose_graph::options()
     }
 }
 
 /// A solve's error, as bad input when it names vertices of the file.
-fn solve_error(e: SolveError, graph: &PoseGraph, ids: &[usize]) -> anyhow::Error {
-    match e {
-        SolveError::UntouchedVariable(v) => cli::bad_input(format!(
-            "{}: vertex {} is touched by no edge",
-            graph.source, ids[v]
-        )),
-        SolveError::RankDeficient {
-            message, variables, ..
-        } => {
-            let names: Vec<String> = variables
-                .iter()
-                .take(12)
-                .map(|&v| ids[v].to_string())
-                .collect();
-            cli::bad_input(format!(
-                "{}: {message} (vertices {})",
-                graph.source,
-                names.join(", ")
-            ))
-        }
-        e => e.into(),
+fn solve_error(e: SolveError, graph: &PoseGraph, pg: &PoseGraphProblem) -> anyhow::Error {
+    match pg.describe(&e, &graph.source) {
+        Some(message) => cli::bad_input(message),
+        None => e.into(),
     }
 }
 
@@ -370,7 +354,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     log.finish();
     // its factorisation and buffers are not needed for what follows (and would add to the peak)
     drop(solver);
-    let summary = solved.map_err(|e| solve_error(e, &graph, &pg.ids))?;
+    let summary = solved.map_err(|e| solve_error(e, &graph, &pg))?;
     let poses = pg.poses();
     let chi2_final = graph.chi2(&poses);
     if rec.enabled() {

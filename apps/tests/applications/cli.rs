@@ -585,3 +585,36 @@ fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
     assert_exit(&run_with(both), 2, &["--mask"]);
     let _ = std::fs::remove_dir_all(Path::new(&dir));
 }
+
+#[test]
+fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
+    let dir = scratch("curve_fitting_data");
+    // exact samples of exp(0.3 x + 0.1) with two gross outliers: the Cauchy fit recovers (m, c)
+    let mut lines = String::from("# x y\n");
+    for i in 0..60 {
+        let x = i as f64 / 12.0;
+        let y = if i % 29 == 5 {
+            7.5
+        } else {
+            (0.3 * x + 0.1f64).exp()
+        };
+        lines.push_str(&format!("{x} {y}\n"));
+    }
+    let good = dir.join("points.txt");
+    std::fs::write(&good, &lines).unwrap();
+    let out = run("curve_fitting", &["--data", good.to_str().unwrap(), "-q"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json = result_json(&out);
+    assert_eq!(json["points"], 60);
+    assert!(json["robust_error"].as_f64().unwrap() < 1e-3, "{json}");
+    assert!(json["robust_seconds"].as_f64().unwrap() > 0.0);
+    let bad = dir.join("bad.txt");
+    std::fs::write(&bad, "0 1\n1 2\n2 x\n").unwrap();
+    let out = run("curve_fitting", &["--data", bad.to_str().unwrap(), "-q"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("bad.txt:3: expected two finite numbers"),
+        "{}",
+        text(&out.stderr)
+    );
+}

@@ -3,7 +3,7 @@
 use super::factors::{sqrt_information, Between2, Between3};
 use dynamap_solver::lie::{se2, se3};
 use dynamap_solver::robust::NamedKernel;
-use dynamap_solver::{Problem, RobustKernel, VarId, SE2, SE3};
+use dynamap_solver::{Problem, RobustKernel, SolveError, VarId, SE2, SE3};
 use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6};
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -148,6 +148,31 @@ impl PoseGraphProblem {
                 (id, p)
             })
             .collect()
+    }
+
+    /// A solve's error with its variables named by vertex id, the file first (`source`), or
+    /// `None` when the error names no vertex (it is then the solver's own message).
+    pub fn describe(&self, e: &SolveError, source: &str) -> Option<String> {
+        match e {
+            SolveError::UntouchedVariable(v) => Some(format!(
+                "{source}: vertex {} is touched by no edge",
+                self.ids[*v]
+            )),
+            SolveError::RankDeficient {
+                message, variables, ..
+            } => {
+                let names: Vec<String> = variables
+                    .iter()
+                    .take(12)
+                    .map(|&v| self.ids[v].to_string())
+                    .collect();
+                Some(format!(
+                    "{source}: {message} (vertices {})",
+                    names.join(", ")
+                ))
+            }
+            _ => None,
+        }
     }
 }
 

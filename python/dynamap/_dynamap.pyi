@@ -1,0 +1,248 @@
+"""Type stubs of dynamap's extension module (see the package's docstring)."""
+
+from os import PathLike
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union
+from typing import Sequence as Seq
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+ArrayLike = npt.ArrayLike
+Vector = npt.NDArray[np.float64]
+Matrix = npt.NDArray[np.float64]
+Path = Union[str, "PathLike[str]"]
+Kernel = Union[str, Tuple[str, float]]
+Poses = Dict[int, Vector]
+
+class DynamapError(Exception):
+    """The base of every error dynamap raises."""
+
+class InputError(DynamapError):
+    """A file or array that cannot be read as asked: the message names the file, line or frame."""
+
+class ProblemError(DynamapError):
+    """A problem that cannot be built as asked (a value off its manifold, a residual of the wrong arity)."""
+
+class SolveError(DynamapError):
+    """A solve that could not proceed (an untouched variable, a rank-deficient start, a non-finite initial cost)."""
+
+class Options:
+    """The solver's settings (Ceres' Solver::Options); every field is a keyword of the constructor."""
+
+    algorithm: str
+    """"levenberg_marquardt" (default), "gauss_newton" or "dogleg"."""
+    max_iterations: int
+    """Largest number of iterations (default 100)."""
+    max_seconds: float
+    """Wall-clock limit in seconds (default inf)."""
+    gradient_tolerance: float
+    """Stop when max |g_i| falls to this (default 1e-10)."""
+    step_tolerance: float
+    """Stop when |δ| <= tol (|x| + tol) (default 1e-10)."""
+    function_tolerance: float
+    """Stop when an accepted step lowers the cost by less than this fraction (default 1e-10)."""
+    initial_damping_tau: float
+    """Levenberg-Marquardt's τ (default 1e-4)."""
+    damping: str
+    """"identity" (μI, default) or "diagonal" (μ diag(H), Ceres')."""
+    initial_trust_radius: float
+    """The dogleg's initial trust-region radius (default 1e4)."""
+    linear_solver: str
+    """"auto", "dense", "sparse", "schur", "schur_dense", "schur_sparse" or "schur_iterative"."""
+    dense_threshold: int
+    """Unknowns up to which "auto" takes the dense solver (default 200)."""
+    check_rank: bool
+    """Look for a gauge freedom before solving (default True)."""
+    pcg_tolerance: float
+    """Conjugate gradients stop at |S y - b| <= tol |b| (default 1e-6)."""
+    pcg_max_iterations: int
+    """Most conjugate-gradient iterations per step (default 500)."""
+    pcg_forcing: float
+    """The truncated-Newton forcing η of conjugate gradients (default 0.1)."""
+    def __init__(self, **kwargs: Any) -> None: ...
+
+class Summary:
+    """What a solve reports: costs, why it stopped, each iteration, where the time went."""
+
+    initial_cost: float
+    final_cost: float
+    termination: str
+    converged: bool
+    """True when the solve stopped on a convergence test; False at a limit or without progress."""
+    num_iterations: int
+    iterations: List[Dict[str, Any]]
+    """One dict per iteration (iteration 0 is the start): iteration, cost, cost_change,
+    gradient_norm, step_norm, damping, accepted, evaluate_seconds, solve_seconds, total_seconds."""
+    total_seconds: float
+    timing: Dict[str, float]
+    """setup, evaluate, assemble, factorise and step, in seconds."""
+    unknowns: int
+    linear_solver: str
+    linear_iterations: int
+    non_finite_steps: int
+    def table(self) -> str:
+        """The iteration table with its closing lines, as the command-line tools print it."""
+
+class Residual:
+    """A built-in residual block (between_se3(...), bal_reprojection(...), ...)."""
+
+    dim: int
+    arity: int
+
+PythonResidual = Callable[..., Any]
+
+class Problem:
+    """Variables on manifolds and residual blocks, solved in place; both are named by the
+    integers add_variable and add_residual return."""
+
+    num_variables: int
+    num_residuals: int
+    def __init__(self) -> None: ...
+    def add_variable(self, value: ArrayLike, manifold: str = "euclidean") -> int:
+        """Adds a variable on "euclidean", "so2", "se2", "so3", "se3" or "quaternion"."""
+    def value(self, variable: int) -> Vector:
+        """The variable's current value (ambient coordinates)."""
+    def set_value(self, variable: int, value: ArrayLike) -> None: ...
+    def set_fixed(self, variable: int, fixed: bool = True) -> None: ...
+    def is_fixed(self, variable: int) -> bool: ...
+    def set_bounds(self, variable: int, lower: ArrayLike, upper: ArrayLike) -> None:
+        """Box constraints on a Euclidean variable, honoured at every iterate."""
+    def add_residual(
+        self,
+        residual: Union[Residual, PythonResidual],
+        variables: Seq[int],
+        kernel: Optional[Kernel] = None,
+        dim: Optional[int] = None,
+        jacobians: str = "analytic",
+    ) -> int:
+        """A built-in Residual, or a callable f(*values) returning (r, [J_1, ..., J_k]) with
+        J_k of shape (dim, tangent_dim_k) ("analytic"), or r alone ("numeric": central
+        differences on each manifold)."""
+    def cost(self) -> float: ...
+    def residual(self, block: int) -> Vector: ...
+    def solve(self, options: Optional[Options] = None, verbose: bool = False) -> Summary:
+        """Minimises from the current values; check summary.converged."""
+    def covariance(self, variables: Seq[int]) -> List[Matrix]:
+        """Marginal covariances (tangent coordinates) at the current values."""
+
+def between_se2(measurement: ArrayLike, information: ArrayLike) -> Residual:
+    """r = U Log(Z^-1 X_i^-1 X_j) on two SE(2) variables; Z as [x, y, θ], Ω in [v_x, v_y, ω] order."""
+
+def between_se3(measurement: ArrayLike, information: ArrayLike) -> Residual:
+    """r = U Log(Z^-1 X_i^-1 X_j) on two SE(3) variables; Z as [t, q], Ω in [ω; v] order."""
+
+def prior_se2(measurement: ArrayLike, information: ArrayLike) -> Residual:
+    """r = U Log(Z^-1 X) on one SE(2) variable."""
+
+def prior_se3(measurement: ArrayLike, information: ArrayLike) -> Residual:
+    """r = U Log(Z^-1 X) on one SE(3) variable."""
+
+def bal_reprojection(u: float, v: float) -> Residual:
+    """BAL's reprojection error on a camera (R^9) and a point (R^3)."""
+
+def point_to_plane(source: ArrayLike, target: ArrayLike, normal: ArrayLike) -> Residual:
+    """r = n^T (T p - q) on one SE(3) variable T."""
+
+class PoseGraph:
+    """A pose graph (SE(2) or SE(3)) as read from a g2o file."""
+
+    dimension: int
+    source: str
+    num_vertices: int
+    num_edges: int
+    anchors: List[int]
+    @staticmethod
+    def read(path: Path, strict: bool = False) -> "PoseGraph":
+        """Reads a g2o file; an indefinite information matrix is repaired with a UserWarning
+        unless strict (then InputError)."""
+    def vertices(self) -> Poses: ...
+    def edges(self) -> List[Tuple[int, int, Vector, Matrix]]: ...
+    def chi2(self, poses: Optional[Poses] = None) -> float: ...
+    def solve(self, init: str = "file", options: Optional[Options] = None, kernel: Optional[str] = None) -> Tuple[Poses, Summary]:
+        """Optimises as the pose_graph tool does: (poses, summary)."""
+    def write(self, path: Path, poses: Optional[Poses] = None) -> None: ...
+
+def solve_pose_graph(
+    path: Path,
+    init: str = "file",
+    options: Optional[Options] = None,
+    kernel: Optional[str] = None,
+    strict: bool = False,
+) -> Tuple[Poses, Summary]:
+    """Reads a g2o file and optimises it as the pose_graph tool does."""
+
+class BalProblem:
+    """Cameras [ω, t, f, k1, k2] (n x 9), points (m x 3) and pixel observations."""
+
+    cameras: Matrix
+    points: Matrix
+    observations: Tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], Matrix]
+    def __init__(self, cameras: ArrayLike, points: ArrayLike, camera_index: ArrayLike, point_index: ArrayLike, uv: ArrayLike) -> None: ...
+    @staticmethod
+    def read(path: Path) -> "BalProblem": ...
+    def write(self, path: Path) -> None: ...
+    def cost(self) -> float: ...
+    def solve(self, kernel: Optional[str] = None, linear_solver: str = "auto", max_iterations: int = 50, options: Optional[Options] = None) -> Summary:
+        """Bundle adjustment as the bundle_adjustment tool runs it, in place."""
+
+def solve_bal(path: Path, kernel: Optional[str] = None, linear_solver: str = "auto", max_iterations: int = 50) -> Tuple[Matrix, Matrix, Summary]:
+    """Reads a BAL file and solves it: (cameras, points, summary)."""
+
+class RigidSlam:
+    """Dense rigid RGB-D SLAM: feed frames, read each frame's outcome and pose, the trajectory and the mesh."""
+
+    pose: Matrix
+    """The current camera-to-world pose, 4 x 4."""
+    def __init__(
+        self,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
+        depth_scale: float = 5000.0,
+        initial_pose: Optional[ArrayLike] = None,
+        voxel_size: Optional[float] = None,
+    ) -> None: ...
+    def process(
+        self,
+        depth: npt.NDArray[Any],
+        color: Optional[npt.NDArray[np.uint8]] = None,
+        timestamp: Optional[float] = None,
+        color_timestamp: Optional[float] = None,
+    ) -> Dict[str, Any]:
+        """One frame (depth uint16 sensor units or float metres, colour h x w x 3 uint8): a dict
+        with index, outcome, tracked, fused, failure, pose (4 x 4), inliers, inlier_fraction,
+        agreement. A frame that cannot be tracked is reported so, never fused with a wrong pose."""
+    def trajectory(self) -> Tuple[Vector, Matrix]:
+        """The tracked frames' stamps (n,) and poses (n x 7, [t, q], camera to world)."""
+    def write_trajectory(self, path: Path) -> None:
+        """The tracked trajectory in TUM's format."""
+    def mesh(self) -> Dict[str, npt.NDArray[Any]]:
+        """vertices (n x 3), normals (n x 3), colors (n x 3 uint8), faces (m x 3 uint32)."""
+
+class Sequence:
+    """A recorded RGB-D sequence (TUM, ICL-NUIM or a plain folder), frame by frame."""
+
+    camera: Dict[str, float]
+    def __init__(self, path: Path) -> None: ...
+    def __len__(self) -> int: ...
+    def frame(self, i: int) -> Tuple[npt.NDArray[np.uint16], Optional[npt.NDArray[np.uint8]], float, float]:
+        """(depth, colour or None, timestamp, color_timestamp); InputError for a frame that cannot be read."""
+    def groundtruth(self) -> Optional[Tuple[Vector, Matrix]]:
+        """(stamps, poses n x 7) or None."""
+
+def generate_sequence(
+    path: Path,
+    frames: int = 60,
+    motion: str = "orbit",
+    width: int = 640,
+    height: int = 480,
+    fps: float = 30.0,
+    sensor: str = "kinect",
+    seed: int = 1,
+) -> int:
+    """Renders a rigid sequence with ground truth (TUM layout), as `generate rigid` does; returns the frames written."""
