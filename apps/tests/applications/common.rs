@@ -48,7 +48,14 @@ pub fn result_json(out: &Output) -> serde_json::Value {
     let last = stdout.lines().last().unwrap_or_default();
     let mut v: serde_json::Value = serde_json::from_str(last)
         .unwrap_or_else(|e| panic!("the last line is not JSON ({e}): {stdout}"));
-    for key in ["seconds", "init_seconds", "threads", "timing"] {
+    for key in [
+        "seconds",
+        "init_seconds",
+        "threads",
+        "timing",
+        "plain_seconds",
+        "robust_seconds",
+    ] {
         v.as_object_mut().expect("an object").remove(key);
     }
     if let Some(c) = v.get_mut("covariance").and_then(|c| c.as_object_mut()) {
