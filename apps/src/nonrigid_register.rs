@@ -50,7 +50,7 @@ use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, frame_points, mask_near_nodes, median_distance,
-    mesh_points, register_frames, register_mesh_pair, register_meshes, register_surfaces,
+    mesh_points, register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
     FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding, SurfaceMesh,
     MIN_MATCHED_FRACTION,
 };
@@ -538,26 +538,22 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         passes: args.seeded_passes.unwrap_or(Seeding::default().passes),
         ..Seeding::default()
     };
-    let reg = if seeding.passes == 0 || source.faces.is_empty() || target.faces.is_empty() {
-        register_surfaces((&sp, &sn), (&tp, &tn), graph, params, args.principal_axes)
-    } else {
-        register_meshes(
-            SurfaceMesh {
-                points: &sp,
-                normals: &sn,
-                faces: &source.faces,
-            },
-            SurfaceMesh {
-                points: &tp,
-                normals: &tn,
-                faces: &target.faces,
-            },
-            graph,
-            params,
-            args.principal_axes,
-            &seeding,
-        )
-    }
+    let reg = register_mesh_or_cloud(
+        SurfaceMesh {
+            points: &sp,
+            normals: &sn,
+            faces: &source.faces,
+        },
+        SurfaceMesh {
+            points: &tp,
+            normals: &tn,
+            faces: &target.faces,
+        },
+        graph,
+        params,
+        args.principal_axes,
+        &seeding,
+    )
     .with_context(|| format!("registering {}", args.source.display()))?;
     if let Some(out) = &args.output {
         let mut warped = source.clone();

@@ -3,7 +3,8 @@
 The solver (``Problem``, ``Options``, ``Summary``), the library's residuals (pose-graph between
 and prior factors, BAL's reprojection, point-to-plane) and residuals written in Python, g2o pose
 graphs (``PoseGraph``, ``solve_pose_graph``), BAL problems (``BalProblem``, ``solve_bal``), and
-dense rigid SLAM (``RigidSlam``, ``Sequence``, ``generate_sequence``), with numpy arrays in and out. Every error is a ``DynamapError`` (``InputError`` for files and
+dense rigid SLAM (``RigidSlam``, ``Sequence``, ``generate_sequence``), and meshes (``read_mesh``,
+``write_mesh``, non-rigid ``register_meshes``), with numpy arrays in and out. Every error is a ``DynamapError`` (``InputError`` for files and
 arrays, ``ProblemError`` for a problem built wrongly, ``SolveError`` for a solve that cannot
 proceed), or a ``ValueError`` / ``TypeError`` for an argument of the wrong kind.
 """
@@ -29,8 +30,11 @@ from ._dynamap import (
     point_to_plane,
     prior_se2,
     prior_se3,
+    read_mesh,
+    register_meshes,
     solve_bal,
     solve_pose_graph,
+    write_mesh,
 )
 
 __all__ = [
@@ -54,6 +58,9 @@ __all__ = [
     "point_to_plane",
     "prior_se2",
     "prior_se3",
+    "read_mesh",
+    "register_meshes",
     "solve_bal",
     "solve_pose_graph",
+    "write_mesh",
 ]

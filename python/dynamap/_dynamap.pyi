@@ -246,3 +246,29 @@ def generate_sequence(
     seed: int = 1,
 ) -> int:
     """Renders a rigid sequence with ground truth (TUM layout), as `generate rigid` does; returns the frames written."""
+
+def read_mesh(path: Path) -> Dict[str, npt.NDArray[Any]]:
+    """A PLY, OFF or OBJ mesh: vertices (n x 3), normals, colors (uint8), faces (m x 3 uint32)."""
+
+def write_mesh(
+    path: Path,
+    vertices: ArrayLike,
+    faces: Optional[ArrayLike] = None,
+    normals: Optional[ArrayLike] = None,
+    colors: Optional[npt.NDArray[np.uint8]] = None,
+) -> None:
+    """Binary PLY, through a temporary file renamed into place."""
+
+def register_meshes(
+    source_vertices: ArrayLike,
+    target_vertices: ArrayLike,
+    source_faces: Optional[ArrayLike] = None,
+    target_faces: Optional[ArrayLike] = None,
+    source_normals: Optional[ArrayLike] = None,
+    target_normals: Optional[ArrayLike] = None,
+    seeded_passes: Optional[int] = None,
+    principal_axes: bool = False,
+) -> Dict[str, Any]:
+    """The source registered onto the target with the deformation graph, as `nonrigid_register
+    meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
+    regulariser_cost, matched, seconds."""

@@ -2,13 +2,14 @@
 //!
 //! The extension module `dynamap._dynamap`, which the Python package `dynamap` re-exports: the
 //! solver (`Problem`, `Options`, `Summary`, the built-in residuals and residuals written in
-//! Python), g2o pose graphs and BAL problems, and dense rigid SLAM, with numpy arrays in and out. Build it with maturin
+//! Python), g2o pose graphs and BAL problems, dense rigid SLAM and non-rigid registration of
+//! meshes, with numpy arrays in and out. Build it with maturin
 //! (`pip install ./python`); its tests are Python's (`python/tests`, pytest).
 //!
 //! Modules: `errors` (the exceptions), `arrays` (numpy conversions), `manifolds` (by name),
 //! `options` (`Options`, `Summary`), `builtin` (the library's residuals), `callback` (residuals
 //! written in Python), `problem` (`Problem`), `posegraph` (`PoseGraph`), `bal` (`BalProblem`), `slam` (`RigidSlam`, `Sequence`,
-//! `generate_sequence`).
+//! `generate_sequence`), `meshes` (`read_mesh`, `write_mesh`, `register_meshes`).
 
 mod arrays;
 mod bal;
@@ -16,6 +17,7 @@ mod builtin;
 mod callback;
 mod errors;
 mod manifolds;
+mod meshes;
 mod options;
 mod posegraph;
 mod problem;
@@ -49,5 +51,8 @@ fn _dynamap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<slam::RigidSlam>()?;
     m.add_class::<slam::Sequence>()?;
     m.add_function(wrap_pyfunction!(slam::generate_sequence, m)?)?;
+    m.add_function(wrap_pyfunction!(meshes::read_mesh_file, m)?)?;
+    m.add_function(wrap_pyfunction!(meshes::write_mesh, m)?)?;
+    m.add_function(wrap_pyfunction!(meshes::register_meshes, m)?)?;
     Ok(())
 }

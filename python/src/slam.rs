@@ -4,11 +4,11 @@
 
 use crate::arrays;
 use crate::errors;
+use crate::meshes;
 use dynamap_slam::camera::Camera;
 use dynamap_slam::image::{ColorImage, Image};
 use dynamap_slam::io::sequence::{OpenOptions, Sequence as Core};
 use dynamap_slam::io::trajectory::Trajectory;
-use dynamap_slam::mesh::Mesh;
 use dynamap_slam::rigid::{
     FrameOutcome, FrameReport, FrameStamps, RigidSlam as Pipeline, SlamParams,
 };
@@ -147,26 +147,6 @@ fn color_image(
     Ok(ColorImage::from_vec(camera.width, camera.height, data).expect("the shape was checked"))
 }
 
-/// A mesh as a dict of arrays: vertices (n × 3), normals (n × 3 or 0 × 3), colors (n × 3 uint8
-/// or 0 × 3) and faces (m × 3 uint32).
-fn mesh_dict<'py>(py: Python<'py>, m: &Mesh) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
-    let vertices: Vec<[f32; 3]> = m.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
-    let normals: Vec<[f32; 3]> = m.normals.iter().map(|n| [n.x, n.y, n.z]).collect();
-    d.set_item("vertices", arrays::rows(py, flat(&vertices), 3))?;
-    d.set_item("normals", arrays::rows(py, flat(&normals), 3))?;
-    d.set_item(
-        "colors",
-        arrays::rows(py, m.colors.iter().flatten().copied().collect(), 3),
-    )?;
-    d.set_item(
-        "faces",
-        arrays::rows(py, m.faces.iter().flatten().copied().collect(), 3),
-    )?;
-    Ok(d)
-}
-
 /// Dense rigid RGB-D SLAM (KinectFusion with voxel hashing, frame-to-model point-to-plane and
 /// photometric tracking, relocalisation from keyframes): feed it frames, read each frame's
 /// outcome and pose, the trajectory and the mesh.
@@ -290,7 +270,7 @@ impl RigidSlam {
     fn mesh<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         // the pipeline is not Sync (its background graph solver's channel), so the interpreter
         // stays held here
-        mesh_dict(py, &self.core.map_mesh(None))
+        meshes::mesh_dict(py, &self.core.map_mesh(None))
     }
 
     fn __repr__(&self) -> String {

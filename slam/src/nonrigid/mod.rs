@@ -42,6 +42,7 @@ pub use register::{
     RegisterSummary, RegisterTimes, Seeds, Target, WarpOptimiser,
 };
 pub use surface::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_pair, register_meshes,
-    register_surfaces, Seeding, SurfaceError, SurfaceMesh, SurfaceRegistration,
+    bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,
+    register_mesh_pair, register_meshes, register_surfaces, Seeding, SurfaceError, SurfaceMesh,
+    SurfaceRegistration,
 };

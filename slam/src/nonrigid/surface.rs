@@ -324,6 +324,34 @@ pub fn register_mesh_pair(
     )
 }
 
+/// [`register_meshes`] where both surfaces have faces and `seeding.passes` > 0, else
+/// [`register_surfaces`] (closest point alone; point clouds have no geodesics to seed from):
+/// what `nonrigid_register meshes` and the Python bindings run.
+pub fn register_mesh_or_cloud(
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    graph_params: GraphParams,
+    params: RegisterParams,
+    principal_axes: bool,
+    seeding: &Seeding,
+) -> Result<SurfaceRegistration, SurfaceError> {
+    if seeding.passes == 0 || source.faces.is_empty() || target.faces.is_empty() {
+        let (s, t) = (
+            (source.points, source.normals),
+            (target.points, target.normals),
+        );
+        return register_surfaces(s, t, graph_params, params, principal_axes);
+    }
+    register_meshes(
+        source,
+        target,
+        graph_params,
+        params,
+        principal_axes,
+        seeding,
+    )
+}
+
 /// Registers one mesh onto another in several passes, for poses far apart whose parts swing
 /// past each other (a galloping animal's legs), where closest point pulls a part onto its
 /// neighbour.

@@ -1,0 +1,97 @@
+"""Meshes from numpy arrays: written and read back, and registered non-rigidly as the
+`nonrigid_register meshes` tool registers them."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+import dynamap
+from conftest import binary
+
+
+def sheet(columns=21, rows=13, width=0.5):
+    """A flat grid in the plane z = 0 with two triangles per cell."""
+    xs, ys = np.meshgrid(np.linspace(0, width, columns), np.linspace(0, 0.6 * width, rows))
+    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    faces = []
+    for r in range(rows - 1):
+        for c in range(columns - 1):
+            i = r * columns + c
+            faces += [[i, i + 1, i + columns], [i + 1, i + columns + 1, i + columns]]
+    return vertices, np.array(faces)
+
+
+def bent(vertices, width=0.5, depth=0.12):
+    """The sheet bent along x into a parabola, moved 2 cm along y: the same vertex order."""
+    out = vertices.copy()
+    u = out[:, 0] / width
+    out[:, 2] = depth * (2 * u - 1) ** 2
+    out[:, 1] += 0.02
+    return out
+
+
+def off_surface(points, width=0.5, depth=0.12):
+    """Each point's height above or below the bent sheet (no closer to the surface than that)."""
+    return np.abs(points[:, 2] - depth * (2 * points[:, 0] / width - 1) ** 2)
+
+
+def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
+    v, f = sheet()
+    t = bent(v)
+    result = dynamap.register_meshes(v, t, source_faces=f, target_faces=f)
+    dynamap.write_mesh(tmp_path / "source.ply", v, f)
+    dynamap.write_mesh(tmp_path / "target.ply", t, f)
+    out = subprocess.run(
+        [binary("nonrigid_register"), "meshes", str(tmp_path / "source.ply"), str(tmp_path / "target.ply"), "--output", str(tmp_path / "warped.ply"), "-q"],
+        check=True, capture_output=True, text=True,
+    )
+    tool = json.loads(out.stdout.strip().splitlines()[-1])
+    warped = dynamap.read_mesh(tmp_path / "warped.ply")
+    # the tool writes single precision; both computed the same double-precision points
+    np.testing.assert_allclose(result["vertices"], warped["vertices"], rtol=0, atol=1e-6)
+    assert result["nodes"] == tool["nodes"] and result["iterations"] == tool["iterations"]
+    # the warped sheet lies on the bent one (a plain sheet may slide along itself: issue 26)
+    before, after = off_surface(v), off_surface(result["vertices"])
+    assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
+
+
+def test_a_point_cloud_with_normals_registers_by_closest_point():
+    v, f = sheet(columns=25, rows=15)
+    t = bent(v, depth=0.06)
+    normals = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    result = dynamap.register_meshes(v, t, source_normals=normals, target_faces=f)
+    before, after = off_surface(v, depth=0.06), off_surface(result["vertices"], depth=0.06)
+    assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
+    assert result["matched"] > 0.9 * len(v)
+
+
+def test_a_mesh_written_and_read_back_is_the_same(tmp_path):
+    v, f = sheet()
+    colors = np.tile(np.array([[200, 10, 30]], np.uint8), (len(v), 1))
+    path = tmp_path / "m.ply"
+    dynamap.write_mesh(path, v, f, normals=np.tile([0, 0, 1.0], (len(v), 1)), colors=colors)
+    m = dynamap.read_mesh(path)
+    np.testing.assert_allclose(m["vertices"], v, atol=1e-7)
+    np.testing.assert_array_equal(m["faces"], f)
+    np.testing.assert_array_equal(m["colors"], colors)
+    np.testing.assert_allclose(m["normals"], np.tile([0, 0, 1.0], (len(v), 1)))
+
+
+def test_bad_meshes_raise_clear_errors(tmp_path):
+    v, f = sheet()
+    bad = f.copy()
+    bad[3, 1] = len(v)
+    with pytest.raises(ValueError, match=f"source faces: face 3 names vertex {len(v)}, outside 0..{len(v)}"):
+        dynamap.register_meshes(v, v, source_faces=bad, target_faces=f)
+    with pytest.raises(ValueError, match="a point cloud needs normals"):
+        dynamap.register_meshes(v, v, target_faces=f)
+    nan = v.copy()
+    nan[7, 2] = np.nan
+    with pytest.raises(ValueError, match="target vertices: row 7"):
+        dynamap.register_meshes(v, nan, source_faces=f, target_faces=f)
+    with pytest.raises(ValueError, match="expected n x 3"):
+        dynamap.write_mesh(tmp_path / "x.ply", v[:, :2])
+    with pytest.raises(dynamap.InputError, match="nowhere.ply"):
+        dynamap.read_mesh(tmp_path / "nowhere.ply")
