@@ -272,3 +272,12 @@ def register_meshes(
     """The source registered onto the target with the deformation graph, as `nonrigid_register
     meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
     regulariser_cost, matched, seconds."""
+
+def check_jacobians(
+    residual: Union[Residual, PythonResidual],
+    values: Seq[ArrayLike],
+    manifolds: Optional[Seq[str]] = None,
+    dim: Optional[int] = None,
+) -> Dict[str, Any]:
+    """The residual's Jacobians at `values` against central differences on each manifold:
+    max_abs_error, max_rel_error, worst_entry (variable, row, column), analytic, numeric."""

@@ -3,18 +3,21 @@
 //! The extension module `dynamap._dynamap`, which the Python package `dynamap` re-exports: the
 //! solver (`Problem`, `Options`, `Summary`, the built-in residuals and residuals written in
 //! Python), g2o pose graphs and BAL problems, dense rigid SLAM and non-rigid registration of
-//! meshes, with numpy arrays in and out. Build it with maturin
-//! (`pip install ./python`); its tests are Python's (`python/tests`, pytest).
+//! meshes, with numpy arrays in and out. Build it with maturin (`pip install ./python`); its
+//! tests are Python's (`python/tests`, pytest).
 //!
-//! Modules: `errors` (the exceptions), `arrays` (numpy conversions), `manifolds` (by name),
-//! `options` (`Options`, `Summary`), `builtin` (the library's residuals), `callback` (residuals
-//! written in Python), `problem` (`Problem`), `posegraph` (`PoseGraph`), `bal` (`BalProblem`), `slam` (`RigidSlam`, `Sequence`,
-//! `generate_sequence`), `meshes` (`read_mesh`, `write_mesh`, `register_meshes`).
+//! Modules:
+//! - `errors` (the exceptions), `arrays` (numpy conversions), `manifolds` (by name);
+//! - `options` (`Options`, `Summary`), `builtin` (the library's residuals), `callback`
+//!   (residuals written in Python), `check` (`check_jacobians`), `problem` (`Problem`);
+//! - `posegraph` (`PoseGraph`), `bal` (`BalProblem`), `meshes` (`read_mesh`, `write_mesh`,
+//!   `register_meshes`), `slam` (`RigidSlam`, `Sequence`, `generate_sequence`).
 
 mod arrays;
 mod bal;
 mod builtin;
 mod callback;
+mod check;
 mod errors;
 mod manifolds;
 mod meshes;
@@ -46,6 +49,7 @@ fn _dynamap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(builtin::prior_se3, m)?)?;
     m.add_function(wrap_pyfunction!(builtin::bal_reprojection, m)?)?;
     m.add_function(wrap_pyfunction!(builtin::point_to_plane, m)?)?;
+    m.add_function(wrap_pyfunction!(check::check_jacobians, m)?)?;
     m.add_function(wrap_pyfunction!(posegraph::solve_pose_graph, m)?)?;
     m.add_function(wrap_pyfunction!(bal::solve_bal, m)?)?;
     m.add_class::<slam::RigidSlam>()?;

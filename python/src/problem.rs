@@ -45,6 +45,39 @@ fn kernel_of(k: &Bound<'_, PyAny>) -> PyResult<NamedKernel> {
         .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
+/// The residual object for block `block`: a built-in one (shared), or a Python callable whose
+/// errors go to `errors`, differentiated as `jacobians` says ("analytic" or "numeric").
+pub fn residual_from(
+    residual: &Bound<'_, PyAny>,
+    dim: Option<usize>,
+    jacobians: &str,
+    block: usize,
+    errors: &Arc<ErrorSlot>,
+) -> PyResult<Box<dyn CoreResidual>> {
+    if let Ok(r) = residual.cast::<Residual>() {
+        return Ok(Box::new(Shared(r.get().inner.clone())));
+    }
+    if !residual.is_callable() {
+        return Err(PyTypeError::new_err(
+            "residual: expected a dynamap.Residual or a callable",
+        ));
+    }
+    let dim = dim.filter(|&d| d > 0).ok_or_else(|| {
+        PyValueError::new_err("a residual written in Python needs dim (its number of rows)")
+    })?;
+    let c = Callable::new(residual.clone().unbind(), dim, block, errors.clone());
+    Ok(match jacobians {
+        "analytic" => Box::new(Analytic(c)),
+        "numeric" => Box::new(callback::numeric(c)),
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "jacobians='{other}': expected 'analytic' (the callable returns them) or \
+                 'numeric' (central differences)"
+            )))
+        }
+    })
+}
+
 impl Problem {
     fn var(&self, v: usize) -> PyResult<VarId> {
         self.vars.get(v).copied().ok_or_else(|| {
@@ -52,38 +85,6 @@ impl Problem {
                 "variable {v} does not exist (the problem has {})",
                 self.vars.len()
             ))
-        })
-    }
-
-    /// The residual object for block `block`: a built-in one, or a Python callable.
-    fn residual_of(
-        &self,
-        residual: &Bound<'_, PyAny>,
-        dim: Option<usize>,
-        jacobians: &str,
-        block: usize,
-    ) -> PyResult<Box<dyn CoreResidual>> {
-        if let Ok(r) = residual.cast::<Residual>() {
-            return Ok(Box::new(Shared(r.get().inner.clone())));
-        }
-        if !residual.is_callable() {
-            return Err(PyTypeError::new_err(
-                "residual: expected a dynamap.Residual or a callable",
-            ));
-        }
-        let dim = dim.filter(|&d| d > 0).ok_or_else(|| {
-            PyValueError::new_err("a residual written in Python needs dim (its number of rows)")
-        })?;
-        let c = Callable::new(residual.clone().unbind(), dim, block, self.errors.clone());
-        Ok(match jacobians {
-            "analytic" => Box::new(Analytic(c)),
-            "numeric" => Box::new(callback::numeric(c)),
-            other => {
-                return Err(PyValueError::new_err(format!(
-                    "jacobians='{other}': expected 'analytic' (the callable returns them) or \
-                     'numeric' (central differences)"
-                )))
-            }
         })
     }
 
@@ -208,7 +209,7 @@ impl Problem {
             .collect::<PyResult<Vec<_>>>()?;
         let block = self.blocks.len();
         let python = residual.cast::<Residual>().is_err();
-        let r = self.residual_of(residual, dim, jacobians, block)?;
+        let r = residual_from(residual, dim, jacobians, block, &self.errors)?;
         let kernel = kernel
             .map(kernel_of)
             .transpose()?

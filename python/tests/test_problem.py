@@ -247,3 +247,41 @@ def test_python_residuals_are_called_on_the_calling_thread():
         problem.add_residual(f, [c], dim=1)
     assert problem.solve().converged
     assert seen == {threading.get_ident()}
+
+
+def se3_translation_residual(right):
+    """r = t(X) − target on SE(3); its Jacobian for X ⊞ δ = X Exp(δ), δ = [ω; v], is [0, R]
+    (or a wrong [0, I] when `right` is False)."""
+    from conftest import rotation
+
+    target = np.array([0.3, -0.2, 1.0])
+
+    def f(x):
+        r = rotation(x[3:])
+        j = np.hstack([np.zeros((3, 3)), r if right else np.eye(3)])
+        return x[:3] - target, [j]
+
+    return f
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_check_jacobians_passes_right_jacobians_and_catches_wrong_ones(seed):
+    rng = np.random.default_rng(seed)
+    pose = np.concatenate([rng.normal(size=3), quaternion(rng.normal(size=3))])
+    good = dynamap.check_jacobians(se3_translation_residual(True), [pose], ["se3"], dim=3)
+    assert good["max_rel_error"] < 1e-6, good
+    bad = dynamap.check_jacobians(se3_translation_residual(False), [pose], ["se3"], dim=3)
+    assert bad["max_rel_error"] > 1e-2 and bad["worst_entry"][0] == 0, bad
+    other = np.concatenate([rng.normal(size=3), quaternion(rng.normal(size=3))])
+    z = np.concatenate([rng.normal(size=3), quaternion(rng.normal(size=3))])
+    builtin = dynamap.check_jacobians(dynamap.between_se3(z, np.eye(6)), [pose, other], ["se3", "se3"])
+    assert builtin["max_rel_error"] < 1e-6, builtin
+
+
+def test_check_jacobians_refuses_what_it_cannot_check():
+    with pytest.raises(ValueError, match="takes 2 variables, 1 values"):
+        dynamap.check_jacobians(dynamap.between_se2([0, 0, 0], np.eye(3)), [[0, 0, 0]], ["se2"])
+    with pytest.raises(ValueError, match="value 0: expected 7 coordinates"):
+        dynamap.check_jacobians(dynamap.prior_se3([0, 0, 0, 0, 0, 0, 1], np.eye(6)), [[0, 0, 0]], ["se3"])
+    with pytest.raises(ZeroDivisionError):
+        dynamap.check_jacobians(lambda x: 1 / 0, [[0.0]], dim=1)
