@@ -114,12 +114,9 @@ fn read_data(path: &std::path::Path) -> Result<Vec<(f64, f64)>> {
         if line.is_empty() {
             continue;
         }
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .filter_map(|t| t.parse().ok())
-            .collect();
-        match v[..] {
-            [x, y] if x.is_finite() && y.is_finite() => data.push((x, y)),
+        let v: Result<Vec<f64>, _> = line.split_whitespace().map(str::parse).collect();
+        match v.as_deref() {
+            Ok(&[x, y]) if x.is_finite() && y.is_finite() => data.push((x, y)),
             _ => {
                 return Err(cli::bad_input(format!(
                     "{}:{}: expected two finite numbers, x and y",

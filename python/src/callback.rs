@@ -1,10 +1,11 @@
 //! Residuals written in Python: a callable of the variables' values that returns the residual and,
 //! unless numeric differentiation was chosen, its Jacobian blocks.
 //!
-//! The solver evaluates residual blocks on its worker threads; each call takes the interpreter
-//! (the solve itself runs with it released). An exception, or a result of the wrong shape, is kept
-//! (the first one of a solve), the block reads as non-finite so that no step is taken on it, and
-//! the solve stops at the end of the iteration and raises it, naming the block.
+//! A problem with such residuals is solved on the calling thread with the interpreter held
+//! ([`on_this_thread`]), so each call finds it taken already. An exception, or a result of the
+//! wrong shape, is kept (the first one of a solve), the block reads as non-finite so that no step
+//! is taken on it, and the solve stops at the end of the iteration and raises it, naming the
+//! block.
 
 use crate::arrays::{self, Vector};
 use dynamap_solver::{Jacobians, NumericDiff, Residual, Var};

@@ -609,7 +609,7 @@ fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
     assert!(json["robust_error"].as_f64().unwrap() < 1e-3, "{json}");
     assert!(json["robust_iterations"].as_u64().unwrap() > 0);
     let bad = dir.join("bad.txt");
-    std::fs::write(&bad, "0 1\n1 2\n2 x\n").unwrap();
+    std::fs::write(&bad, "0 1\n1 2\n2 3 x\n").unwrap();
     let out = run("curve_fitting", &["--data", bad.to_str().unwrap(), "-q"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(
