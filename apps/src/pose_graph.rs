@@ -291,19 +291,14 @@ fn log_after(
 /// The poses the solve starts from: the file's (not copied), or by odometry or chordal
 /// relaxation.
 fn initial_poses(graph: &PoseGraph, init_kind: InitKind) -> Result<Cow<'_, BTreeMap<usize, Pose>>> {
-    Ok(match init_kind {
-        InitKind::File => Cow::Borrowed(&graph.vertices),
-        InitKind::Odometry => Cow::Owned(
-            init::odometry(graph)
-                .map_err(anyhow::Error::msg)
-                .bad_input()?,
-        ),
-        InitKind::Chordal => Cow::Owned(
-            init::chordal(graph)
-                .map_err(anyhow::Error::msg)
-                .bad_input()?,
-        ),
-    })
+    let from = match init_kind {
+        InitKind::File => init::Start::File,
+        InitKind::Odometry => init::Start::Odometry,
+        InitKind::Chordal => init::Start::Chordal,
+    };
+    init::start(graph, from)
+        .map_err(anyhow::Error::msg)
+        .bad_input()
 }
 
 /// The synthetic graph's solution against its known optimum: an error when it was not recovered.

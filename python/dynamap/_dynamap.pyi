@@ -160,7 +160,7 @@ class PoseGraph:
     def vertices(self) -> Poses: ...
     def edges(self) -> List[Tuple[int, int, Vector, Matrix]]: ...
     def chi2(self, poses: Optional[Poses] = None) -> float: ...
-    def solve(self, init: str = "file", options: Optional[Options] = None, kernel: Optional[str] = None) -> Tuple[Poses, Summary]:
+    def solve(self, init: str = "file", options: Optional[Options] = None, kernel: Optional[Kernel] = None) -> Tuple[Poses, Summary]:
         """Optimises as the pose_graph tool does: (poses, summary)."""
     def write(self, path: Path, poses: Optional[Poses] = None) -> None: ...
 
@@ -168,7 +168,7 @@ def solve_pose_graph(
     path: Path,
     init: str = "file",
     options: Optional[Options] = None,
-    kernel: Optional[str] = None,
+    kernel: Optional[Kernel] = None,
     strict: bool = False,
 ) -> Tuple[Poses, Summary]:
     """Reads a g2o file and optimises it as the pose_graph tool does."""
@@ -184,10 +184,10 @@ class BalProblem:
     def read(path: Path) -> "BalProblem": ...
     def write(self, path: Path) -> None: ...
     def cost(self) -> float: ...
-    def solve(self, kernel: Optional[str] = None, linear_solver: str = "auto", max_iterations: int = 50, options: Optional[Options] = None) -> Summary:
+    def solve(self, kernel: Optional[Kernel] = None, linear_solver: str = "auto", max_iterations: int = 50, options: Optional[Options] = None) -> Summary:
         """Bundle adjustment as the bundle_adjustment tool runs it, in place."""
 
-def solve_bal(path: Path, kernel: Optional[str] = None, linear_solver: str = "auto", max_iterations: int = 50) -> Tuple[Matrix, Matrix, Summary]:
+def solve_bal(path: Path, kernel: Optional[Kernel] = None, linear_solver: str = "auto", max_iterations: int = 50) -> Tuple[Matrix, Matrix, Summary]:
     """Reads a BAL file and solves it: (cameras, points, summary)."""
 
 class RigidSlam:

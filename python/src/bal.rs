@@ -3,9 +3,9 @@
 
 use crate::arrays::{self, Matrix};
 use crate::errors;
+use crate::kernels;
 use crate::options::{Options, Summary};
 use dynamap_residuals::bal::{self, file, BalProblem as Core, Observation};
-use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{LinearSolverKind, Solver};
 use numpy::{PyArray1, PyArray2, PyArrayLike1};
 use pyo3::exceptions::PyValueError;
@@ -64,14 +64,6 @@ fn observations(
             })
         })
         .collect()
-}
-
-/// A kernel from "NAME:SCALE".
-fn parse_kernel(kernel: Option<&str>) -> PyResult<Option<NamedKernel>> {
-    kernel
-        .map(|k| k.parse::<NamedKernel>())
-        .transpose()
-        .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
 /// The Schur solver named as `bundle_adjustment --linear-solver` names it.
@@ -182,12 +174,12 @@ impl BalProblem {
     fn solve(
         &mut self,
         py: Python<'_>,
-        kernel: Option<&str>,
+        kernel: Option<&Bound<'_, PyAny>>,
         linear_solver: &str,
         max_iterations: usize,
         options: Option<Options>,
     ) -> PyResult<Summary> {
-        let kernel = parse_kernel(kernel)?;
+        let kernel = kernels::optional(kernel)?;
         let options = match options {
             Some(o) => o.core,
             None => bal::options(linear_of(linear_solver)?, max_iterations),
@@ -218,7 +210,7 @@ impl BalProblem {
 pub fn solve_bal<'py>(
     py: Python<'py>,
     path: PathBuf,
-    kernel: Option<&str>,
+    kernel: Option<&Bound<'py, PyAny>>,
     linear_solver: &str,
     max_iterations: usize,
 ) -> PyResult<(

@@ -7,7 +7,8 @@
 //! tests are Python's (`python/tests`, pytest).
 //!
 //! Modules:
-//! - `errors` (the exceptions), `arrays` (numpy conversions), `manifolds` (by name);
+//! - `errors` (the exceptions), `arrays` (numpy conversions), `manifolds` and `kernels` (by
+//!   name);
 //! - `options` (`Options`, `Summary`), `builtin` (the library's residuals), `callback`
 //!   (residuals written in Python), `check` (`check_jacobians`), `problem` (`Problem`);
 //! - `posegraph` (`PoseGraph`), `bal` (`BalProblem`), `meshes` (`read_mesh`, `write_mesh`,
@@ -19,6 +20,7 @@ mod builtin;
 mod callback;
 mod check;
 mod errors;
+mod kernels;
 mod manifolds;
 mod meshes;
 mod options;

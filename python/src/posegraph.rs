@@ -3,13 +3,15 @@
 
 use crate::arrays::{self, Vector};
 use crate::errors;
+use crate::kernels;
 use crate::options::{Options, Summary};
 use dynamap_residuals::pose_graph::{
-    self, g2o, g2o::InformationPolicy, init, Dimension, Measurement, Pose, PoseGraph as Core,
+    self, g2o, g2o::InformationPolicy, init, init::Start, Dimension, Measurement, Pose,
+    PoseGraph as Core,
 };
 use dynamap_solver::lie::{se2, se3};
 use dynamap_solver::robust::NamedKernel;
-use dynamap_solver::Solver;
+use dynamap_solver::{Manifold, Solver, SE2, SE3};
 use nalgebra::DMatrix;
 use numpy::PyArray1;
 use pyo3::exceptions::{PyUserWarning, PyValueError};
@@ -36,33 +38,20 @@ fn poses_to_dict<'py>(py: Python<'py>, poses: &Poses) -> PyResult<Bound<'py, PyD
     Ok(d)
 }
 
-/// A pose from its coordinates, checked to be a pose of `dimension`.
+/// A pose from its coordinates, checked (and its quaternion normalised) by the manifold of
+/// `dimension`.
 fn pose_of(dimension: Dimension, id: usize, v: &[f64]) -> PyResult<Pose> {
-    let bad = |want: usize| {
-        PyValueError::new_err(format!(
-            "vertex {id}: expected {want} coordinates, got {}",
-            v.len()
-        ))
+    let manifold: &dyn Manifold = match dimension {
+        Dimension::Two => &SE2,
+        Dimension::Three => &SE3,
     };
-    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(PyValueError::new_err(format!(
-            "vertex {id}: coordinate {i} is not finite"
-        )));
-    }
-    match dimension {
-        Dimension::Two if v.len() == 3 => Ok(Pose::Se2(se2::from_coordinates(v))),
-        Dimension::Two => Err(bad(3)),
-        Dimension::Three if v.len() == 7 => {
-            let n = v[3..].iter().map(|x| x * x).sum::<f64>().sqrt();
-            match n > 1e-12 {
-                true => Ok(Pose::Se3(se3::from_slice(v))),
-                false => Err(PyValueError::new_err(format!(
-                    "vertex {id}: the quaternion is zero"
-                ))),
-            }
-        }
-        Dimension::Three => Err(bad(7)),
-    }
+    let v = manifold
+        .validate(v)
+        .map_err(|e| PyValueError::new_err(format!("vertex {id}: {e}")))?;
+    Ok(match dimension {
+        Dimension::Two => Pose::Se2(se2::from_coordinates(&v)),
+        Dimension::Three => Pose::Se3(se3::from_slice(&v)),
+    })
 }
 
 /// Poses from a dict of arrays (every vertex of the graph must be there).
@@ -82,13 +71,12 @@ fn poses_from_dict(graph: &Core, d: &Bound<'_, PyDict>) -> PyResult<Poses> {
     Ok(poses)
 }
 
-/// The start of a solve: the file's poses, odometry along a spanning tree, or the chordal
-/// relaxation.
-fn start_of(graph: &Core, init_kind: &str) -> PyResult<Poses> {
+/// The start of a solve by name: "file", "odometry" or "chordal".
+fn start_of(init_kind: &str) -> PyResult<Start> {
     match init_kind {
-        "file" => Ok(graph.vertices.clone()),
-        "odometry" => init::odometry(graph).map_err(errors::input),
-        "chordal" => init::chordal(graph).map_err(errors::input),
+        "file" => Ok(Start::File),
+        "odometry" => Ok(Start::Odometry),
+        "chordal" => Ok(Start::Chordal),
         other => Err(PyValueError::new_err(format!(
             "init='{other}': expected file, odometry or chordal"
         ))),
@@ -237,14 +225,11 @@ impl PoseGraph {
         py: Python<'py>,
         init: &str,
         options: Option<Options>,
-        kernel: Option<&str>,
+        kernel: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(Bound<'py, PyDict>, Summary)> {
-        let kernel = kernel
-            .map(|k| k.parse::<NamedKernel>())
-            .transpose()
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let kernel = kernels::optional(kernel)?;
         let options = options.map_or_else(pose_graph::options, |o| o.core);
-        let start = start_of(&self.core, init)?;
+        let start = init::start(&self.core, start_of(init)?).map_err(errors::input)?;
         let (poses, summary) = self.solve_from(py, &start, options, kernel)?;
         Ok((poses_to_dict(py, &poses)?, summary))
     }
@@ -286,7 +271,7 @@ pub fn solve_pose_graph<'py>(
     path: PathBuf,
     init: &str,
     options: Option<Options>,
-    kernel: Option<&str>,
+    kernel: Option<&Bound<'py, PyAny>>,
     strict: bool,
 ) -> PyResult<(Bound<'py, PyDict>, Summary)> {
     let graph = PoseGraph::read(py, path, strict)?;

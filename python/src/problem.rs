@@ -7,9 +7,9 @@ use crate::arrays::{self, Vector};
 use crate::builtin::{Residual, Shared};
 use crate::callback::{self, Analytic, Callable, ErrorSlot};
 use crate::errors;
+use crate::kernels;
 use crate::manifolds;
 use crate::options::{Options, Summary};
-use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{
     IterationSummary, Problem as Core, Residual as CoreResidual, ResidualId, RobustKernel, Solver,
     VarId,
@@ -31,18 +31,6 @@ pub struct Problem {
     errors: Arc<ErrorSlot>,
     /// Residual blocks written in Python: the problem is then evaluated on the calling thread.
     python_blocks: usize,
-}
-
-/// A robust kernel given as "NAME:SCALE" or as a (name, scale) pair.
-fn kernel_of(k: &Bound<'_, PyAny>) -> PyResult<NamedKernel> {
-    let text = match k.extract::<(String, f64)>() {
-        Ok((name, scale)) => format!("{name}:{scale}"),
-        Err(_) => k.extract::<String>().map_err(|_| {
-            PyTypeError::new_err("kernel: expected 'NAME:SCALE' or a (name, scale) pair")
-        })?,
-    };
-    text.parse::<NamedKernel>()
-        .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
 /// The residual object for block `block`: a built-in one (shared), or a Python callable whose
@@ -210,10 +198,7 @@ impl Problem {
         let block = self.blocks.len();
         let python = residual.cast::<Residual>().is_err();
         let r = residual_from(residual, dim, jacobians, block, &self.errors)?;
-        let kernel = kernel
-            .map(kernel_of)
-            .transpose()?
-            .map(|k| Box::new(k) as Box<dyn RobustKernel>);
+        let kernel = kernels::optional(kernel)?.map(|k| Box::new(k) as Box<dyn RobustKernel>);
         let id = self
             .core
             .add_block(r, kernel, &vars)

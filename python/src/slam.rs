@@ -18,6 +18,7 @@ use dynamap_slam::synthetic::motion::{self, Motion};
 use dynamap_slam::synthetic::noise::SensorNoise;
 use dynamap_slam::synthetic::sequence::{self, Sensor};
 use dynamap_solver::lie::se3;
+use dynamap_solver::{Manifold, SE3, SO3};
 use nalgebra::{Isometry3, Matrix4};
 use numpy::{
     PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
@@ -47,33 +48,26 @@ fn pose_matrix<'py>(py: Python<'py>, p: &Isometry3<f64>) -> Bound<'py, PyArray2<
     )
 }
 
-/// A pose from `[tx, ty, tz, qx, qy, qz, qw]` or a 4 × 4 matrix whose rotation is orthonormal.
+/// A pose from `[tx, ty, tz, qx, qy, qz, qw]` or a 4 × 4 matrix, checked by the SE(3) and
+/// SO(3) manifolds (a zero quaternion, or a block that is not a rotation, is refused).
 fn pose_from(a: &Bound<'_, PyAny>) -> PyResult<Isometry3<f64>> {
+    let invalid = |e: String| PyValueError::new_err(format!("pose: {e}"));
     if let Ok(v) = a.extract::<arrays::Vector<'_>>() {
-        let v = arrays::to_fixed::<7>(&v, "pose")?;
-        let q = v[3..].iter().map(|x| x * x).sum::<f64>();
-        if !v.iter().all(|x| x.is_finite()) || q < 1e-18 {
-            return Err(PyValueError::new_err(
-                "pose: not finite, or a zero quaternion",
-            ));
-        }
-        return Ok(se3::from_slice(&v));
-    }
-    let m = arrays::to_square::<4>(&a.extract::<arrays::Matrix<'_>>()?, "pose")?;
-    let r = m.fixed_view::<3, 3>(0, 0).into_owned();
-    if !m.iter().all(|x| x.is_finite())
-        || (r.transpose() * r - nalgebra::Matrix3::identity())
-            .abs()
-            .max()
-            > 1e-6
-    {
-        return Err(PyValueError::new_err(
-            "pose: the 3 x 3 block is not a rotation",
+        return Ok(se3::from_slice(
+            &SE3.validate(&arrays::to_vec(&v)).map_err(invalid)?,
         ));
     }
-    let rot = nalgebra::UnitQuaternion::from_matrix(&r);
+    let m = arrays::to_square::<4>(&a.extract::<arrays::Matrix<'_>>()?, "pose")?;
+    let r = SO3
+        .validate(m.fixed_view::<3, 3>(0, 0).into_owned().as_slice())
+        .map_err(invalid)?;
+    let t = m.fixed_view::<3, 1>(0, 3);
+    if !t.iter().all(|x| x.is_finite()) {
+        return Err(invalid("the translation is not finite".into()));
+    }
+    let rot = nalgebra::UnitQuaternion::from_matrix(&nalgebra::Matrix3::from_column_slice(&r));
     Ok(Isometry3::from_parts(
-        nalgebra::Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+        nalgebra::Translation3::new(t[0], t[1], t[2]),
         rot,
     ))
 }

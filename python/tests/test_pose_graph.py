@@ -34,7 +34,7 @@ def test_chordal_start_and_a_robust_kernel_match_the_tool(tmp_path):
     path = tmp_path / "graph.g2o"
     write_graph_3d(path, 200, 9)
     expected = tool_json(path, "--init", "chordal", "--kernel", "huber:1")
-    poses, summary = dynamap.solve_pose_graph(path, init="chordal", kernel="huber:1")
+    poses, summary = dynamap.solve_pose_graph(path, init="chordal", kernel=("huber", 1.0))
     assert abs(summary.final_cost - expected["cost_final"]) <= 1e-9 * expected["cost_final"]
     chi2 = dynamap.PoseGraph.read(path).chi2(poses)
     assert abs(chi2 - expected["chi2_final"]) <= 1e-9 * expected["chi2_final"]

@@ -104,6 +104,10 @@ def test_malformed_frames_and_sequences_raise_clear_errors(sequence, tmp_path):
         slam.process(np.zeros((240, 320), np.uint16), np.zeros((240, 320, 4), np.uint8))
     with pytest.raises(ValueError, match="not a rotation"):
         dynamap.RigidSlam(262.5, 262.5, 159.5, 119.5, 320, 240, initial_pose=np.ones((4, 4)))
+    with pytest.raises(ValueError, match="not a rotation"):  # a reflection
+        dynamap.RigidSlam(262.5, 262.5, 159.5, 119.5, 320, 240, initial_pose=np.diag([1.0, 1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match="quaternion"):
+        dynamap.RigidSlam(262.5, 262.5, 159.5, 119.5, 320, 240, initial_pose=[0, 0, 0, 0, 0, 0, 0])
     with pytest.raises(dynamap.InputError, match="nowhere"):
         dynamap.Sequence(tmp_path / "nowhere")
     with pytest.raises(IndexError, match="frame 99"):

@@ -13,7 +13,28 @@ use nalgebra::{
     DMatrix, DVector, Isometry2, Isometry3, Matrix3, Rotation3, Translation3, UnitComplex,
     UnitQuaternion, Vector2,
 };
+use std::borrow::Cow;
 use std::collections::{BTreeMap, VecDeque};
+
+/// Where a solve starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// The vertices as read.
+    File,
+    /// [`odometry`].
+    Odometry,
+    /// [`chordal`].
+    Chordal,
+}
+
+/// The poses a solve from `from` begins at: the graph's own (borrowed, not copied), or computed.
+pub fn start(graph: &PoseGraph, from: Start) -> Result<Cow<'_, BTreeMap<usize, Pose>>, String> {
+    Ok(match from {
+        Start::File => Cow::Borrowed(&graph.vertices),
+        Start::Odometry => Cow::Owned(odometry(graph)?),
+        Start::Chordal => Cow::Owned(chordal(graph)?),
+    })
+}
 
 /// Poses by composing edge measurements along a breadth-first spanning tree rooted at the first
 /// anchor (its pose from the file, or the identity). Every vertex is recomputed.
