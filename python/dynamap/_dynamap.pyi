@@ -271,7 +271,7 @@ def register_meshes(
 ) -> Dict[str, Any]:
     """The source registered onto the target with the deformation graph, as `nonrigid_register
     meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
-    regulariser_cost, matched, seconds."""
+    regulariser_cost, matched, matched_fraction, seconds. No verdict: check the result."""
 
 def check_jacobians(
     residual: Union[Residual, PythonResidual],

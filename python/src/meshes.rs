@@ -201,7 +201,8 @@ pub fn write_mesh(
 /// Each surface is vertices (n × 3) with faces (m × 3, optional) and normals (n × 3; computed from
 /// the faces when not given). Returns a dict: vertices and normals (the source's, warped, in its
 /// order), nodes (the graph's node count), iterations, data_cost, regulariser_cost, matched (source
-/// points with a correspondence at the end), seconds.
+/// points with a correspondence at the end) and matched_fraction, seconds. There is no verdict,
+/// as the tool gives none: a source pulled onto a much smaller target ends fully matched.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -260,6 +261,8 @@ pub fn register_meshes<'py>(
     d.set_item("data_cost", s.data_cost)?;
     d.set_item("regulariser_cost", s.regulariser_cost)?;
     d.set_item("matched", s.matched)?;
+    let fraction = s.matched as f64 / reg.points.len().max(1) as f64;
+    d.set_item("matched_fraction", fraction)?;
     d.set_item("seconds", s.seconds)?;
     Ok(d)
 }
