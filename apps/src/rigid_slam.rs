@@ -149,6 +149,10 @@ struct Args {
     /// graph (LoopParams::odometry_drift).
     #[arg(long, default_value_t = SlamParams::default().relocalise.loops.odometry_drift)]
     odometry_drift: f64,
+    /// Weigh the keyframe graph's odometry by the drift model alone, without the tracking's own
+    /// spread along weakly fixed motions (LoopParams::tracking_spread).
+    #[arg(long)]
+    no_tracking_spread: bool,
     /// Do not relocalise after losing track (frames then fail until tracking from the last good
     /// pose works again).
     #[arg(long)]
@@ -200,6 +204,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.relocalise.enabled = !args.no_relocalise;
     p.relocalise.loops.loop_deviation = args.loop_deviation;
     p.relocalise.loops.odometry_drift = args.odometry_drift;
+    p.relocalise.loops.tracking_spread = !args.no_tracking_spread;
     let deviations = [args.loop_deviation, args.odometry_drift];
     if !deviations.iter().all(|d| d.is_finite() && *d > 0.0) {
         return Err(cli::bad_input(

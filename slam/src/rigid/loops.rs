@@ -15,7 +15,7 @@ use crate::features::{fit_keypoints, FeatureParams};
 use dynamap_residuals::pose_graph::{g2o, Dimension, Edge, Measurement, Pose, PoseGraph};
 use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{Options, Solver};
-use nalgebra::{Isometry3, Matrix6, Vector3};
+use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::mpsc;
@@ -40,6 +40,10 @@ pub struct LoopParams {
     /// A loop's deviation: this fraction of the keypoints' median depth in translation and as
     /// radians in rotation (default 0.01: 1.5 cm at 1.5 m, 0.6°).
     pub loop_deviation: f64,
+    /// Add the tracking's own spread between two keyframes to their odometry edge's covariance
+    /// ([`KeyframeGraph::add_tracked_keyframe`]; default true): the graph then leans on the
+    /// loops along motions the geometry barely fixed.
+    pub tracking_spread: bool,
 }
 
 impl Default for LoopParams {
@@ -52,6 +56,7 @@ impl Default for LoopParams {
             odometry_drift: 0.02,
             odometry_floor: 0.002,
             loop_deviation: 0.01,
+            tracking_spread: true,
         }
     }
 }
@@ -159,15 +164,41 @@ impl KeyframeGraph {
     }
 
     /// Adds keyframe `id` (its frame index) at its tracked pose, joined to the previous one by
-    /// the tracked relative pose. Ids must grow.
+    /// the tracked relative pose under the drift model alone ([`LoopParams::odometry_drift`]).
+    /// Ids must grow.
     pub fn add_keyframe(&mut self, id: usize, pose: Isometry3<f64>) {
+        self.add_tracked_keyframe(id, pose, None);
+    }
+
+    /// [`Self::add_keyframe`] with the tracking's own spread since the previous keyframe
+    /// (a covariance in this keyframe's tangent, `[ω; v]`, from the frames' tracking covariances
+    /// as the pipeline's `OdometrySpread` sums them) added to the
+    /// drift model's: the odometry edge's covariance is diag(σ_r² I, σ_t² I) + `spread`, so a
+    /// motion the geometry barely fixed (a slide along a plain wall) is one the loops may
+    /// correct.
+    pub fn add_tracked_keyframe(
+        &mut self,
+        id: usize,
+        pose: Isometry3<f64>,
+        spread: Option<&Matrix6<f64>>,
+    ) {
         self.graph.vertices.insert(id, Pose::Se3(pose));
         if let Some((prev, prev_pose)) = self.last {
             let z = prev_pose.inverse() * pose;
             let p = &self.params;
             let sigma_t = p.odometry_drift * z.translation.vector.norm() + p.odometry_floor;
             let sigma_r = p.odometry_drift * z.rotation.angle() + p.odometry_floor;
-            self.push_edge(prev, id, z, sigma_r, sigma_t);
+            let drift = deviations(sigma_r, sigma_t).map(|d| d * d);
+            let spread = spread.filter(|_| p.tracking_spread).copied();
+            let covariance = Matrix6::from_diagonal(&drift) + spread.unwrap_or_default();
+            // the drift model's part is positive definite, so the sum is unless `spread` is
+            // not finite: then the drift model alone
+            let information = covariance
+                .cholesky()
+                .map(|c| c.inverse())
+                .filter(|i| i.iter().all(|v| v.is_finite()))
+                .unwrap_or_else(|| Matrix6::from_diagonal(&drift.map(|v| 1.0 / v)));
+            self.push_edge(prev, id, z, information);
         }
         self.last = Some((id, pose));
     }
@@ -185,15 +216,14 @@ impl KeyframeGraph {
         }
         let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
         let sigma_r = self.params.loop_deviation;
-        self.push_edge(c.from, c.to, c.relative, sigma_r, sigma_t);
+        let weights = deviations(sigma_r, sigma_t).map(|d| 1.0 / (d * d));
+        self.push_edge(c.from, c.to, c.relative, Matrix6::from_diagonal(&weights));
         self.loops.push(self.graph.edges.len() - 1);
         self.found.push(c.clone());
         true
     }
 
-    fn push_edge(&mut self, from: usize, to: usize, z: Isometry3<f64>, sr: f64, st: f64) {
-        let (wr, wt) = (1.0 / (sr * sr), 1.0 / (st * st));
-        let information = Matrix6::from_diagonal(&nalgebra::Vector6::new(wr, wr, wr, wt, wt, wt));
+    fn push_edge(&mut self, from: usize, to: usize, z: Isometry3<f64>, information: Matrix6<f64>) {
         self.graph.edges.push(Edge {
             from,
             to,
@@ -284,6 +314,18 @@ impl KeyframeGraph {
         let poses = poses.iter().map(|(&id, x)| (id, Pose::Se3(*x))).collect();
         g2o::write(path, &self.graph, &poses)
     }
+}
+
+/// The deviations of an SE(3) edge in the tangent's order `[ω; v]`.
+fn deviations(rotation: f64, translation: f64) -> Vector6<f64> {
+    Vector6::new(
+        rotation,
+        rotation,
+        rotation,
+        translation,
+        translation,
+        translation,
+    )
 }
 
 /// Solves keyframe graphs on a thread of its own, so that tracking never waits for a solve:
@@ -576,6 +618,49 @@ mod tests {
             "{}",
             worst(&plain.poses, &truth)
         );
+    }
+
+    /// A straight walk of 21 keyframes 0.2 m apart whose tracking slid 6 cm sideways (along x)
+    /// between keyframes 10 and 11; a loop from the first to the last measures the truth.
+    fn slid_walk(spread_on_slide: Option<f64>) -> f64 {
+        let truth: Vec<Isometry3<f64>> = (0..21)
+            .map(|k| Isometry3::translation(0.0, 0.0, 0.2 * k as f64))
+            .collect();
+        let mut g = KeyframeGraph::new(LoopParams::default());
+        for (k, t) in truth.iter().enumerate() {
+            let slid = if k > 10 { 0.06 } else { 0.0 };
+            let tracked = Isometry3::translation(slid, 0.0, 0.0) * t;
+            // the span that slid says so along x; the others say nothing beyond the drift model
+            let spread = spread_on_slide.filter(|_| k == 11).map(|d| {
+                let mut c = Matrix6::zeros();
+                c[(3, 3)] = d * d;
+                c
+            });
+            g.add_tracked_keyframe(k, tracked, spread.as_ref());
+        }
+        assert!(g.add_loop(&LoopCandidate {
+            from: 0,
+            to: 20,
+            relative: truth[0].inverse() * truth[20],
+            inliers: 100,
+            depth: 1.5,
+        }));
+        let solved = g.optimise(None).unwrap();
+        assert!(solved.converged);
+        worst(&solved.poses, &truth)
+    }
+
+    #[test]
+    fn the_tracking_spread_puts_a_slide_where_it_happened() {
+        // the drift model alone spreads the 6 cm over every edge; the span's own spread of
+        // 5 cm along x takes it out of that edge, leaving the keyframes on either side near
+        // their truth
+        let plain = slid_walk(None);
+        let spread = slid_walk(Some(0.05));
+        assert!(plain > 0.02, "{plain}");
+        assert!(spread < 0.3 * plain, "{plain} → {spread}");
+        // a spread that is not finite leaves the drift model alone
+        assert!((slid_walk(Some(f64::NAN)) - plain).abs() < 1e-9);
     }
 
     #[test]

@@ -11,6 +11,7 @@ mod motion_model;
 pub mod outcome;
 pub mod pipeline;
 pub mod relocalise;
+mod spread;
 pub mod submaps;
 pub mod tracker;
 

@@ -13,6 +13,7 @@ use super::loops::{find_loop, BackgroundSolver, KeyframeGraph, LoopError, Optimi
 use super::motion_model::MotionModel;
 use super::outcome::{FrameOutcome, TrackFailure};
 use super::relocalise::{Floors, LiveFrame, RelocaliseParams, Relocaliser};
+use super::spread::OdometrySpread;
 use super::submaps::{SubmapParams, Submaps};
 use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
@@ -177,6 +178,8 @@ pub struct RigidSlam {
     submaps: Option<Submaps>,
     /// Depth samples for a loop's median depth.
     samples: Vec<f32>,
+    /// The tracking's spread since the newest keyframe, for the next odometry edge.
+    spread: OdometrySpread,
 }
 
 /// When a frame's two images were captured, seconds.
@@ -225,6 +228,7 @@ impl RigidSlam {
             anchor: None,
             submaps: params_submaps.map(Submaps::new),
             samples: Vec::new(),
+            spread: OdometrySpread::default(),
         }
     }
 
@@ -506,6 +510,9 @@ impl RigidSlam {
         };
         self.lost = outcome.failure.is_some();
         self.pose = outcome.pose;
+        if let Some(c) = &outcome.covariance {
+            self.spread.push(&self.pose, c);
+        }
         report.inliers = outcome.inliers;
         report.inlier_fraction = outcome.inlier_fraction();
         report.agreement = outcome.agreement;
@@ -583,7 +590,9 @@ impl RigidSlam {
     /// matched against the older keyframes for a loop (densely against the older sub-maps when
     /// the map is split, by features otherwise); a loop found sends the graph to the solver.
     fn keyframe_added(&mut self, color: Option<&ColorImage>) {
-        self.loops.add_keyframe(self.frames, self.pose);
+        let spread = self.spread.take(&self.pose);
+        self.loops
+            .add_tracked_keyframe(self.frames, self.pose, spread.as_ref());
         self.anchor = Some(self.frames);
         let tsdf = self.params.tsdf;
         if let Some(s) = self.submaps.as_mut().filter(|s| s.wants_anchor()) {

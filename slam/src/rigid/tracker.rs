@@ -19,7 +19,7 @@ use dynamap_solver::dense::{
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
 use dynamap_solver::SE3;
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 
 /// Tracking settings.
@@ -638,6 +638,11 @@ pub struct TrackOutcome {
     /// The exposure gain fitted on the finest level that ran: the model's intensity is about
     /// a I for the live intensity I (1 when not fitted).
     pub gain: f64,
+    /// The pose's covariance from the point-to-plane term at the result, in the tangent of
+    /// T·Exp(δ) (`[ω; v]`, radians and metres): large along a motion the geometry barely fixes,
+    /// such as a slide along a plain wall (`None` when not tracked or when the geometry alone
+    /// leaves a motion free; see `geometric_covariance`).
+    pub covariance: Option<Matrix6<f64>>,
 }
 
 impl TrackOutcome {
@@ -655,6 +660,7 @@ impl TrackOutcome {
             valid_pixels: 0,
             agreement: 0.0,
             gain: 1.0,
+            covariance: None,
         }
     }
 }
@@ -735,6 +741,7 @@ impl Tracker {
         let mut inliers = 0;
         let mut agreement = 0.0;
         let mut gain = 1.0;
+        let mut covariance = None;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
             let iterations = iterations_at(p, l);
@@ -770,13 +777,11 @@ impl Tracker {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
                 agreement = terms.agreement(&x);
-                // the prior makes every system solvable: geometry that cannot fix the pose on
-                // its own is still reported, from the data's own normal equations at the result
-                if prior.is_some() && !matches!(stop, DenseStop::NoTerms) {
-                    groups[2].weight = 0.0;
-                    let data = reduce(&terms, &x, &groups, &mut self.partials);
-                    if data.h.cholesky().is_none() {
-                        stop = DenseStop::Singular;
+                if !matches!(stop, DenseStop::NoTerms) {
+                    covariance = geometric_covariance(&mut terms, &x, &groups, &mut self.partials);
+                    if prior.is_some() && covariance.is_none() {
+                        groups[2].weight = 0.0;
+                        stop = data_stop(&terms, &x, &groups, &mut self.partials).unwrap_or(stop);
                     }
                 }
             }
@@ -788,6 +793,7 @@ impl Tracker {
         let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
+            covariance: covariance.filter(|_| failure.is_none()),
             failure,
             inliers,
             valid_pixels,
@@ -795,6 +801,47 @@ impl Tracker {
             gain,
         }
     }
+}
+
+/// The prior makes every system solvable: geometry that cannot fix the pose on its own is still
+/// reported, from the data's own normal equations at the result (`groups` without the prior);
+/// [`DenseStop::Singular`] when they are singular. Needed only when the point-to-plane rows
+/// alone leave a motion free.
+fn data_stop(
+    terms: &IcpTerms<'_>,
+    x: &[f64],
+    groups: &[Group<'_>; 3],
+    partials: &mut Vec<Reduced<6>>,
+) -> Option<DenseStop> {
+    let data = reduce(terms, x, groups, partials);
+    data.h.cholesky().is_none().then_some(DenseStop::Singular)
+}
+
+/// The pose's covariance σ̂² H⁻¹ from the point-to-plane rows alone at `x` (H = Σ w J Jᵀ of
+/// those rows, σ̂² = Σ w ρ(r²) / (n − 6) their mean square under the kernel), in the tangent of
+/// T·Exp(δ), `[ω; v]`: the Gauss–Newton (Cramér–Rao) estimate for independent residuals of one
+/// noise (e.g. Censi, *An accurate closed-form estimate of ICP's covariance*, ICRA 2007, whose
+/// first term it is). The photometric rows are left out, their noise being in other units.
+/// `None` when fewer than seven rows took part or H is singular.
+fn geometric_covariance(
+    terms: &mut IcpTerms<'_>,
+    x: &[f64],
+    groups: &[Group<'_>; 3],
+    partials: &mut Vec<Reduced<6>>,
+) -> Option<Matrix6<f64>> {
+    let photometric = std::mem::replace(&mut terms.photometric, false);
+    let mut geometric = *groups;
+    geometric[1].weight = 0.0;
+    geometric[2].weight = 0.0;
+    let data = reduce(&*terms, x, &geometric, partials);
+    terms.photometric = photometric;
+    let n = data.group_rows[0];
+    if n <= 6 {
+        return None;
+    }
+    let sigma2 = 2.0 * data.cost / (n - 6) as f64;
+    let inverse = data.h.cholesky()?.inverse();
+    (sigma2 > 0.0).then(|| inverse * sigma2)
 }
 
 /// Gauss-Newton iterations on level `l` (0 skips it).
@@ -1046,6 +1093,61 @@ mod degenerate_tests {
             let out = tracker.track(live, &model, &Isometry3::identity());
             let why = out.failure;
             assert_eq!(why, Some(TrackFailure::Singular), "prior {prior}");
+            assert!(out.covariance.is_none());
         }
+    }
+
+    /// A wall corrugated steeply across (1 cm waves along x) and barely along (1 mm waves along
+    /// y), in front of a model of itself: the pose's covariance must say that y is the
+    /// weakly fixed translation.
+    #[test]
+    fn the_covariance_is_largest_along_the_motion_the_geometry_barely_fixes() {
+        let (w, h) = (160, 120);
+        let cam = Camera::scaled_default(w, h);
+        let wave = |t: f64| (std::f64::consts::TAU * t / 0.1).sin();
+        let depth_at = |u: usize, v: usize| {
+            let (x, y) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
+            1.0 + 0.01 * wave(x) + 0.001 * wave(y)
+        };
+        let point = |u: usize, v: usize| cam.back_project(u as f64, v as f64, depth_at(u, v));
+        let mut maps = RaycastMaps::new();
+        maps.vertices.resize(w, h, [0.0; 3]);
+        maps.normals.resize(w, h, [f32::NAN; 3]);
+        maps.depth.resize(w, h, 1.0);
+        maps.colors.resize(w, h, [0; 3]);
+        for v in 0..h {
+            for u in 0..w {
+                let p = point(u, v);
+                maps.vertices.data[v * w + u] = [p.x as f32, p.y as f32, p.z as f32];
+                maps.depth.data[v * w + u] = p.z as f32;
+                if (1..w - 1).contains(&u) && (1..h - 1).contains(&v) {
+                    let du = point(u + 1, v) - point(u - 1, v);
+                    let dv = point(u, v + 1) - point(u, v - 1);
+                    let n = dv.cross(&du).normalize();
+                    let n = if n.z > 0.0 { -n } else { n };
+                    maps.normals.data[v * w + u] = [n.x as f32, n.y as f32, n.z as f32];
+                }
+            }
+        }
+        let mut model = ModelPyramid::new(&cam, 3, 0);
+        model.update(&maps, &Isometry3::identity());
+        // the live depth with a small deterministic noise, so that the residuals are not zero
+        let mut depth = DepthImage::filled(w, h, 1.0);
+        for v in 0..h {
+            for u in 0..w {
+                let noise = 2e-4 * ((u * 7919 + v * 104_729) % 17) as f64 / 17.0 - 1e-4;
+                depth.data[v * w + u] = (depth_at(u, v) + noise) as f32;
+            }
+        }
+        let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+        let live = pre.process_metres(&depth, None);
+        let out =
+            Tracker::new(TrackerParams::default()).track(live, &model, &Isometry3::identity());
+        assert!(out.failure.is_none(), "{:?}", out.failure);
+        let c = out.covariance.expect("a covariance");
+        // [ω; v]: x is 3, y is 4, z is 5
+        assert!(c[(4, 4)] > 10.0 * c[(3, 3)], "{c}");
+        assert!(c[(4, 4)] > 10.0 * c[(5, 5)], "{c}");
+        assert!(c.iter().all(|v| v.is_finite()) && c[(4, 4)] > 0.0);
     }
 }
