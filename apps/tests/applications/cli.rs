@@ -617,4 +617,5 @@ fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
         "{}",
         text(&out.stderr)
     );
+    let _ = std::fs::remove_dir_all(&dir);
 }
