@@ -3,10 +3,12 @@
 //! the older sub-maps give dense loops, and the frames carried with their keyframes to the
 //! graph's solution lie nearer the ground truth than the frames as tracked.
 
+use dynamap::residuals::pose_graph::Measurement;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::mesh::Mesh;
+use dynamap::slam::rigid::loops::KeyframeGraph;
 use dynamap::slam::rigid::submaps::SubmapParams;
 use dynamap::slam::rigid::{RelocaliseParams, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::layouts::{self, Layout};
@@ -35,6 +37,32 @@ struct Run {
     loops: Vec<(f64, f64)>,
     mesh_tracked: SurfaceError,
     mesh_corrected: SurfaceError,
+    /// Odometry edges, and those whose information carries the tracking's spread (not the drift
+    /// model's diagonal alone).
+    odometry: (usize, usize),
+}
+
+/// (odometry edges, those whose information is not diagonal) of a keyframe graph.
+fn odometry_spread(graph: &KeyframeGraph) -> (usize, usize) {
+    let loops: Vec<(usize, usize)> = graph.loops().iter().map(|l| (l.from, l.to)).collect();
+    let odometry = graph
+        .graph()
+        .edges
+        .iter()
+        .filter(|e| !loops.contains(&(e.from, e.to)));
+    let mut counts = (0, 0);
+    for e in odometry {
+        let Measurement::Se3 { information, .. } = &e.measurement else {
+            panic!("a keyframe graph holds SE(3) edges only")
+        };
+        counts.0 += 1;
+        let off = information
+            .iter()
+            .enumerate()
+            .any(|(k, v)| k % 7 != 0 && *v != 0.0);
+        counts.1 += usize::from(off);
+    }
+    counts
 }
 
 /// Vertices are measured within 5 cm of the scene along their normals, and lie off it beyond
@@ -103,6 +131,7 @@ fn run(layout: Layout, gt: &Trajectory) -> Run {
         loops,
         mesh_tracked: measure(slam.map_mesh(None)),
         mesh_corrected: measure(slam.map_mesh(Some(&solved.poses))),
+        odometry: odometry_spread(graph),
     }
 }
 
@@ -124,6 +153,12 @@ fn a_short_looping_survey_closes_its_loop_and_lowers_the_trajectory_error() {
         "ATE {:.1} mm corrected against {:.1} mm tracked",
         1e3 * after,
         1e3 * before
+    );
+    // every odometry edge carries the tracking's spread (NOTES 80)
+    let (edges, spread) = r.odometry;
+    assert!(
+        edges >= 2 && spread == edges,
+        "{spread} of {edges} odometry edges"
     );
     let (m0, m1) = (&r.mesh_tracked, &r.mesh_corrected);
     eprintln!("mesh against the scene, as fused: {m0:?}\nwith the sub-maps moved: {m1:?}");
