@@ -7,8 +7,9 @@
 //! *Robust map optimization using dynamic covariance scaling*, ICRA 2013): an edge whose χ² at
 //! the solution is s is weighed by min(1, 2Φ/(Φ + s)), so a wrong loop that the odometry and the
 //! other loops contradict is switched off instead of bending the map. The odometry edges are
-//! plain least squares. The graph is solved by `dynamap-solver` (Levenberg–Marquardt, the first
-//! keyframe held fixed).
+//! plain least squares, each under the drift model's covariance plus the tracking's own spread
+//! along motions the geometry barely fixed ([`KeyframeGraph::add_tracked_keyframe`]). The graph
+//! is solved by `dynamap-solver` (Levenberg–Marquardt, the first keyframe held fixed).
 
 use super::keyframes::Keyframes;
 use crate::features::{fit_keypoints, FeatureParams};
@@ -170,12 +171,11 @@ impl KeyframeGraph {
         self.add_tracked_keyframe(id, pose, None);
     }
 
-    /// [`Self::add_keyframe`] with the tracking's own spread since the previous keyframe
-    /// (a covariance in this keyframe's tangent, `[ω; v]`, from the frames' tracking covariances
-    /// as the pipeline's `OdometrySpread` sums them) added to the
-    /// drift model's: the odometry edge's covariance is diag(σ_r² I, σ_t² I) + `spread`, so a
-    /// motion the geometry barely fixed (a slide along a plain wall) is one the loops may
-    /// correct.
+    /// [`Self::add_keyframe`] with the tracking's own spread since the previous keyframe added
+    /// to the drift model's: `spread` is a covariance in this keyframe's tangent (`[ω; v]`),
+    /// the frames' tracking covariances as the pipeline's `OdometrySpread` sums them. The
+    /// odometry edge's covariance is diag(σ_r² I, σ_t² I) + `spread`, so a motion the geometry
+    /// barely fixed (a slide along a plain wall) is one the loops may correct.
     pub fn add_tracked_keyframe(
         &mut self,
         id: usize,
