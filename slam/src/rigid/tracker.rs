@@ -1065,24 +1065,41 @@ mod degenerate_tests {
     use crate::image::DepthImage;
     use crate::preprocess::{PreprocessParams, Preprocessor};
 
+    /// A model of the surface at depth `depth_at(u, v)` seen from the identity: its vertices, and
+    /// normals from central differences (none on the border).
+    fn surface_model(cam: &Camera, depth_at: impl Fn(usize, usize) -> f64) -> ModelPyramid {
+        let (w, h) = (cam.width, cam.height);
+        let point = |u: usize, v: usize| cam.back_project(u as f64, v as f64, depth_at(u, v));
+        let mut maps = RaycastMaps::new();
+        maps.vertices.resize(w, h, [0.0; 3]);
+        maps.normals.resize(w, h, [f32::NAN; 3]);
+        maps.depth.resize(w, h, 1.0);
+        maps.colors.resize(w, h, [0; 3]);
+        for v in 0..h {
+            for u in 0..w {
+                let p = point(u, v);
+                maps.vertices.data[v * w + u] = [p.x as f32, p.y as f32, p.z as f32];
+                maps.depth.data[v * w + u] = p.z as f32;
+                if (1..w - 1).contains(&u) && (1..h - 1).contains(&v) {
+                    let du = point(u + 1, v) - point(u - 1, v);
+                    let dv = point(u, v + 1) - point(u, v - 1);
+                    let n = dv.cross(&du).normalize();
+                    let n = if n.z > 0.0 { -n } else { n };
+                    maps.normals.data[v * w + u] = [n.x as f32, n.y as f32, n.z as f32];
+                }
+            }
+        }
+        let mut model = ModelPyramid::new(cam, 3, 0);
+        model.update(&maps, &Isometry3::identity());
+        model
+    }
+
     /// A textureless wall seen square on, against a model of the same wall: three motions are
     /// free, and the prior (which alone makes the system solvable) must not hide it.
     #[test]
     fn a_bare_wall_is_reported_singular_with_and_without_the_prior() {
         let cam = Camera::scaled_default(160, 120);
-        let mut maps = RaycastMaps::new();
-        maps.vertices.resize(160, 120, [0.0; 3]);
-        maps.normals.resize(160, 120, [0.0, 0.0, -1.0]);
-        maps.depth.resize(160, 120, 1.0);
-        maps.colors.resize(160, 120, [0; 3]);
-        for v in 0..120 {
-            for u in 0..160 {
-                let p = cam.back_project(u as f64, v as f64, 1.0);
-                maps.vertices.data[v * 160 + u] = [p.x as f32, p.y as f32, p.z as f32];
-            }
-        }
-        let mut model = ModelPyramid::new(&cam, 3, 0);
-        model.update(&maps, &Isometry3::identity());
+        let model = surface_model(&cam, |_, _| 1.0);
         let mut pre = Preprocessor::new(cam, PreprocessParams::default());
         let live = pre.process_metres(&DepthImage::filled(160, 120, 1.0), None);
         for prior in [0.0, 1e-4] {
@@ -1109,28 +1126,7 @@ mod degenerate_tests {
             let (x, y) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
             1.0 + 0.01 * wave(x) + 0.001 * wave(y)
         };
-        let point = |u: usize, v: usize| cam.back_project(u as f64, v as f64, depth_at(u, v));
-        let mut maps = RaycastMaps::new();
-        maps.vertices.resize(w, h, [0.0; 3]);
-        maps.normals.resize(w, h, [f32::NAN; 3]);
-        maps.depth.resize(w, h, 1.0);
-        maps.colors.resize(w, h, [0; 3]);
-        for v in 0..h {
-            for u in 0..w {
-                let p = point(u, v);
-                maps.vertices.data[v * w + u] = [p.x as f32, p.y as f32, p.z as f32];
-                maps.depth.data[v * w + u] = p.z as f32;
-                if (1..w - 1).contains(&u) && (1..h - 1).contains(&v) {
-                    let du = point(u + 1, v) - point(u - 1, v);
-                    let dv = point(u, v + 1) - point(u, v - 1);
-                    let n = dv.cross(&du).normalize();
-                    let n = if n.z > 0.0 { -n } else { n };
-                    maps.normals.data[v * w + u] = [n.x as f32, n.y as f32, n.z as f32];
-                }
-            }
-        }
-        let mut model = ModelPyramid::new(&cam, 3, 0);
-        model.update(&maps, &Isometry3::identity());
+        let model = surface_model(&cam, depth_at);
         // the live depth with a small deterministic noise, so that the residuals are not zero
         let mut depth = DepthImage::filled(w, h, 1.0);
         for v in 0..h {
