@@ -3,7 +3,7 @@
 followed by an unreadable or a blank depth frame, tracked by rigid_slam and scored per gap.
 
 usage: python3 bench/gap_suite.py SEQ [--gaps 20] [--lengths 0.5,1,3] [--seed 1] [--after 0.25]
-                                  [--work DIR] [--json OUT]
+                                  [--work DIR] [--json OUT] [--slam-args "--submaps ..."]
 
 SEQ is a TUM-layout sequence with groundtruth.txt (e.g. one made by `generate rigid ... --motion
 orbit`). The gaps start at depth frames drawn (seeded) after the first --after share of the sequence,
@@ -115,8 +115,8 @@ def make_gapped(seq, out, gaps):
     return after, stamps
 
 
-def track(seq, est):
-    p = subprocess.run([SLAM, seq, "--quiet", "--output", est], capture_output=True, text=True)
+def track(seq, est, extra=()):
+    p = subprocess.run([SLAM, seq, "--quiet", "--output", est, *extra], capture_output=True, text=True)
     if p.returncode not in (0, 1):
         sys.exit(f"rigid_slam {seq} failed ({p.returncode}):\n{p.stderr[-2000:]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -137,6 +137,7 @@ def main():
     ap.add_argument("--after", type=float, default=0.25)
     ap.add_argument("--work")
     ap.add_argument("--json")
+    ap.add_argument("--slam-args", default="", help="more flags for rigid_slam, e.g. --submaps")
     a = ap.parse_args()
     work = a.work or tempfile.mkdtemp(prefix="gaps-")
     out = os.path.join(work, "gapped")
@@ -146,7 +147,8 @@ def main():
     after, stamps = make_gapped(a.seq, out, gaps)
     gt = os.path.join(a.seq, "groundtruth.txt")
     intact_est, gapped_est = os.path.join(work, "intact.txt"), os.path.join(work, "gapped.txt")
-    intact, run = track(a.seq, intact_est), track(out, gapped_est)
+    extra = a.slam_args.split()
+    intact, run = track(a.seq, intact_est, extra), track(out, gapped_est, extra)
     _, it, _ = scored(gt, intact_est)
     es, trans, rot = scored(gt, gapped_est)
     good = {round(s, 6) for s, t, r in zip(es, trans, rot) if t <= MAX_T and r <= MAX_R}

@@ -9,8 +9,9 @@
 //! (`slam::io::sequence::Sequence` tells them apart). Prints a progress bar with the fps, and one
 //! JSON line last: frames, seconds (the whole per-frame loop, image reading included), fps,
 //! failures (frames read but not tracked), skipped (frames whose files could not be read),
-//! relocalised, and the ATE when the folder has a ground truth. The trajectory holds the tracked
-//! frames only.
+//! relocalised, new_maps and unplaced_frames (with `--submaps`: maps started after the track was
+//! lost for good, and the tracked frames left out because no loop placed their map), and the ATE
+//! when the folder has a ground truth. The trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
@@ -56,8 +57,8 @@ struct Args {
     dir: Option<PathBuf>,
     /// Where to write the estimated trajectory (TUM format). With --submaps, each frame's
     /// tracked pose is carried with its keyframe to the keyframe graph's solution when loops
-    /// were found (the JSON line's `ate_rmse` is this trajectory's, `ate_tracked` the poses' as
-    /// tracked).
+    /// were found, and frames of new maps that no loop placed are left out (the JSON line's
+    /// `ate_rmse` is this trajectory's, `ate_tracked` the poses' as tracked).
     #[arg(long)]
     output: Option<PathBuf>,
     /// Where to write the fused mesh (binary PLY).
@@ -362,8 +363,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
     bar.finish_and_clear();
     // the keyframe graph, solved once more from the background solver's newest solution; the
     // frames follow their keyframes to it
-    let warm = slam.finish_graph()?.map(|o| o.poses.clone());
+    let warm = slam.finish_graph()?.cloned();
     let solved = solve_graph(slam.keyframe_graph(), warm.as_ref(), args.graph.is_some())?;
+    // frames of map fragments that no loop placed have no pose in the map
+    let unplaced = leave_out_unplaced(&mut tally, slam.keyframe_graph());
     let tracked = tally.trajectory.clone();
     // one volume cannot follow a loop: its poses stay as tracked (NOTES 59)
     if let Some(o) = solved.as_ref().filter(|_| slam.submaps().is_some()) {
@@ -394,7 +397,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
         serde_json::json!({
             "frames": tally.processed, "seconds": seconds, "fps": tally.processed as f64 / seconds,
             "failures": tally.failures, "skipped": tally.skipped, "tracked": tally.trajectory.len(),
-            "relocalised": tally.relocalised,
+            "relocalised": tally.relocalised, "new_maps": tally.new_maps,
+            "unplaced_frames": unplaced,
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
             "loop_events": loop_events(graph, solved.as_ref()), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),
@@ -469,10 +473,12 @@ struct Tally {
     anchors: Vec<Option<usize>>,
     /// Stage times summed over the frames.
     totals: StageTimes,
-    /// Frames read but not tracked, frames that could not be read, frames relocalised.
+    /// Frames read but not tracked, frames that could not be read, frames relocalised, frames
+    /// that started a new map fragment.
     failures: usize,
     skipped: usize,
     relocalised: usize,
+    new_maps: usize,
     /// Time spent waiting for the reader thread, seconds.
     read_seconds: f64,
     /// Frames taken from the stream.
@@ -582,6 +588,14 @@ fn track_one(slam: &mut RigidSlam, tally: &mut Tally, i: usize, frame: &RgbdFram
             frame.timestamp,
         );
     }
+    if report.outcome == FrameOutcome::NewMap {
+        tally.new_maps += 1;
+        tracing::info!(
+            "frame {i} ({:.6}): lost for good: a new map starts here; its frames join the \
+             trajectory if a loop places it in the map",
+            frame.timestamp,
+        );
+    }
     tally.last_good = Some(i);
     tally.trajectory.push(frame.timestamp, report.pose);
     tally.anchors.push(report.anchor);
@@ -673,7 +687,7 @@ fn log_summary(tally: &Tally, slam: &RigidSlam, ate_rmse: Option<f64>, dir: &Pat
 /// the last iterate), warned of, and reported as `graph_converged: false` in the JSON line.
 fn solve_graph(
     graph: &KeyframeGraph,
-    warm: Option<&BTreeMap<usize, Isometry3<f64>>>,
+    warm: Option<&Optimised>,
     always: bool,
 ) -> Result<Option<Optimised>> {
     if graph.graph().vertices.is_empty() {
@@ -699,6 +713,37 @@ fn solve_graph(
         solved.loop_weights.len()
     );
     Ok(Some(solved))
+}
+
+/// Leaves out of the trajectory the frames anchored to keyframes of map fragments that no
+/// loop placed in the main map ([`KeyframeGraph::unplaced`]), with a warning; how many.
+fn leave_out_unplaced(tally: &mut Tally, graph: &KeyframeGraph) -> usize {
+    let unplaced = graph.unplaced();
+    if unplaced.is_empty() {
+        return 0;
+    }
+    let trajectory = std::mem::take(&mut tally.trajectory);
+    let anchors = std::mem::take(&mut tally.anchors);
+    let mut left_out = 0;
+    for ((stamp, pose), anchor) in trajectory
+        .stamps
+        .into_iter()
+        .zip(trajectory.poses)
+        .zip(anchors)
+    {
+        if anchor.is_some_and(|a| unplaced.contains(&a)) {
+            left_out += 1;
+            continue;
+        }
+        tally.trajectory.push(stamp, pose);
+        tally.anchors.push(anchor);
+    }
+    tracing::warn!(
+        "{left_out} tracked frames lie in map fragments that no loop joined to the main map \
+         (of {} fragments): left out of the trajectory and the mesh",
+        graph.fragment_count(),
+    );
+    left_out
 }
 
 /// Moves each tracked pose with its anchor keyframe to the graph's solution.

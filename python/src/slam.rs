@@ -278,10 +278,11 @@ impl RigidSlam {
     }
 }
 
-/// "started", "tracked", "relocalised", "not_tracked" or "skipped".
+/// "started", "new_map", "tracked", "relocalised", "not_tracked" or "skipped".
 fn outcome_name(o: &FrameOutcome) -> &'static str {
     match o {
         FrameOutcome::Started => "started",
+        FrameOutcome::NewMap => "new_map",
         FrameOutcome::Tracked => "tracked",
         FrameOutcome::Relocalised => "relocalised",
         FrameOutcome::NotTracked(_) => "not_tracked",

@@ -9,6 +9,7 @@ mod bounds_covariance;
 mod bundle_adjustment;
 mod chi2_agreement;
 mod exposure;
+mod fragments;
 mod g2o_files;
 mod kinect;
 mod large_pose_graphs;

@@ -67,14 +67,10 @@ fn odometry_spread(graph: &KeyframeGraph) -> (usize, usize) {
 const REACH: f64 = 0.05;
 const TOLERANCE: f64 = 0.01;
 
-/// Runs the pipeline with sub-maps on `layout` along `gt`.
-fn run(layout: Layout, gt: &Trajectory) -> Run {
+/// The camera and settings of the short sub-map runs (also `fragments`'): 320×240, sub-maps of
+/// 60 frames, loops at least 100 frames apart.
+pub(crate) fn short_submap_run() -> (Camera, SlamParams) {
     let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let scene = layouts::build(layout, 3);
-    let noise = SensorNoise {
-        seed: 9,
-        ..SensorNoise::default()
-    };
     let mut params = SlamParams {
         submaps: Some(SubmapParams {
             frames: 60,
@@ -85,6 +81,17 @@ fn run(layout: Layout, gt: &Trajectory) -> Run {
     let r: &mut RelocaliseParams = &mut params.relocalise;
     r.loops.min_frames_apart = 100;
     r.keyframes.recent_frames = 100;
+    (cam, params)
+}
+
+/// Runs the pipeline with sub-maps on `layout` along `gt`.
+fn run(layout: Layout, gt: &Trajectory) -> Run {
+    let (cam, params) = short_submap_run();
+    let scene = layouts::build(layout, 3);
+    let noise = SensorNoise {
+        seed: 9,
+        ..SensorNoise::default()
+    };
     let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
     let (mut tracked, mut anchors) = (Trajectory::default(), Vec::new());
     for (k, (stamp, pose)) in gt.stamps.iter().zip(&gt.poses).enumerate() {
@@ -99,7 +106,7 @@ fn run(layout: Layout, gt: &Trajectory) -> Run {
         tracked.push(*stamp, report.pose);
         anchors.push(report.anchor);
     }
-    let warm = slam.finish_graph().unwrap().map(|o| o.poses.clone());
+    let warm = slam.finish_graph().unwrap().cloned();
     let graph = slam.keyframe_graph();
     let solved = graph.optimise(warm.as_ref()).unwrap();
     assert!(solved.converged);

@@ -70,6 +70,13 @@ impl Health {
         self.anchor = Some(fit);
     }
 
+    /// Forgets the fits (a new map fragment starts with no model to fit), keeping the stamps.
+    pub(crate) fn forget_fits(&mut self) {
+        self.fractions.clear();
+        self.agreements.clear();
+        self.anchor = None;
+    }
+
     /// The median fit of the recent fused frames once there are a few; before, the relocalised
     /// frame's, if any.
     pub fn expected(&self) -> Option<Fit> {

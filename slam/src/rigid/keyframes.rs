@@ -247,7 +247,6 @@ impl Keyframes {
     /// Keeps `c` as a keyframe if it lies far enough from every recent keyframe (see
     /// [`KeyframeParams::min_shift`]) and has colour to describe it; whether it was kept.
     pub fn offer(&mut self, c: &Candidate<'_>, features: &FeatureParams, max_depth: f32) -> bool {
-        let Some(color) = c.color else { return false };
         let shift = self.params.min_shift * median_depth(c.depth, &mut self.samples);
         let turn = self.params.min_turn_deg.to_radians();
         let recent = self.params.recent_frames;
@@ -256,9 +255,16 @@ impl Keyframes {
             let recent = k.frame.saturating_add(recent) >= c.frame;
             recent && d.translation.vector.norm() < shift && d.rotation.angle() < turn
         };
-        if shift <= 0.0 || self.frames.iter().any(near) {
+        if c.color.is_none() || shift <= 0.0 || self.frames.iter().any(near) {
             return false;
         }
+        self.insert(c, features, max_depth)
+    }
+
+    /// Keeps `c` as a keyframe wherever it lies (the first of a new map fragment), if it has
+    /// colour to describe it; whether it was kept.
+    pub fn insert(&mut self, c: &Candidate<'_>, features: &FeatureParams, max_depth: f32) -> bool {
+        let Some(color) = c.color else { return false };
         let p = &self.params;
         let ferns = self
             .ferns
@@ -296,21 +302,45 @@ impl Keyframes {
         depth: &DepthImage,
         count: usize,
     ) -> Vec<usize> {
+        self.nearest_where(color, depth, count, |_| true)
+    }
+
+    /// [`Self::nearest`] among the keyframes that `keep` accepts.
+    pub fn nearest_where(
+        &self,
+        color: Option<&ColorImage>,
+        depth: &DepthImage,
+        count: usize,
+        keep: impl Fn(&Keyframe) -> bool,
+    ) -> Vec<usize> {
         let Some(ferns) = &self.ferns else {
             return Vec::new();
         };
-        self.nearest_code(&ferns.code(color, depth), self.frames.len(), count)
+        let code = ferns.code(color, depth);
+        let mut ranked: Vec<(f64, usize)> = (self.frames.iter().enumerate())
+            .filter(|(_, f)| keep(f))
+            .map(|(k, f)| (dissimilarity(&code, &f.code), k))
+            .collect();
+        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+        ranked.into_iter().take(count).map(|(_, k)| k).collect()
     }
 }
 
 impl Keyframes {
-    /// The indices of the `count` keyframes among the first `limit` whose codes are nearest
-    /// `code`, nearest first.
-    pub(crate) fn nearest_code(&self, code: &[u8], limit: usize, count: usize) -> Vec<usize> {
-        let mut ranked: Vec<(f64, usize)> = self.frames[..limit.min(self.frames.len())]
+    /// The indices of the `count` keyframes in `range` (of [`Self::frames`]) whose codes are
+    /// nearest `code`, nearest first.
+    pub(crate) fn nearest_code(
+        &self,
+        code: &[u8],
+        range: std::ops::Range<usize>,
+        count: usize,
+    ) -> Vec<usize> {
+        let end = range.end.min(self.frames.len());
+        let start = range.start.min(end);
+        let mut ranked: Vec<(f64, usize)> = self.frames[start..end]
             .iter()
             .enumerate()
-            .map(|(k, f)| (dissimilarity(code, &f.code), k))
+            .map(|(k, f)| (dissimilarity(code, &f.code), start + k))
             .collect();
         ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
         ranked.into_iter().take(count).map(|(_, k)| k).collect()

@@ -10,6 +10,15 @@
 //! plain least squares, each under the drift model's covariance plus the tracking's own spread
 //! along motions the geometry barely fixed ([`KeyframeGraph::add_tracked_keyframe`]). The graph
 //! is solved by `dynamap-solver` (Levenberg–Marquardt, the first keyframe held fixed).
+//!
+//! **Map fragments.** When the track is lost for good (the camera went where no keyframe saw),
+//! the pipeline starts a new map ([`KeyframeGraph::start_fragment`]), as ORB-SLAM3's Atlas does
+//! (Campos et al., *ORB-SLAM3*, T-RO 2021): its keyframes are tracked in a frame of their own,
+//! tied to the old map only by an uninformative link. A loop between two fragments measures how
+//! one lies in the other; the first such loop joins them, and the joined fragment's keyframes
+//! start the next solve moved by that motion (DCS would switch a loop off if it started metres
+//! off, since its cost falls again beyond Φ). Keyframes of fragments that no loop joined to the
+//! main one (the largest) are [`KeyframeGraph::unplaced`]: their frames have no pose in the map.
 
 use super::keyframes::Keyframes;
 use crate::features::{fit_keypoints, FeatureParams};
@@ -104,6 +113,33 @@ pub struct Optimised {
     pub converged: bool,
     /// Iterations taken.
     pub iterations: usize,
+    /// The graph's [`KeyframeGraph::revision`] when it was solved: a warm start from another
+    /// revision does not know where the fragments joined since lie.
+    pub revision: usize,
+}
+
+/// Deviations of the link between a new map fragment and the keyframe before it, radians and
+/// metres: uninformative (a fragment may lie anywhere), there only to give the solver one
+/// connected graph. Against a loop's (about 1 cm and 0.01 rad) it weighs 1e-5 or less.
+const FRAGMENT_LINK: (f64, f64) = (std::f64::consts::PI, 100.0);
+
+/// How far the camera can have gone while the track was lost: the motion between the keyframe
+/// before a new map fragment and the fragment's first keyframe is at most this (see
+/// [`KeyframeGraph::start_fragment`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reach {
+    /// Metres.
+    pub translation: f64,
+    /// Radians.
+    pub rotation: f64,
+}
+
+/// Where a map fragment lies: the oldest fragment of those loops joined it with (its root), and
+/// the motion from its tracking frame into the root's.
+#[derive(Clone, Copy, Debug)]
+struct Placement {
+    root: usize,
+    motion: Isometry3<f64>,
 }
 
 /// The keyframes' pose graph.
@@ -117,6 +153,15 @@ pub struct KeyframeGraph {
     /// The loops as found, in the order they were added.
     found: Vec<LoopCandidate>,
     last: Option<(usize, Isometry3<f64>)>,
+    /// The first keyframe of each map fragment after the first.
+    fragment_starts: Vec<usize>,
+    /// Each such fragment's link: the keyframe before it, and how far the camera can have
+    /// gone from there.
+    links: Vec<(usize, Reach)>,
+    /// Each fragment's placement, the first's first.
+    placements: Vec<Placement>,
+    /// Counts the joins of fragments.
+    revision: usize,
 }
 
 impl KeyframeGraph {
@@ -130,7 +175,62 @@ impl KeyframeGraph {
             loops: Vec::new(),
             found: Vec::new(),
             last: None,
+            fragment_starts: Vec::new(),
+            links: Vec::new(),
+            placements: vec![Placement {
+                root: 0,
+                motion: Isometry3::identity(),
+            }],
+            revision: 0,
         }
+    }
+
+    /// Map fragments started so far (1 while the track was never lost for good).
+    pub fn fragment_count(&self) -> usize {
+        self.placements.len()
+    }
+
+    /// How many times loops joined two fragments.
+    pub fn revision(&self) -> usize {
+        self.revision
+    }
+
+    /// The fragment keyframe `id` belongs to.
+    fn fragment_of(&self, id: usize) -> usize {
+        self.fragment_starts.partition_point(|&s| s <= id)
+    }
+
+    /// The motion taking poses tracked in keyframe `from`'s map fragment into the frame of
+    /// keyframe `to`'s, P_to⁻¹ P_from as the loops that joined them placed them; `None` when no
+    /// loop joined the two (the identity within one fragment).
+    pub fn between_fragments(&self, from: usize, to: usize) -> Option<Isometry3<f64>> {
+        let a = self.placements[self.fragment_of(from)];
+        let b = self.placements[self.fragment_of(to)];
+        (a.root == b.root).then(|| b.motion.inverse() * a.motion)
+    }
+
+    /// The keyframes that lie outside the main map: in fragments no loop joined to the one
+    /// with the most keyframes (the first fragment wins a tie). Empty with one fragment.
+    pub fn unplaced(&self) -> BTreeSet<usize> {
+        if self.fragment_starts.is_empty() {
+            return BTreeSet::new();
+        }
+        let root = |id: &usize| self.placements[self.fragment_of(*id)].root;
+        let mut counts = vec![0usize; self.placements.len()];
+        for id in self.graph.vertices.keys() {
+            counts[root(id)] += 1;
+        }
+        // the largest count, the oldest root among equals
+        let main = (0..counts.len())
+            .rev()
+            .max_by_key(|&r| counts[r])
+            .unwrap_or(0);
+        self.graph
+            .vertices
+            .keys()
+            .filter(|id| root(id) != main)
+            .copied()
+            .collect()
     }
 
     /// The graph as the solver's pose-graph type (vertices at their tracked poses).
@@ -203,7 +303,94 @@ impl KeyframeGraph {
         self.last = Some((id, pose));
     }
 
-    /// Adds a verified loop (both keyframes must be in the graph); whether it was added.
+    /// Adds keyframe `id` at `pose` as the first of a new map fragment: its pose is in a frame
+    /// of its own, tied to the previous keyframe by an uninformative link only
+    /// ([`FRAGMENT_LINK`]) until a loop joins the fragment to another. A loop that would place
+    /// it further than `reach` from the previous keyframe is refused (in a scene with two
+    /// places alike, the other place is often found first, and no odometry would contradict
+    /// it). Ids must grow.
+    pub fn start_fragment(&mut self, id: usize, pose: Isometry3<f64>, reach: Reach) {
+        self.graph.vertices.insert(id, Pose::Se3(pose));
+        if let Some((prev, prev_pose)) = self.last {
+            let (rad, m) = FRAGMENT_LINK;
+            let information = Matrix6::from_diagonal(&deviations(rad, m).map(|d| 1.0 / (d * d)));
+            self.push_edge(prev, id, prev_pose.inverse() * pose, information);
+            self.fragment_starts.push(id);
+            self.links.push((prev, reach));
+            self.placements.push(Placement {
+                root: self.placements.len(),
+                motion: Isometry3::identity(),
+            });
+        }
+        self.last = Some((id, pose));
+    }
+
+    /// The keyframe's tracked pose (the identity for an unknown one).
+    fn tracked(&self, id: usize) -> Isometry3<f64> {
+        match self.graph.vertices.get(&id) {
+            Some(Pose::Se3(x)) => *x,
+            _ => Isometry3::identity(),
+        }
+    }
+
+    /// The placements after loop `c` joins its keyframes' fragments (`None` when they are
+    /// joined already): the younger root's fragments are moved into the older root's frame by
+    /// the motion the loop measures, M = P_from X_from Z X_to⁻¹ P_to⁻¹ (P a fragment's
+    /// placement, X a tracked pose).
+    fn joined(&self, c: &LoopCandidate) -> Option<Vec<Placement>> {
+        let (a, b) = (
+            self.placements[self.fragment_of(c.from)],
+            self.placements[self.fragment_of(c.to)],
+        );
+        if a.root == b.root {
+            return None;
+        }
+        let b_into_a = a.motion
+            * self.tracked(c.from)
+            * c.relative
+            * self.tracked(c.to).inverse()
+            * b.motion.inverse();
+        let (keep, moved, m) = if a.root < b.root {
+            (a.root, b.root, b_into_a)
+        } else {
+            (b.root, a.root, b_into_a.inverse())
+        };
+        let mut out = self.placements.clone();
+        for p in out.iter_mut().filter(|p| p.root == moved) {
+            p.root = keep;
+            p.motion = m * p.motion;
+        }
+        Some(out)
+    }
+
+    /// Whether `placements` keep every fragment within its link's reach of the keyframe before
+    /// it, beyond three of loop `c`'s deviations (links within one tree before and after are
+    /// not checked again: they were when that tree formed).
+    fn within_reach(&self, placements: &[Placement], c: &LoopCandidate) -> bool {
+        let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
+        let sigma_r = self.params.loop_deviation;
+        self.fragment_starts
+            .iter()
+            .zip(&self.links)
+            .all(|(&start, &(prev, reach))| {
+                let (f, g) = (self.fragment_of(prev), self.fragment_of(start));
+                if self.placements[f].root == self.placements[g].root
+                    || placements[f].root != placements[g].root
+                {
+                    return true;
+                }
+                let from = placements[f].motion * self.tracked(prev);
+                let to = placements[g].motion * self.tracked(start);
+                let d = from.inverse() * to;
+                d.translation.vector.norm() <= reach.translation + 3.0 * sigma_t
+                    && d.rotation.angle() <= reach.rotation + 3.0 * sigma_r
+            })
+    }
+
+    /// Adds a verified loop (both keyframes must be in the graph); whether it was added. A
+    /// loop between two map fragments not yet joined joins them (see the module's
+    /// documentation), unless that puts a fragment out of its reach
+    /// ([`Self::start_fragment`]): then it is not added.
     pub fn add_loop(&mut self, c: &LoopCandidate) -> bool {
         let known = |id| self.graph.vertices.contains_key(&id);
         let odometry = self
@@ -214,12 +401,25 @@ impl KeyframeGraph {
         if !known(c.from) || !known(c.to) || c.from == c.to || odometry {
             return false;
         }
+        let joined = self.joined(c);
+        if joined.as_ref().is_some_and(|p| !self.within_reach(p, c)) {
+            tracing::debug!(
+                from = c.from,
+                to = c.to,
+                "a loop that would place a map fragment out of reach"
+            );
+            return false;
+        }
         let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
         let sigma_r = self.params.loop_deviation;
         let weights = deviations(sigma_r, sigma_t).map(|d| 1.0 / (d * d));
         self.push_edge(c.from, c.to, c.relative, Matrix6::from_diagonal(&weights));
         self.loops.push(self.graph.edges.len() - 1);
         self.found.push(c.clone());
+        if let Some(p) = joined {
+            self.placements = p;
+            self.revision += 1;
+        }
         true
     }
 
@@ -232,22 +432,25 @@ impl KeyframeGraph {
         });
     }
 
-    /// Solves the graph from `start` (the last solution, for a warm start; vertices it lacks
-    /// start at their tracked poses), loops under DCS.
-    pub fn optimise(
-        &self,
-        start: Option<&BTreeMap<usize, Isometry3<f64>>>,
-    ) -> Result<Optimised, LoopError> {
+    /// Solves the graph from `start` (the last solution, for a warm start, used when no
+    /// fragments were joined since; vertices it lacks start at their tracked poses moved with
+    /// their fragment's placement), loops under DCS.
+    pub fn optimise(&self, start: Option<&Optimised>) -> Result<Optimised, LoopError> {
         if self.graph.vertices.is_empty() {
             return Err(LoopError::Empty);
         }
+        let warm = start.filter(|s| s.revision == self.revision);
         let poses: BTreeMap<usize, Pose> = self
             .graph
             .vertices
             .iter()
-            .map(|(&id, p)| match start.and_then(|s| s.get(&id)) {
-                Some(x) => (id, Pose::Se3(*x)),
-                None => (id, *p),
+            .map(|(&id, p)| match (warm.and_then(|s| s.poses.get(&id)), p) {
+                (Some(x), _) => (id, Pose::Se3(*x)),
+                (None, Pose::Se3(x)) => {
+                    let placed = self.placements[self.fragment_of(id)].motion * x;
+                    (id, Pose::Se3(placed))
+                }
+                (None, p) => (id, *p),
             })
             .collect();
         // a loop never joins consecutive keyframes, so its ends tell it from the odometry
@@ -282,6 +485,7 @@ impl KeyframeGraph {
             loop_weights,
             converged: summary.termination.converged(),
             iterations: summary.num_iterations(),
+            revision: self.revision,
         })
     }
 
@@ -358,7 +562,7 @@ impl BackgroundSolver {
         let (jobs, inbox) = mpsc::channel::<KeyframeGraph>();
         let (outbox, results) = mpsc::channel::<Solved>();
         let worker = std::thread::spawn(move || {
-            let mut warm: Option<BTreeMap<usize, Isometry3<f64>>> = None;
+            let mut warm: Option<Optimised> = None;
             while let Ok(mut graph) = inbox.recv() {
                 let mut skipped = 0;
                 while let Ok(newer) = inbox.try_recv() {
@@ -367,7 +571,7 @@ impl BackgroundSolver {
                 }
                 let solved = graph.optimise(warm.as_ref());
                 if let Ok(o) = &solved {
-                    warm = Some(o.poses.clone());
+                    warm = Some(o.clone());
                 }
                 if outbox.send((skipped, solved)).is_err() {
                     break;
@@ -462,7 +666,7 @@ pub fn find_loop(
     let apart = params.min_frames_apart.max(1);
     let limit = frames.partition_point(|f| f.frame + apart <= new.frame);
     let mut best: Option<LoopCandidate> = None;
-    for k in keyframes.nearest_code(&new.code, limit, params.candidates) {
+    for k in keyframes.nearest_code(&new.code, 0..limit, params.candidates) {
         let old = &frames[k];
         let Some(m) = fit_keypoints(&new.keypoints, &old.keypoints, features) else {
             continue;
@@ -483,7 +687,7 @@ pub fn find_loop(
 }
 
 /// The median z of the points (0 when there are none).
-fn median_z(points: &[Vector3<f64>]) -> f64 {
+pub(super) fn median_z(points: &[Vector3<f64>]) -> f64 {
     let mut z: Vec<f64> = points.iter().map(|p| p.z).collect();
     if z.is_empty() {
         return 0.0;
@@ -579,8 +783,61 @@ mod tests {
         assert!(before > 0.03 && after < 0.3 * before, "{before} → {after}");
         assert!(closed.loop_weights[0].2 > 0.5, "{:?}", closed.loop_weights);
         // a warm start from the solution ends where it starts
-        let again = g.optimise(Some(&closed.poses)).unwrap();
+        let again = g.optimise(Some(&closed)).unwrap();
         assert!(again.iterations <= 2, "{} iterations", again.iterations);
+    }
+
+    /// The circle's drifted keyframes, those from `split` on in a second map fragment whose
+    /// frame is `offset` away from the first's, within `reach` of the keyframe before.
+    fn fragmented(
+        truth: &[Isometry3<f64>],
+        split: usize,
+        offset: Isometry3<f64>,
+        reach: Reach,
+    ) -> KeyframeGraph {
+        let mut g = KeyframeGraph::new(LoopParams::default());
+        for (k, x) in drifted(truth).into_iter().enumerate() {
+            match k.cmp(&split) {
+                std::cmp::Ordering::Less => g.add_keyframe(k, x),
+                std::cmp::Ordering::Equal => g.start_fragment(k, offset * x, reach),
+                std::cmp::Ordering::Greater => g.add_keyframe(k, offset * x),
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn a_loop_places_a_new_map_fragment_that_started_far_off() {
+        let truth = circle(40);
+        // the second fragment's frame: 1 m and 40° away from the first's
+        let offset = Isometry3::new(Vector3::new(0.6, -0.8, 0.1), Vector3::z() * 0.7);
+        // a step of the circle is 24 cm and 9°
+        let reach = |translation, rotation| Reach {
+            translation,
+            rotation,
+        };
+        let mut near = fragmented(&truth, 24, offset, reach(0.1, 0.05));
+        assert!(
+            !near.add_loop(&true_loop(&truth, 3, 30)),
+            "a camera that cannot have gone a step is not placed a step away"
+        );
+        assert_eq!(near.unplaced().len(), 16);
+        let mut g = fragmented(&truth, 24, offset, reach(0.5, 0.5));
+        assert_eq!(g.fragment_count(), 2);
+        // 24 keyframes against 16: the second fragment lies outside the main map
+        assert_eq!(g.unplaced(), (24..40).collect::<BTreeSet<_>>());
+        let unjoined = g.optimise(None).unwrap();
+        assert!(worst(&unjoined.poses, &truth) > 0.5);
+        // one loop from the second fragment back to the first joins them
+        assert!(g.add_loop(&true_loop(&truth, 3, 30)));
+        assert!(g.unplaced().is_empty());
+        assert_eq!(g.revision(), 1);
+        // the warm start from before the join is not used for the moved keyframes
+        let joined = g.optimise(Some(&unjoined)).unwrap();
+        assert!(joined.converged, "{joined:?}");
+        assert!(joined.loop_weights[0].2 > 0.5, "{:?}", joined.loop_weights);
+        let error = worst(&joined.poses, &truth);
+        assert!(error < 0.05, "worst keyframe {error} m off");
     }
 
     #[test]

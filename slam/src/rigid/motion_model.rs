@@ -7,17 +7,33 @@
 
 use nalgebra::Isometry3;
 
-/// The last two tracked (time, pose) pairs.
+/// The last two tracked (time, pose) pairs, and the fastest motion between two tracked frames.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct MotionModel {
     last: Option<(f64, Isometry3<f64>)>,
     before: Option<(f64, Isometry3<f64>)>,
+    fastest: (f64, f64),
 }
 
 impl MotionModel {
     /// Records a tracked frame.
     pub(crate) fn push(&mut self, time: f64, pose: Isometry3<f64>) {
         self.before = self.last.replace((time, pose));
+        if let (Some((s1, t1)), Some((s2, t2))) = (self.before, self.last) {
+            let span = s2 - s1;
+            if span > 0.0 && span.is_finite() {
+                let d = t1.inverse() * t2;
+                let (v, w) = &mut self.fastest;
+                *v = v.max(d.translation.vector.norm() / span);
+                *w = w.max(d.rotation.angle() / span);
+            }
+        }
+    }
+
+    /// The fastest translation (metres per unit of time) and rotation (radians per unit) between
+    /// two consecutive tracked frames so far, [`Self::reset`] or not.
+    pub(crate) fn fastest(&self) -> (f64, f64) {
+        self.fastest
     }
 
     /// Forgets the motion (after a frame that was not tracked: what came before says nothing

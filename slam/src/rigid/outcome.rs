@@ -81,6 +81,11 @@ pub enum FrameOutcome {
     /// Tracking from the predicted pose failed or the track was lost; the relocaliser found the
     /// pose, and the frame was fused.
     Relocalised,
+    /// Tracking was lost for good ([`super::RelocaliseParams::new_map_after`] frames not
+    /// relocalised): the frame started a new map fragment at the last good pose. Its pose and
+    /// those of the frames tracked after it are in the fragment's own frame until a loop places
+    /// the fragment in the map.
+    NewMap,
     /// Not tracked and not fused; the pose stays the last good one.
     NotTracked(TrackFailure),
     /// The frame was not given to the pipeline (an application's outcome: its files could not
@@ -89,9 +94,12 @@ pub enum FrameOutcome {
 }
 
 impl FrameOutcome {
-    /// The frame was fused into the map (started it, tracked or relocalised).
+    /// The frame was fused into the map (started it or a new fragment, tracked or relocalised).
     pub fn is_fused(&self) -> bool {
-        matches!(self, Self::Started | Self::Tracked | Self::Relocalised)
+        matches!(
+            self,
+            Self::Started | Self::NewMap | Self::Tracked | Self::Relocalised
+        )
     }
 
     /// Why the frame was not tracked, if that is what happened.

@@ -3,8 +3,8 @@
 //!   the camera's x and y) and the motion that sparse features matched against the last fused
 //!   frame give (FAST/BRIEF and RANSAC, [`crate::features`]) are each tracked on the coarsest
 //!   level against the model raycast at the last pose; the best is refined on all levels;
-//! - global (after a gap the camera may be anywhere it has been): the keyframes whose fern codes
-//!   are nearest the frame's ([`super::keyframes`]) are matched by features, a rigid motion
+//! - global (after a gap the camera may be anywhere it has been): the keyframes of the map
+//!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the frame's ([`super::keyframes`]) are matched by features, a rigid motion
 //!   fitted by RANSAC on the 3-D matches gives a pose, and the model raycast at that pose
 //!   verifies it by dense tracking.
 //!
@@ -15,7 +15,7 @@
 //! round, × the keyframe's own agreement for the global one).
 
 use super::health::Fit;
-use super::keyframes::{Candidate, KeyframeParams, Keyframes};
+use super::keyframes::{Candidate, Keyframe, KeyframeParams, Keyframes};
 use super::loops::LoopParams;
 use super::tracker::{ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
@@ -55,6 +55,11 @@ pub struct RelocaliseParams {
     /// Stamps further apart than this many typical frame intervals since the last fused frame
     /// are a break in the stream (default 3).
     pub gap_intervals: f64,
+    /// With sub-maps: once this many frames in a row were not relocalised, the next frame
+    /// that cannot be starts a new map fragment ([`super::loops`]; default 3, 0 never), as the
+    /// camera has gone where no keyframe saw. Its frames are placed in the map when a loop
+    /// joins the fragment to it, and left out of the trajectory otherwise.
+    pub new_map_after: usize,
 }
 
 impl Default for RelocaliseParams {
@@ -73,6 +78,7 @@ impl Default for RelocaliseParams {
             candidates: 5,
             min_fit_ratio: 0.85,
             gap_intervals: 3.0,
+            new_map_after: 3,
         }
     }
 }
@@ -109,6 +115,8 @@ pub(crate) struct Relocaliser {
     keyframes: Keyframes,
     maps: RaycastMaps,
     model: Option<ModelPyramid>,
+    /// The first frame of the current map fragment.
+    since: usize,
 }
 
 impl Relocaliser {
@@ -120,6 +128,7 @@ impl Relocaliser {
             keyframes: Keyframes::new(params.keyframes.clone()),
             maps: RaycastMaps::new(),
             model: None,
+            since: 0,
         }
     }
 
@@ -128,24 +137,36 @@ impl Relocaliser {
         &self.keyframes
     }
 
+    /// The first frame of the current map fragment.
+    pub fn fragment_start(&self) -> usize {
+        self.since
+    }
+
     /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and
-    /// offers it as a keyframe; whether it became one.
+    /// offers it as a keyframe; whether it became one. The first frame of a new map fragment
+    /// (`new_map`) is kept as a keyframe wherever it lies.
     pub(crate) fn remember(
         &mut self,
         frame: &Candidate<'_>,
         params: &RelocaliseParams,
         max_depth: f32,
+        new_map: bool,
     ) -> bool {
         self.key_depth.clone_from(frame.depth);
         if let Some(c) = frame.color {
             self.key_color.clone_from(c);
         }
-        self.keyframes.offer(frame, &params.features, max_depth)
+        if !new_map {
+            return self.keyframes.offer(frame, &params.features, max_depth);
+        }
+        self.since = frame.frame;
+        self.keyframes.insert(frame, &params.features, max_depth)
     }
 
     /// The live frame's pose: the better of the local and the global rounds' results that pass
     /// the tests (see the module's documentation) and reach the `floors`; `frame` only labels
-    /// the log.
+    /// the log. `place` takes a keyframe's frame index to the motion from its map fragment's
+    /// frame into the current one's, `None` for fragments not joined to it.
     #[allow(clippy::too_many_arguments)]
     pub fn relocalise(
         &mut self,
@@ -155,7 +176,7 @@ impl Relocaliser {
         live: &LiveFrame<'_>,
         last: Isometry3<f64>,
         floors: Floors,
-        frame: usize,
+        (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
         // the live frame's keypoints, detected once for both rounds
         let keypoints = live.color.map(|color| {
@@ -178,7 +199,14 @@ impl Relocaliser {
             frame,
         );
         let ratio = floors.keyframe_ratio;
-        let global = self.global(params, tracker, map.0, (live, keypoints), ratio, frame);
+        let global = self.global(
+            params,
+            tracker,
+            map.0,
+            (live, keypoints),
+            ratio,
+            (frame, place),
+        );
         match (local, global) {
             (Some(a), Some(b)) => Some(if b.inlier_fraction() > a.inlier_fraction() {
                 b
@@ -239,13 +267,14 @@ impl Relocaliser {
         volume: &TsdfVolume,
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
         ratio: f64,
-        frame: usize,
+        (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
         let (color, keypoints) = live.color.zip(keypoints)?;
         let depth = &live.levels[0].depth;
+        let joined = |k: &Keyframe| place(k.frame).is_some();
         let nearest = self
             .keyframes
-            .nearest(Some(color), depth, params.candidates);
+            .nearest_where(Some(color), depth, params.candidates, joined);
         let mut best: Option<(f64, TrackOutcome)> = None;
         for k in nearest {
             let key = &self.keyframes.frames()[k];
@@ -253,8 +282,12 @@ impl Relocaliser {
                 continue;
             };
             let fit = m.fit;
-            // live points map into the keyframe: T_live = T_key · M
-            let start = key.pose * fit.motion;
+            // live points map into the keyframe: T_live = T_key · M, in the current fragment's
+            // frame
+            let Some(into) = place(key.frame) else {
+                continue;
+            };
+            let start = into * key.pose * fit.motion;
             let keyframe = key.frame;
             let floor = ratio * key.agreement.unwrap_or(0.0);
             let o = self.verify(tracker, volume, live, &start);

@@ -51,6 +51,7 @@ pub struct Submap {
 struct Active {
     anchor: Option<usize>,
     first: usize,
+    last: usize,
     fused: usize,
 }
 
@@ -74,6 +75,7 @@ impl Submaps {
             active: Active {
                 anchor: None,
                 first: 0,
+                last: 0,
                 fused: 0,
             },
             next: None,
@@ -133,6 +135,7 @@ impl Submaps {
             self.active.first = frame;
         }
         self.active.fused += 1;
+        self.active.last = frame;
         let Some((next, count)) = self.next.as_mut() else {
             return;
         };
@@ -153,7 +156,29 @@ impl Submaps {
         self.active = Active {
             anchor: Some(next.anchor),
             first: next.frames.0,
+            last: frame,
             fused: count,
+        };
+    }
+
+    /// Starts a new map fragment at keyframe `frame`: the active sub-map is frozen as it is (a
+    /// sub-map being started is dropped, as the active one holds its frames too) and `active`
+    /// becomes an empty volume anchored at `frame`.
+    pub fn restart(&mut self, frame: usize, tsdf: TsdfParams, active: &mut TsdfVolume) {
+        self.next = None;
+        let old = std::mem::replace(active, TsdfVolume::new(tsdf));
+        if self.active.fused > 0 {
+            self.frozen.push(Submap {
+                volume: old,
+                anchor: self.active.anchor.unwrap_or(self.active.first),
+                frames: (self.active.first, self.active.last),
+            });
+        }
+        self.active = Active {
+            anchor: Some(frame),
+            first: frame,
+            last: frame,
+            fused: 0,
         };
     }
 
@@ -176,8 +201,13 @@ impl Submaps {
     }
 
     /// The whole map as one mesh: each frozen sub-map's and `active`'s surface moved by
-    /// `correction(anchor)` (X*_a X_a⁻¹, see the module's documentation).
-    pub fn mesh(&self, active: &TsdfVolume, correction: impl Fn(usize) -> Isometry3<f64>) -> Mesh {
+    /// `correction(anchor)` (X*_a X_a⁻¹, see the module's documentation); a sub-map whose
+    /// correction is `None` (a map fragment no loop placed) is left out.
+    pub fn mesh(
+        &self,
+        active: &TsdfVolume,
+        correction: impl Fn(usize) -> Option<Isometry3<f64>>,
+    ) -> Mesh {
         let mut out = Mesh::default();
         let parts = self
             .frozen
@@ -185,7 +215,9 @@ impl Submaps {
             .map(|s| (&s.volume, Some(s.anchor)))
             .chain(std::iter::once((active, self.active.anchor)));
         for (volume, anchor) in parts {
-            let c = anchor.map_or(Isometry3::identity(), &correction);
+            let Some(c) = anchor.map_or(Some(Isometry3::identity()), &correction) else {
+                continue;
+            };
             append(&mut out, volume.extract_mesh(), &c.cast::<f32>());
         }
         out
