@@ -30,13 +30,14 @@ pub(crate) fn register(
         .enumerate()
         .for_each_init(Vec::new, |filled, (v, row)| {
             fill_row(&depth_raw.data[v * w..(v + 1) * w], filled);
+            let ray = to_color.row(v as f32);
             for (u, (px, &d)) in row.iter_mut().zip(filled.iter()).enumerate() {
                 *px = color.data[v * w + u];
                 if d == 0 {
                     continue;
                 }
                 if let Some(c) = to_color
-                    .apply(u as f32, v as f32, d as f32)
+                    .apply(&ray, u as f32, d as f32)
                     .and_then(|(cu, cv)| bilinear(color, cu, cv))
                 {
                     *px = c;
@@ -46,7 +47,8 @@ pub(crate) fn register(
 }
 
 /// Pixel (u, v) at raw depth d, back-projected, moved by a rigid motion and projected again
-/// (eqs. 2.1, 2.2), in `f32` with the camera's constants folded in.
+/// (eqs. 2.1, 2.2), in `f32` with the camera's constants folded in. Along a row the moved point
+/// is z (b + u a) + t, with a = R K⁻¹ [1, 0, 0]ᵀ and b = R K⁻¹ [0, v, 1]ᵀ ([`Warp::row`]).
 struct Warp {
     rotation: [[f32; 3]; 3],
     translation: [f32; 3],
@@ -54,6 +56,12 @@ struct Warp {
     f: [f32; 2],
     c: [f32; 2],
     scale: f32,
+}
+
+/// A row's rotated rays: at u = 0 and the step per pixel.
+struct RowRays {
+    base: [f32; 3],
+    step: [f32; 3],
 }
 
 impl Warp {
@@ -70,23 +78,32 @@ impl Warp {
         }
     }
 
-    /// The pixel where (u, v) at raw depth `d` lands; `None` behind the camera.
-    #[inline]
-    fn apply(&self, u: f32, v: f32, d: f32) -> Option<(f32, f32)> {
-        let z = d * self.scale;
-        let x = [
-            (u - self.c[0]) * self.inv_f[0] * z,
-            (v - self.c[1]) * self.inv_f[1] * z,
-            z,
+    /// The rotated rays of row `v`.
+    fn row(&self, v: f32) -> RowRays {
+        let ray = [
+            -self.c[0] * self.inv_f[0],
+            (v - self.c[1]) * self.inv_f[1],
+            1.0,
         ];
-        let p: [f32; 3] = std::array::from_fn(|i| {
-            let r = &self.rotation[i];
-            r[0] * x[0] + r[1] * x[1] + r[2] * x[2] + self.translation[i]
-        });
+        let r = &self.rotation;
+        RowRays {
+            base: std::array::from_fn(|i| r[i][0] * ray[0] + r[i][1] * ray[1] + r[i][2]),
+            step: std::array::from_fn(|i| r[i][0] * self.inv_f[0]),
+        }
+    }
+
+    /// The pixel where (u, v) at raw depth `d` lands, `row` being row v's rays; `None` behind
+    /// the camera.
+    #[inline]
+    fn apply(&self, row: &RowRays, u: f32, d: f32) -> Option<(f32, f32)> {
+        let z = d * self.scale;
+        let p: [f32; 3] =
+            std::array::from_fn(|i| z * (row.base[i] + u * row.step[i]) + self.translation[i]);
         (p[2] > 0.0).then(|| {
+            let inv = 1.0 / p[2];
             (
-                self.f[0] * p[0] / p[2] + self.c[0],
-                self.f[1] * p[1] / p[2] + self.c[1],
+                self.f[0] * p[0] * inv + self.c[0],
+                self.f[1] * p[1] * inv + self.c[1],
             )
         })
     }
@@ -115,20 +132,27 @@ fn fill_row(row: &[u16], filled: &mut Vec<u16>) {
     }
 }
 
-/// The colour at (x, y) interpolated between the four pixels around it; `None` outside.
+/// The colour at (x, y) interpolated between the four pixels around it, in fixed point (the
+/// weights in 1/256ths of a pixel, a rounding of at most one level); `None` outside.
 fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
     if !(x >= 0.0 && y >= 0.0 && x <= (img.width - 1) as f32 && y <= (img.height - 1) as f32) {
         return None;
     }
     let (x0, y0) = (x as usize, y as usize);
     let (x1, y1) = ((x0 + 1).min(img.width - 1), (y0 + 1).min(img.height - 1));
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let ax = ((x - x0 as f32) * 256.0) as u32;
+    let ay = ((y - y0 as f32) * 256.0) as u32;
+    let w = [
+        (256 - ax) * (256 - ay),
+        ax * (256 - ay),
+        (256 - ax) * ay,
+        ax * ay,
+    ];
     let at = |x: usize, y: usize| img.data[y * img.width + x];
-    let (p00, p10, p01, p11) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+    let p = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
     Some(std::array::from_fn(|c| {
-        let top = p00[c] as f32 + (p10[c] as f32 - p00[c] as f32) * fx;
-        let bottom = p01[c] as f32 + (p11[c] as f32 - p01[c] as f32) * fx;
-        (top + (bottom - top) * fy + 0.5) as u8
+        let sum: u32 = (0..4).map(|k| p[k][c] as u32 * w[k]).sum();
+        ((sum + (1 << 15)) >> 16) as u8
     }))
 }
 
