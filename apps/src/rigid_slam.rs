@@ -9,9 +9,9 @@
 //! (`slam::io::sequence::Sequence` tells them apart). Prints a progress bar with the fps, and one
 //! JSON line last: frames, seconds (the whole per-frame loop, image reading included), fps,
 //! failures (frames read but not tracked), skipped (frames whose files could not be read),
-//! relocalised, new_maps and unplaced_frames (with `--submaps`: maps started after the track was
-//! lost for good, and the tracked frames left out because no loop placed their map), and the ATE
-//! when the folder has a ground truth. The trajectory holds the tracked frames only.
+//! relocalised, new_maps and unplaced_frames (maps started after the track was lost for good, and
+//! the tracked frames left out because no loop placed their map), and the ATE when the folder has
+//! a ground truth. The trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
@@ -55,10 +55,11 @@ struct Args {
     /// or a folder of numbered colour/depth frames.
     /// Without it, a 60-frame sequence is rendered and tracked.
     dir: Option<PathBuf>,
-    /// Where to write the estimated trajectory (TUM format). With --submaps, each frame's
-    /// tracked pose is carried with its keyframe to the keyframe graph's solution when loops
-    /// were found, and frames of new maps that no loop placed are left out (the JSON line's
-    /// `ate_rmse` is this trajectory's, `ate_tracked` the poses' as tracked).
+    /// Where to write the estimated trajectory (TUM format). With --submaps (or once a lost
+    /// track split one volume into new maps), each frame's tracked pose is carried with its
+    /// keyframe to the keyframe graph's solution when loops were found, and frames of new maps
+    /// that no loop placed are left out (the JSON line's `ate_rmse` is this trajectory's,
+    /// `ate_tracked` the poses' as tracked).
     #[arg(long)]
     output: Option<PathBuf>,
     /// Where to write the fused mesh (binary PLY).
@@ -368,7 +369,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
     // frames of map fragments that no loop placed have no pose in the map
     let unplaced = leave_out_unplaced(&mut tally, slam.keyframe_graph());
     let tracked = tally.trajectory.clone();
-    // one volume cannot follow a loop: its poses stay as tracked (NOTES 59)
+    // one volume cannot follow a loop: its poses stay as tracked (NOTES 59), unless a lost track
+    // split it into sub-maps (NOTES 81)
     if let Some(o) = solved.as_ref().filter(|_| slam.submaps().is_some()) {
         correct(
             &mut tally.trajectory,

@@ -20,6 +20,7 @@ const STEP: usize = 6;
 
 /// The run: the survey's frames before `end` but those in `dropped`, each frame's outcome,
 /// the corrected trajectory of the frames in the map, and the keyframes left outside it.
+/// `one_volume`: the map starts as one volume (split when the track is lost for good).
 struct Run {
     outcomes: Vec<(usize, FrameOutcome)>,
     corrected: Trajectory,
@@ -28,8 +29,11 @@ struct Run {
     truth: Trajectory,
 }
 
-fn run(end: usize, dropped: Range<usize>) -> Run {
-    let (cam, params) = super::submaps::short_submap_run();
+fn run(end: usize, dropped: Range<usize>, one_volume: bool) -> Run {
+    let (cam, mut params) = super::submaps::short_submap_run();
+    if one_volume {
+        params.submaps = None;
+    }
     let all = motion::procedural(Motion::Survey, end * STEP, 30.0);
     let scene = layouts::build(Layout::Room, 3);
     let noise = SensorNoise {
@@ -86,11 +90,11 @@ fn after_gap(r: &Run, gap_end: usize, n: usize) -> Vec<&FrameOutcome> {
         .collect()
 }
 
-#[test]
-fn a_gap_into_unseen_walls_starts_a_new_map_that_a_loop_places() {
-    // 1.3 rounds; frames 40..60 (48° of the round, 4 s) are dropped in the first
+/// 1.3 rounds; frames 40..60 (48° of the round, 4 s) are dropped in the first: the frames
+/// after the gap start a new map, which the loops at the end of the round place.
+fn new_map_placed(one_volume: bool) {
     let gap = 40..60;
-    let r = run(195, gap.clone());
+    let r = run(195, gap.clone(), one_volume);
     let first = after_gap(&r, gap.end, 5);
     assert!(
         first.contains(&&FrameOutcome::NewMap),
@@ -110,10 +114,20 @@ fn a_gap_into_unseen_walls_starts_a_new_map_that_a_loop_places() {
 }
 
 #[test]
+fn a_gap_into_unseen_walls_starts_a_new_map_that_a_loop_places() {
+    new_map_placed(false);
+}
+
+#[test]
+fn one_volume_is_split_when_the_track_is_lost_for_good() {
+    new_map_placed(true);
+}
+
+#[test]
 fn a_new_map_that_no_loop_places_is_left_out() {
     // the same gap, but the run stops before the camera comes back
     let gap = 40..60;
-    let r = run(110, gap.clone());
+    let r = run(110, gap.clone(), false);
     assert!(after_gap(&r, gap.end, 5).contains(&&FrameOutcome::NewMap));
     assert_eq!(r.fragments, 2);
     // the fragment before the gap is the smaller one: its keyframes (named by the count of

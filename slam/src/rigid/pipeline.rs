@@ -474,11 +474,12 @@ impl RigidSlam {
         })
     }
 
-    /// Counts the frames in a row that were not relocalised; with sub-maps, once there are
+    /// Counts the frames in a row that were not relocalised; once there are
     /// [`RelocaliseParams::new_map_after`], the frame (if it has colour for a keyframe and
     /// depth to start a map) starts a new map fragment at the last good pose: the active
-    /// sub-map is frozen, an empty one takes over, and the frame becomes the fragment's first
-    /// keyframe when fused ([`super::loops`] places the fragment once a loop joins it).
+    /// sub-map is frozen (one volume becomes the first sub-map), an empty one takes over, and
+    /// the frame becomes the fragment's first keyframe when fused ([`super::loops`] places the
+    /// fragment once a loop joins it).
     fn new_map_if_lost(
         &mut self,
         located: Result<f64, TrackFailure>,
@@ -495,11 +496,15 @@ impl RigidSlam {
         let after = self.params.relocalise.new_map_after;
         let due = after > 0 && self.unrelocalised >= after && has_color;
         let tsdf = self.params.tsdf;
-        let can_start = due && self.can_start().is_ok();
-        let Some(submaps) = self.submaps.as_mut().filter(|_| can_start) else {
+        if !due || self.can_start().is_err() {
             return located;
-        };
-        submaps.restart(self.frames, tsdf, &mut self.volume);
+        }
+        if !self.split_volume() {
+            return located;
+        }
+        if let Some(s) = self.submaps.as_mut() {
+            s.restart(self.frames, tsdf, &mut self.volume);
+        }
         self.unrelocalised = 0;
         self.lost = false;
         self.starting_map = true;
@@ -511,6 +516,31 @@ impl RigidSlam {
             "lost for good: a new map fragment starts"
         );
         Ok(1.0)
+    }
+
+    /// Whether the map is in sub-maps: with one volume, that volume becomes the one sub-map
+    /// so far, anchored at the first keyframe (not before there is one) and never split by its
+    /// frame count.
+    fn split_volume(&mut self) -> bool {
+        if self.submaps.is_some() {
+            return true;
+        }
+        let Some(&anchor) = self.loops.graph().vertices.keys().next() else {
+            return false;
+        };
+        let params = SubmapParams {
+            frames: usize::MAX,
+            ..SubmapParams::default()
+        };
+        let last = self.frames.saturating_sub(1);
+        self.submaps = Some(Submaps::single(params, anchor, 1, last));
+        // as `new` sets it for sub-maps
+        let r = &self.params.relocalise;
+        if r.keyframes.recent_frames == usize::MAX {
+            self.relocaliser
+                .keep_away_from_recent(r.loops.min_frames_apart);
+        }
+        true
     }
 
     /// The first frame starts the map if enough of its depth lies in the fusion range.

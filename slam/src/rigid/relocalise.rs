@@ -55,10 +55,11 @@ pub struct RelocaliseParams {
     /// Stamps further apart than this many typical frame intervals since the last fused frame
     /// are a break in the stream (default 3).
     pub gap_intervals: f64,
-    /// With sub-maps: once this many frames in a row were not relocalised, the next frame
-    /// that cannot be starts a new map fragment ([`super::loops`]; default 3, 0 never), as the
-    /// camera has gone where no keyframe saw. Its frames are placed in the map when a loop
-    /// joins the fragment to it, and left out of the trajectory otherwise.
+    /// When this many frames in a row were not relocalised, the last of them starts a new map
+    /// fragment ([`super::loops`]; default 3, 0 never), as the camera has gone where no
+    /// keyframe saw; one volume is then split into sub-maps ([`super::submaps`]), the map so
+    /// far being the first. The fragment's frames are placed in the map when a loop joins the
+    /// fragment to it, and left out of the trajectory otherwise.
     pub new_map_after: usize,
 }
 
@@ -140,6 +141,12 @@ impl Relocaliser {
     /// The first frame of the current map fragment.
     pub fn fragment_start(&self) -> usize {
         self.since
+    }
+
+    /// Keyframes are kept away from those of the last `frames` frames only (sub-maps'
+    /// setting: an older place seen again gets keyframes of its own, for loops).
+    pub fn keep_away_from_recent(&mut self, frames: usize) {
+        self.keyframes.params.recent_frames = frames;
     }
 
     /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and

@@ -82,6 +82,20 @@ impl Submaps {
         }
     }
 
+    /// The map so far as one active sub-map anchored at keyframe `anchor` that fused frames
+    /// `first..=last` (a single volume split when its track is lost for good, see
+    /// [`super::RelocaliseParams::new_map_after`]).
+    pub fn single(params: SubmapParams, anchor: usize, first: usize, last: usize) -> Self {
+        let mut s = Self::new(params);
+        s.active = Active {
+            anchor: Some(anchor),
+            first,
+            last,
+            fused: last + 1 - first.min(last),
+        };
+        s
+    }
+
     /// The frozen sub-maps, oldest first.
     pub fn frozen(&self) -> &[Submap] {
         &self.frozen
