@@ -366,7 +366,6 @@ fn run(args: Args, session: &Session) -> Result<()> {
     // frames follow their keyframes to it
     let warm = slam.finish_graph()?.cloned();
     let solved = solve_graph(slam.keyframe_graph(), warm.as_ref(), args.graph.is_some())?;
-    // frames of map fragments that no loop placed have no pose in the map
     let unplaced = leave_out_unplaced(&mut tally, slam.keyframe_graph());
     let tracked = tally.trajectory.clone();
     // one volume cannot follow a loop: its poses stay as tracked (NOTES 59), unless a lost track
@@ -718,7 +717,8 @@ fn solve_graph(
 }
 
 /// Leaves out of the trajectory the frames anchored to keyframes of map fragments that no
-/// loop placed in the main map ([`KeyframeGraph::unplaced`]), with a warning; how many.
+/// loop placed in the main map ([`KeyframeGraph::unplaced`]: they have no pose in it), with a
+/// warning; how many.
 fn leave_out_unplaced(tally: &mut Tally, graph: &KeyframeGraph) -> usize {
     let unplaced = graph.unplaced();
     if unplaced.is_empty() {

@@ -181,6 +181,9 @@ impl RigidSlam {
         let mut camera = Camera::new(fx, fy, cx, cy, width, height);
         camera.depth_scale = depth_scale;
         let mut params = SlamParams::default();
+        // frame by frame, a new map's poses would be in its own frame, and this trajectory has
+        // no keyframe graph to place them: a lost track stays lost until relocalised
+        params.relocalise.new_map_after = 0;
         if let Some(v) = voxel_size {
             if !(v.is_finite() && v > 0.0) {
                 return Err(PyValueError::new_err(format!(
