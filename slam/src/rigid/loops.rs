@@ -304,11 +304,11 @@ impl KeyframeGraph {
     }
 
     /// Adds keyframe `id` at `pose` as the first of a new map fragment: its pose is in a frame
-    /// of its own, tied to the previous keyframe by an uninformative link only
-    /// ([`FRAGMENT_LINK`]) until a loop joins the fragment to another. A loop that would place
-    /// it further than `reach` from the previous keyframe is refused (in a scene with two
-    /// places alike, the other place is often found first, and no odometry would contradict
-    /// it). Ids must grow.
+    /// of its own, tied to the previous keyframe by an uninformative link only (deviations of
+    /// π rad and 100 m) until a loop joins the fragment to another. A loop that would place it
+    /// further than `reach` from the previous keyframe is refused (in a scene with two places
+    /// alike, the other place is often found first, and no odometry would contradict it). Ids
+    /// must grow.
     pub fn start_fragment(&mut self, id: usize, pose: Isometry3<f64>, reach: Reach) {
         self.graph.vertices.insert(id, Pose::Se3(pose));
         if let Some((prev, prev_pose)) = self.last {
