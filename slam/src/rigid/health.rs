@@ -65,8 +65,7 @@ impl Health {
     /// Starts the fits again from a relocalised frame's (the recent frames saw another view):
     /// until a few frames are fused, that one is the expectation.
     pub(crate) fn restart(&mut self, fit: Fit) {
-        self.fractions.clear();
-        self.agreements.clear();
+        self.forget_fits();
         self.anchor = Some(fit);
     }
 

@@ -317,12 +317,8 @@ impl Keyframes {
             return Vec::new();
         };
         let code = ferns.code(color, depth);
-        let mut ranked: Vec<(f64, usize)> = (self.frames.iter().enumerate())
-            .filter(|(_, f)| keep(f))
-            .map(|(k, f)| (dissimilarity(&code, &f.code), k))
-            .collect();
-        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
-        ranked.into_iter().take(count).map(|(_, k)| k).collect()
+        let kept = self.frames.iter().enumerate().filter(|(_, f)| keep(f));
+        nearest_of(&code, kept, count)
     }
 }
 
@@ -337,14 +333,23 @@ impl Keyframes {
     ) -> Vec<usize> {
         let end = range.end.min(self.frames.len());
         let start = range.start.min(end);
-        let mut ranked: Vec<(f64, usize)> = self.frames[start..end]
-            .iter()
-            .enumerate()
-            .map(|(k, f)| (dissimilarity(code, &f.code), start + k))
-            .collect();
-        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
-        ranked.into_iter().take(count).map(|(_, k)| k).collect()
+        let kept = self.frames.iter().enumerate().take(end).skip(start);
+        nearest_of(code, kept, count)
     }
+}
+
+/// The indices of the `count` keyframes of `kept` (index, keyframe) whose codes are nearest
+/// `code`, nearest first.
+fn nearest_of<'a>(
+    code: &[u8],
+    kept: impl Iterator<Item = (usize, &'a Keyframe)>,
+    count: usize,
+) -> Vec<usize> {
+    let mut ranked: Vec<(f64, usize)> = kept
+        .map(|(k, f)| (dissimilarity(code, &f.code), k))
+        .collect();
+    ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+    ranked.into_iter().take(count).map(|(_, k)| k).collect()
 }
 
 /// The median of a depth image's valid values, sampled every 7th pixel into `z` (0 when there

@@ -294,22 +294,15 @@ impl RigidSlam {
     /// sub-maps, each moved with its anchor keyframe ([`Submaps::mesh`]); a single volume
     /// cannot follow and is meshed as fused.
     pub fn map_mesh(&self, solution: Option<&BTreeMap<usize, Isometry3<f64>>>) -> Mesh {
-        match (&self.submaps, solution) {
-            (Some(s), Some(x)) => {
-                let unplaced = self.loops.unplaced();
-                s.mesh(&self.volume, |a| {
-                    let c = self.loops.corrected(x, a, &Isometry3::identity());
-                    (!unplaced.contains(&a)).then_some(c)
-                })
-            }
-            (Some(s), None) => {
-                let unplaced = self.loops.unplaced();
-                s.mesh(&self.volume, |a| {
-                    (!unplaced.contains(&a)).then_some(Isometry3::identity())
-                })
-            }
-            (None, _) => self.volume.extract_mesh(),
-        }
+        let Some(s) = &self.submaps else {
+            return self.volume.extract_mesh();
+        };
+        let unplaced = self.loops.unplaced();
+        let identity = Isometry3::identity();
+        s.mesh(&self.volume, |a| {
+            let c = solution.map_or(identity, |x| self.loops.corrected(x, a, &identity));
+            (!unplaced.contains(&a)).then_some(c)
+        })
     }
 
     /// The keyframes kept for relocalisation.

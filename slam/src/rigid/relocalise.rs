@@ -4,9 +4,10 @@
 //!   frame give (FAST/BRIEF and RANSAC, [`crate::features`]) are each tracked on the coarsest
 //!   level against the model raycast at the last pose; the best is refined on all levels;
 //! - global (after a gap the camera may be anywhere it has been): the keyframes of the map
-//!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the frame's ([`super::keyframes`]) are matched by features, a rigid motion
-//!   fitted by RANSAC on the 3-D matches gives a pose, and the model raycast at that pose
-//!   verifies it by dense tracking.
+//!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the
+//!   frame's ([`super::keyframes`]) are matched by features, a rigid motion fitted by RANSAC on
+//!   the 3-D matches gives a pose, and the model raycast at that pose verifies it by dense
+//!   tracking.
 //!
 //! Both rounds run and the higher inlier fraction wins. A pose is kept only when it passes the
 //! tracker's tests and, away from the last pose, a stricter inlier fraction

@@ -91,7 +91,7 @@ impl Submaps {
             anchor: Some(anchor),
             first,
             last,
-            fused: last + 1 - first.min(last),
+            fused: (last + 1).saturating_sub(first),
         };
         s
     }
