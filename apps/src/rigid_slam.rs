@@ -292,6 +292,7 @@ fn record(
     )?;
     rec.scalar("tracking/inliers", report.inliers as f64)?;
     rec.scalar("tracking/failed", report.failure().is_some() as u8 as f64)?;
+    rec.scalar("tracking/placed", report.placed as u8 as f64)?;
     let t = &report.times;
     for (name, s) in [
         ("preprocess", t.preprocess),

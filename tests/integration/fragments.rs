@@ -23,6 +23,8 @@ const STEP: usize = 6;
 /// `one_volume`: the map starts as one volume (split when the track is lost for good).
 struct Run {
     outcomes: Vec<(usize, FrameOutcome)>,
+    /// Each frame's report of whether its pose is in the main map's frame.
+    placed: Vec<bool>,
     corrected: Trajectory,
     unplaced: BTreeSet<usize>,
     fragments: usize,
@@ -42,6 +44,7 @@ fn run(end: usize, dropped: Range<usize>, one_volume: bool) -> Run {
     };
     let mut slam = RigidSlam::new(cam, params, all.poses[0]);
     let (mut outcomes, mut tracked, mut anchors) = (Vec::new(), Trajectory::default(), Vec::new());
+    let mut placed = Vec::new();
     let mut truth = Trajectory::default();
     for k in (0..end).filter(|k| !dropped.contains(k)) {
         let (stamp, pose) = (all.stamps[k * STEP], all.poses[k * STEP]);
@@ -57,6 +60,7 @@ fn run(end: usize, dropped: Range<usize>, one_volume: bool) -> Run {
             tracked.push(stamp, report.pose);
             anchors.push(report.anchor);
         }
+        placed.push(report.placed);
         outcomes.push((k, report.outcome));
     }
     let warm = slam.finish_graph().unwrap().cloned();
@@ -73,11 +77,27 @@ fn run(end: usize, dropped: Range<usize>, one_volume: bool) -> Run {
     }
     Run {
         outcomes,
+        placed,
         corrected,
         unplaced,
         fragments: graph.fragment_count(),
         truth,
     }
+}
+
+/// The new map's first frame says its pose is not in the main map (the older fragment is
+/// larger then), and the last frame says its pose is.
+fn assert_placed_as_reported(r: &Run) {
+    let new_map = r.outcomes.iter().position(|o| o.1 == FrameOutcome::NewMap);
+    let new_map = new_map.expect("a new map was started");
+    assert!(
+        !r.placed[new_map],
+        "the new map's first frame reported placed"
+    );
+    assert!(
+        r.placed.last() == Some(&true),
+        "the last frame reported unplaced"
+    );
 }
 
 /// The outcome of each of the first `n` frames after the gap.
@@ -102,6 +122,7 @@ fn new_map_placed(one_volume: bool) {
     );
     assert_eq!(r.fragments, 2);
     assert!(r.unplaced.is_empty(), "unplaced: {:?}", r.unplaced);
+    assert_placed_as_reported(&r);
     let placed = ate(&r.truth, &r.corrected, Alignment::Se3, 1e-3).unwrap();
     let fused = r.outcomes.iter().filter(|o| o.1.is_fused()).count();
     assert_eq!(r.corrected.len(), fused, "every fused frame is in the map");
@@ -133,6 +154,7 @@ fn a_new_map_that_no_loop_places_is_left_out() {
     // the fragment before the gap is the smaller one: its keyframes (named by the count of
     // frames processed, from 1) are outside the map, and the map's frames all lie after it
     assert!(!r.unplaced.is_empty());
+    assert_placed_as_reported(&r);
     assert!(
         r.unplaced.iter().all(|&id| id <= gap.start),
         "unplaced: {:?}",

@@ -215,22 +215,31 @@ impl KeyframeGraph {
         if self.fragment_starts.is_empty() {
             return BTreeSet::new();
         }
-        let root = |id: &usize| self.placements[self.fragment_of(*id)].root;
+        let main = self.main_root();
+        let ids = self.graph.vertices.keys().copied();
+        ids.filter(|&id| self.root_of(id) != main).collect()
+    }
+
+    /// Whether keyframe `id` lies in the main map (not [`Self::unplaced`]).
+    pub fn is_placed(&self, id: usize) -> bool {
+        self.fragment_starts.is_empty() || self.root_of(id) == self.main_root()
+    }
+
+    /// The root of keyframe `id`'s fragment.
+    fn root_of(&self, id: usize) -> usize {
+        self.placements[self.fragment_of(id)].root
+    }
+
+    /// The root of the joined fragments with the most keyframes, the oldest among equals.
+    fn main_root(&self) -> usize {
         let mut counts = vec![0usize; self.placements.len()];
-        for id in self.graph.vertices.keys() {
-            counts[root(id)] += 1;
+        for &id in self.graph.vertices.keys() {
+            counts[self.root_of(id)] += 1;
         }
-        // the largest count, the oldest root among equals
-        let main = (0..counts.len())
+        (0..counts.len())
             .rev()
             .max_by_key(|&r| counts[r])
-            .unwrap_or(0);
-        self.graph
-            .vertices
-            .keys()
-            .filter(|id| root(id) != main)
-            .copied()
-            .collect()
+            .unwrap_or(0)
     }
 
     /// The graph as the solver's pose-graph type (vertices at their tracked poses).

@@ -84,8 +84,7 @@ pub enum FrameOutcome {
     /// Tracking was lost for good ([`super::RelocaliseParams::new_map_after`] frames not
     /// relocalised): the frame started a new map fragment at the last good pose. Its pose and
     /// those of the frames tracked after it are in the fragment's own frame until a loop places
-    /// the fragment in the map: [`super::FrameReport::anchor`] and
-    /// [`super::loops::KeyframeGraph::unplaced`] tell which frames, and
+    /// the fragment in the map: [`super::FrameReport::placed`] says so frame by frame, and
     /// [`super::loops::KeyframeGraph::corrected`] carries them to the graph's solution once
     /// placed. A caller that keeps per-frame poses without the graph should set
     /// `new_map_after` to 0.

@@ -139,6 +139,10 @@ pub struct FrameReport {
     /// from: the newest one when the frame was fused. [`KeyframeGraph::corrected`] carries the
     /// pose along when a loop moves the keyframe. `None` before the first keyframe.
     pub anchor: Option<usize>,
+    /// Whether the pose is in the main map's frame: false for a frame of a new map fragment
+    /// that no loop has joined to the main map yet ([`KeyframeGraph::is_placed`]), whose pose
+    /// is in that fragment's own frame and says nothing of where it lies in the map.
+    pub placed: bool,
     /// The exposure gain a the frame was tracked with: the model's intensity is about a I for
     /// the live intensity I (NOTES 60; 1 when not fitted or not tracked). The colour is fused
     /// as recorded.
@@ -395,6 +399,7 @@ impl RigidSlam {
             agreement: 0.0,
             conditioning: 0.0,
             anchor: None,
+            placed: true,
             gain: 1.0,
         };
         if let Err(why) = self.check_size(depth_raw, color) {
@@ -442,6 +447,7 @@ impl RigidSlam {
         }
         report.pose = self.pose;
         report.anchor = self.anchor;
+        report.placed = self.anchor.is_none_or(|a| self.loops.is_placed(a));
         self.log(&report);
         report
     }
