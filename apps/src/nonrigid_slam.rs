@@ -86,6 +86,13 @@ struct Args {
     /// The pyramid level of the data term's depth (0: full resolution).
     #[arg(long, default_value_t = FusionParams::default().data_level)]
     data_level: usize,
+    /// The photometric term compares intensities over their mean in windows of ± this many
+    /// pixels of the data level.
+    #[arg(long, default_value_t = FusionParams::default().photometric_window)]
+    photometric_window: usize,
+    /// The photometric references are taken from a tracked frame every this many frames.
+    #[arg(long, default_value_t = FusionParams::default().photometric_keyframe_every)]
+    photometric_keyframe_every: usize,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -98,6 +105,8 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.tsdf.voxel_size = args.voxel_size;
     p.data_spacing = args.data_spacing;
     p.data_level = args.data_level;
+    p.photometric_window = args.photometric_window;
+    p.photometric_keyframe_every = args.photometric_keyframe_every.max(1);
     if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
         return Err(cli::bad_input("--voxel-size must be a positive length"));
     }
@@ -398,11 +407,13 @@ fn process_frame(
     tally.errors.extend(error.map(|e| (i, e)));
     let s = report.summary.as_ref();
     tracing::debug!(
-        "frame {i}: nodes {} (+{}), matched {}, iterations {}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        "frame {i}: nodes {} (+{}), matched {}, iterations {}, photometric residual {:.4} of texture {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
         report.nodes,
         report.added_nodes,
         s.map_or(0, |s| s.matched),
         s.map_or(0, |s| s.iterations),
+        s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.residual),
+        s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.texture),
         error.unwrap_or(f64::NAN) * 1e3,
         report.times.optimise * 1e3,
         report.times.fuse * 1e3,

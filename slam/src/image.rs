@@ -31,6 +31,13 @@ pub type NormalMap = Image<[f32; 3]>;
 /// The invalid vertex or normal.
 pub const INVALID: [f32; 3] = [f32::NAN; 3];
 
+impl<T: Copy + Default> Default for Image<T> {
+    /// An empty image.
+    fn default() -> Self {
+        Self::new(0, 0)
+    }
+}
+
 impl<T: Copy + Default> Image<T> {
     /// An image filled with `T::default()`.
     pub fn new(width: usize, height: usize) -> Self {

@@ -70,6 +70,7 @@ impl Default for FrameSettings {
                 stay_weight: 0.01,
                 damping: 1e-4,
                 refine_iterations: 0,
+                ..RegisterParams::default()
             },
             features: Some(FeatureParams::default()),
             data_stride: 2,

@@ -3,7 +3,9 @@
 //!
 //! 1. preprocess the live depth (masked to the object, if a mask is given);
 //! 2. warp the canonical surface samples by the current field and optimise the field against the
-//!    live depth (projective association, [`WarpOptimiser`]), starting from the last frame's field;
+//!    live depth (projective association, [`WarpOptimiser`]), starting from the last frame's field,
+//!    and, with colour, against the live intensities: each sample's intensity in a recent tracked
+//!    frame, over its local mean (module `photometric`), holds motion along the surface;
 //! 3. fuse the live depth into the canonical volume through the warp: each voxel centre near the
 //!    surface is carried into the live frame by the blend of its K nearest nodes (kept across
 //!    frames, `voxel_bindings`), projected, and its projective signed distance fused
@@ -16,7 +18,8 @@
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
-use super::register::{DepthTarget, RegisterParams, RegisterSummary, WarpOptimiser};
+use super::photometric::{PhotometricTarget, RatioImage, ReferenceFrame, TexturedDepthTarget};
+use super::register::{DepthTarget, RegisterParams, RegisterSummary, Target, WarpOptimiser};
 use super::surface::mesh_points;
 use super::voxel_bindings::{BlockGeometry, CachedWarp, VoxelBindings};
 use crate::camera::Camera;
@@ -42,7 +45,7 @@ pub struct FusionParams {
     pub graph: GraphParams,
     /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 100 for one round
     /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 2 cm, point weight
-    /// 0.1, stay weight 0.01).
+    /// 0.1, stay weight 0.01, photometric weight 0.3 under Tukey c = 0.1).
     pub register: RegisterParams,
     /// The pyramid level whose depth the data term associates with (default 1: 320 × 240 from
     /// 640 × 480).
@@ -55,6 +58,14 @@ pub struct FusionParams {
     /// A frame whose matched fraction of data points falls below this is a tracking failure
     /// (default 0.2).
     pub min_matched_fraction: f64,
+    /// The photometric term compares intensities over their mean in windows of ± this many
+    /// pixels of the data level (default 4; module `photometric`).
+    pub photometric_window: usize,
+    /// The photometric references are taken from a tracked frame every this many frames
+    /// (default 5; 1 compares each frame with the one before). Each new reference frame adds
+    /// its tracking error to the references, so the error walks with every one taken, while
+    /// shading drifts from the reference the longer it is kept.
+    pub photometric_keyframe_every: usize,
 }
 
 impl Default for FusionParams {
@@ -85,11 +96,15 @@ impl Default for FusionParams {
                 stay_weight: 0.01,
                 damping: 1e-6,
                 refine_iterations: 4,
+                photometric_weight: 0.3,
+                photometric_tukey: 0.1,
             },
             data_level: 1,
             data_spacing: 0.01,
             refresh_every: 10,
             min_matched_fraction: 0.2,
+            photometric_window: 4,
+            photometric_keyframe_every: 5,
         }
     }
 }
@@ -149,6 +164,14 @@ pub struct NonRigidFusion {
     band: Vec<Vector3<f64>>,
     backup: Vec<DualQuaternion<f64>>,
     voxel_bindings: VoxelBindings,
+    /// Each data point's intensity in the last tracked frame (NaN: not seen there).
+    reference: Vec<f32>,
+    /// The data level's intensity over its local mean, when the frame has colour and the
+    /// photometric term is weighted.
+    ratio: RatioImage,
+    has_ratio: bool,
+    /// The frame the references are taken from.
+    reference_frame: ReferenceFrame,
 }
 
 impl NonRigidFusion {
@@ -169,6 +192,10 @@ impl NonRigidFusion {
             band: Vec::new(),
             backup: Vec::new(),
             voxel_bindings: VoxelBindings::default(),
+            reference: Vec::new(),
+            ratio: RatioImage::default(),
+            has_ratio: false,
+            reference_frame: ReferenceFrame::default(),
         }
     }
 
@@ -262,6 +289,13 @@ impl NonRigidFusion {
                 }
             });
         self.pre.process(&self.masked, color);
+        let level = &self.pre.levels[self.data_level()];
+        self.has_ratio =
+            !level.intensity.data.is_empty() && self.params.register.photometric_weight > 0.0;
+        if self.has_ratio {
+            self.ratio
+                .compute(&level.intensity, self.params.photometric_window);
+        }
         report.times.preprocess = t.elapsed().as_secs_f64();
         let result = match self.graph.is_some() {
             false => self.start(color, &mut report),
@@ -308,6 +342,7 @@ impl NonRigidFusion {
         self.graph = Some(graph);
         self.voxel_bindings.clear();
         self.resample(&surface);
+        self.take_reference();
         report.times.surface = t.elapsed().as_secs_f64();
         Ok(())
     }
@@ -322,17 +357,36 @@ impl NonRigidFusion {
         let t = Instant::now();
         self.backup.clear();
         self.backup.extend(graph.nodes.iter().map(|n| n.motion));
-        let l = self.params.data_level.min(self.pre.levels.len() - 1);
-        let level = &self.pre.levels[l];
-        let target = DepthTarget {
+
+        let gate = (self.params.tsdf.voxel_size * self.params.tsdf.truncation_voxels) as f64;
+        self.reference_frame.intensities(
+            &self.points,
+            &self.normals,
+            &self.bindings,
+            gate,
+            &mut self.reference,
+        );
+        let level = &self.pre.levels[self.params.data_level.min(self.pre.levels.len() - 1)];
+        let depth = DepthTarget {
             camera: &level.camera,
             vertices: &level.vertices,
             normals: &level.normals,
         };
+        let textured = self.has_ratio.then(|| TexturedDepthTarget {
+            depth: DepthTarget { ..depth },
+            photometric: PhotometricTarget {
+                live: self.ratio.live(&level.camera),
+                reference: &self.reference,
+            },
+        });
+        let target: &dyn Target = match &textured {
+            Some(t) => t,
+            None => &depth,
+        };
         self.optimiser.params = self.params.register.clone();
         let outcome =
             self.optimiser
-                .optimise(graph, &self.points, &self.normals, &self.bindings, &target);
+                .optimise(graph, &self.points, &self.normals, &self.bindings, target);
         report.times.optimise = t.elapsed().as_secs_f64();
         let failure = match &outcome {
             Err(e) => Some(e.to_string()),
@@ -353,6 +407,7 @@ impl NonRigidFusion {
             for (n, m) in graph.nodes.iter_mut().zip(&self.backup) {
                 n.motion = *m;
             }
+
             return Err(f);
         }
         let t = Instant::now();
@@ -394,8 +449,31 @@ impl NonRigidFusion {
         if report.added_nodes > 0 || self.since_refresh >= self.params.refresh_every {
             self.resample(&surface);
         }
+        self.reference_frame.age += 1;
+        if self.reference_frame.age >= self.params.photometric_keyframe_every {
+            self.take_reference();
+        }
         report.times.surface = t.elapsed().as_secs_f64();
         Ok(())
+    }
+
+    /// Takes the frame just tracked as the photometric references' frame (when the term is on).
+    fn take_reference(&mut self) {
+        let level = &self.pre.levels[self.data_level()];
+        match (self.has_ratio, &self.graph) {
+            (true, Some(graph)) => self.reference_frame.take(
+                &self.ratio,
+                (&level.vertices, &level.normals),
+                &level.camera,
+                graph,
+            ),
+            _ => self.reference_frame.clear(),
+        }
+    }
+
+    /// The pyramid level the data terms work on.
+    fn data_level(&self) -> usize {
+        self.params.data_level.min(self.pre.levels.len() - 1)
     }
 
     /// Thins the canonical surface to the data points (one per `data_spacing` cube) and binds them.

@@ -6,6 +6,8 @@
 //! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
 //!   as-rigid-as-possible regularisation under a decreasing weight, solved on the solver's
 //!   block-sparse Cholesky from normal equations assembled in the blend's coordinates (`system`).
+//! - [`photometric`]: the photometric data term of tracking: each data point's intensity in the
+//!   last tracked frame against the live image, for motion along the surface that depth cannot see.
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp (each
 //!   voxel's nodes cached across frames, `voxel_bindings`), the field tracked frame to frame
 //!   against live depth, the graph grown with the surface.
@@ -23,6 +25,7 @@ pub mod frame_surface;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
+pub mod photometric;
 pub mod register;
 pub mod surface;
 mod system;
@@ -37,6 +40,7 @@ pub use frames::{
 };
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
+pub use photometric::{LiveIntensity, PhotometricTarget, TexturedDepthTarget};
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
     RegisterSummary, RegisterTimes, Seeds, Target, WarpOptimiser,

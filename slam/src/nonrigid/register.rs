@@ -14,7 +14,8 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::graph::{Binding, DeformationGraph};
-use super::system::{match_terms, Steps, WarpSystem, WarpTerms};
+use super::photometric::{PhotometricFit, PhotometricTarget};
+use super::system::{match_terms, Photometric, Steps, WarpSystem, WarpTerms};
 use crate::camera::Camera;
 use crate::image::{valid, NormalMap, VertexMap};
 use dynamap_residuals::deform::{
@@ -49,6 +50,14 @@ pub enum RegisterError {
         /// Nodes in the graph.
         nodes: usize,
     },
+    /// Reference intensities that are not one per point.
+    #[error("{references} reference intensities for {points} points")]
+    Intensities {
+        /// Intensities given.
+        references: usize,
+        /// Points given.
+        points: usize,
+    },
     /// Seeds that are not one per point.
     #[error("{seeds} seed correspondences for {points} points")]
     Seeds {
@@ -63,6 +72,12 @@ pub enum RegisterError {
 pub trait Target: Sync {
     /// The target point and unit normal associated with the warped point `p` (before rejection).
     fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)>;
+
+    /// The live intensities and the data points' reference intensities, for the photometric
+    /// term (module `photometric`), if the target has them.
+    fn photometric(&self) -> Option<PhotometricTarget<'_>> {
+        None
+    }
 }
 
 /// A point cloud with normals (a mesh's vertices), associated by closest point through a KD-tree.
@@ -161,6 +176,12 @@ pub struct RegisterParams {
     /// (default 0: every step factorises). Tracking, where H changes little from one step or
     /// frame to the next, uses it.
     pub refine_iterations: usize,
+    /// Weight λ of the photometric term `λ ρ(I(π(W(v))) − I_ref)` beside the depth terms, for a
+    /// target that has intensities ([`Target::photometric`]; default 0: none). Intensities are
+    /// in [0, 1] and the depth residuals in metres, so λ is the ratio of their noise variances.
+    pub photometric_weight: f64,
+    /// Tukey's c of the photometric term, intensity units (default 0.1).
+    pub photometric_tukey: f64,
 }
 
 impl Default for RegisterParams {
@@ -178,6 +199,8 @@ impl Default for RegisterParams {
             stay_weight: 0.0,
             damping: 1e-4,
             refine_iterations: 0,
+            photometric_weight: 0.0,
+            photometric_tukey: 0.1,
         }
     }
 }
@@ -222,6 +245,8 @@ pub struct RegisterSummary {
     /// The rigid pre-alignment's motion, applied to every node before the warp was optimised
     /// (identity when none was found).
     pub prealigned: Isometry3<f64>,
+    /// How well the photometric term is met at the end, when it was used.
+    pub photometric: Option<PhotometricFit>,
 }
 
 /// Seconds spent in each stage of one optimisation.
@@ -321,6 +346,7 @@ impl WarpOptimiser {
     ) -> Result<RegisterSummary, RegisterError> {
         let start = Instant::now();
         check_inputs(graph, points, normals, bindings, seeds)?;
+        let photometric = self.photometric_term(target, points.len())?;
         let mut times = RegisterTimes::default();
         let mut clock = Instant::now();
         let mut lap = |t: &mut f64| {
@@ -353,6 +379,7 @@ impl WarpOptimiser {
                     edges: &self.edges,
                     anchors: &self.anchors,
                     stay_weight: self.params.stay_weight,
+                    photometric,
                 };
                 let mut evaluate = 0.0;
                 let steps = Steps {
@@ -381,6 +408,13 @@ impl WarpOptimiser {
         self.associate(graph, points, normals, bindings, target);
         lap(&mut times.associate);
         let (data_cost, matched) = self.data_cost();
+        let photometric = photometric.map(|ph| {
+            PhotometricFit::measure(
+                &ph.target,
+                &self.warped,
+                self.matches.iter().map(Option::is_some),
+            )
+        });
         Ok(RegisterSummary {
             iterations,
             data_cost,
@@ -389,7 +423,34 @@ impl WarpOptimiser {
             seconds: start.elapsed().as_secs_f64(),
             times,
             prealigned,
+            photometric,
         })
+    }
+
+    /// The photometric term when it is weighted and `target` has intensities; reference
+    /// intensities that are not one per point are an error.
+    fn photometric_term<'t>(
+        &self,
+        target: &'t dyn Target,
+        points: usize,
+    ) -> Result<Option<Photometric<'t>>, RegisterError> {
+        let Some(t) = target
+            .photometric()
+            .filter(|_| self.params.photometric_weight > 0.0)
+        else {
+            return Ok(None);
+        };
+        if t.reference.len() != points {
+            return Err(RegisterError::Intensities {
+                references: t.reference.len(),
+                points,
+            });
+        }
+        Ok(Some(Photometric {
+            target: t,
+            weight: self.params.photometric_weight,
+            tukey: self.params.photometric_tukey,
+        }))
     }
 
     /// Builds the system's structure for `graph` and `bindings`, starts it from the nodes'

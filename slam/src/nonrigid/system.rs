@@ -27,6 +27,7 @@
 //! pairs fit in it; when new pairs appear it is rebuilt as the union of old and new.
 
 use super::graph::{Binding, DeformationGraph};
+use super::photometric::PhotometricTarget;
 use dynamap_residuals::deform::{
     as_rigid_as_possible, blend, right_perturbation, transform_point, transform_point_jacobian,
     MAX_NEIGHBOURS,
@@ -90,6 +91,38 @@ pub(crate) struct WarpTerms<'a> {
     pub anchors: &'a [Isometry3<f64>],
     /// Weight of the stay priors.
     pub stay_weight: f64,
+    /// The photometric term, if any.
+    pub photometric: Option<Photometric<'a>>,
+}
+
+/// The photometric term of a round: live intensities, reference intensities, weight λ and
+/// Tukey's c (module `photometric`).
+#[derive(Clone, Copy)]
+pub(crate) struct Photometric<'a> {
+    pub target: PhotometricTarget<'a>,
+    pub weight: f64,
+    pub tukey: f64,
+}
+
+impl Photometric<'_> {
+    /// Point i's residual `I(π(p)) − I_ref` at its warped position p, with `∂I/∂p`, if it has a
+    /// reference and projects inside the image.
+    #[inline]
+    fn residual(&self, i: usize, p: &Vector3<f64>) -> Option<(f64, Vector3<f64>)> {
+        let reference = self.target.reference[i];
+        if !reference.is_finite() {
+            return None;
+        }
+        let (value, d) = self.target.live.sample(p)?;
+        Some((value - reference as f64, d))
+    }
+
+    /// ½λρ of a residual, and its IRLS weight λρ'.
+    #[inline]
+    fn cost(&self, r: f64) -> (f64, f64) {
+        let [rho, w, _] = Tukey(self.tukey).evaluate(r * r);
+        (0.5 * self.weight * rho, self.weight * w)
+    }
 }
 
 /// Relative change of the cost below which one round's minimisation has converged: a step
@@ -541,25 +574,41 @@ fn data_terms(
     let (blended, signs) = blend(&nodes[..k], &b.weights[..k]);
     let v = &terms.points[i];
     let Some((slots, pairs, grads)) = acc else {
-        let d = transform_point(&blended, v) - q;
-        return match_terms(&d, &n, terms.tukey, terms.point_weight).0;
+        let p = transform_point(&blended, v);
+        let photometric = terms
+            .photometric
+            .and_then(|ph| Some(ph.cost(ph.residual(i, &p)?.0).0));
+        return match_terms(&(p - q), &n, terms.tukey, terms.point_weight).0
+            + photometric.unwrap_or(0.0);
     };
     let (p, dp) = transform_point_jacobian(&blended, v);
     let d = p - q;
-    let (cost, w1, w2) = match_terms(&d, &n, terms.tukey, terms.point_weight);
-    if w1 == 0.0 && w2 == 0.0 {
+    let (mut cost, w1, w2) = match_terms(&d, &n, terms.tukey, terms.point_weight);
+    // the photometric row: r₃ = I(π(p)) − I_ref, G₃ = dpᵀ ∂I/∂p, under weight w₃
+    let (r3, w3, u3) = match terms
+        .photometric
+        .and_then(|ph| Some((ph, ph.residual(i, &p)?)))
+    {
+        Some((ph, (r, di))) => {
+            let (c3, w3) = ph.cost(r);
+            cost += c3;
+            (r, w3, dp.transpose() * di)
+        }
+        None => (0.0, 0.0, SMatrix::<f64, 8, 1>::zeros()),
+    };
+    if w1 == 0.0 && w2 == 0.0 && w3 == 0.0 {
         return cost;
     }
     let r1 = n.dot(&d);
     let u = dp.transpose() * n;
     let mut m = [0.0; PACKED];
     for y in 0..8 {
-        let (uy, cy) = (u[y], dp.column(y));
+        let (uy, cy, vy) = (u[y], dp.column(y), u3[y]);
         for x in 0..=y {
-            m[packed(x, y)] = w1 * u[x] * uy + w2 * dp.column(x).dot(&cy);
+            m[packed(x, y)] = w1 * u[x] * uy + w2 * dp.column(x).dot(&cy) + w3 * u3[x] * vy;
         }
     }
-    let g8 = u * (w1 * r1) + dp.transpose() * d * w2;
+    let g8 = u * (w1 * r1) + dp.transpose() * d * w2 + u3 * (w3 * r3);
     let mut c = [0.0; MAX_NEIGHBOURS];
     for a in 0..k {
         c[a] = signs[a] * b.weights[a];
@@ -720,10 +769,17 @@ mod tests {
     type Matches = Vec<Option<(Vector3<f64>, Vector3<f64>)>>;
 
     fn scene() -> (DeformationGraph, Vec<Vector3<f64>>, Vec<Binding>, Matches) {
+        scene_at(Vector3::zeros())
+    }
+
+    /// [`scene`] moved by `offset`.
+    fn scene_at(
+        offset: Vector3<f64>,
+    ) -> (DeformationGraph, Vec<Vector3<f64>>, Vec<Binding>, Matches) {
         let points: Vec<Vector3<f64>> = (0..120)
             .map(|i| {
                 let (x, y) = ((i % 12) as f64 * 0.02, (i / 12) as f64 * 0.02);
-                Vector3::new(x, y, 0.02 * (8.0 * x).sin())
+                Vector3::new(x, y, 0.02 * (8.0 * x).sin()) + offset
             })
             .collect();
         let mut graph = DeformationGraph::sample(
@@ -863,6 +919,7 @@ mod tests {
             edges: &edges,
             anchors: &anchors,
             stay_weight: stay,
+            photometric: None,
         };
         let mut ws = WarpSystem::default();
         ws.prepare(&graph, &bindings, FactorPrecision::Double)
@@ -930,6 +987,96 @@ mod tests {
         }
     }
 
+    /// The photometric rows' gradient is the derivative of their cost: every node's six
+    /// right-perturbation coordinates against central differences of `cost_at`, on a ramp (whose
+    /// bilinear samples and central-difference gradients are exact but for the images' f32 rounding, so that only the chain
+    /// through the projection and the blend is tested).
+    #[test]
+    fn the_photometric_gradient_is_the_derivative_of_its_cost() {
+        use crate::camera::Camera;
+        use crate::image::{gradients, GrayImage, Image};
+        use crate::nonrigid::photometric::LiveIntensity;
+        let (graph, points, bindings, matches) = scene_at(Vector3::new(-0.1, -0.1, 0.9));
+        let motions: Vec<Isometry3<f64>> = graph
+            .nodes
+            .iter()
+            .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion))
+            .collect();
+        let camera = Camera::tum_default().level(1);
+        let mut gray: GrayImage = Image::new(camera.width, camera.height);
+        for y in 0..camera.height {
+            for x in 0..camera.width {
+                let (u, v) = (x as f32, y as f32);
+                gray.set(x, y, 0.3 + 0.001 * u + 0.0015 * v);
+            }
+        }
+        let (mut gx, mut gy) = (GrayImage::new(1, 1), GrayImage::new(1, 1));
+        gradients(&gray, &mut gx, &mut gy);
+        let live = LiveIntensity {
+            camera: &camera,
+            intensity: &gray,
+            gradient_x: &gx,
+            gradient_y: &gy,
+        };
+        let mut ws = WarpSystem::default();
+        ws.prepare(&graph, &bindings, FactorPrecision::Double)
+            .unwrap();
+        ws.set_motions(motions.iter().copied());
+        // references a little off the intensities the points show now, one without any
+        let reference: Vec<f32> = points
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let b = &bindings[i];
+                let nodes: Vec<_> = b.nodes[..b.count]
+                    .iter()
+                    .map(|&k| ws.dqs[k as usize])
+                    .collect();
+                let p = transform_point(&blend(&nodes, &b.weights[..b.count]).0, v);
+                let (value, _) = live.sample(&p).expect("in view");
+                if i == 7 {
+                    f32::NAN
+                } else {
+                    (value + 0.02 * (i as f64).cos()) as f32
+                }
+            })
+            .collect();
+        let photometric = Photometric {
+            target: PhotometricTarget {
+                live,
+                reference: &reference,
+            },
+            weight: 0.7,
+            tukey: 1.0,
+        };
+        let mut terms = data_only(&points, &bindings, &matches);
+        terms.photometric = Some(photometric);
+        let cost = ws.linearise(&terms);
+        let again = cost_at(&terms, &motions, &ws.dqs.clone());
+        assert!((cost - again).abs() < 1e-12 * cost, "{cost} {again}");
+        let without = cost_at(&data_only(&points, &bindings, &matches), &motions, &ws.dqs);
+        assert!(cost > without, "the photometric rows add cost");
+        let g = ws.system().gradient().to_vec();
+        let at = |k: usize, a: usize, h: f64| {
+            let mut m = motions.clone();
+            m[k] *= se3::exp(&Vector6::ith(a, h));
+            let dqs: Vec<_> = m.iter().map(dual_quaternion).collect();
+            cost_at(&terms, &m, &dqs)
+        };
+        let scale = g.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let h = 1e-5;
+        for k in 0..motions.len() {
+            for a in 0..6 {
+                let numeric = (at(k, a, h) - at(k, a, -h)) / (2.0 * h);
+                assert!(
+                    (numeric - g[6 * k + a]).abs() < 1e-4 * scale,
+                    "node {k} axis {a}: {numeric} against {}",
+                    g[6 * k + a]
+                );
+            }
+        }
+    }
+
     /// Data terms alone (Tukey's c 5 cm, point-to-point weight 0.1).
     fn data_only<'a>(
         points: &'a [Vector3<f64>],
@@ -945,6 +1092,7 @@ mod tests {
             edges: &[],
             anchors: &[],
             stay_weight: 0.0,
+            photometric: None,
         }
     }
 
