@@ -3,6 +3,7 @@
 //! ```text
 //! cargo run --release --example nonrigid_slam                  # a generated bending plate, error vs ground truth
 //! cargo run --release --example nonrigid_slam -- --field wave --surface cylinder --max-frames 100
+//! cargo run --release --example nonrigid_slam -- --field wave --sensor kinect  # the structured-light sensor model
 //! cargo run --release --example nonrigid_slam -- DIR [--masks MASKS] [--output OUT]
 //! ```
 //! DIR is a TUM-layout, ICL-NUIM or plain folder of frames, told apart by its files
@@ -24,15 +25,19 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use cli::{InputError, Session};
 use dynamap_slam::camera::Camera;
+use dynamap_slam::distortion::Distortion;
 use dynamap_slam::eval::Stats;
 use dynamap_slam::image::Image;
 use dynamap_slam::io::images::read_mask;
 use dynamap_slam::io::sequence::{OpenOptions, Sequence};
+use dynamap_slam::io::trajectory::Trajectory;
 use dynamap_slam::io::{ply, write_atomic};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
 use dynamap_slam::synthetic::deform::{surface, DeformingScene};
+use dynamap_slam::synthetic::kinect::KinectModel;
 use dynamap_slam::synthetic::noise::SensorNoise;
+use dynamap_slam::synthetic::sequence::static_camera;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -66,6 +71,13 @@ struct Args {
     /// the texture, 0 for the noise].
     #[arg(long)]
     seed: Option<u64>,
+    /// Without DIR: the sensor. `simple`: depth noise growing with depth and incidence, colour
+    /// as rendered. `kinect`: the structured-light model of `generate --sensor kinect`
+    /// (quantised disparity, correlated noise, holes, flying pixels, colour noise, blur,
+    /// vignetting and auto-exposure), its lens distortion left out as the pipeline takes
+    /// undistorted images; the colour is exposed on the same surface as the depth.
+    #[arg(long, value_enum, default_value_t = SensorKind::Simple)]
+    sensor: SensorKind,
     /// A folder for pictures: the canonical model shaded from three viewpoints and, for the
     /// generated sequence, the tracking error per frame.
     #[arg(long, value_name = "DIR")]
@@ -113,6 +125,13 @@ fn params(args: &Args) -> Result<FusionParams> {
     Ok(p)
 }
 
+/// The generated sequence's sensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum SensorKind {
+    Simple,
+    Kinect,
+}
+
 /// One frame as the pipeline takes it.
 struct Frame {
     depth: Image<u16>,
@@ -126,6 +145,8 @@ enum Source {
         scene: DeformingScene,
         camera: Camera,
         noise: SensorNoise,
+        /// The structured-light sensor instead of `noise`, with the static camera's stamps.
+        kinect: Option<Box<(KinectModel, Trajectory)>>,
         frames: usize,
     },
     Folder {
@@ -155,9 +176,19 @@ impl Source {
                 scene,
                 camera,
                 noise,
+                kinect,
                 ..
             } => {
-                let (depth, color) = scene.sensor_frame(camera, &Isometry3::identity(), i, noise);
+                let (depth, color) = match kinect {
+                    None => scene.sensor_frame(camera, &Isometry3::identity(), i, noise),
+                    Some(k) => {
+                        let (model, stamps) = &**k;
+                        let f = model
+                            .recorder(camera)
+                            .capture(&scene.scene_at(i), stamps, i);
+                        (f.depth, f.color)
+                    }
+                };
                 Ok(Frame {
                     depth,
                     color: Some(color),
@@ -350,6 +381,15 @@ fn open_source(args: &Args) -> Result<Source> {
                 seed: args.seed.unwrap_or(0),
                 ..SensorNoise::default()
             },
+            kinect: (args.sensor == SensorKind::Kinect).then(|| {
+                let frames = args.max_frames.unwrap_or(30);
+                let model = KinectModel {
+                    seed: args.seed.unwrap_or(0),
+                    distortion: Distortion::default(),
+                    ..KinectModel::default()
+                };
+                Box::new((model, static_camera(frames, 30.0)))
+            }),
             frames: args.max_frames.unwrap_or(30),
         },
         Some(d) => Source::Folder {

@@ -619,3 +619,31 @@ fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The generated sequence from the structured-light sensor model: a waving plate is tracked
+/// with every frame fused and within a centimetre, and a bad sensor name is refused.
+#[test]
+fn nonrigid_slam_tracks_a_wave_seen_by_the_kinect_model() {
+    let out = run(
+        "nonrigid_slam",
+        &[
+            "--field",
+            "wave",
+            "--sensor",
+            "kinect",
+            "--max-frames",
+            "12",
+            "--quiet",
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let v = result_json(&out);
+    assert_eq!(v["failures"], 0, "{v}");
+    let worst = v["error_max_frame"].as_f64().expect("an error");
+    assert!(worst < 0.01, "worst frame {worst} m");
+    assert_exit(
+        &run("nonrigid_slam", &["--sensor", "tof", "--quiet"]),
+        2,
+        &["tof"],
+    );
+}
