@@ -18,8 +18,11 @@
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
-use super::photometric::{PhotometricTarget, RatioImage, ReferenceFrame, TexturedDepthTarget};
-use super::register::{DepthTarget, RegisterParams, RegisterSummary, Target, WarpOptimiser};
+use super::photometric::{PhotometricTarget, RatioImage};
+use super::reference_frame::ReferenceFrame;
+use super::register::{
+    DepthTarget, RegisterParams, RegisterSummary, Target, TexturedDepthTarget, WarpOptimiser,
+};
 use super::surface::mesh_points;
 use super::voxel_bindings::{BlockGeometry, CachedWarp, VoxelBindings};
 use crate::camera::Camera;
@@ -353,11 +356,31 @@ impl NonRigidFusion {
         color: Option<&ColorImage>,
         report: &mut FusionReport,
     ) -> Result<(), String> {
+        self.track(report)?;
+        self.fuse(color, report)?;
+        let t = Instant::now();
+        let surface = mesh_points(&self.volume.extract_mesh());
+        let graph = self.graph.as_mut().expect("started");
+        report.added_nodes = graph.extend(&surface.0);
+        self.since_refresh += 1;
+        if report.added_nodes > 0 || self.since_refresh >= self.params.refresh_every {
+            self.resample(&surface);
+        }
+        self.reference_frame.age += 1;
+        if self.reference_frame.age >= self.params.photometric_keyframe_every {
+            self.take_reference();
+        }
+        report.times.surface = t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Optimises the field against the live depth (and intensities); a frame that cannot be
+    /// tracked leaves the field as it was and is an error.
+    fn track(&mut self, report: &mut FusionReport) -> Result<(), String> {
         let graph = self.graph.as_mut().expect("started");
         let t = Instant::now();
         self.backup.clear();
         self.backup.extend(graph.nodes.iter().map(|n| n.motion));
-
         let gate = (self.params.tsdf.voxel_size * self.params.tsdf.truncation_voxels) as f64;
         self.reference_frame.intensities(
             &self.points,
@@ -403,13 +426,24 @@ impl NonRigidFusion {
             Ok(_) => None,
         };
         report.summary = outcome.ok();
-        if let Some(f) = failure {
-            for (n, m) in graph.nodes.iter_mut().zip(&self.backup) {
-                n.motion = *m;
+        match failure {
+            Some(f) => {
+                for (n, m) in graph.nodes.iter_mut().zip(&self.backup) {
+                    n.motion = *m;
+                }
+                Err(f)
             }
-
-            return Err(f);
+            None => Ok(()),
         }
+    }
+
+    /// Fuses the live depth (and colour) into the canonical volume through the field.
+    fn fuse(
+        &mut self,
+        color: Option<&ColorImage>,
+        report: &mut FusionReport,
+    ) -> Result<(), String> {
+        let graph = self.graph.as_ref().expect("started");
         let t = Instant::now();
         let level = &self.pre.levels[0];
         let stride = band_stride(&level.depth, &self.camera, self.params.tsdf.voxel_size);
@@ -441,19 +475,6 @@ impl NonRigidFusion {
             )
             .map_err(|e| e.to_string())?;
         report.times.fuse = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let surface = mesh_points(&self.volume.extract_mesh());
-        let graph = self.graph.as_mut().expect("started");
-        report.added_nodes = graph.extend(&surface.0);
-        self.since_refresh += 1;
-        if report.added_nodes > 0 || self.since_refresh >= self.params.refresh_every {
-            self.resample(&surface);
-        }
-        self.reference_frame.age += 1;
-        if self.reference_frame.age >= self.params.photometric_keyframe_every {
-            self.take_reference();
-        }
-        report.times.surface = t.elapsed().as_secs_f64();
         Ok(())
     }
 

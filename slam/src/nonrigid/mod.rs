@@ -6,8 +6,9 @@
 //! - [`register`]: the warp-field optimiser: rigid pre-alignment, then point-to-plane data and
 //!   as-rigid-as-possible regularisation under a decreasing weight, solved on the solver's
 //!   block-sparse Cholesky from normal equations assembled in the blend's coordinates (`system`).
-//! - [`photometric`]: the photometric data term of tracking: each data point's intensity in the
-//!   last tracked frame against the live image, for motion along the surface that depth cannot see.
+//! - [`photometric`]: the photometric data term of tracking: each data point's intensity (over its
+//!   local mean) in a recent tracked frame ([`reference_frame`]) against the live image, for
+//!   motion along the surface that depth cannot see.
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp (each
 //!   voxel's nodes cached across frames, `voxel_bindings`), the field tracked frame to frame
 //!   against live depth, the graph grown with the surface.
@@ -26,6 +27,7 @@ pub mod frames;
 pub mod fusion;
 pub mod graph;
 pub mod photometric;
+pub mod reference_frame;
 pub mod register;
 pub mod surface;
 mod system;
@@ -40,10 +42,11 @@ pub use frames::{
 };
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
-pub use photometric::{LiveIntensity, PhotometricTarget, TexturedDepthTarget};
+pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};
+pub use reference_frame::ReferenceFrame;
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
-    RegisterSummary, RegisterTimes, Seeds, Target, WarpOptimiser,
+    RegisterSummary, RegisterTimes, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
 };
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,

@@ -22,12 +22,9 @@
 //! `N = I / Ī − 1` ([`RatioImage`]): the texture stays and the shading, nearly constant over
 //! the window, cancels.
 
-use super::graph::{Binding, DeformationGraph};
-use super::register::{DepthTarget, Target};
 use crate::camera::Camera;
-use crate::image::{gradients, GrayImage, NormalMap, VertexMap};
-use dynamap_residuals::deform::{blend, transform_point, transform_vector, MAX_NEIGHBOURS};
-use nalgebra::{DualQuaternion, Vector3};
+use crate::image::{gradients, GrayImage};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// The intensity over its local mean, `N = I / Ī − 1` (Ī the mean over a square window, Ī
@@ -152,96 +149,6 @@ impl LiveIntensity<'_> {
     }
 }
 
-/// The frame the reference intensities are taken from: its ratio image and vertex map, and the
-/// node motions it was tracked with. Data points re-sampled since are carried into it by those
-/// motions, so every point bound to nodes that existed then has a reference.
-#[derive(Default)]
-pub struct ReferenceFrame {
-    ratio: RatioImage,
-    vertices: VertexMap,
-    normals: NormalMap,
-    camera: Option<Camera>,
-    motions: Vec<DualQuaternion<f64>>,
-    /// Frames tracked since it was taken.
-    pub age: usize,
-}
-
-impl ReferenceFrame {
-    /// Takes the frame just tracked (its ratio image, vertices, normals and intrinsics, at the
-    /// data level)
-    /// with the graph's current motions.
-    pub fn take(
-        &mut self,
-        ratio: &RatioImage,
-        (vertices, normals): (&VertexMap, &NormalMap),
-        camera: &Camera,
-        graph: &DeformationGraph,
-    ) {
-        self.ratio.clone_from(ratio);
-        self.vertices.clone_from(vertices);
-        self.normals.clone_from(normals);
-        self.camera = Some(*camera);
-        self.motions.clear();
-        self.motions.extend(graph.nodes.iter().map(|n| n.motion));
-        self.age = 0;
-    }
-
-    /// Forgets the frame: no point has a reference until the next is taken.
-    pub fn clear(&mut self) {
-        self.camera = None;
-    }
-
-    /// Each point's ratio in this frame, where it was seen there: bound only to nodes that
-    /// existed, facing the camera, and the frame's depth at its pixel within `gate` of it. NaN
-    /// elsewhere.
-    pub fn intensities(
-        &self,
-        points: &[Vector3<f64>],
-        normals: &[Vector3<f64>],
-        bindings: &[Binding],
-        gate: f64,
-        out: &mut Vec<f32>,
-    ) {
-        out.clear();
-        let Some(camera) = &self.camera else {
-            out.resize(points.len(), f32::NAN);
-            return;
-        };
-        let live = self.ratio.live(camera);
-        let depth = DepthTarget {
-            camera,
-            vertices: &self.vertices,
-            normals: &self.normals,
-        };
-        out.par_extend(
-            points
-                .par_iter()
-                .zip(normals)
-                .zip(bindings)
-                .map(|((v, n), b)| {
-                    let nodes = &b.nodes[..b.count];
-                    if nodes.iter().any(|&k| k as usize >= self.motions.len()) {
-                        return f32::NAN;
-                    }
-                    let mut dqs = [DualQuaternion::identity(); MAX_NEIGHBOURS];
-                    for (o, &k) in dqs.iter_mut().zip(nodes) {
-                        *o = self.motions[k as usize];
-                    }
-                    let (q, _) = blend(&dqs[..b.count], &b.weights[..b.count]);
-                    let (p, n) = (transform_point(&q, v), transform_vector(&q, n));
-                    let seen = n.dot(&p) < 0.0
-                        && depth
-                            .associate(&p)
-                            .is_some_and(|(x, _)| (x - p).norm_squared() <= gate * gate);
-                    match seen.then(|| live.sample(&p)).flatten() {
-                        Some((value, _)) => value as f32,
-                        None => f32::NAN,
-                    }
-                }),
-        );
-    }
-}
-
 /// One frame's photometric term: the live intensities and each canonical data point's reference
 /// intensity (NaN where it has none: not seen in the frame it was taken from).
 #[derive(Clone, Copy)]
@@ -300,32 +207,13 @@ fn median(v: &mut [f64]) -> f64 {
     *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
-/// A live depth frame with its intensities: projective association as [`DepthTarget`], and the
-/// photometric term beside it.
-pub struct TexturedDepthTarget<'a> {
-    /// The depth.
-    pub depth: DepthTarget<'a>,
-    /// The intensities.
-    pub photometric: PhotometricTarget<'a>,
-}
-
-impl Target for TexturedDepthTarget<'_> {
-    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
-        self.depth.associate(p)
-    }
-
-    fn photometric(&self) -> Option<PhotometricTarget<'_>> {
-        Some(self.photometric)
-    }
-}
-
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::image::Image;
 
     /// A smooth image I(u, v) = sin(0.3u) + 0.5 cos(0.2v) scaled into [0, 1].
-    fn image(w: usize, h: usize) -> GrayImage {
+    pub(crate) fn image(w: usize, h: usize) -> GrayImage {
         let mut g = Image::new(w, h);
         for y in 0..h {
             for x in 0..w {
@@ -403,66 +291,6 @@ mod tests {
             .data
             .iter()
             .all(|v| (*v + 1.0).abs() < 1e-6 || v.abs() < 1e-6));
-    }
-
-    /// A reference frame of a textured wall 1 m ahead, taken with a graph over a patch of it:
-    /// a point on the wall gets the frame's ratio where it projects; one facing away, one off
-    /// the wall's depth, and one bound to a node added after the frame get none.
-    #[test]
-    fn references_are_taken_where_the_frame_saw_the_point() {
-        use crate::nonrigid::graph::GraphParams;
-        let camera = Camera::tum_default().level(1);
-        let gray = image(camera.width, camera.height);
-        let mut ratio = RatioImage::default();
-        ratio.compute(&gray, 4);
-        let (mut vertices, normals) = (
-            VertexMap::filled(camera.width, camera.height, [0.0; 3]),
-            NormalMap::filled(camera.width, camera.height, [0.0, 0.0, -1.0]),
-        );
-        for y in 0..camera.height {
-            for x in 0..camera.width {
-                let p = camera.back_project(x as f64, y as f64, 1.0);
-                vertices.set(x, y, [p.x as f32, p.y as f32, p.z as f32]);
-            }
-        }
-        let patch: Vec<Vector3<f64>> = (0..100)
-            .map(|i| Vector3::new((i % 10) as f64 * 0.02, (i / 10) as f64 * 0.02, 1.0))
-            .collect();
-        let params = GraphParams {
-            spacing: 0.05,
-            ..GraphParams::default()
-        };
-        let mut graph = DeformationGraph::sample(&patch, params).unwrap();
-        let mut frame = ReferenceFrame::default();
-        frame.take(&ratio, (&vertices, &normals), &camera, &graph);
-        // a node far off the patch, added after the frame was taken
-        let away = Vector3::new(0.5, 0.5, 1.0);
-        assert_eq!(graph.extend(&[away]), 1);
-        let toward = -Vector3::z();
-        let points = [
-            patch[55],
-            patch[55],
-            patch[55] + Vector3::new(0.0, 0.0, 0.2),
-            away,
-        ];
-        let normals_in = [toward, -toward, toward, toward];
-        let bindings = graph.bind_all(&points);
-        let mut out = Vec::new();
-        frame.intensities(&points, &normals_in, &bindings, 0.04, &mut out);
-        let (expect, _) = ratio.live(&camera).sample(&patch[55]).unwrap();
-        assert!(
-            (out[0] as f64 - expect).abs() < 1e-6,
-            "{} against {expect}",
-            out[0]
-        );
-        assert!(
-            out[1].is_nan() && out[2].is_nan() && out[3].is_nan(),
-            "{out:?}"
-        );
-        // forgotten, nothing has a reference
-        frame.clear();
-        frame.intensities(&points, &normals_in, &bindings, 0.04, &mut out);
-        assert!(out.iter().all(|r| r.is_nan()));
     }
 
     #[test]

@@ -15,7 +15,7 @@
 
 use super::graph::{Binding, DeformationGraph};
 use super::photometric::{PhotometricFit, PhotometricTarget};
-use super::system::{match_terms, Photometric, Steps, WarpSystem, WarpTerms};
+use super::system::{match_terms, Minimised, Photometric, Steps, WarpSystem, WarpTerms};
 use crate::camera::Camera;
 use crate::image::{valid, NormalMap, VertexMap};
 use dynamap_residuals::deform::{
@@ -137,6 +137,25 @@ impl Target for DepthTarget<'_> {
             Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64),
             Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64),
         ))
+    }
+}
+
+/// A live depth frame with its intensities: projective association as [`DepthTarget`], and the
+/// photometric term beside it.
+pub struct TexturedDepthTarget<'a> {
+    /// The depth.
+    pub depth: DepthTarget<'a>,
+    /// The intensities.
+    pub photometric: PhotometricTarget<'a>,
+}
+
+impl Target for TexturedDepthTarget<'_> {
+    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        self.depth.associate(p)
+    }
+
+    fn photometric(&self) -> Option<PhotometricTarget<'_>> {
+        Some(self.photometric)
     }
 }
 
@@ -370,26 +389,9 @@ impl WarpOptimiser {
                     self.take_seeds(s);
                 }
                 lap(&mut times.associate);
-                let terms = WarpTerms {
-                    points,
-                    bindings,
-                    matches: &self.matches,
-                    tukey: self.params.tukey * seeded.map_or(1.0, |s| s.tukey_scale),
-                    point_weight: self.params.point_weight,
-                    edges: &self.edges,
-                    anchors: &self.anchors,
-                    stay_weight: self.params.stay_weight,
-                    photometric,
-                };
                 let mut evaluate = 0.0;
-                let steps = Steps {
-                    iterations: seeded.map_or(self.params.iterations, |s| {
-                        s.iterations.max(self.params.iterations)
-                    }),
-                    damping: self.params.damping,
-                    refine_iterations: self.params.refine_iterations,
-                };
-                let done = self.system.minimise(&terms, steps, &mut evaluate)?;
+                let done =
+                    self.minimise_round(points, bindings, seeded, photometric, &mut evaluate)?;
                 iterations += done.iterations;
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`
@@ -425,6 +427,37 @@ impl WarpOptimiser {
             prealigned,
             photometric,
         })
+    }
+
+    /// One round's Levenberg-Marquardt iterations on the current association (with `seeded`'s
+    /// kernel and iterations in a seeded stage); adds the assembly's seconds to `evaluate`.
+    fn minimise_round(
+        &mut self,
+        points: &[Vector3<f64>],
+        bindings: &[Binding],
+        seeded: Option<&Seeds>,
+        photometric: Option<Photometric<'_>>,
+        evaluate: &mut f64,
+    ) -> Result<Minimised, RegisterError> {
+        let terms = WarpTerms {
+            points,
+            bindings,
+            matches: &self.matches,
+            tukey: self.params.tukey * seeded.map_or(1.0, |s| s.tukey_scale),
+            point_weight: self.params.point_weight,
+            edges: &self.edges,
+            anchors: &self.anchors,
+            stay_weight: self.params.stay_weight,
+            photometric,
+        };
+        let steps = Steps {
+            iterations: seeded.map_or(self.params.iterations, |s| {
+                s.iterations.max(self.params.iterations)
+            }),
+            damping: self.params.damping,
+            refine_iterations: self.params.refine_iterations,
+        };
+        Ok(self.system.minimise(&terms, steps, evaluate)?)
     }
 
     /// The photometric term when it is weighted and `target` has intensities; reference
