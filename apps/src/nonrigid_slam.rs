@@ -447,10 +447,11 @@ fn process_frame(
     tally.errors.extend(error.map(|e| (i, e)));
     let s = report.summary.as_ref();
     tracing::debug!(
-        "frame {i}: nodes {} (+{}), matched {}, iterations {}, photometric residual {:.4} of texture {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
         report.nodes,
         report.added_nodes,
         s.map_or(0, |s| s.matched),
+        s.map_or(f64::NAN, |s| s.data_cost / s.matched.max(1) as f64),
         s.map_or(0, |s| s.iterations),
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.residual),
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.texture),
