@@ -118,7 +118,12 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.data_spacing = args.data_spacing;
     p.data_level = args.data_level;
     p.photometric_window = args.photometric_window;
-    p.photometric_keyframe_every = args.photometric_keyframe_every.max(1);
+    p.photometric_keyframe_every = args.photometric_keyframe_every;
+    if p.photometric_window == 0 || p.photometric_keyframe_every == 0 {
+        return Err(cli::bad_input(
+            "--photometric-window and --photometric-keyframe-every must be at least 1",
+        ));
+    }
     if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
         return Err(cli::bad_input("--voxel-size must be a positive length"));
     }

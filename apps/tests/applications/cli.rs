@@ -621,7 +621,8 @@ fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
 }
 
 /// The generated sequence from the structured-light sensor model: a waving plate is tracked
-/// with every frame fused and within a centimetre, and a bad sensor name is refused.
+/// with every frame fused and within a centimetre; a bad sensor name and photometric settings
+/// out of range are refused as bad input.
 #[test]
 fn nonrigid_slam_tracks_a_wave_seen_by_the_kinect_model() {
     let out = run(
@@ -645,5 +646,23 @@ fn nonrigid_slam_tracks_a_wave_seen_by_the_kinect_model() {
         &run("nonrigid_slam", &["--sensor", "tof", "--quiet"]),
         2,
         &["tof"],
+    );
+    assert_exit(
+        &run("nonrigid_slam", &["--photometric-weight=-1", "--quiet"]),
+        2,
+        &["--photometric-weight"],
+    );
+    assert_exit(
+        &run("nonrigid_slam", &["--photometric-tukey", "0", "--quiet"]),
+        2,
+        &["--photometric-tukey"],
+    );
+    assert_exit(
+        &run(
+            "nonrigid_slam",
+            &["--photometric-keyframe-every", "0", "--quiet"],
+        ),
+        2,
+        &["--photometric-keyframe-every"],
     );
 }

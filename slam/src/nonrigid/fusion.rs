@@ -65,7 +65,7 @@ pub struct FusionParams {
     /// pixels of the data level (default 4; module `photometric`).
     pub photometric_window: usize,
     /// The photometric references are taken from a tracked frame every this many frames
-    /// (default 5; 1 compares each frame with the one before). Each new reference frame adds
+    /// (default 5; 1, or 0, compares each frame with the one before). Each new reference frame adds
     /// its tracking error to the references, so the error walks with every one taken, while
     /// shading drifts from the reference the longer it is kept.
     pub photometric_keyframe_every: usize,
