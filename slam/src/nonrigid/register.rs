@@ -5,8 +5,10 @@
 //! E = Σ_points ρ_Tukey(nᵀ(W(v) − q)) + w_pt Σ_points ρ_Tukey(|W(v) − q|) + λ Σ_edges φ_ij |A_i g_j − A_j g_j|²
 //! ```
 //!
-//! (eq. 4.4-4.7), with correspondences (q, n) re-found between rounds (closest point or projective)
-//! and rejected by distance and normal angle. Coarse to fine: a rigid point-to-plane pre-alignment
+//! (eq. 4.4-4.7), plus, for a target with intensities, the photometric term
+//! `λ_I Σ_points ρ_Tukey(N(π(W(v))) − N_ref)` (module `photometric`), with correspondences (q, n)
+//! re-found between rounds (closest point or projective) and rejected by distance and normal
+//! angle. Coarse to fine: a rigid point-to-plane pre-alignment
 //! (the solver's dense 6-DoF path), then stages of decreasing λ, each a few association rounds of
 //! Levenberg-Marquardt on the solver's block-sparse Cholesky ([`dynamap_solver::BlockSystem`]):
 //! 6×6 node blocks assembled in the blend's coordinates (module `system`), and one symbolic

@@ -16,7 +16,9 @@
 //! and 3 × 6 block and multiplying them out (what the generic [`dynamap_solver::Problem`] path does
 //! with [`WarpedPointToPlane`](dynamap_residuals::deform::WarpedPointToPlane) and
 //! [`WarpedPointToPoint`](dynamap_residuals::deform::WarpedPointToPoint); the tests check that
-//! both give the same H and g). DynamicFusion (Newcombe et al. 2015) assembles its GPU system
+//! both give the same H and g). The photometric row of tracking (module `photometric`) enters
+//! the same way, with `G = (∂I/∂p)ᵀ ∂W(v)/∂b`; a test checks its gradient against central
+//! differences of the cost. DynamicFusion (Newcombe et al. 2015) assembles its GPU system
 //! the same way. Robust kernels enter as iteratively reweighted least squares, weight ρ'(s), as on
 //! the solver's dense path. The as-rigid-as-possible terms (eq. 4.5-4.7) and the stay prior are
 //! added as 6 × 6 blocks.
@@ -988,9 +990,9 @@ mod tests {
     }
 
     /// The photometric rows' gradient is the derivative of their cost: every node's six
-    /// right-perturbation coordinates against central differences of `cost_at`, on a ramp (whose
-    /// bilinear samples and central-difference gradients are exact but for the images' f32 rounding, so that only the chain
-    /// through the projection and the blend is tested).
+    /// right-perturbation coordinates against central differences of `cost_at`, on a ramp
+    /// (whose bilinear samples and central-difference gradients are exact but for the images'
+    /// f32 rounding, so that only the chain through the projection and the blend is tested).
     #[test]
     fn the_photometric_gradient_is_the_derivative_of_its_cost() {
         use crate::camera::Camera;
