@@ -11,8 +11,8 @@ use dynamap_residuals::deform::{blend, transform_point, transform_vector, MAX_NE
 use nalgebra::{DualQuaternion, Vector3};
 use rayon::prelude::*;
 
-/// The frame the reference intensities are taken from: its ratio image and vertex map, and the
-/// node motions it was tracked with. Data points re-sampled since are carried into it by those
+/// The frame the reference intensities are taken from: its ratio image, vertex and normal maps,
+/// and the node motions it was tracked with. Data points re-sampled since are carried into it by those
 /// motions, so every point bound to nodes that existed then has a reference.
 #[derive(Default)]
 pub struct ReferenceFrame {
@@ -27,8 +27,7 @@ pub struct ReferenceFrame {
 
 impl ReferenceFrame {
     /// Takes the frame just tracked (its ratio image, vertices, normals and intrinsics, at the
-    /// data level)
-    /// with the graph's current motions.
+    /// data level) with the graph's current motions.
     pub fn take(
         &mut self,
         ratio: &RatioImage,
