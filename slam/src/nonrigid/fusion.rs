@@ -65,9 +65,9 @@ pub struct FusionParams {
     /// pixels of the data level (default 4; module `photometric`).
     pub photometric_window: usize,
     /// The photometric references are taken from a tracked frame every this many frames
-    /// (default 5; 1, or 0, compares each frame with the one before). Each new reference frame adds
-    /// its tracking error to the references, so the error walks with every one taken, while
-    /// shading drifts from the reference the longer it is kept.
+    /// (default 5; 1, or 0, compares each frame with the one before). Each new reference frame
+    /// adds its tracking error to the references, so the error walks with every one taken,
+    /// while shading drifts from the reference the longer it is kept.
     pub photometric_keyframe_every: usize,
 }
 
@@ -167,7 +167,8 @@ pub struct NonRigidFusion {
     band: Vec<Vector3<f64>>,
     backup: Vec<DualQuaternion<f64>>,
     voxel_bindings: VoxelBindings,
-    /// Each data point's intensity in the last tracked frame (NaN: not seen there).
+    /// Each data point's intensity (over its local mean) in the reference frame (NaN: not seen
+    /// there).
     reference: Vec<f32>,
     /// The data level's intensity over its local mean, when the frame has colour and the
     /// photometric term is weighted.
