@@ -3,19 +3,20 @@
 //! Depth holds a surface only along its normal: material sliding along the surface leaves the
 //! depth as it was, so a wave running along a sheet or a tube twisting about its axis is fitted
 //! while its texture slides away. The texture moves with the material, though. Each canonical
-//! data point keeps the intensity it showed in the last tracked frame, and in the next one adds
+//! data point takes the intensity it showed in a recent tracked frame (one taken every few
+//! frames, module `reference_frame`), and in each frame after it adds
 //!
 //! ```text
 //! r = I(π(W(v))) − I_ref,   ∂r/∂b = ∇Iᵀ ∂π/∂x ∂W(v)/∂b
 //! ```
 //!
-//! under Tukey's kernel with weight λ (brightness constancy between consecutive frames, the
+//! under Tukey's kernel with weight λ (brightness constancy between nearby frames, the
 //! photometric error of dense visual odometry, Kerl, Sturm & Cremers 2013, taken through the
-//! blended warp instead of one rigid motion). Referencing the previous frame rather than the
-//! canonical colour fused so far keeps shading out of the residual: it changes as the surface
-//! bends, slowly from one frame to the next but by much over a sequence.
+//! blended warp instead of one rigid motion). Referencing a recent frame rather than the
+//! canonical colour fused so far keeps most shading out of the residual: it changes as the
+//! surface bends, slowly from one frame to the next but by much over a sequence.
 //!
-//! Shading changes between consecutive frames too, and on a bending surface by enough to bias
+//! Shading changes between nearby frames too, and on a bending surface by enough to bias
 //! the fit (the generated plate's shading moves by up to 2 % of the intensity a frame, a slide of
 //! about half a pixel on its texture). Shading multiplies the albedo and varies smoothly over the
 //! surface, so the term compares the ratio of the intensity to its local mean,
