@@ -98,6 +98,13 @@ struct Args {
     /// The pyramid level of the data term's depth (0: full resolution).
     #[arg(long, default_value_t = FusionParams::default().data_level)]
     data_level: usize,
+    /// Weight of the photometric term beside the depth terms (0: none; used when the frames
+    /// have colour).
+    #[arg(long, default_value_t = FusionParams::default().register.photometric_weight)]
+    photometric_weight: f64,
+    /// Tukey's c of the photometric term, in units of intensity over its local mean.
+    #[arg(long, default_value_t = FusionParams::default().register.photometric_tukey)]
+    photometric_tukey: f64,
     /// The photometric term compares intensities over their mean in windows of ± this many
     /// pixels of the data level.
     #[arg(long, default_value_t = FusionParams::default().photometric_window)]
@@ -117,8 +124,18 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.tsdf.voxel_size = args.voxel_size;
     p.data_spacing = args.data_spacing;
     p.data_level = args.data_level;
+    p.register.photometric_weight = args.photometric_weight;
+    p.register.photometric_tukey = args.photometric_tukey;
     p.photometric_window = args.photometric_window;
     p.photometric_keyframe_every = args.photometric_keyframe_every;
+    if !(p.register.photometric_weight >= 0.0 && p.register.photometric_weight.is_finite()) {
+        return Err(cli::bad_input("--photometric-weight must be a number ≥ 0"));
+    }
+    if !(p.register.photometric_tukey > 0.0 && p.register.photometric_tukey.is_finite()) {
+        return Err(cli::bad_input(
+            "--photometric-tukey must be a positive number",
+        ));
+    }
     if p.photometric_window == 0 || p.photometric_keyframe_every == 0 {
         return Err(cli::bad_input(
             "--photometric-window and --photometric-keyframe-every must be at least 1",

@@ -43,18 +43,11 @@ pub struct WarpFlags {
     /// system is factorised anew (0: every step factorises).
     #[arg(long)]
     pub refine_iterations: Option<usize>,
-    /// Weight of the photometric term beside the depth terms (0: none; used where the input has
-    /// colour and the pipeline keeps reference intensities, as `nonrigid_slam` does).
-    #[arg(long)]
-    pub photometric_weight: Option<f64>,
-    /// Tukey's c of the photometric term, intensity units (intensities in [0, 1]).
-    #[arg(long)]
-    pub photometric_tukey: Option<f64>,
 }
 
 impl WarpFlags {
     /// The flags' argument ids with the values `graph` and `register` give them, as text.
-    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 14] {
+    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 12] {
         let schedule: Vec<String> = register.schedule.iter().map(|w| w.to_string()).collect();
         [
             ("spacing", graph.spacing.to_string()),
@@ -69,11 +62,6 @@ impl WarpFlags {
             ("stay_weight", register.stay_weight.to_string()),
             ("damping", register.damping.to_string()),
             ("refine_iterations", register.refine_iterations.to_string()),
-            (
-                "photometric_weight",
-                register.photometric_weight.to_string(),
-            ),
-            ("photometric_tukey", register.photometric_tukey.to_string()),
         ]
     }
 
@@ -137,14 +125,6 @@ impl WarpFlags {
         set(&self.stay_weight, &mut register.stay_weight);
         set(&self.damping, &mut register.damping);
         set(&self.refine_iterations, &mut register.refine_iterations);
-        set(&self.photometric_weight, &mut register.photometric_weight);
-        set(&self.photometric_tukey, &mut register.photometric_tukey);
-        if !(register.photometric_weight >= 0.0 && register.photometric_weight.is_finite()) {
-            anyhow::bail!("--photometric-weight must be a number ≥ 0");
-        }
-        if !(register.photometric_tukey > 0.0 && register.photometric_tukey.is_finite()) {
-            anyhow::bail!("--photometric-tukey must be a positive number");
-        }
         if !(register.damping > 0.0 && register.damping.is_finite()) {
             anyhow::bail!("--damping must be a positive number");
         }

@@ -88,19 +88,30 @@ fn the_graph_grows_only_over_new_surface() {
     assert!((w - (t * Point3::from(p)).coords).norm() < 1e-9);
 }
 
-/// Tracks `frames` frames of `scene` rendered with sensor noise at 320 × 240 (the data term at
-/// full resolution); every frame must be fused. Gives each frame's mean tracking error (m), and
-/// the node counts after the first frame and at the end.
-fn track_generated(
-    scene: &dynamap::slam::synthetic::deform::DeformingScene,
-    params: dynamap::slam::nonrigid::FusionParams,
+/// Tracks `frames` frames of the generated plate under `field` (texture `seed`), rendered with
+/// sensor noise at 320 × 240 with the data term at full resolution and, if given, this
+/// photometric weight; every frame must be fused. Gives each frame's mean tracking error (m),
+/// and the node counts after the first frame and at the end.
+fn track_plate(
+    field: dynamap::slam::synthetic::deform::Field,
+    seed: u64,
+    photometric_weight: Option<f64>,
     frames: usize,
 ) -> (Vec<f64>, usize, usize) {
     use dynamap::slam::camera::Camera;
     use dynamap::slam::eval::Stats;
-    use dynamap::slam::nonrigid::NonRigidFusion;
+    use dynamap::slam::nonrigid::{FusionParams, NonRigidFusion};
+    use dynamap::slam::synthetic::deform::{surface, DeformingScene, SurfaceKind};
     use dynamap::slam::synthetic::noise::SensorNoise;
 
+    let scene = DeformingScene::new(surface(SurfaceKind::Plane, 60), field, seed);
+    let mut params = FusionParams {
+        data_level: 0,
+        ..FusionParams::default()
+    };
+    if let Some(w) = photometric_weight {
+        params.register.photometric_weight = w;
+    }
     let camera = Camera::tum_default().level(1);
     let mut slam = NonRigidFusion::new(camera, params);
     let noise = SensorNoise::default();
@@ -124,15 +135,8 @@ fn track_generated(
 /// there is, bar the edges that turn into view).
 #[test]
 fn a_bending_plate_is_tracked_within_five_millimetres() {
-    use dynamap::slam::nonrigid::FusionParams;
-    use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
-
-    let scene = DeformingScene::new(surface(SurfaceKind::Plane, 60), Field::Bend, 3);
-    let params = FusionParams {
-        data_level: 0,
-        ..FusionParams::default()
-    };
-    let (errors, first_nodes, nodes) = track_generated(&scene, params, 30);
+    use dynamap::slam::synthetic::deform::Field;
+    let (errors, first_nodes, nodes) = track_plate(Field::Bend, 3, None, 30);
     let worst = errors.iter().fold(0.0f64, |a, &e| a.max(e));
     assert!(worst < 5e-3, "worst frame's mean error {worst} m");
     assert!(
@@ -147,23 +151,9 @@ fn a_bending_plate_is_tracked_within_five_millimetres() {
 /// (same frames) it is more than twice as large.
 #[test]
 fn a_travelling_wave_is_held_by_the_photometric_term() {
-    use dynamap::slam::nonrigid::{FusionParams, RegisterParams};
-    use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
-
-    let scene = DeformingScene::new(surface(SurfaceKind::Plane, 60), Field::Wave, 5);
-    let with = FusionParams {
-        data_level: 0,
-        ..FusionParams::default()
-    };
-    let without = FusionParams {
-        register: RegisterParams {
-            photometric_weight: 0.0,
-            ..with.register.clone()
-        },
-        ..with.clone()
-    };
-    let last = |p| *track_generated(&scene, p, 40).0.last().unwrap();
-    let (held, slid) = (last(with), last(without));
+    use dynamap::slam::synthetic::deform::Field;
+    let last = |w| *track_plate(Field::Wave, 5, w, 40).0.last().unwrap();
+    let (held, slid) = (last(None), last(Some(0.0)));
     assert!(held < 0.01, "with the photometric term: {held} m");
     assert!(slid > 2.0 * held, "without it: {slid} m against {held} m");
 }

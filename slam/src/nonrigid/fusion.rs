@@ -168,8 +168,9 @@ pub struct NonRigidFusion {
     backup: Vec<DualQuaternion<f64>>,
     voxel_bindings: VoxelBindings,
     /// Each data point's intensity (over its local mean) in the reference frame (NaN: not seen
-    /// there).
+    /// there); stale once the points are re-sampled or another reference frame is taken.
     reference: Vec<f32>,
+    reference_stale: bool,
     /// The data level's intensity over its local mean, when the frame has colour and the
     /// photometric term is weighted.
     ratio: RatioImage,
@@ -197,6 +198,7 @@ impl NonRigidFusion {
             backup: Vec::new(),
             voxel_bindings: VoxelBindings::default(),
             reference: Vec::new(),
+            reference_stale: true,
             ratio: RatioImage::default(),
             has_ratio: false,
             reference_frame: ReferenceFrame::default(),
@@ -382,14 +384,17 @@ impl NonRigidFusion {
         let t = Instant::now();
         self.backup.clear();
         self.backup.extend(graph.nodes.iter().map(|n| n.motion));
-        let gate = (self.params.tsdf.voxel_size * self.params.tsdf.truncation_voxels) as f64;
-        self.reference_frame.intensities(
-            &self.points,
-            &self.normals,
-            &self.bindings,
-            gate,
-            &mut self.reference,
-        );
+        if self.reference_stale {
+            let gate = (self.params.tsdf.voxel_size * self.params.tsdf.truncation_voxels) as f64;
+            self.reference_frame.intensities(
+                &self.points,
+                &self.normals,
+                &self.bindings,
+                gate,
+                &mut self.reference,
+            );
+            self.reference_stale = false;
+        }
         let level = &self.pre.levels[self.params.data_level.min(self.pre.levels.len() - 1)];
         let depth = DepthTarget {
             camera: &level.camera,
@@ -397,7 +402,7 @@ impl NonRigidFusion {
             normals: &level.normals,
         };
         let textured = self.has_ratio.then(|| TexturedDepthTarget {
-            depth: DepthTarget { ..depth },
+            depth,
             photometric: PhotometricTarget {
                 live: self.ratio.live(&level.camera),
                 reference: &self.reference,
@@ -481,6 +486,7 @@ impl NonRigidFusion {
 
     /// Takes the frame just tracked as the photometric references' frame (when the term is on).
     fn take_reference(&mut self) {
+        self.reference_stale = true;
         let level = &self.pre.levels[self.data_level()];
         match (self.has_ratio, &self.graph) {
             (true, Some(graph)) => self.reference_frame.take(
@@ -514,6 +520,7 @@ impl NonRigidFusion {
         let graph = self.graph.as_ref().expect("started");
         self.bindings = graph.bind_all(&self.points);
         self.since_refresh = 0;
+        self.reference_stale = true;
     }
 }
 

@@ -225,18 +225,35 @@ pub(crate) mod tests {
         g
     }
 
+    /// An intensity image with its central-difference gradients, for [`LiveIntensity`].
+    pub(crate) struct WithGradients {
+        gray: GrayImage,
+        gx: GrayImage,
+        gy: GrayImage,
+    }
+
+    impl WithGradients {
+        pub(crate) fn of(gray: GrayImage) -> Self {
+            let (mut gx, mut gy) = (GrayImage::new(1, 1), GrayImage::new(1, 1));
+            gradients(&gray, &mut gx, &mut gy);
+            Self { gray, gx, gy }
+        }
+
+        pub(crate) fn live<'a>(&'a self, camera: &'a Camera) -> LiveIntensity<'a> {
+            LiveIntensity {
+                camera,
+                intensity: &self.gray,
+                gradient_x: &self.gx,
+                gradient_y: &self.gy,
+            }
+        }
+    }
+
     #[test]
     fn the_derivative_by_the_point_is_the_central_difference_of_the_samples() {
         let camera = Camera::tum_default().level(1);
-        let gray = image(camera.width, camera.height);
-        let (mut gx, mut gy) = (GrayImage::new(1, 1), GrayImage::new(1, 1));
-        gradients(&gray, &mut gx, &mut gy);
-        let live = LiveIntensity {
-            camera: &camera,
-            intensity: &gray,
-            gradient_x: &gx,
-            gradient_y: &gy,
-        };
+        let gray = WithGradients::of(image(camera.width, camera.height));
+        let live = gray.live(&camera);
         let p = Vector3::new(0.05, -0.03, 0.9);
         let (_, d) = live.sample(&p).expect("inside");
         // the gradient images are central differences of the pixels, so compare with the
@@ -297,15 +314,8 @@ pub(crate) mod tests {
     #[test]
     fn points_behind_the_camera_or_at_the_border_have_no_sample() {
         let camera = Camera::tum_default().level(1);
-        let gray = image(camera.width, camera.height);
-        let (mut gx, mut gy) = (GrayImage::new(1, 1), GrayImage::new(1, 1));
-        gradients(&gray, &mut gx, &mut gy);
-        let live = LiveIntensity {
-            camera: &camera,
-            intensity: &gray,
-            gradient_x: &gx,
-            gradient_y: &gy,
-        };
+        let gray = WithGradients::of(image(camera.width, camera.height));
+        let live = gray.live(&camera);
         assert!(live.sample(&Vector3::new(0.0, 0.0, -1.0)).is_none());
         assert!(live.sample(&Vector3::new(10.0, 0.0, 1.0)).is_none());
         assert!(live.sample(&Vector3::new(0.0, 0.0, 1.0)).is_some());

@@ -118,6 +118,7 @@ impl Target for CloudTarget {
 }
 
 /// A live depth frame's vertex and normal maps (camera frame), associated projectively.
+#[derive(Clone, Copy)]
 pub struct DepthTarget<'a> {
     /// Intrinsics of the maps.
     pub camera: &'a Camera,

@@ -996,8 +996,8 @@ mod tests {
     #[test]
     fn the_photometric_gradient_is_the_derivative_of_its_cost() {
         use crate::camera::Camera;
-        use crate::image::{gradients, GrayImage, Image};
-        use crate::nonrigid::photometric::LiveIntensity;
+        use crate::image::{GrayImage, Image};
+        use crate::nonrigid::photometric::tests::WithGradients;
         let (graph, points, bindings, matches) = scene_at(Vector3::new(-0.1, -0.1, 0.9));
         let motions: Vec<Isometry3<f64>> = graph
             .nodes
@@ -1012,14 +1012,8 @@ mod tests {
                 gray.set(x, y, 0.3 + 0.001 * u + 0.0015 * v);
             }
         }
-        let (mut gx, mut gy) = (GrayImage::new(1, 1), GrayImage::new(1, 1));
-        gradients(&gray, &mut gx, &mut gy);
-        let live = LiveIntensity {
-            camera: &camera,
-            intensity: &gray,
-            gradient_x: &gx,
-            gradient_y: &gy,
-        };
+        let gray = WithGradients::of(gray);
+        let live = gray.live(&camera);
         let mut ws = WarpSystem::default();
         ws.prepare(&graph, &bindings, FactorPrecision::Double)
             .unwrap();
