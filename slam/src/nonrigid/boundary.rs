@@ -8,13 +8,15 @@
 //! turning along the arc length, the two descriptions are aligned by circular cross-correlation
 //! (both directions), and each alignment that fits places 16 anchors around the rim
 //! with their partners. Every vertex is then matched by its geodesic distances to them
-//! (over the mesh's edges and second ring).
+//! (over the mesh's edges and second ring). The matches are points of the target's surface
+//! ([`MeshPoint`]), not its vertices: two meshes of one sheet meshed apart share no vertex.
 //!
 //! A symmetric rim fits several ways (a rectangle four: turned by a half turn, mirrored). All
 //! are intrinsically equal, so the choice is the one that moves the surface least: the least
 //! mean distance between each source vertex and its match.
 
 use super::descriptors::{MeshRef, SurfacePaths, ANCHORS};
+use super::mesh_point::{nearest_in_triangle, MeshPoint};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -37,6 +39,12 @@ const LENGTH_RATIO: f64 = 1.25;
 /// per bin (a disc's rim turns 2π in all) has nothing to align by: a circle, or a tube's rim,
 /// turns the same everywhere.
 const CONTRAST: f64 = 0.2;
+/// A rim vertex that turns by at least this (radians) and no less than its neighbours is a
+/// corner: a rectangle's turn by π/2 however the sheet bends, a round rim of n vertices by 2π/n.
+const CORNER: f64 = PI / 6.0;
+/// A source corner takes a target corner at most this share of the target's rim from where the
+/// alignment puts it.
+const CORNER_REACH: f64 = 0.05;
 
 /// One closed boundary loop: its vertices in order, each vertex's arc length from the first,
 /// the loop's length, and how much it turns at each vertex.
@@ -163,15 +171,34 @@ impl Rim {
         out
     }
 
-    /// The index (in this loop) of the partner of `source`'s vertex `i` under `alignment`: the
-    /// vertex nearest the same share of the length, laid on as `alignment` says.
-    fn partner_of(&self, source: &Rim, i: usize, alignment: &RimAlignment) -> usize {
+    /// The arc length of this loop at which the partner of `source`'s vertex `i` lies under
+    /// `alignment`: the same share of the length, moved by `corners`' offsets.
+    fn partner_arc(
+        &self,
+        source: &Rim,
+        i: usize,
+        alignment: &RimAlignment,
+        corners: &CornerOffsets,
+    ) -> f64 {
         let u = source.arc[i] / source.length;
-        self.index_at((alignment.shift + alignment.direction * u) * self.length)
+        (alignment.shift + alignment.direction * u) * self.length + corners.at(source.arc[i])
     }
 
-    /// The index (in the loop) of the rim vertex nearest arc length `s`, taken modulo the length.
-    fn index_at(&self, s: f64) -> usize {
+    /// The rim indices of its corners: vertices that turn by at least [`CORNER`] and by no less
+    /// than either neighbour.
+    fn corners(&self) -> Vec<usize> {
+        let n = self.turning.len();
+        (0..n)
+            .filter(|&k| {
+                let t = self.turning[k];
+                t >= CORNER && t >= self.turning[(k + n - 1) % n] && t >= self.turning[(k + 1) % n]
+            })
+            .collect()
+    }
+
+    /// The rim edge at arc length `s` (taken modulo the length): the indices of its two ends in
+    /// the loop, and how far along it `s` lies, from 0 to 1.
+    fn edge_at(&self, s: f64) -> (usize, usize, f64) {
         let s = s.rem_euclid(self.length);
         let k = self.arc.partition_point(|&a| a <= s).max(1) - 1;
         let after = (k + 1) % self.vertices.len();
@@ -180,7 +207,20 @@ impl Rim {
         } else {
             self.arc[after]
         };
-        if end - s < s - self.arc[k] {
+        let t = ((s - self.arc[k]) / (end - self.arc[k])).clamp(0.0, 1.0);
+        (k, after, if t.is_finite() { t } else { 0.0 })
+    }
+
+    /// The point of the loop at arc length `s`, between the two rim vertices it falls between.
+    fn point_at(&self, s: f64) -> MeshPoint {
+        let (k, after, t) = self.edge_at(s);
+        MeshPoint::on_edge(self.vertices[k], self.vertices[after], t)
+    }
+
+    /// The index (in the loop) of the rim vertex nearest arc length `s`.
+    fn index_at(&self, s: f64) -> usize {
+        let (k, after, t) = self.edge_at(s);
+        if t > 0.5 {
             after
         } else {
             k
@@ -198,6 +238,72 @@ pub(crate) struct RimAlignment {
     pub(crate) shift: f64,
     /// Normalised correlation of the two turning signals, at most 1.
     pub(crate) score: f64,
+}
+
+/// How far each of the target's corners lies, along its rim, from where an alignment puts the
+/// source's corner: a twist stretches a sheet's long edges and not its short ones, and a saddle
+/// its rim unevenly, so the same share of each rim's length is off by up to a few percent of it
+/// near the corners. Between corners the offset is interpolated linearly by the source's arc
+/// length (round the loop); with no corner matched it is zero.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct CornerOffsets {
+    /// The source's arc length at each matched corner, ascending.
+    arc: Vec<f64>,
+    /// The target's arc length less the aligned one there.
+    offset: Vec<f64>,
+    /// The source rim's length.
+    length: f64,
+}
+
+impl CornerOffsets {
+    /// The offsets of `source`'s corners under `alignment`: each source corner takes the target
+    /// corner nearest where the alignment puts it, within [`CORNER_REACH`] of the target's
+    /// length.
+    fn new(source: &Rim, target: &Rim, alignment: &RimAlignment) -> Self {
+        let none = Self::default();
+        let t_corners: Vec<f64> = target.corners().iter().map(|&k| target.arc[k]).collect();
+        let mut out = Self {
+            length: source.length,
+            ..Self::default()
+        };
+        for i in source.corners() {
+            let aligned = target.partner_arc(source, i, alignment, &none);
+            let nearest = t_corners
+                .iter()
+                .map(|&c| {
+                    let d = (c - aligned).rem_euclid(target.length);
+                    if d > 0.5 * target.length {
+                        d - target.length
+                    } else {
+                        d
+                    }
+                })
+                .min_by(|a, b| a.abs().total_cmp(&b.abs()));
+            if let Some(d) = nearest.filter(|d| d.abs() <= CORNER_REACH * target.length) {
+                out.arc.push(source.arc[i]);
+                out.offset.push(d);
+            }
+        }
+        out
+    }
+
+    /// The offset at the source's arc length `s`.
+    fn at(&self, s: f64) -> f64 {
+        let n = self.arc.len();
+        match n {
+            0 => 0.0,
+            1 => self.offset[0],
+            _ => {
+                let k = self.arc.partition_point(|&a| a <= s);
+                // the corners before and after s, round the loop
+                let (before, after) = ((k + n - 1) % n, k % n);
+                let span = (self.arc[after] - self.arc[before]).rem_euclid(self.length);
+                let into = (s - self.arc[before]).rem_euclid(self.length);
+                let t = if span > 0.0 { into / span } else { 0.0 };
+                self.offset[before] + t * (self.offset[after] - self.offset[before])
+            }
+        }
+    }
 }
 
 /// The alignments of two rims' turning signals that fit: local maxima of the circular
@@ -226,7 +332,7 @@ pub(crate) fn rim_alignments(source: &Rim, target: &Rim) -> Vec<RimAlignment> {
             if scores[k] > 0.0 && scores[k] >= before && scores[k] > after {
                 found.push(RimAlignment {
                     direction,
-                    shift: k as f64 / BINS as f64,
+                    shift: (k as f64 + peak_offset(before, scores[k], after)) / BINS as f64,
                     score: scores[k],
                 });
             }
@@ -239,6 +345,18 @@ pub(crate) fn rim_alignments(source: &Rim, target: &Rim) -> Vec<RimAlignment> {
     }
     found.retain(|a| a.score >= FIT * best);
     found
+}
+
+/// Where the peak of the parabola through three equally spaced samples lies, in samples from
+/// the middle one (within ±½ when the middle one is the largest): a bin is 1/512 of the rim,
+/// 3 mm of a 1.6 m rim, and an alignment off by a bin moves every match along the rim.
+fn peak_offset(before: f64, at: f64, after: f64) -> f64 {
+    let curvature = before - 2.0 * at + after;
+    if curvature < 0.0 {
+        (0.5 * (before - after) / curvature).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    }
 }
 
 /// The target bin that source bin `b` falls on under shift `k` (bins) and `direction`.
@@ -273,13 +391,26 @@ fn anchor_indices(rim: &Rim) -> [usize; ANCHORS] {
     std::array::from_fn(|k| rim.index_at(k as f64 / ANCHORS as f64 * rim.length))
 }
 
-/// For every source vertex a target vertex, found from the two meshes' rims alone: no position
-/// is compared until the choice between symmetric fits, which takes the least motion (the least
-/// mean distance from each source vertex to its match). `None` when either mesh has no usable
-/// rim (closed, non-manifold, or a rim that turns the same everywhere) or is too small, or when
-/// the two rims are not one outline (lengths or turning too different: another shape, or part
-/// of it).
-pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize>> {
+/// What [`rim_matches`] found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RimMatches {
+    /// Each source vertex's partner on the target.
+    pub partners: Vec<MeshPoint>,
+    /// The source's rim vertices, in order round the rim: their partners come from the rims'
+    /// alignment itself, not from distances over the surface.
+    pub rim: Vec<u32>,
+}
+
+/// For every source vertex a point on the target, found from the two meshes' rims alone: no
+/// position is compared until the choice between symmetric fits, which takes the least motion
+/// (the least mean distance from each source vertex to its match). The rim's vertices land at
+/// the same share of the target's rim; every other vertex where the target's descriptors,
+/// interpolated over a triangle, come nearest its own, so that two meshes
+/// of one surface meshed apart match between the target's vertices. `None` when either mesh has
+/// no usable rim (closed, non-manifold, or a rim that turns the same everywhere) or is too small,
+/// or when the two rims are not one outline (lengths or turning too different: another shape, or
+/// part of it).
+pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<RimMatches> {
     if source.points.len() < ANCHORS || target.points.len() < ANCHORS {
         return None;
     }
@@ -298,35 +429,102 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<Vec<usize
         .ok()?
         .descriptors(&at.map(|i| s_rim.vertices[i] as usize));
     let target_paths = SurfacePaths::two_ring(target).ok()?;
+    let faces_of = faces_of_vertices(target);
     // a surface that stretches (a saddle) stretches its rim too: compare distances in units of
     // each rim's length
     let shrink = s_rim.length / t_rim.length;
     alignments
         .par_iter()
         .map(|a| {
-            let to = at.map(|i| t_rim.vertices[t_rim.partner_of(&s_rim, i, a)] as usize);
-            let mut d_target = target_paths.descriptors(&to);
+            let corners = CornerOffsets::new(&s_rim, &t_rim, a);
+            let on_target = |i: usize| t_rim.point_at(t_rim.partner_arc(&s_rim, i, a, &corners));
+            let starts = at.map(|i| {
+                let p = on_target(i);
+                let here = p.blend(target.points);
+                (0..2)
+                    .map(|k| {
+                        let v = p.vertices[k];
+                        (v, (target.points[v as usize] - here).norm())
+                    })
+                    .collect::<Vec<_>>()
+            });
+            let mut d_target = target_paths.descriptors_from(&starts);
             d_target
                 .iter_mut()
                 .for_each(|d| d.iter_mut().for_each(|x| *x *= shrink));
             let tree: ImmutableKdTree<f64, ANCHORS> = ImmutableKdTree::new_from_slice(&d_target);
-            let mut matches: Vec<usize> = d_source
+            let mut matches: Vec<MeshPoint> = d_source
                 .iter()
-                .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
+                .map(|d| nearest_in_faces(d, &tree, &d_target, &faces_of, target.faces))
                 .collect();
             // the rim itself is matched by arc length
             for (i, &v) in s_rim.vertices.iter().enumerate() {
-                matches[v as usize] = t_rim.vertices[t_rim.partner_of(&s_rim, i, a)] as usize;
+                matches[v as usize] = on_target(i);
             }
             let motion = matches
                 .iter()
                 .enumerate()
-                .map(|(v, &m)| (target.points[m] - source.points[v]).norm())
+                .map(|(v, m)| (m.blend(target.points) - source.points[v]).norm())
                 .sum::<f64>();
             (motion, matches)
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, m)| m)
+        .map(|(_, partners)| RimMatches {
+            partners,
+            rim: s_rim.vertices.clone(),
+        })
+}
+
+/// The faces around each vertex of `mesh` (its faces name only vertices it has: [`Rim::longest`]
+/// checked).
+fn faces_of_vertices(mesh: MeshRef<'_>) -> Vec<Vec<u32>> {
+    let mut out = vec![Vec::new(); mesh.points.len()];
+    for (f, face) in mesh.faces.iter().enumerate() {
+        for &v in face {
+            out[v as usize].push(f as u32);
+        }
+    }
+    out
+}
+
+/// How many of the target's vertices nearest a descriptor have their triangles searched.
+const NEAREST: usize = 3;
+
+/// The point of the target whose descriptor, interpolated linearly over a triangle, lies nearest
+/// `d`: over the triangles around the [`NEAREST`] vertices of nearest descriptor.
+fn nearest_in_faces(
+    d: &[f64; ANCHORS],
+    tree: &ImmutableKdTree<f64, ANCHORS>,
+    table: &[[f64; ANCHORS]],
+    faces_of: &[Vec<u32>],
+    faces: &[[u32; 3]],
+) -> MeshPoint {
+    let near = tree.nearest_n::<SquaredEuclidean>(d, std::num::NonZero::new(NEAREST).unwrap());
+    let first = near.first().map_or(0, |n| n.item as u32);
+    let mut best = (MeshPoint::vertex(first), f64::INFINITY);
+    for n in &near {
+        for &f in &faces_of[n.item as usize] {
+            let fit = fit_in_face(faces[f as usize], table, d);
+            if fit.1 < best.1 {
+                best = fit;
+            }
+        }
+    }
+    best.0
+}
+
+/// The point of triangle `face` whose descriptor, interpolated from its corners' in `table`,
+/// lies nearest `d`, and the squared distance.
+fn fit_in_face(face: [u32; 3], table: &[[f64; ANCHORS]], d: &[f64; ANCHORS]) -> (MeshPoint, f64) {
+    let corners = face.map(|v| &table[v as usize]);
+    let (weights, cost) = nearest_in_triangle(corners, d);
+    (
+        MeshPoint {
+            vertices: face,
+            weights,
+        },
+        cost,
+    )
 }
 
 #[cfg(test)]
@@ -360,6 +558,15 @@ mod tests {
         assert!((total - 2.0 * PI).abs() < 1e-6, "a disc's rim turns once");
     }
 
+    /// [`rim_matches`] of two meshes given as points and faces, which must align.
+    fn match_sheets(
+        source: (&[Vector3<f64>], &[[u32; 3]]),
+        target: (&[Vector3<f64>], &[[u32; 3]]),
+    ) -> RimMatches {
+        let mesh = |(points, faces)| MeshRef { points, faces };
+        rim_matches(mesh(source), mesh(target)).expect("the rims align")
+    }
+
     #[test]
     fn a_rolled_and_renumbered_sheet_is_matched_vertex_for_vertex() {
         let sheet = flat_sheet(21, 13, 0.5);
@@ -380,19 +587,56 @@ mod tests {
             .map(|f| f.map(|v| new_of(v as usize) as u32))
             .collect();
         let source = points_of(&sheet);
-        let matches = rim_matches(
-            MeshRef {
-                points: &source,
-                faces: &sheet.faces,
-            },
-            MeshRef {
-                points: &target,
-                faces: &faces,
-            },
-        )
-        .expect("the rims align");
-        let right = (0..n).filter(|&v| matches[v] == new_of(v)).count();
-        assert_eq!(right, n);
+        let matches = match_sheets((&source, &sheet.faces), (&target, &faces));
+        // the rim lands on its own vertices; inside, the second ring's chords are shorter on
+        // the rolled copy than on the flat sheet, and the interpolated match moves by that
+        let spacing = 0.5 / 20.0;
+        let off = |v: usize| (matches.partners[v].blend(&target) - target[new_of(v)]).norm();
+        let rim = matches
+            .rim
+            .iter()
+            .map(|&v| off(v as usize))
+            .fold(0.0, f64::max);
+        let worst = (0..n).map(off).fold(0.0, f64::max);
+        assert!(rim < 1e-6 * spacing, "{rim}");
+        assert!(worst < 0.1 * spacing, "{worst}");
+        assert_eq!(matches.rim.len(), 2 * (20 + 12));
+    }
+
+    /// A flat sheet and the same sheet meshed apart (1.4 × the vertices, inner ones moved at
+    /// random by up to 0.3 of the spacing) and rolled: the matches land between the target's
+    /// vertices, where the roll sent each source vertex, to a small share of the spacing; a
+    /// match that must land on a vertex is off by up to half of it.
+    #[test]
+    fn a_sheet_meshed_apart_is_matched_between_the_targets_vertices() {
+        use crate::synthetic::sheet::jittered;
+        let (width, columns, rows) = (0.5, 21, 13);
+        let sheet = flat_sheet(columns, rows, width);
+        let (c, r) = (29, 18);
+        let case = SheetDeformation {
+            shape: SheetShape::Roll { angle: PI },
+            rigid: Some(crate::synthetic::sheet::case_motion(15.0, 0.03)),
+        };
+        let target_mesh = case.deformed(&jittered(flat_sheet(c, r, width), c, r, 0.3, 11), width);
+        let (source, target) = (points_of(&sheet), points_of(&target_mesh));
+        let matches = match_sheets((&source, &sheet.faces), (&target, &target_mesh.faces));
+        let errors: Vec<f64> = source
+            .iter()
+            .zip(&matches.partners)
+            .map(|(p, m)| {
+                let truth = case.apply(&nalgebra::Point3::from(*p), width);
+                (m.blend(&target) - truth.coords).norm()
+            })
+            .collect();
+        let spacing = width / (c - 1) as f64;
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let rim = matches
+            .rim
+            .iter()
+            .map(|&v| errors[v as usize])
+            .fold(0.0, f64::max);
+        assert!(mean < 0.2 * spacing, "mean {mean}, spacing {spacing}");
+        assert!(rim < 0.05 * spacing, "rim {rim}, spacing {spacing}");
     }
 
     fn sheet_points(
@@ -431,8 +675,11 @@ mod tests {
         let t_rim = Rim::longest(mesh(&target)).unwrap();
         assert_eq!(rim_alignments(&s_rim, &t_rim).len(), 8);
         let matches = rim_matches(mesh(&points), mesh(&target)).unwrap();
-        let right = matches.iter().enumerate().filter(|(v, m)| v == *m).count();
-        assert_eq!(right, points.len());
+        let worst = (0..points.len())
+            .map(|v| (matches.partners[v].blend(&target) - target[v]).norm())
+            .fold(0.0, f64::max);
+        // a wrong one of the eight would be off by the sheet's size
+        assert!(worst < 0.1 * 0.8 / 16.0, "{worst}");
     }
 
     #[test]

@@ -168,19 +168,48 @@ impl SurfacePaths {
     /// Each vertex's shortest-path distances to the `ANCHORS` anchors (see
     /// [`geodesic_descriptors`] for unreachable vertices).
     pub(crate) fn descriptors(&self, anchors: &[usize; ANCHORS]) -> Vec<[f64; ANCHORS]> {
-        let n = self.vertices;
         let columns: Vec<Vec<f64>> = anchors
             .par_iter()
-            .map(|&a| {
-                let reached =
-                    petgraph::algo::dijkstra(&self.graph, NodeIndex::new(a), None, |e| *e.weight());
-                let far = 2.0 * reached.values().copied().fold(0.0, f64::max);
-                (0..n)
-                    .map(|v| reached.get(&NodeIndex::new(v)).copied().unwrap_or(far))
-                    .collect()
+            .map(|&a| self.distances_from(&self.graph, NodeIndex::new(a)))
+            .collect();
+        self.rows(&columns)
+    }
+
+    /// [`Self::descriptors`] to anchors that may lie between vertices: anchor k is reached
+    /// from each vertex `v` of `starts[k]` through `d`, that anchor's distance to `v` (a point
+    /// on an edge, from its two ends along the edge). Such a start joins the graph as a node of
+    /// its own; it shortens no path between vertices as long as each `d` is at least the
+    /// anchor's straight distance to `v`.
+    pub(crate) fn descriptors_from(
+        &self,
+        starts: &[Vec<(u32, f64)>; ANCHORS],
+    ) -> Vec<[f64; ANCHORS]> {
+        let columns: Vec<Vec<f64>> = starts
+            .par_iter()
+            .map(|start| {
+                let mut graph = self.graph.clone();
+                let s = graph.add_node(());
+                for &(v, d) in start {
+                    graph.add_edge(s, NodeIndex::new(v as usize), d);
+                }
+                self.distances_from(&graph, s)
             })
             .collect();
-        (0..n)
+        self.rows(&columns)
+    }
+
+    /// Every vertex's shortest-path distance from `start` in `graph`.
+    fn distances_from(&self, graph: &UnGraph<(), f64>, start: NodeIndex) -> Vec<f64> {
+        let reached = petgraph::algo::dijkstra(graph, start, None, |e| *e.weight());
+        let far = 2.0 * reached.values().copied().fold(0.0, f64::max);
+        (0..self.vertices)
+            .map(|v| reached.get(&NodeIndex::new(v)).copied().unwrap_or(far))
+            .collect()
+    }
+
+    /// One descriptor per vertex from one column of distances per anchor.
+    fn rows(&self, columns: &[Vec<f64>]) -> Vec<[f64; ANCHORS]> {
+        (0..self.vertices)
             .map(|v| std::array::from_fn(|k| columns[k][v]))
             .collect()
     }

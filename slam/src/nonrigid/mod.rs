@@ -15,7 +15,7 @@
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
 //!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
 //!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
-//!   ([`boundary`]).
+//!   ([`boundary`]), whose matches land between the target's vertices ([`mesh_point`]).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
 //!   graph's nodes, and the median distance from a registered source to the target's surface.
@@ -26,6 +26,8 @@ pub mod frame_surface;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
+pub mod mesh_point;
+pub mod mesh_target;
 pub mod photometric;
 pub mod reference_frame;
 pub mod register;
@@ -33,7 +35,7 @@ pub mod surface;
 mod system;
 mod voxel_bindings;
 
-pub use boundary::rim_matches;
+pub use boundary::{rim_matches, RimMatches};
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frames::{
@@ -42,6 +44,8 @@ pub use frames::{
 };
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
+pub use mesh_point::MeshPoint;
+pub use mesh_target::MeshTarget;
 pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};
 pub use reference_frame::ReferenceFrame;
 pub use register::{

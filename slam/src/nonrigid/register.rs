@@ -68,6 +68,14 @@ pub enum RegisterError {
         /// Points given.
         points: usize,
     },
+    /// A pinned seed names a point that is not there.
+    #[error("seed {index} is pinned, but there are {points} points")]
+    Pinned {
+        /// The index named.
+        index: u32,
+        /// Points given.
+        points: usize,
+    },
 }
 
 /// Where warped points find their partners.
@@ -247,6 +255,10 @@ pub struct Seeds {
     /// where the points start, farther than one step on each matching goes (a sheet folded
     /// through 112° ended 20 % off with one).
     pub iterations: usize,
+    /// Points whose seed holds in every stage, not only in the seeded ones: a sheet's rim,
+    /// matched by the rims' own shape. Closest point would let it slide, along the rim and
+    /// inwards, wherever that stretches the sheet less.
+    pub pinned: Vec<u32>,
 }
 
 /// What one optimisation did.
@@ -390,6 +402,9 @@ impl WarpOptimiser {
                 self.associate(graph, points, normals, bindings, target);
                 if let Some(s) = seeded {
                     self.take_seeds(s);
+                }
+                if let Some(s) = seeds {
+                    self.take_pinned(s);
                 }
                 lap(&mut times.associate);
                 let mut evaluate = 0.0;
@@ -553,6 +568,13 @@ impl WarpOptimiser {
             if seeds.replace_all || m.is_none_or(|(q, _)| (q - s.0).norm_squared() > gate) {
                 *m = Some(*s);
             }
+        }
+    }
+
+    /// Gives every pinned point its seed ([`check_inputs`] saw that they are there).
+    fn take_pinned(&mut self, seeds: &Seeds) {
+        for &i in &seeds.pinned {
+            self.matches[i as usize] = Some(seeds.matches[i as usize]);
         }
     }
 
@@ -818,6 +840,13 @@ fn check_inputs(
             points: points.len(),
         });
     }
+    let pinned = seeds.map_or(&[][..], |s| &s.pinned);
+    if let Some(&index) = pinned.iter().find(|&&i| i as usize >= points.len()) {
+        return Err(RegisterError::Pinned {
+            index,
+            points: points.len(),
+        });
+    }
     let nodes = graph.nodes.len();
     if points.len() != normals.len()
         || points.len() != bindings.len()
@@ -856,6 +885,7 @@ mod tests {
             tukey_scale: 8.0,
             replace_all: false,
             iterations: 2,
+            pinned: vec![2],
         };
         optimiser.take_seeds(&seeds);
         assert_eq!(
@@ -866,9 +896,16 @@ mod tests {
         optimiser.matches = vec![Some(at(0.05)), Some(at(0.5)), None];
         optimiser.take_seeds(&Seeds {
             replace_all: true,
-            ..seeds
+            ..seeds.clone()
         });
         assert_eq!(optimiser.matches, vec![Some(at(0.0)); 3]);
+        // a pinned seed holds wherever its point matched
+        optimiser.matches = vec![Some(at(0.05)), Some(at(0.5)), Some(at(0.02))];
+        optimiser.take_pinned(&seeds);
+        assert_eq!(
+            optimiser.matches,
+            vec![Some(at(0.05)), Some(at(0.5)), Some(at(0.0))]
+        );
     }
 
     /// A depth frame of the plane z = 1 facing the camera.

@@ -4,12 +4,14 @@
 //! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
-use super::boundary::rim_matches;
+use super::boundary::{rim_matches, RimMatches};
 use super::descriptors::{descriptor_matches, DescriptorError, MeshRef};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
+use super::mesh_point::MeshPoint;
+use super::mesh_target::MeshTarget;
 use super::register::{
     principal_axes_guesses, CloudTarget, RegisterError, RegisterParams, RegisterSummary, Seeds,
-    WarpOptimiser,
+    Target, WarpOptimiser,
 };
 use crate::eval::umeyama;
 use crate::mesh::Mesh;
@@ -156,7 +158,19 @@ pub fn register_surfaces(
     params: RegisterParams,
     principal_axes: bool,
 ) -> Result<SurfaceRegistration, SurfaceError> {
-    Passes::new(source, target, graph, params, principal_axes, false)?.run(None)
+    Passes::new(
+        source,
+        SurfaceMesh {
+            points: target.0,
+            normals: target.1,
+            faces: &[],
+        },
+        graph,
+        params,
+        principal_axes,
+        false,
+    )?
+    .run(None)
 }
 
 /// What every pass of a surface registration starts from: the source's graph at rest and its
@@ -177,14 +191,17 @@ struct Passes {
     rest: DeformationGraph,
     bindings: Vec<Binding>,
     guesses: Vec<Isometry3<f64>>,
-    target: CloudTarget,
+    target: Box<dyn Target>,
     params: RegisterParams,
 }
 
 impl Passes {
+    /// The passes of `source` onto `target` (points, normals and triangles: a target with
+    /// triangles is associated by the nearest point of its surface, [`MeshTarget`], one without
+    /// by the nearest point of the cloud).
     fn new(
         source: (&[Vector3<f64>], &[Vector3<f64>]),
-        target: (&[Vector3<f64>], &[Vector3<f64>]),
+        target: SurfaceMesh<'_>,
         mut graph: GraphParams,
         mut params: RegisterParams,
         principal_axes: bool,
@@ -197,7 +214,7 @@ impl Passes {
             1.0
         };
         let scaled = |p: &[Vector3<f64>]| p.iter().map(|p| p / unit).collect::<Vec<_>>();
-        let (sp, tp) = (scaled(source.0), scaled(target.0));
+        let (sp, tp) = (scaled(source.0), scaled(target.points));
         graph.spacing /= unit;
         params.max_distance /= unit;
         params.rigid_max_distance /= unit;
@@ -210,7 +227,11 @@ impl Passes {
         }
         Ok(Self {
             unit,
-            target: CloudTarget::new(&tp, target.1),
+            target: if target.faces.is_empty() {
+                Box::new(CloudTarget::new(&tp, target.normals))
+            } else {
+                Box::new(MeshTarget::new(&tp, target.normals, target.faces))
+            },
             source: (sp, source.1.to_vec()),
             target_points: tp,
             rest,
@@ -222,11 +243,11 @@ impl Passes {
 
     /// Adds the rigid motion that best carries each source point onto its partner (Horn's
     /// absolute orientation) to the pre-alignment's starting guesses.
-    fn add_guess(&mut self, partner: &[usize]) {
+    fn add_guess(&mut self, partner: &[MeshPoint]) {
         let from: Vec<Point3<f64>> = self.source.0.iter().map(|p| Point3::from(*p)).collect();
         let to: Vec<Point3<f64>> = partner
             .iter()
-            .map(|&k| Point3::from(self.target_points[k]))
+            .map(|m| Point3::from(m.blend(&self.target_points)))
             .collect();
         if let Some(fit) = umeyama(&from, &to, false) {
             self.guesses.push(fit.isometry);
@@ -243,17 +264,36 @@ impl Passes {
     }
 
     /// Each source point's partner on the target (with the target's `normals`) as [`Seeds`].
-    fn seeds(&self, partner: &[usize], normals: &[Vector3<f64>], seeding: &Seeding) -> Seeds {
+    fn seeds(&self, partner: &[MeshPoint], normals: &[Vector3<f64>], seeding: &Seeding) -> Seeds {
         Seeds {
             matches: partner
                 .iter()
-                .map(|&k| (self.target_points[k], normals[k]))
+                .map(|m| (m.blend(&self.target_points), m.normal(normals)))
                 .collect(),
             stages: seeding.stages,
             tukey_scale: seeding.tukey_scale,
             replace_all: false,
             iterations: seeding.iterations,
+            pinned: Vec::new(),
         }
+    }
+
+    /// The one pass of a mesh with a rim: the rim's matches ([`rim_matches`]) seed every point in
+    /// the first stages and hold the rim itself in all, and their Horn fit joins the rigid
+    /// guesses.
+    fn run_by_rim(
+        &mut self,
+        found: RimMatches,
+        normals: &[Vector3<f64>],
+        seeding: &Seeding,
+    ) -> Result<SurfaceRegistration, SurfaceError> {
+        self.add_guess(&found.partners);
+        let seeds = Seeds {
+            replace_all: true,
+            pinned: found.rim,
+            ..self.seeds(&found.partners, normals, seeding)
+        };
+        self.run(Some(&seeds))
     }
 
     /// One registration from the graph at rest, with a fresh optimiser, in the caller's units.
@@ -274,7 +314,7 @@ impl Passes {
             sp,
             sn,
             &self.bindings,
-            &self.target,
+            self.target.as_ref(),
             &self.guesses,
             seeds,
         )?;
@@ -371,7 +411,9 @@ pub fn register_mesh_or_cloud(
 /// pass's, with the iterations, seconds and stage times of all.
 ///
 /// Meshes with a rim that aligns ([`rim_matches`]: sheets) are registered in one pass instead,
-/// its first stage taking the rim's matches for every point. All of it runs in units of the
+/// its first stage taking the rim's matches for every point, every stage holding the rim's own
+/// vertices to theirs, and closest point taken on the target's triangles ([`MeshTarget`]), not
+/// its vertices (NOTES 84). All of it runs in units of the
 /// source's bounding-box diagonal, so that it does the same at any size.
 pub fn register_meshes(
     source: SurfaceMesh<'_>,
@@ -382,14 +424,6 @@ pub fn register_meshes(
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let start = std::time::Instant::now();
-    let mut passes = Passes::new(
-        (source.points, source.normals),
-        (target.points, target.normals),
-        graph_params,
-        params,
-        principal_axes,
-        true,
-    )?;
     let (source_mesh, target_mesh) = (
         MeshRef {
             points: source.points,
@@ -405,14 +439,24 @@ pub fn register_meshes(
     } else {
         None
     };
-    if let Some(partner) = rim {
-        passes.add_guess(&partner);
-        let seeds = Seeds {
-            replace_all: true,
-            ..passes.seeds(&partner, target.normals, seeding)
-        };
-
-        let mut done = passes.run(Some(&seeds))?;
+    // A sheet's graph has about a node per vertex, so closest point to the target's vertices
+    // would carry each node onto a vertex: where the target is meshed apart, that is up to half
+    // its spacing off, along the surface. Its target is the surface itself. The camel's graph has
+    // a node per 18 vertices, and there the surface did no better (NOTES 84).
+    let target_faces = if rim.is_some() { target.faces } else { &[] };
+    let mut passes = Passes::new(
+        (source.points, source.normals),
+        SurfaceMesh {
+            faces: target_faces,
+            ..target
+        },
+        graph_params,
+        params,
+        principal_axes,
+        true,
+    )?;
+    if let Some(found) = rim {
+        let mut done = passes.run_by_rim(found, target.normals, seeding)?;
         done.summary.seconds = start.elapsed().as_secs_f64();
         return Ok(done);
     }
@@ -430,6 +474,10 @@ pub fn register_meshes(
             target_mesh,
             seeding.core_fraction,
         )?;
+        let partner: Vec<MeshPoint> = partner
+            .into_iter()
+            .map(|k| MeshPoint::vertex(k as u32))
+            .collect();
         last = passes.run(Some(&passes.seeds(&partner, target.normals, seeding)))?;
         iterations += last.summary.iterations;
         times.add(&last.summary.times);
@@ -613,6 +661,7 @@ mod tests {
             tukey_scale: 8.0,
             replace_all: false,
             iterations: 2,
+            pinned: Vec::new(),
         };
         let result = WarpOptimiser::new(params).optimise_from(
             &mut graph,
