@@ -6,7 +6,7 @@
 //! cargo run --release --example nonrigid_register -- frames D0.png D1.png --intrinsics FX FY CX CY \
 //!     --depth-scale S [--mask M.png | --mask-nodes NODES.bin] [--color C0] [--target-color C1] \
 //!     [--flow F.sflow] [--picture P.png]
-//! cargo run --release --example nonrigid_register -- sheets [--sizes 0.1 0.5 2] [--remeshed]
+//! cargo run --release --example nonrigid_register -- sheets [--sizes 0.1 0.5 2] [--remeshed | --target-mesh FLAT.off]
 //! ```
 //! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
 //! vertices (in their order) and normals warped. Lengths default to fractions of the source's
@@ -27,6 +27,8 @@
 //! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
 //! copies, alone and moved rigidly, at `--sizes` widths and `--columns` resolutions (issue 26):
 //! one row per case with the largest and mean vertex error as % of the largest displacement.
+//! The targets are the source's grid, the grid meshed apart (`--remeshed`), or a flat mesh of the
+//! user's (`--target-mesh`).
 //!
 //! `grid`, or no subcommand: the thesis' experiment (sec. 4.5, Table 4.1), the flat 21 × 13 grid
 //! registered onto five deformed copies (correspondences found by closest point, not given by
@@ -56,6 +58,7 @@ use dynamap_slam::nonrigid::{
 };
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
+use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use warp_flags::WarpFlags;
@@ -110,6 +113,12 @@ struct SheetArgs {
     /// moved at random by up to 0.3 of their spacing (seeded), so that no vertex has a copy.
     #[arg(long)]
     remeshed: bool,
+    /// Make every target from this flat mesh instead of the grid (.ply, .off or .obj): a sheet in
+    /// the plane z = 0 whose outline is a W × 0.6 W rectangle, at any size and position (it is
+    /// centred and scaled to each width). For meshings made elsewhere, such as a Delaunay
+    /// triangulation of scattered points.
+    #[arg(long, value_name = "FILE", conflicts_with = "remeshed")]
+    target_mesh: Option<PathBuf>,
 }
 
 /// `meshes`: the inputs and the flags that apply to meshes.
@@ -247,6 +256,11 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
     if args.columns.iter().any(|&c| c < 3) {
         return Err(cli::bad_input("--columns must be at least 3"));
     }
+    let flat = args
+        .target_mesh
+        .as_deref()
+        .map(flat_sheet_file)
+        .transpose()?;
     let cases = SheetDeformation::cases(args.amount, args.turn, args.shift);
     let total = cases.len() * args.sizes.len() * args.columns.len();
     let bar = session.progress(total as u64, "cases");
@@ -260,7 +274,9 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
         let rows = ((columns - 1) as f64 * 0.6).round() as usize + 1;
         for &width in &args.sizes {
             let source = sheet::flat_sheet(columns, rows, width);
-            let target_sheet = if args.remeshed {
+            let target_sheet = if let Some(flat) = &flat {
+                scaled_sheet(flat, width)
+            } else if args.remeshed {
                 let (c, r) = (columns * 7 / 5, rows * 7 / 5);
                 sheet::jittered(sheet::flat_sheet(c, r, width), c, r, 0.3, 7)
             } else {
@@ -296,6 +312,51 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
         100.0 * worst_mean
     ));
     Ok(())
+}
+
+/// The flat sheet of `--target-mesh`, centred on the origin and scaled to width 1; an error
+/// naming the file unless it is a mesh of triangles in a plane z = constant whose outline is
+/// a W × 0.6 W rectangle.
+fn flat_sheet_file(path: &Path) -> Result<Mesh> {
+    let mut mesh = read_mesh(path).bad_input()?;
+    let (lo, hi) = mesh.vertices.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), v| {
+            let v = v.coords.cast::<f64>();
+            (lo.inf(&v), hi.sup(&v))
+        },
+    );
+    let extent = hi - lo;
+    let flat = extent.x > 0.0 && extent.z <= 1e-6 * extent.x;
+    let outline = (extent.y / extent.x - 0.6).abs() <= 0.01;
+    if mesh.faces.is_empty() || !flat || !outline {
+        return Err(cli::bad_input(format!(
+            "{}: --target-mesh must be a flat sheet (z constant) of triangles whose outline is a \
+             W × 0.6 W rectangle; its extent is {:.4} × {:.4} × {:.4}",
+            path.display(),
+            extent.x,
+            extent.y,
+            extent.z
+        )));
+    }
+    let centre = (lo + hi) / 2.0;
+    for v in &mut mesh.vertices {
+        *v = ((v.cast::<f64>() - centre) / extent.x).cast::<f32>();
+    }
+    mesh.compute_normals();
+    Ok(mesh)
+}
+
+/// The unit-width `flat` sheet at width `width`.
+fn scaled_sheet(flat: &Mesh, width: f64) -> Mesh {
+    let mut mesh = flat.clone();
+    for v in &mut mesh.vertices {
+        *v = (v.cast::<f64>() * width).cast::<f32>();
+    }
+    mesh
 }
 
 /// Registers the flat `source` (width `width`) onto `case` of the flat `target` with

@@ -489,23 +489,9 @@ fn preview_writes_the_pictures() {
 /// Each case within the 10 % largest and 3 % mean error, the target meshed apart; the
 /// saddle alone within 4 % mean, as its rim is placed by a convention the generated saddle does
 /// not follow (NOTES 84).
-#[test]
-fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
-    let out = run(
-        "nonrigid_register",
-        &[
-            "sheets",
-            "--sizes",
-            "0.3",
-            "--columns",
-            "21",
-            "--remeshed",
-            "-q",
-        ],
-    );
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let stdout = text(&out.stdout);
-    // a header, ten cases (five shapes, alone and moved rigidly), the worst
+/// `nonrigid_register sheets`' table: a header, ten cases (five shapes, alone and moved
+/// rigidly), the worst; each case within the bounds above.
+fn assert_sheet_rows(stdout: &str) {
     assert_eq!(stdout.lines().count(), 12, "{stdout}");
     let percentages = |line: &str| -> Vec<f64> {
         line.split('|')
@@ -527,6 +513,67 @@ fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
     }
     let worst = stdout.lines().last().unwrap();
     assert!(worst.starts_with("worst: max"), "{worst}");
+}
+
+/// An OFF file of a flat 0.8 × 0.48 m sheet at (5, −2, 3), a grid of `columns` × `rows`
+/// vertices whose cells are split along alternating diagonals.
+fn checkerboard_sheet_off(columns: usize, rows: usize) -> String {
+    let mut off = format!(
+        "OFF\n{} {} 0\n",
+        columns * rows,
+        2 * (columns - 1) * (rows - 1)
+    );
+    for j in 0..rows {
+        for i in 0..columns {
+            let x = 5.0 + 0.8 * i as f64 / (columns - 1) as f64;
+            let y = -2.0 + 0.48 * j as f64 / (rows - 1) as f64;
+            off += &format!("{x} {y} 3\n");
+        }
+    }
+    for j in 0..rows - 1 {
+        for i in 0..columns - 1 {
+            let v = j * columns + i;
+            let (a, b, c, d) = (v, v + 1, v + columns + 1, v + columns);
+            if (i + j) % 2 == 0 {
+                off += &format!("3 {a} {b} {c}\n3 {a} {c} {d}\n");
+            } else {
+                off += &format!("3 {a} {b} {d}\n3 {b} {c} {d}\n");
+            }
+        }
+    }
+    off
+}
+
+#[test]
+fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
+    let sheets = |extra: &[&str]| {
+        let mut args = vec!["sheets", "--sizes", "0.3", "--columns", "21", "-q"];
+        args.extend_from_slice(extra);
+        let out = run("nonrigid_register", &args);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        assert_sheet_rows(&text(&out.stdout));
+    };
+    sheets(&["--remeshed"]);
+    // a flat mesh made elsewhere: another size and place, the grid's diagonals alternating
+    let dir = scratch("sheets");
+    let flat = dir.join("flat.off");
+    std::fs::write(&flat, checkerboard_sheet_off(27, 17)).unwrap();
+    sheets(&["--target-mesh", flat.to_str().unwrap()]);
+    let tetrahedron = dir.join("solid.off");
+    std::fs::write(
+        &tetrahedron,
+        "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n",
+    )
+    .unwrap();
+    assert_exit(
+        &run(
+            "nonrigid_register",
+            &["sheets", "--target-mesh", tetrahedron.to_str().unwrap()],
+        ),
+        2,
+        &["solid.off", "flat sheet"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
     assert_exit(
         &run("nonrigid_register", &["sheets", "--sizes=-1"]),
         2,
