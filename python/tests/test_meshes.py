@@ -32,9 +32,15 @@ def bent(vertices, width=0.5, depth=0.12):
     return out
 
 
-def off_surface(points, width=0.5, depth=0.12):
-    """Each point's height above or below the bent sheet (no closer to the surface than that)."""
-    return np.abs(points[:, 2] - depth * (2 * points[:, 0] / width - 1) ** 2)
+def off_surface(points, width=0.5, depth=0.12, columns=None):
+    """Each point's height above or below the bent sheet (no closer to the surface than that);
+    with `columns`, above or below the bent mesh of that many columns, whose triangles cut
+    under the parabola between its vertices."""
+    height = lambda x: depth * (2 * x / width - 1) ** 2
+    if columns is None:
+        return np.abs(points[:, 2] - height(points[:, 0]))
+    xs = np.linspace(0, width, columns)
+    return np.abs(points[:, 2] - np.interp(points[:, 0], xs, height(xs)))
 
 
 def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
@@ -53,8 +59,9 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     np.testing.assert_allclose(result["vertices"], warped["vertices"], rtol=0, atol=1e-6)
     assert result["nodes"] == tool["nodes"] and result["iterations"] == tool["iterations"]
     assert result["matched_fraction"] > 0.9
-    # the warped sheet lies on the bent one (a plain sheet may slide along itself: issue 26)
-    before, after = off_surface(v), off_surface(result["vertices"])
+    # the warped sheet lies on the bent mesh (a plain sheet may slide along itself, and the
+    # points land between the target's vertices: issue 26, NOTES 84)
+    before, after = off_surface(v, columns=21), off_surface(result["vertices"], columns=21)
     assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
 
 

@@ -181,7 +181,8 @@ impl Rim {
         corners: &CornerOffsets,
     ) -> f64 {
         let u = source.arc[i] / source.length;
-        (alignment.shift + alignment.direction * u) * self.length + corners.at(source.arc[i])
+        let aligned = (alignment.shift + alignment.direction * u) * self.length;
+        corners.target_arc(source.arc[i], aligned)
     }
 
     /// The rim indices of its corners: vertices that turn by at least [`CORNER`] and by no less
@@ -240,11 +241,18 @@ pub(crate) struct RimAlignment {
     pub(crate) score: f64,
 }
 
-/// How far each of the target's corners lies, along its rim, from where an alignment puts the
-/// source's corner: a twist stretches a sheet's long edges and not its short ones, and a saddle
-/// its rim unevenly, so the same share of each rim's length is off by up to a few percent of it
-/// near the corners. Between corners the offset is interpolated linearly by the source's arc
-/// length (round the loop); with no corner matched it is zero.
+/// How the source's rim is laid onto the target's between corners. Each source corner takes the
+/// target corner nearest where the alignment puts it (within [`CORNER_REACH`] of the target's
+/// length): a twist stretches a sheet's long edges and not its short ones, so the same share of
+/// each whole rim is off by up to a few percent of it near the corners. Between two matched
+/// corners a point lands at the same share of the span's length where the span kept its length
+/// better than the straight line between its corners did (bending keeps the length and
+/// shortens the line), and at the same share along that line where the line kept its length
+/// better: a surface pushed across it (a saddle, a sheet pressed into a bowl) stretches most
+/// where it is steepest, and a point of the rim keeps its place between the corners as seen
+/// from the line through them. That share must grow along both spans; where it does not (a
+/// span that both stretched and curled round), the share of the length is taken. With no
+/// corner matched, the same share of each whole rim.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct CornerOffsets {
     /// The source's arc length at each matched corner, ascending.
@@ -253,56 +261,195 @@ pub(crate) struct CornerOffsets {
     offset: Vec<f64>,
     /// The source rim's length.
     length: f64,
+    /// Per matched corner, the span to the next one where it is laid by its chord.
+    chords: Vec<Option<ChordSpan>>,
+}
+
+/// A span of both rims between two matched corners, laid by the share along each one's chord:
+/// for each rim vertex of the span its share along the chord and its distance from the first
+/// corner along the rim, both ascending.
+#[derive(Clone, Debug)]
+struct ChordSpan {
+    source: Vec<(f64, f64)>,
+    target: Vec<(f64, f64)>,
+    /// The target's arc length at the first corner, and the way its arc runs (±1).
+    target_start: f64,
+    direction: f64,
+}
+
+/// A matched pair of corners: their indices in each rim's loop.
+struct CornerPair {
+    source: usize,
+    target: usize,
 }
 
 impl CornerOffsets {
-    /// The offsets of `source`'s corners under `alignment`: each source corner takes the target
-    /// corner nearest where the alignment puts it, within [`CORNER_REACH`] of the target's
-    /// length.
-    fn new(source: &Rim, target: &Rim, alignment: &RimAlignment) -> Self {
+    /// The corners of `source` matched to those of `target` under `alignment`, and the spans
+    /// between them laid by their chords where they stretched (`source_points` and
+    /// `target_points` are the meshes' vertices).
+    fn new(
+        source: (&Rim, &[Vector3<f64>]),
+        target: (&Rim, &[Vector3<f64>]),
+        alignment: &RimAlignment,
+    ) -> Self {
+        let (s_rim, t_rim) = (source.0, target.0);
         let none = Self::default();
-        let t_corners: Vec<f64> = target.corners().iter().map(|&k| target.arc[k]).collect();
+        let t_corners = t_rim.corners();
         let mut out = Self {
-            length: source.length,
+            length: s_rim.length,
             ..Self::default()
         };
-        for i in source.corners() {
-            let aligned = target.partner_arc(source, i, alignment, &none);
+        let mut pairs = Vec::new();
+        for i in s_rim.corners() {
+            let aligned = t_rim.partner_arc(s_rim, i, alignment, &none);
             let nearest = t_corners
                 .iter()
-                .map(|&c| {
-                    let d = (c - aligned).rem_euclid(target.length);
-                    if d > 0.5 * target.length {
-                        d - target.length
-                    } else {
-                        d
-                    }
-                })
-                .min_by(|a, b| a.abs().total_cmp(&b.abs()));
-            if let Some(d) = nearest.filter(|d| d.abs() <= CORNER_REACH * target.length) {
-                out.arc.push(source.arc[i]);
+                .map(|&c| (c, circular_difference(t_rim.arc[c] - aligned, t_rim.length)))
+                .min_by(|a, b| a.1.abs().total_cmp(&b.1.abs()));
+            if let Some((c, d)) = nearest.filter(|(_, d)| d.abs() <= CORNER_REACH * t_rim.length) {
+                out.arc.push(s_rim.arc[i]);
                 out.offset.push(d);
+                pairs.push(CornerPair {
+                    source: i,
+                    target: c,
+                });
             }
         }
+        let n = pairs.len();
+        out.chords = (0..n)
+            .map(|k| {
+                let (a, b) = (&pairs[k], &pairs[(k + 1) % n]);
+                ChordSpan::new(source, target, (a, b), alignment.direction)
+            })
+            .collect();
         out
     }
 
-    /// The offset at the source's arc length `s`.
-    fn at(&self, s: f64) -> f64 {
+    /// The target's arc length for the source's arc length `s`, which the alignment alone
+    /// puts at `aligned`.
+    fn target_arc(&self, s: f64, aligned: f64) -> f64 {
         let n = self.arc.len();
         match n {
-            0 => 0.0,
-            1 => self.offset[0],
+            0 => aligned,
+            1 => aligned + self.offset[0],
             _ => {
                 let k = self.arc.partition_point(|&a| a <= s);
                 // the corners before and after s, round the loop
                 let (before, after) = ((k + n - 1) % n, k % n);
-                let span = (self.arc[after] - self.arc[before]).rem_euclid(self.length);
                 let into = (s - self.arc[before]).rem_euclid(self.length);
+                if let Some(chord) = &self.chords[before] {
+                    return chord.target_arc(into);
+                }
+                let span = (self.arc[after] - self.arc[before]).rem_euclid(self.length);
                 let t = if span > 0.0 { into / span } else { 0.0 };
-                self.offset[before] + t * (self.offset[after] - self.offset[before])
+                aligned + self.offset[before] + t * (self.offset[after] - self.offset[before])
             }
         }
+    }
+}
+
+impl ChordSpan {
+    /// The span from corner pair `a` to `b`, or `None` where it kept its length, or where the
+    /// share along a chord does not grow along its span.
+    fn new(
+        source: (&Rim, &[Vector3<f64>]),
+        target: (&Rim, &[Vector3<f64>]),
+        (a, b): (&CornerPair, &CornerPair),
+        direction: f64,
+    ) -> Option<Self> {
+        let s_table = chord_table(source.0, source.1, a.source, b.source, 1.0)?;
+        let t_table = chord_table(target.0, target.1, a.target, b.target, direction)?;
+        let chord = |rim: &Rim, points: &[Vector3<f64>], p: &CornerPair, q: &CornerPair, side| {
+            let (i, j) = if side {
+                (p.source, q.source)
+            } else {
+                (p.target, q.target)
+            };
+            (points[rim.vertices[j] as usize] - points[rim.vertices[i] as usize]).norm()
+        };
+        let arc_change = (t_table.last()?.1 / s_table.last()?.1 - 1.0).abs();
+        let chord_change =
+            (chord(target.0, target.1, a, b, false) / chord(source.0, source.1, a, b, true) - 1.0)
+                .abs();
+        // bent, the span keeps its length and its chord shortens; stretched across the line
+        // between its corners, the chord keeps its length
+        // (NaN, from a span of no length, is neither)
+        if chord_change.partial_cmp(&arc_change) != Some(std::cmp::Ordering::Less) {
+            return None;
+        }
+        Some(Self {
+            source: s_table,
+            target: t_table,
+            target_start: target.0.arc[a.target],
+            direction,
+        })
+    }
+
+    /// The target's arc length for the point `into` along the source's span.
+    fn target_arc(&self, into: f64) -> f64 {
+        let share = interpolate(&self.source, into, |p| p.1, |p| p.0);
+        self.target_start + self.direction * interpolate(&self.target, share, |p| p.0, |p| p.1)
+    }
+}
+
+/// For the rim vertices from loop index `from` to `to` (inclusive, walking the loop forwards
+/// for `direction` +1, backwards for −1): each one's share along the chord between the two and
+/// its distance from `from` along the rim. `None` unless the share grows strictly from 0 to 1.
+fn chord_table(
+    rim: &Rim,
+    points: &[Vector3<f64>],
+    from: usize,
+    to: usize,
+    direction: f64,
+) -> Option<Vec<(f64, f64)>> {
+    let n = rim.vertices.len();
+    let at = |k: usize| points[rim.vertices[k] as usize];
+    let (start, chord) = (at(from), at(to) - at(from));
+    let length = chord.norm_squared();
+    if length.is_nan() || length <= 0.0 {
+        return None;
+    }
+    let mut table = vec![(0.0, 0.0)];
+    let (mut k, mut walked) = (from, 0.0);
+    while k != to {
+        let next = if direction > 0.0 {
+            (k + 1) % n
+        } else {
+            (k + n - 1) % n
+        };
+        walked += (at(next) - at(k)).norm();
+        let share = (at(next) - start).dot(&chord) / length;
+        if share <= table.last()?.0 {
+            return None;
+        }
+        table.push((share, walked));
+        k = next;
+    }
+    Some(table)
+}
+
+/// The linear interpolation through `table` (ascending in `key`) of `value` at `x`, held at the
+/// ends.
+fn interpolate<T>(table: &[T], x: f64, key: impl Fn(&T) -> f64, value: impl Fn(&T) -> f64) -> f64 {
+    let k = table.partition_point(|p| key(p) <= x);
+    if k == 0 {
+        return table.first().map_or(0.0, &value);
+    }
+    if k == table.len() {
+        return table.last().map_or(0.0, &value);
+    }
+    let (p, q) = (&table[k - 1], &table[k]);
+    let t = (x - key(p)) / (key(q) - key(p));
+    value(p) + t * (value(q) - value(p))
+}
+
+/// `d` taken round a loop of `length` into (−length/2, length/2].
+fn circular_difference(d: f64, length: f64) -> f64 {
+    let d = d.rem_euclid(length);
+    if d > 0.5 * length {
+        d - length
+    } else {
+        d
     }
 }
 
@@ -436,7 +583,7 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<RimMatche
     alignments
         .par_iter()
         .map(|a| {
-            let corners = CornerOffsets::new(&s_rim, &t_rim, a);
+            let corners = CornerOffsets::new((&s_rim, source.points), (&t_rim, target.points), a);
             let on_target = |i: usize| t_rim.point_at(t_rim.partner_arc(&s_rim, i, a, &corners));
             let starts = at.map(|i| {
                 let p = on_target(i);
@@ -637,6 +784,34 @@ mod tests {
             .fold(0.0, f64::max);
         assert!(mean < 0.2 * spacing, "mean {mean}, spacing {spacing}");
         assert!(rim < 0.05 * spacing, "rim {rim}, spacing {spacing}");
+    }
+
+    /// A saddle stretches the rim most near the corners: its rim lands where each point's place
+    /// between the corners along the line through them says (the generated saddle moves points
+    /// only across the sheet's plane), not at the same share of each edge's length, which is a
+    /// third of the spacing off here.
+    #[test]
+    fn a_stretched_rim_is_laid_by_the_line_between_its_corners() {
+        use crate::synthetic::sheet::jittered;
+        let (width, c, r) = (0.5, 29, 18);
+        let sheet = flat_sheet(21, 13, width);
+        let case = SheetDeformation {
+            shape: SheetShape::Saddle { height: 0.25 },
+            rigid: Some(crate::synthetic::sheet::case_motion(10.0, 0.02)),
+        };
+        let target_mesh = case.deformed(&jittered(flat_sheet(c, r, width), c, r, 0.3, 5), width);
+        let (source, target) = (points_of(&sheet), points_of(&target_mesh));
+        let matches = match_sheets((&source, &sheet.faces), (&target, &target_mesh.faces));
+        let worst = matches
+            .rim
+            .iter()
+            .map(|&v| {
+                let truth = case.apply(&nalgebra::Point3::from(source[v as usize]), width);
+                (matches.partners[v as usize].blend(&target) - truth.coords).norm()
+            })
+            .fold(0.0, f64::max);
+        let spacing = width / (c - 1) as f64;
+        assert!(worst < 0.02 * spacing, "rim {worst}, spacing {spacing}");
     }
 
     fn sheet_points(
