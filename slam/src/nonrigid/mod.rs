@@ -15,7 +15,8 @@
 //! - [`surface`]: one whole surface registered onto another (meshes, clouds), and meshes far
 //!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
 //!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
-//!   ([`boundary`]), whose matches land between the target's vertices ([`mesh_point`]).
+//!   ([`boundary`]; the rim itself in `rim`, laid corner to corner in `rim_map`), whose matches
+//!   land between the target's vertices ([`mesh_point`]).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
 //!   graph's nodes, and the median distance from a registered source to the target's surface.
@@ -31,6 +32,8 @@ pub mod mesh_target;
 pub mod photometric;
 pub mod reference_frame;
 pub mod register;
+mod rim;
+mod rim_map;
 pub mod surface;
 mod system;
 mod voxel_bindings;
