@@ -315,8 +315,9 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
 }
 
 /// The flat sheet of `--target-mesh`, centred on the origin and scaled to width 1; an error
-/// naming the file unless it is a mesh of triangles in a plane z = constant whose outline is
-/// a W × 0.6 W rectangle.
+/// naming the file unless it is a mesh of triangles in a plane z = constant whose bounding box
+/// is W × 0.6 W (that its outline fills the box is the user's to say: another outline finds no
+/// rim to align by and scores far off).
 fn flat_sheet_file(path: &Path) -> Result<Mesh> {
     let mut mesh = read_mesh(path).bad_input()?;
     let (lo, hi) = mesh.vertices.iter().fold(
