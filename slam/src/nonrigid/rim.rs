@@ -124,12 +124,19 @@ impl Rim {
         }
     }
 
+    /// The width, in bins, this rim's turning needs spreading over: [`SPREAD`] × the length, or
+    /// twice the mean spacing of its vertices where that is wider (so that a coarse round rim
+    /// reads as round, not as a ripple).
+    pub(crate) fn spread(&self) -> f64 {
+        (SPREAD * BINS as f64).max(2.0 * BINS as f64 / self.vertices.len() as f64)
+    }
+
     /// The turning spread over [`BINS`] bins of equal arc length, each vertex's by a circular
-    /// Gaussian of [`SPREAD`] × the length, or of twice the mean spacing of the rim's vertices
-    /// where that is wider (so that a coarse round rim reads as round, not as a ripple).
-    pub(crate) fn signal(&self) -> Vec<f64> {
+    /// Gaussian of `sigma` bins. Two rims are compared at one width, the wider of their
+    /// [`Self::spread`]s: a corner spread over 16 bins correlates with one spread over 5 by only
+    /// 0.77, and a coarse sheet's rim was not aligned with a fine copy's.
+    pub(crate) fn signal(&self, sigma: f64) -> Vec<f64> {
         let mut out = vec![0.0; BINS];
-        let sigma = (SPREAD * BINS as f64).max(2.0 * BINS as f64 / self.vertices.len() as f64);
         let reach = (4.0 * sigma).ceil() as isize;
         for (&s, &t) in self.arc.iter().zip(&self.turning) {
             let centre = s / self.length * BINS as f64;

@@ -278,9 +278,9 @@ impl Passes {
         }
     }
 
-    /// The one pass of a mesh with a rim: the rim's matches ([`rim_matches`]) seed every point in
-    /// the first stages and hold the rim itself in all, and their Horn fit joins the rigid
-    /// guesses.
+    /// The one pass of a mesh with a rim: the rim's matches ([`rim_matches`]) seed the points in
+    /// the first stages (where closest point disagrees) and hold the rim itself in all, and their
+    /// Horn fit joins the rigid guesses.
     fn run_by_rim(
         &mut self,
         found: RimMatches,
@@ -288,8 +288,10 @@ impl Passes {
         seeding: &Seeding,
     ) -> Result<SurfaceRegistration, SurfaceError> {
         self.add_guess(&found.partners);
+        // the rim holds the sheet from the start, so an inside seed replaces closest point only
+        // where the two disagree by more than the gate: a sheet of many vertices onto a
+        // coarser Delaunay mesh kept the seeds' errors (twist 6.8 % largest; 1.2 % so)
         let seeds = Seeds {
-            replace_all: true,
             pinned: found.rim,
             ..self.seeds(&found.partners, normals, seeding)
         };
@@ -411,9 +413,9 @@ pub fn register_mesh_or_cloud(
 /// pass's, with the iterations, seconds and stage times of all.
 ///
 /// Meshes with a rim that aligns ([`rim_matches`]: sheets) are registered in one pass instead,
-/// its first stage taking the rim's matches for every point, every stage holding the rim's own
-/// vertices to theirs, and closest point taken on the target's triangles ([`MeshTarget`]), not
-/// its vertices (NOTES 84). All of it runs in units of the
+/// its first stage taking the rim's matches where closest point disagrees with them, every
+/// stage holding the rim's own vertices to theirs, and closest point taken on the target's
+/// triangles ([`MeshTarget`]), not its vertices (NOTES 84). All of it runs in units of the
 /// source's bounding-box diagonal, so that it does the same at any size.
 pub fn register_meshes(
     source: SurfaceMesh<'_>,
