@@ -16,7 +16,7 @@
 //! mean distance between each source vertex and its match.
 
 use super::descriptors::{MeshRef, SurfacePaths, ANCHORS};
-use super::mesh_point::{nearest_in_triangle, MeshPoint};
+use super::mesh_point::{faces_around, MeshPoint};
 use super::rim::{Rim, RimAlignment, BINS};
 use super::rim_map::RimMap;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -159,7 +159,8 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<RimMatche
         .ok()?
         .descriptors(&at.map(|i| s_rim.vertices[i] as usize));
     let target_paths = SurfacePaths::two_ring(target).ok()?;
-    let faces_of = faces_of_vertices(target);
+    // (the faces name only vertices the mesh has: `Rim::longest` checked)
+    let faces_of = faces_around(target.faces, target.points.len());
     // a surface that stretches (a saddle) stretches its rim too: compare distances in units of
     // each rim's length
     let shrink = s_rim.length / t_rim.length;
@@ -205,18 +206,6 @@ pub fn rim_matches(source: MeshRef<'_>, target: MeshRef<'_>) -> Option<RimMatche
         })
 }
 
-/// The faces around each vertex of `mesh` (its faces name only vertices it has: [`Rim::longest`]
-/// checked).
-fn faces_of_vertices(mesh: MeshRef<'_>) -> Vec<Vec<u32>> {
-    let mut out = vec![Vec::new(); mesh.points.len()];
-    for (f, face) in mesh.faces.iter().enumerate() {
-        for &v in face {
-            out[v as usize].push(f as u32);
-        }
-    }
-    out
-}
-
 /// How many of the target's vertices nearest a descriptor have their triangles searched.
 const NEAREST: usize = 3;
 
@@ -234,27 +223,13 @@ fn nearest_in_faces(
     let mut best = (MeshPoint::vertex(first), f64::INFINITY);
     for n in &near {
         for &f in &faces_of[n.item as usize] {
-            let fit = fit_in_face(faces[f as usize], table, d);
+            let fit = MeshPoint::nearest_in_face(faces[f as usize], table, d);
             if fit.1 < best.1 {
                 best = fit;
             }
         }
     }
     best.0
-}
-
-/// The point of triangle `face` whose descriptor, interpolated from its corners' in `table`,
-/// lies nearest `d`, and the squared distance.
-fn fit_in_face(face: [u32; 3], table: &[[f64; ANCHORS]], d: &[f64; ANCHORS]) -> (MeshPoint, f64) {
-    let corners = face.map(|v| &table[v as usize]);
-    let (weights, cost) = nearest_in_triangle(corners, d);
-    (
-        MeshPoint {
-            vertices: face,
-            weights,
-        },
-        cost,
-    )
 }
 
 #[cfg(test)]
@@ -290,6 +265,19 @@ mod tests {
         assert!((total - 2.0 * PI).abs() < 1e-6, "a disc's rim turns once");
     }
 
+    /// The largest distance from each of `vertices`' partner on `target` to where `expected`
+    /// says it belongs.
+    fn worst_offset(
+        matches: &RimMatches,
+        target: &[Vector3<f64>],
+        vertices: impl Iterator<Item = usize>,
+        expected: impl Fn(usize) -> Vector3<f64>,
+    ) -> f64 {
+        vertices
+            .map(|v| (matches.partners[v].blend(target) - expected(v)).norm())
+            .fold(0.0, f64::max)
+    }
+
     /// [`rim_matches`] of two meshes given as points and faces, which must align.
     fn match_sheets(
         source: (&[Vector3<f64>], &[[u32; 3]]),
@@ -323,13 +311,9 @@ mod tests {
         // the rim lands on its own vertices; inside, the second ring's chords are shorter on
         // the rolled copy than on the flat sheet, and the interpolated match moves by that
         let spacing = 0.5 / 20.0;
-        let off = |v: usize| (matches.partners[v].blend(&target) - target[new_of(v)]).norm();
-        let rim = matches
-            .rim
-            .iter()
-            .map(|&v| off(v as usize))
-            .fold(0.0, f64::max);
-        let worst = (0..n).map(off).fold(0.0, f64::max);
+        let rim_vertices = matches.rim.iter().map(|&v| v as usize);
+        let rim = worst_offset(&matches, &target, rim_vertices, |v| target[new_of(v)]);
+        let worst = worst_offset(&matches, &target, 0..n, |v| target[new_of(v)]);
         assert!(rim < 1e-6 * spacing, "{rim}");
         assert!(worst < 0.1 * spacing, "{worst}");
         assert_eq!(matches.rim.len(), 2 * (20 + 12));
@@ -387,14 +371,10 @@ mod tests {
         let target_mesh = case.deformed(&jittered(flat_sheet(c, r, width), c, r, 0.3, 5), width);
         let (source, target) = (points_of(&sheet), points_of(&target_mesh));
         let matches = match_sheets((&source, &sheet.faces), (&target, &target_mesh.faces));
-        let worst = matches
-            .rim
-            .iter()
-            .map(|&v| {
-                let truth = case.apply(&nalgebra::Point3::from(source[v as usize]), width);
-                (matches.partners[v as usize].blend(&target) - truth.coords).norm()
-            })
-            .fold(0.0, f64::max);
+        let rim_vertices = matches.rim.iter().map(|&v| v as usize);
+        let worst = worst_offset(&matches, &target, rim_vertices, |v| {
+            case.apply(&nalgebra::Point3::from(source[v]), width).coords
+        });
         let spacing = width / (c - 1) as f64;
         assert!(worst < 0.02 * spacing, "rim {worst}, spacing {spacing}");
     }
@@ -435,9 +415,7 @@ mod tests {
         let t_rim = Rim::longest(mesh(&target)).unwrap();
         assert_eq!(rim_alignments(&s_rim, &t_rim).len(), 8);
         let matches = rim_matches(mesh(&points), mesh(&target)).unwrap();
-        let worst = (0..points.len())
-            .map(|v| (matches.partners[v].blend(&target) - target[v]).norm())
-            .fold(0.0, f64::max);
+        let worst = worst_offset(&matches, &target, 0..points.len(), |v| target[v]);
         // a wrong one of the eight would be off by the sheet's size
         assert!(worst < 0.1 * 0.8 / 16.0, "{worst}");
     }
@@ -449,9 +427,7 @@ mod tests {
         let (coarse, coarse_faces) = sheet_points(21, 13, 0.5, 0.3);
         let (fine, fine_faces) = sheet_points(61, 37, 0.5, 0.3);
         let matches = match_sheets((&coarse, &coarse_faces), (&fine, &fine_faces));
-        let worst = (0..coarse.len())
-            .map(|v| (matches.partners[v].blend(&fine) - coarse[v]).norm())
-            .fold(0.0, f64::max);
+        let worst = worst_offset(&matches, &fine, 0..coarse.len(), |v| coarse[v]);
         assert!(worst < 0.05 * 0.5 / 20.0, "{worst}");
     }
 

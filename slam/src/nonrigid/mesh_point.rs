@@ -57,6 +57,25 @@ impl MeshPoint {
             .unwrap_or_else(|| normals[self.heaviest() as usize])
     }
 
+    /// The point of triangle `face` nearest `x`, with `table` the values at the vertices
+    /// (positions, descriptors) interpolated linearly over it, and the squared distance
+    /// ([`nearest_in_triangle`]).
+    pub fn nearest_in_face<const N: usize>(
+        face: [u32; 3],
+        table: &[[f64; N]],
+        x: &[f64; N],
+    ) -> (Self, f64) {
+        let corners = face.map(|v| &table[v as usize]);
+        let (weights, d2) = nearest_in_triangle(corners, x);
+        (
+            Self {
+                vertices: face,
+                weights,
+            },
+            d2,
+        )
+    }
+
     /// The vertex of largest weight (the first of equals).
     pub fn heaviest(&self) -> u32 {
         let mut k = 0;
@@ -112,6 +131,18 @@ pub fn nearest_in_triangle<const N: usize>(
         })
         .min_by(|x, y| x.1.total_cmp(&y.1))
         .expect("a triangle has three edges")
+}
+
+/// The triangles around each of `vertices` vertices, by their index in `faces` (whose vertices
+/// must all be below `vertices`).
+pub(crate) fn faces_around(faces: &[[u32; 3]], vertices: usize) -> Vec<Vec<u32>> {
+    let mut out = vec![Vec::new(); vertices];
+    for (f, face) in faces.iter().enumerate() {
+        for &v in face {
+            out[v as usize].push(f as u32);
+        }
+    }
+    out
 }
 
 fn dot<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {

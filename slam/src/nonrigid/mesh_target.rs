@@ -3,7 +3,7 @@
 //! target's vertices along the surface; where the two meshes were meshed apart that pull is up
 //! to half the target's spacing, and the point-to-point term follows it.
 
-use super::mesh_point::{nearest_in_triangle, MeshPoint};
+use super::mesh_point::{faces_around, MeshPoint};
 use super::register::Target;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
@@ -16,6 +16,8 @@ const WALK: usize = 3;
 /// from the corners'), searched from the vertex nearest the point.
 pub struct MeshTarget {
     points: Vec<Vector3<f64>>,
+    /// The same as arrays, for the nearest point of a triangle.
+    coords: Vec<[f64; 3]>,
     normals: Vec<Vector3<f64>>,
     faces: Vec<[u32; 3]>,
     /// The faces around each vertex.
@@ -43,16 +45,13 @@ impl MeshTarget {
             .filter(|f| f.iter().all(|&v| finite(v as usize)))
             .copied()
             .collect();
-        let mut faces_of = vec![Vec::new(); n];
-        for (k, f) in faces.iter().enumerate() {
-            for &v in f {
-                faces_of[v as usize].push(k as u32);
-            }
-        }
-        let coords: Vec<[f64; 3]> = kept.iter().map(|&v| points[v as usize].into()).collect();
+        let faces_of = faces_around(&faces, n);
+        let coords: Vec<[f64; 3]> = points[..n].iter().map(|&p| p.into()).collect();
+        let finite_coords: Vec<[f64; 3]> = kept.iter().map(|&v| coords[v as usize]).collect();
         Self {
-            tree: ImmutableKdTree::new_from_slice(&coords),
+            tree: ImmutableKdTree::new_from_slice(&finite_coords),
             kept,
+            coords,
             points: points[..n].to_vec(),
             normals: normals[..n].to_vec(),
             faces,
@@ -74,18 +73,9 @@ impl MeshTarget {
         let mut best = (MeshPoint::vertex(centre), near.distance);
         for _ in 0..WALK {
             for &f in &self.faces_of[centre as usize] {
-                let face = self.faces[f as usize];
-                let corners = face.map(|c| -> [f64; 3] { self.points[c as usize].into() });
-                let (weights, d2) =
-                    nearest_in_triangle([&corners[0], &corners[1], &corners[2]], &x);
-                if d2 < best.1 {
-                    best = (
-                        MeshPoint {
-                            vertices: face,
-                            weights,
-                        },
-                        d2,
-                    );
+                let fit = MeshPoint::nearest_in_face(self.faces[f as usize], &self.coords, &x);
+                if fit.1 < best.1 {
+                    best = fit;
                 }
             }
             // inside the searched triangles where it still weighs on the centre
