@@ -13,7 +13,10 @@
 //! bounding-box diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
 //! are registered in a first pass by closest point and then in passes seeded by geodesic
 //! descriptors (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest
-//! point alone. One JSON line last: nodes, iterations, seconds, final data and regulariser costs.
+//! point alone. One JSON line last: nodes, iterations, seconds, final data and regulariser costs,
+//! and whether it `registered` (`fit`: the shares of the warped source within a node spacing of
+//! the target and of the target covered, at least half each, and the warped area over the
+//! target's, at rest and warped, within 1.5× of 1; a warning says which failed).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
@@ -54,8 +57,9 @@ use dynamap_slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, frame_points, mask_near_nodes, median_distance,
     mesh_points, register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
     FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding, SurfaceMesh,
-    MIN_MATCHED_FRACTION,
+    SurfaceRegistration, SurfaceVerdict, MIN_MATCHED_FRACTION,
 };
+use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
 use nalgebra::Vector3;
@@ -266,8 +270,8 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
     let bar = session.progress(total as u64, "cases");
     let row = |line: String| bar.suspend(|| println!("{line}"));
     row(format!(
-        "{:<18} {:>6} {:>7} {:>9} | {:>8} {:>8} | {:>5} {:>7}",
-        "case", "width", "mesh", "max disp", "max %", "mean %", "nodes", "seconds"
+        "{:<18} {:>6} {:>7} {:>9} | {:>8} {:>8} | {:>5} {:>7} {:>10}",
+        "case", "width", "mesh", "max disp", "max %", "mean %", "nodes", "seconds", "registered"
     ));
     let (mut worst_max, mut worst_mean) = (0.0f64, 0.0f64);
     for &columns in &args.columns {
@@ -283,7 +287,7 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
                 source.clone()
             };
             for case in &cases {
-                let (score, nodes, seconds) = register_sheet(&source, &target_sheet, case, width)?;
+                let (score, reg) = register_sheet(&source, &target_sheet, case, width)?;
                 worst_max = worst_max.max(score.max);
                 worst_mean = worst_mean.max(score.mean);
                 bar.inc(1);
@@ -293,15 +297,20 @@ fn sheet_experiment(args: &SheetArgs, session: &Session) -> Result<()> {
                     if case.rigid.is_some() { " +rigid" } else { "" }
                 );
                 row(format!(
-                    "{:<18} {:>6} {:>7} {:>9.4} | {:>8.2} {:>8.2} | {:>5} {:>7.3}",
+                    "{:<18} {:>6} {:>7} {:>9.4} | {:>8.2} {:>8.2} | {:>5} {:>7.3} {:>10}",
                     name,
                     width,
                     format!("{columns}x{rows}"),
                     score.displacement,
                     100.0 * score.max,
                     100.0 * score.mean,
-                    nodes,
-                    seconds
+                    reg.graph.nodes.len(),
+                    reg.summary.seconds,
+                    if reg.verdict() == SurfaceVerdict::Registered {
+                        "yes"
+                    } else {
+                        "no"
+                    }
                 ));
             }
         }
@@ -362,17 +371,17 @@ fn scaled_sheet(flat: &Mesh, width: f64) -> Mesh {
 
 /// Registers the flat `source` (width `width`) onto `case` of the flat `target` with
 /// [`register_mesh_pair`] and scores every vertex against where the case sends it; with the
-/// graph's nodes and the seconds.
+/// registration.
 fn register_sheet(
     source: &Mesh,
     target: &Mesh,
     case: &SheetDeformation,
     width: f64,
-) -> Result<(SheetScore, usize, f64)> {
+) -> Result<(SheetScore, SurfaceRegistration)> {
     let deformed = case.deformed(target, width);
     let reg = register_mesh_pair(source, &deformed, &Seeding::default())?;
     let score = case.score(source, &reg.points, width);
-    Ok((score, reg.graph.nodes.len(), reg.summary.seconds))
+    Ok((score, reg))
 }
 
 /// The JSON line's common part: nodes, iterations, seconds, final costs, matched and source points.
@@ -543,6 +552,29 @@ fn verdict_json(verdict: FrameVerdict) -> serde_json::Value {
     }
 }
 
+/// Whether a surface registration registered, as JSON; a warning saying why when it did not.
+fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
+    let ratio = |r: Option<f64>| r.map_or("– (a cloud)".to_string(), |r| format!("{r:.3}"));
+    match verdict {
+        SurfaceVerdict::Registered => true.into(),
+        SurfaceVerdict::NotRegistered(fit) => {
+            tracing::warn!(
+                "not registered: {:.0} % of the source ended within {:.3e} of the target and \
+                 {:.0} % of the target is covered (at least {:.0} % each must be); the source's \
+                 area over the target's is {} at rest and {} warped (within {AREA_FACTOR}× of 1 \
+                 must be)",
+                100.0 * fit.on_target,
+                fit.tolerance,
+                100.0 * fit.covered,
+                100.0 * MIN_SHARE,
+                ratio(fit.source_area_ratio),
+                ratio(fit.area_ratio)
+            );
+            false.into()
+        }
+    }
+}
+
 /// The flow's scores as JSON.
 fn flow_json(s: &FlowScores) -> serde_json::Value {
     let score = |e: &EpeResult| serde_json::json!({"mean": e.stats.mean, "median": e.stats.median, "within_5cm": e.within_5cm, "within_10cm": e.within_10cm});
@@ -624,6 +656,17 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         ply::write(out, &warped)?;
     }
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
+    json["registered"] = surface_verdict_json(reg.verdict());
+    json["fit"] = serde_json::json!({
+        "on_target": reg.fit.on_target,
+        "covered": reg.fit.covered,
+        "median_distance": reg.fit.median_distance,
+        "area_ratio": reg.fit.area_ratio,
+        "source_area_ratio": reg.fit.source_area_ratio,
+        "tolerance": reg.fit.tolerance,
+        "area_ratio": reg.fit.area_ratio,
+        "source_area_ratio": reg.fit.source_area_ratio,
+    });
     if let Some(map) = &map {
         let d = bounding_diagonal(&tp);
         let (before, after) = (map.error(&sp, &tp, d), map.error(&reg.points, &tp, d));

@@ -271,7 +271,9 @@ def register_meshes(
 ) -> Dict[str, Any]:
     """The source registered onto the target with the deformation graph, as `nonrigid_register
     meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
-    regulariser_cost, matched, matched_fraction, seconds. No verdict: check the result."""
+    regulariser_cost, matched, matched_fraction, seconds, registered (bool: most of the source
+    on the target and most of the target covered, areas within 1.5x) and fit (on_target,
+    covered, area_ratio, source_area_ratio, median_distance, tolerance)."""
 
 def check_jacobians(
     residual: Union[Residual, PythonResidual],

@@ -7,7 +7,7 @@ use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud, Seeding,
-    SurfaceMesh,
+    SurfaceMesh, SurfaceVerdict,
 };
 use nalgebra::{Point3, Vector3};
 use numpy::{PyArrayLike2, PyReadonlyArray2};
@@ -201,8 +201,12 @@ pub fn write_mesh(
 /// Each surface is vertices (n × 3) with faces (m × 3, optional) and normals (n × 3; computed from
 /// the faces when not given). Returns a dict: vertices and normals (the source's, warped, in its
 /// order), nodes (the graph's node count), iterations, data_cost, regulariser_cost, matched (source
-/// points with a correspondence at the end) and matched_fraction, seconds. There is no verdict,
-/// as the tool gives none: a source pulled onto a much smaller target ends fully matched.
+/// points with a correspondence at the end) and matched_fraction, seconds, and the verdict:
+/// registered (bool) and fit (on_target and covered: the shares of the warped source within a
+/// node spacing of the target and of the target covered, at least half each; area_ratio and
+/// source_area_ratio, the source's area warped and at rest over the target's for two meshes,
+/// within 1.5× of 1, else None; median_distance; tolerance). A source pulled onto a much smaller target ends fully matched but not
+/// registered.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -264,5 +268,14 @@ pub fn register_meshes<'py>(
     let fraction = s.matched as f64 / reg.points.len().max(1) as f64;
     d.set_item("matched_fraction", fraction)?;
     d.set_item("seconds", s.seconds)?;
+    d.set_item("registered", reg.verdict() == SurfaceVerdict::Registered)?;
+    let fit = PyDict::new(py);
+    fit.set_item("on_target", reg.fit.on_target)?;
+    fit.set_item("covered", reg.fit.covered)?;
+    fit.set_item("area_ratio", reg.fit.area_ratio)?;
+    fit.set_item("source_area_ratio", reg.fit.source_area_ratio)?;
+    fit.set_item("median_distance", reg.fit.median_distance)?;
+    fit.set_item("tolerance", reg.fit.tolerance)?;
+    d.set_item("fit", fit)?;
     Ok(d)
 }

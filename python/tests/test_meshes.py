@@ -59,6 +59,9 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     np.testing.assert_allclose(result["vertices"], warped["vertices"], rtol=0, atol=1e-6)
     assert result["nodes"] == tool["nodes"] and result["iterations"] == tool["iterations"]
     assert result["matched_fraction"] > 0.9
+    assert result["registered"] and tool["registered"]
+    assert result["fit"] == pytest.approx(tool["fit"], rel=1e-9)
+    assert result["fit"]["on_target"] == 1.0 and result["fit"]["covered"] > 0.99
     # the warped sheet lies on the bent mesh (a plain sheet may slide along itself, and the
     # points land between the target's vertices: issue 26, NOTES 84)
     before, after = off_surface(v, columns=21), off_surface(result["vertices"], columns=21)
@@ -73,6 +76,25 @@ def test_a_point_cloud_with_normals_registers_by_closest_point():
     before, after = off_surface(v, depth=0.06), off_surface(result["vertices"], depth=0.06)
     assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
     assert result["matched"] > 0.9 * len(v)
+
+
+def test_a_sheet_onto_a_third_of_its_copy_is_fully_matched_but_not_registered(tmp_path):
+    v, f = sheet()
+    t = bent(v)
+    kept = v[:, 0] <= v[:, 0].max() / 3 + 1e-9
+    index = np.cumsum(kept) - 1
+    part = np.array([index[face] for face in f if kept[face].all()])
+    result = dynamap.register_meshes(v, t[kept], source_faces=f, target_faces=part)
+    assert result["matched_fraction"] > 0.9
+    assert not result["registered"], result["fit"]
+    dynamap.write_mesh(tmp_path / "source.ply", v, f)
+    dynamap.write_mesh(tmp_path / "part.ply", t[kept], part)
+    out = subprocess.run(
+        [binary("nonrigid_register"), "meshes", str(tmp_path / "source.ply"), str(tmp_path / "part.ply")],
+        check=True, capture_output=True, text=True,
+    )
+    assert json.loads(out.stdout.strip().splitlines()[-1])["registered"] is False
+    assert "not registered" in out.stderr
 
 
 def test_a_mesh_written_and_read_back_is_the_same(tmp_path):

@@ -510,6 +510,7 @@ fn assert_sheet_rows(stdout: &str) {
             3.0
         };
         assert!(errors[0] <= 10.0 && errors[1] <= mean_bound, "{line}");
+        assert!(line.ends_with(" yes"), "registered: {line}");
     }
     let worst = stdout.lines().last().unwrap();
     assert!(worst.starts_with("worst: max"), "{worst}");

@@ -16,7 +16,8 @@
 //!   apart in pose in further passes seeded by [`descriptors`]: geodesic descriptors that tell
 //!   apart parts closest point confuses, and meshes with a rim (sheets) from the rim's shape
 //!   ([`boundary`]; the rim itself in `rim`, laid corner to corner in `rim_map`), whose matches
-//!   land between the target's vertices ([`mesh_point`]).
+//!   land between the target's vertices ([`mesh_point`]); [`surface_fit`]: whether the result
+//!   lies on the target and covers it (registered or not).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
 //!   graph's nodes, and the median distance from a registered source to the target's surface.
@@ -35,6 +36,7 @@ pub mod register;
 mod rim;
 mod rim_map;
 pub mod surface;
+pub mod surface_fit;
 mod system;
 mod voxel_bindings;
 
@@ -60,3 +62,4 @@ pub use surface::{
     register_mesh_pair, register_meshes, register_surfaces, Seeding, SurfaceError, SurfaceMesh,
     SurfaceRegistration,
 };
+pub use surface_fit::{SurfaceFit, SurfaceVerdict, AREA_FACTOR, MIN_SHARE};
