@@ -749,17 +749,35 @@ fn leave_out_unplaced(tally: &mut Tally, graph: &KeyframeGraph) -> usize {
     left_out
 }
 
-/// Moves each tracked pose with its anchor keyframe to the graph's solution.
+/// Moves each tracked pose to the graph's solution with the correction of its anchor keyframe
+/// and the next one, interpolated by its place between them in the trajectory
+/// ([`KeyframeGraph::corrected_between`]); after the last keyframe, with the last one's.
 fn correct(
     trajectory: &mut Trajectory,
     anchors: &[Option<usize>],
     graph: &KeyframeGraph,
     solution: &BTreeMap<usize, Isometry3<f64>>,
 ) {
-    for (pose, anchor) in trajectory.poses.iter_mut().zip(anchors) {
-        if let Some(a) = anchor {
-            *pose = graph.corrected(solution, *a, pose);
+    let mut k = 0;
+    while k < anchors.len() {
+        // the run of frames anchored to one keyframe, and where the next keyframe's begins
+        let end = k + anchors[k..]
+            .iter()
+            .take_while(|&&a| a == anchors[k])
+            .count();
+        if let Some(a) = anchors[k] {
+            let next = anchors.get(end).copied().flatten();
+            for (j, pose) in trajectory.poses[k..end].iter_mut().enumerate() {
+                *pose = match next {
+                    Some(b) => {
+                        let s = j as f64 / (end - k) as f64;
+                        graph.corrected_between(solution, (a, b), s, pose)
+                    }
+                    None => graph.corrected(solution, a, pose),
+                };
+            }
         }
+        k = end;
     }
 }
 

@@ -273,6 +273,30 @@ impl KeyframeGraph {
         }
     }
 
+    /// [`Self::corrected`] for a frame tracked between keyframe `anchor` and the next keyframe
+    /// `next`, a share `s` ∈ [0, 1] of the way: the two keyframes' corrections C = X*_k X_k⁻¹,
+    /// interpolated (translation linearly, rotation along the geodesic) and applied to `pose`.
+    /// Drift builds up between keyframes, so a frame just before `next` needs nearly its
+    /// correction, not `anchor`'s. [`Self::corrected`] when `next` is not in the graph and the
+    /// solution, or lies in another map fragment (the tracking restarted between them).
+    pub fn corrected_between(
+        &self,
+        solution: &BTreeMap<usize, Isometry3<f64>>,
+        (anchor, next): (usize, usize),
+        s: f64,
+        pose: &Isometry3<f64>,
+    ) -> Isometry3<f64> {
+        let correction = |k: usize| match (self.graph.vertices.get(&k), solution.get(&k)) {
+            (Some(Pose::Se3(tracked)), Some(solved)) => Some(solved * tracked.inverse()),
+            _ => None,
+        };
+        let same_fragment = self.fragment_of(anchor) == self.fragment_of(next);
+        match (correction(anchor), correction(next)) {
+            (Some(a), Some(b)) if same_fragment => a.lerp_slerp(&b, s.clamp(0.0, 1.0)) * pose,
+            _ => self.corrected(solution, anchor, pose),
+        }
+    }
+
     /// Adds keyframe `id` (its frame index) at its tracked pose, joined to the previous one by
     /// the tracked relative pose under the drift model alone ([`LoopParams::odometry_drift`]).
     /// Ids must grow.
@@ -723,6 +747,55 @@ mod tests {
         assert!(rel.translation.vector.norm() < 1e-12 && rel.rotation.angle() < 1e-12);
         // an unknown anchor leaves the pose as tracked
         assert_eq!(g.corrected(&solution, 5, &frame), frame);
+    }
+
+    /// Between two keyframes the correction goes from the first's to the second's: a frame at
+    /// the first keyframe takes its correction, one a quarter of the way a quarter of the
+    /// difference, and past a new map fragment's start the anchor's alone.
+    #[test]
+    fn a_frame_between_keyframes_takes_their_corrections_interpolated() {
+        let mut g = KeyframeGraph::new(LoopParams::default());
+        let (a, b) = (
+            Isometry3::new(Vector3::new(1.0, 0.0, 0.0), Vector3::zeros()),
+            Isometry3::new(Vector3::new(2.0, 0.0, 0.0), Vector3::zeros()),
+        );
+        g.add_keyframe(10, a);
+        g.add_keyframe(20, b);
+        // the solution moves the first by 4 cm along y, the second by 8 cm and turns it 0.2 rad
+        let turn = Isometry3::new(Vector3::zeros(), Vector3::z() * 0.2);
+        let solution = BTreeMap::from([
+            (10, Isometry3::translation(0.0, 0.04, 0.0) * a),
+            (20, Isometry3::translation(0.0, 0.08, 0.0) * turn * b),
+        ]);
+        let frame = Isometry3::new(Vector3::new(1.3, 0.1, 0.0), Vector3::x() * 0.1);
+        let at_a = g.corrected_between(&solution, (10, 20), 0.0, &frame);
+        assert!(
+            (at_a.to_homogeneous() - g.corrected(&solution, 10, &frame).to_homogeneous()).norm()
+                < 1e-12
+        );
+        let quarter = g.corrected_between(&solution, (10, 20), 0.25, &frame);
+        let correction = quarter * frame.inverse();
+        // C_a = 4 cm along y; C_b = 8 cm along y after the turn: a quarter of the way, a
+        // quarter of the turn, and the translation a quarter of the way between theirs
+        let c_b = Isometry3::translation(0.0, 0.08, 0.0) * turn;
+        let expected_t = Vector3::new(0.0, 0.04, 0.0) * 0.75 + c_b.translation.vector * 0.25;
+        assert!(
+            (correction.rotation.angle() - 0.05).abs() < 1e-12,
+            "{correction:?}"
+        );
+        assert!(
+            (correction.translation.vector - expected_t).norm() < 1e-12,
+            "{correction:?}"
+        );
+        // a new fragment between them: the anchor's correction alone
+        let reach = Reach {
+            translation: 1.0,
+            rotation: 1.0,
+        };
+        g.start_fragment(30, b, reach);
+        let solution = BTreeMap::from([(20, solution[&20]), (30, b)]);
+        let across = g.corrected_between(&solution, (20, 30), 0.5, &frame);
+        assert_eq!(across, g.corrected(&solution, 20, &frame));
     }
     use nalgebra::{Translation3, UnitQuaternion};
 
