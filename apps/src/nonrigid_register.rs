@@ -15,8 +15,8 @@
 //! descriptors (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest
 //! point alone. One JSON line last: nodes, iterations, seconds, final data and regulariser costs,
 //! and whether it `registered` (`fit`: the shares of the warped source within a node spacing of
-//! the target and of the target covered, at least half each, and the warped area over the
-//! target's, at rest and warped, within 1.5× of 1; a warning says which failed).
+//! the target and of the target covered, at least half each, and the source's area at rest and
+//! warped over the target's, each within 1.5× of 1; a warning says which failed).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
@@ -664,8 +664,6 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         "area_ratio": reg.fit.area_ratio,
         "source_area_ratio": reg.fit.source_area_ratio,
         "tolerance": reg.fit.tolerance,
-        "area_ratio": reg.fit.area_ratio,
-        "source_area_ratio": reg.fit.source_area_ratio,
     });
     if let Some(map) = &map {
         let d = bounding_diagonal(&tp);

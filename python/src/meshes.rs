@@ -205,8 +205,8 @@ pub fn write_mesh(
 /// registered (bool) and fit (on_target and covered: the shares of the warped source within a
 /// node spacing of the target and of the target covered, at least half each; area_ratio and
 /// source_area_ratio, the source's area warped and at rest over the target's for two meshes,
-/// within 1.5× of 1, else None; median_distance; tolerance). A source pulled onto a much smaller target ends fully matched but not
-/// registered.
+/// within 1.5× of 1, else None; median_distance; tolerance). A source pulled onto a much smaller
+/// target ends fully matched but not registered.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]

@@ -12,7 +12,7 @@
 //!   another pose of it keep both near 1 (the camel's 30 maps 0.96–1.04 after); onto part of
 //!   the target, the source folds (the camel onto its own half: 1.95 after, though 99 % of it
 //!   then lies on the half and covers 85 %) or shrinks (a sheet onto a third of its bent copy:
-//!   1.05 after, 3 before).
+//!   1.05 after, 2.75 before).
 //!
 //! The tolerance is the graph's node spacing: the warp's resolution, relative to the source's
 //! size as every setting of [`clean_surface_settings`](super::clean_surface_settings) is.
