@@ -267,9 +267,20 @@ impl KeyframeGraph {
         anchor: usize,
         pose: &Isometry3<f64>,
     ) -> Isometry3<f64> {
-        match (self.graph.vertices.get(&anchor), solution.get(&anchor)) {
-            (Some(Pose::Se3(tracked)), Some(solved)) => solved * tracked.inverse() * pose,
-            _ => *pose,
+        self.correction(solution, anchor)
+            .map_or(*pose, |c| c * pose)
+    }
+
+    /// Keyframe `k`'s correction X*_k X_k⁻¹ from its tracked pose to `solution`'s; `None` when
+    /// `k` is not in both.
+    fn correction(
+        &self,
+        solution: &BTreeMap<usize, Isometry3<f64>>,
+        k: usize,
+    ) -> Option<Isometry3<f64>> {
+        match (self.graph.vertices.get(&k), solution.get(&k)) {
+            (Some(Pose::Se3(tracked)), Some(solved)) => Some(solved * tracked.inverse()),
+            _ => None,
         }
     }
 
@@ -286,12 +297,11 @@ impl KeyframeGraph {
         s: f64,
         pose: &Isometry3<f64>,
     ) -> Isometry3<f64> {
-        let correction = |k: usize| match (self.graph.vertices.get(&k), solution.get(&k)) {
-            (Some(Pose::Se3(tracked)), Some(solved)) => Some(solved * tracked.inverse()),
-            _ => None,
-        };
         let same_fragment = self.fragment_of(anchor) == self.fragment_of(next);
-        match (correction(anchor), correction(next)) {
+        match (
+            self.correction(solution, anchor),
+            self.correction(solution, next),
+        ) {
             (Some(a), Some(b)) if same_fragment => a.lerp_slerp(&b, s.clamp(0.0, 1.0)) * pose,
             _ => self.corrected(solution, anchor, pose),
         }
