@@ -4,6 +4,7 @@
 //! ends with a typed [`outcome`].
 
 mod color_timing;
+pub mod exposure;
 mod health;
 pub mod keyframes;
 pub mod loops;

@@ -147,6 +147,10 @@ pub struct FrameReport {
     /// the live intensity I (NOTES 60; 1 when not fitted or not tracked). The colour is fused
     /// as recorded.
     pub gain: f64,
+    /// The live frame's vignetting v relative to the model's that the frame was tracked with:
+    /// the live intensity l enters as a l / (1 − v ρ²) (NOTES 87; 0 when not fitted or not
+    /// tracked).
+    pub vignetting: f64,
 }
 
 impl FrameReport {
@@ -401,6 +405,7 @@ impl RigidSlam {
             anchor: None,
             placed: true,
             gain: 1.0,
+            vignetting: 0.0,
         };
         if let Err(why) = self.check_size(depth_raw, color) {
             report.outcome = FrameOutcome::NotTracked(why);
@@ -620,6 +625,9 @@ impl RigidSlam {
         report.inliers = outcome.inliers;
         report.inlier_fraction = outcome.inlier_fraction();
         report.agreement = outcome.agreement;
+        if outcome.failure.is_none() {
+            report.vignetting = outcome.vignetting;
+        }
         if relocalised {
             report.outcome = FrameOutcome::Relocalised;
         }
@@ -861,6 +869,7 @@ impl RigidSlam {
             agreement = report.agreement,
             conditioning = report.conditioning,
             gain = report.gain,
+            vignetting = report.vignetting,
             preprocess_ms = 1e3 * times.preprocess,
             track_ms = 1e3 * times.track,
             integrate_ms = 1e3 * times.integrate,

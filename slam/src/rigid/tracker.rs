@@ -3,6 +3,7 @@
 //! λ·photometric residuals (eq. 3.1, 3.2, 3.14) under Huber kernels, coarse to fine over the pyramid,
 //! solved by the solver's dense 6-DoF path with exact SE(3) updates.
 
+use super::exposure::Exposure;
 use super::outcome::TrackFailure;
 use crate::camera::Camera;
 use crate::image::{
@@ -72,6 +73,12 @@ pub struct TrackerParams {
     /// fitted in closed form rather than optimised with the pose). The fit serves tracking
     /// only: the model keeps the colours as recorded (NOTES 60).
     pub fit_gain: bool,
+    /// With the gain, fit the live frame's vignetting against the model's: the live intensity
+    /// enters as l·a / (1 − v ρ²), ρ² the pixel's squared distance from the principal point over
+    /// cx² + cy² (default true; [`Exposure`]). A sensor darkens its corners by tens of percent,
+    /// a gradient fixed to the image that on a smoothly textured wall held only by its texture
+    /// reads as a slide (NOTES 87). Needs `fit_gain`.
+    pub fit_vignetting: bool,
     /// Weigh each point-to-plane residual by the inverse of the sensor's depth noise relative to
     /// the frame's mean depth z̄: r ↦ r·(z̄/z)^k (default 2; 0 turns it off). A structured-light
     /// sensor's noise grows as z² (Khoshelham & Elberink 2012; Nguyen, Izadi & Lovell 2012), so
@@ -108,6 +115,7 @@ impl Default for TrackerParams {
             min_conditioning: 1e-3,
             min_texture: 0.01,
             fit_gain: true,
+            fit_vignetting: true,
             depth_weight_power: 2,
             motion_prior: 1e-4,
         }
@@ -296,8 +304,10 @@ struct IcpTerms<'a> {
     max_distance: f64,
     min_cos: f64,
     photometric: bool,
-    /// The exposure gain a: the live intensity I enters the photometric residual as aI.
-    gain: f64,
+    /// The exposure: the live intensity l enters the photometric residual as l·a / (1 − v ρ²).
+    exposure: Exposure,
+    /// The live level's (cx, cy, 1 / (cx² + cy²)), for ρ².
+    radial: (f64, f64, f64),
     /// The live pixels taken.
     grid: Grid,
     /// (z̄, k): point-to-plane residuals are weighed by (z̄/z)^k ([`TrackerParams::depth_weight_power`]).
@@ -318,7 +328,7 @@ impl<'a> IcpTerms<'a> {
         model: &'a ModelLevel,
         t_ref_inv: RigidMotion,
         grid: Grid,
-        gain: f64,
+        exposure: Exposure,
         z_mean: f64,
         prior: Option<(Isometry3<f64>, f64)>,
     ) -> Self {
@@ -338,7 +348,8 @@ impl<'a> IcpTerms<'a> {
             max_distance: p.max_distance,
             min_cos: p.max_normal_angle_deg.to_radians().cos(),
             photometric: has_color && p.lambda_photometric > 0.0,
-            gain,
+            exposure,
+            radial: radial_of(&live.camera),
             grid,
             depth_weight: (z_mean, p.depth_weight_power),
             prior,
@@ -430,7 +441,8 @@ impl DenseTerms<6> for IcpTerms<'_> {
             emit(r * s, &jac.map(|j| j * s), 0);
         }
         if self.photometric {
-            let live_i = self.gain * self.live.intensity.data[a.pixel] as f64;
+            let factor = self.exposure.factor(self.rho2(a.pixel));
+            let live_i = factor * self.live.intensity.data[a.pixel] as f64;
             if let Some((r, jac)) = photometric_at(
                 &a.x,
                 &lin.rel.rt,
@@ -570,20 +582,16 @@ impl IcpTerms<'_> {
         agree as f64 / hits.max(1) as f64
     }
 
-    /// The gain a that takes the live intensities onto the model's, as the median of the
-    /// ratios m / l over the pixels associated at `x` (about [`BRIGHTNESS_SAMPLES`] of them,
-    /// evenly spread, darker than [`MIN_RATIO_INTENSITY`] left out). A sensor's gain multiplies
-    /// the intensities, and a ratio is blind to contrast: the model's texture is the live one
-    /// averaged over frames and voxels, so its contrast is lower, and a fit of the slope (least
-    /// squares or total least squares) reads that as a gain below 1 which, fused into the
-    /// model, lowers its contrast further, frame after frame (NOTES 60). The median leaves out
-    /// speculars, occlusions and the model's uncoloured edges. 1 when fewer than 100 pairs, or
-    /// when the gain is implausible (outside [0.5, 2]).
-    fn fit_gain(&self, x: &[f64]) -> f64 {
+    /// Writes into `out` the pairs (ρ², l / m) of the pixels associated at `x` (about
+    /// [`BRIGHTNESS_SAMPLES`] of them, evenly spread, darker than [`MIN_RATIO_INTENSITY`] left
+    /// out) and returns their number. Ratios, not a fit of the slope: the model's texture is the
+    /// live one averaged over frames and voxels, so its contrast is lower, and a fit of the slope
+    /// (least squares or total least squares) reads that as a gain below 1 which, fused into the
+    /// model, lowers its contrast further, frame after frame (NOTES 60).
+    fn exposure_samples(&self, x: &[f64], out: &mut [(f32, f32)]) -> usize {
         let lin = self.prepare(x);
-        let mut ratios = [0.0f32; 2 * BRIGHTNESS_SAMPLES];
         let mut n = 0;
-        // one number needs far fewer pairs than the level has: about BRIGHTNESS_SAMPLES grid
+        // a few numbers need far fewer pairs than the level has: about BRIGHTNESS_SAMPLES grid
         // points, spread evenly (at most twice that many)
         let step = (self.grid.len() / BRIGHTNESS_SAMPLES).max(1);
         for k in (0..self.grid.len()).step_by(step) {
@@ -594,22 +602,46 @@ impl IcpTerms<'_> {
                 continue;
             };
             let l = self.live.intensity.data[a.pixel] as f64;
-            if l >= MIN_RATIO_INTENSITY && n < ratios.len() {
-                ratios[n] = (m / l) as f32;
+            if l >= MIN_RATIO_INTENSITY && m > 0.0 && n < out.len() {
+                out[n] = (self.rho2(a.pixel) as f32, (l / m) as f32);
                 n += 1;
             }
         }
-        if n < 100 {
-            return 1.0;
-        }
-        let (_, median, _) = ratios[..n].select_nth_unstable_by(n / 2, f32::total_cmp);
-        let gain = *median as f64;
-        if (0.5..=2.0).contains(&gain) {
-            gain
-        } else {
-            1.0
-        }
+        n
     }
+
+    /// ρ² of a live pixel: its squared distance from the principal point over cx² + cy².
+    #[inline]
+    fn rho2(&self, pixel: usize) -> f64 {
+        let w = self.live.intensity.width;
+        let (cx, cy, inv) = self.radial;
+        let (du, dv) = ((pixel % w) as f64 - cx, (pixel / w) as f64 - cy);
+        (du * du + dv * dv) * inv
+    }
+}
+
+/// (cx, cy, 1 / (cx² + cy²)) of a camera: ρ² is the same at every level of a pyramid.
+fn radial_of(camera: &Camera) -> (f64, f64, f64) {
+    let norm = camera.cx * camera.cx + camera.cy * camera.cy;
+    (camera.cx, camera.cy, 1.0 / norm.max(1.0))
+}
+
+/// The exposure of a level: the gain fitted with the running vignetting `vignetting.0`; at the
+/// finest level, with `fit`, the frame's own fit goes to `vignetting.1` for the update.
+fn level_exposure(
+    vignetting: &mut (f64, Option<f64>),
+    fit: bool,
+    terms: &IcpTerms<'_>,
+    x: &[f64],
+    finest: bool,
+) -> Exposure {
+    let mut samples = [(0.0f32, 0.0f32); 2 * BRIGHTNESS_SAMPLES];
+    let n = terms.exposure_samples(x, &mut samples);
+    let samples = &mut samples[..n];
+    if finest && fit {
+        vignetting.1 = Exposure::fit_vignetting(samples);
+    }
+    Exposure::with_vignetting(samples, vignetting.0)
 }
 
 /// How far a live point at depth `z` may lie from its model point and still agree with it: three
@@ -635,9 +667,13 @@ pub struct TrackOutcome {
     /// agree with it: the normal test passed and within three noise deviations of the model
     /// point (0 when not tracked).
     pub agreement: f64,
-    /// The exposure gain fitted on the finest level that ran: the model's intensity is about
-    /// a I for the live intensity I (1 when not fitted).
+    /// The exposure gain fitted on the finest level that ran, over the whole image
+    /// ([`Exposure::image_gain`]): the model's intensity is about a I for the live intensity I
+    /// (1 when not fitted).
     pub gain: f64,
+    /// The live frame's vignetting v relative to the model's, fitted with the gain: the model's
+    /// intensity is about a l / (1 − v ρ²) (0 when not fitted; [`Exposure`]).
+    pub vignetting: f64,
     /// The pose's covariance from the point-to-plane term at the result, in the tangent of
     /// T·Exp(δ) (`[ω; v]`, radians and metres): large along a motion the geometry barely fixes,
     /// such as a slide along a plain wall (`None` when not tracked or when the geometry alone
@@ -660,6 +696,7 @@ impl TrackOutcome {
             valid_pixels: 0,
             agreement: 0.0,
             gain: 1.0,
+            vignetting: 0.0,
             covariance: None,
         }
     }
@@ -705,7 +742,16 @@ pub struct Tracker {
     ws: DenseWorkspace<6>,
     /// Per-chunk sums of the data-only check after the prior (kept between frames).
     partials: Vec<Reduced<6>>,
+    /// The running estimate of the live frames' vignetting against the model's, and the
+    /// current frame's own fit at its finest level ([`TrackerParams::fit_vignetting`]).
+    vignetting: (f64, Option<f64>),
 }
+
+/// Each tracked frame moves the running vignetting this fraction of the way to its own fit: a
+/// lens' falloff is the same in every frame, and one frame's fit is noisy (a shaking camera
+/// under a drifting gain, whose model holds each part at the gain it was seen with, fits
+/// ±0.1), so about twenty frames are averaged.
+const VIGNETTING_RATE: f64 = 0.05;
 
 impl Tracker {
     /// A tracker with these settings.
@@ -714,6 +760,7 @@ impl Tracker {
             params,
             ws: DenseWorkspace::default(),
             partials: Vec::new(),
+            vignetting: (0.0, None),
         }
     }
 
@@ -740,7 +787,7 @@ impl Tracker {
         let (z_mean, prior) = depth_and_prior(p, &live[levels - 1], start);
         let mut inliers = 0;
         let mut agreement = 0.0;
-        let mut gain = 1.0;
+        let mut exposure = Exposure::NEUTRAL;
         let mut covariance = None;
         let mut stop = DenseStop::NoTerms;
         for l in (0..levels).rev() {
@@ -750,7 +797,8 @@ impl Tracker {
             }
             let ml = &model.levels[l.saturating_sub(model.offset).min(model.levels.len() - 1)];
             let grid = Grid::new(&live[l], stride_of(l));
-            let mut terms = IcpTerms::new(p, &live[l], ml, t_ref_inv, grid, gain, z_mean, prior);
+            let mut terms =
+                IcpTerms::new(p, &live[l], ml, t_ref_inv, grid, exposure, z_mean, prior);
             if prior.is_some() {
                 let points = if l == finest {
                     valid_pixels
@@ -762,8 +810,9 @@ impl Tracker {
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
             if terms.photometric && p.fit_gain {
-                gain = terms.fit_gain(&x);
-                terms.gain = gain;
+                let fit = p.fit_vignetting;
+                exposure = level_exposure(&mut self.vignetting, fit, &terms, &x, l == finest);
+                terms.exposure = exposure;
             }
             let options = solve_options(&groups, iterations);
             let summary = solve(&terms, &SE3, &mut x, &options, &mut self.ws);
@@ -791,6 +840,9 @@ impl Tracker {
         }
         let pose = se3::from_slice(&x);
         let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
+        if let (None, Some(v)) = (&failure, self.vignetting.1.take()) {
+            self.vignetting.0 += VIGNETTING_RATE * (v - self.vignetting.0);
+        }
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
             covariance: covariance.filter(|_| failure.is_none()),
@@ -798,7 +850,8 @@ impl Tracker {
             inliers,
             valid_pixels,
             agreement,
-            gain,
+            gain: exposure.image_gain(),
+            vignetting: exposure.vignetting,
         }
     }
 }
