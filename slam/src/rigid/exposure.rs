@@ -25,6 +25,8 @@ const MIN_BIN_SAMPLES: usize = 15;
 /// Vignetting fitted outside this range is taken as a failed fit (no lens darkens its
 /// corners by more than 70 %; brighter corners than centre beyond 30 % are not a lens).
 const VIGNETTING_RANGE: (f64, f64) = (-0.3, 0.7);
+/// The falloff is taken no lower than this (a fifth of the centre's brightness).
+const MIN_FALLOFF: f64 = 0.2;
 /// Gains outside this range are implausible (the exposure fit of NOTES 60).
 const GAIN_RANGE: (f64, f64) = (0.5, 2.0);
 
@@ -61,7 +63,7 @@ impl Exposure {
     /// model's.
     #[inline]
     pub fn factor(&self, rho2: f64) -> f64 {
-        self.gain / (1.0 - self.vignetting * rho2)
+        self.gain / falloff(self.vignetting, rho2)
     }
 
     /// The falloff v seen in `samples` of (ρ², live / model): per bin of ρ² the median ratio (a
@@ -87,7 +89,7 @@ impl Exposure {
             return Self::NEUTRAL;
         }
         for s in samples.iter_mut() {
-            s.1 /= (1.0 - vignetting * s.0 as f64) as f32;
+            s.1 /= falloff(vignetting, s.0 as f64) as f32;
         }
         let gain = 1.0 / median_ratio(samples) as f64;
         if (GAIN_RANGE.0..=GAIN_RANGE.1).contains(&gain) {
@@ -96,6 +98,13 @@ impl Exposure {
             Self::NEUTRAL
         }
     }
+}
+
+/// 1 − v ρ², kept above [`MIN_FALLOFF`] where a principal point far from the image's centre
+/// puts corners at ρ² well beyond 1.
+#[inline]
+fn falloff(vignetting: f64, rho2: f64) -> f64 {
+    (1.0 - vignetting * rho2).max(MIN_FALLOFF)
 }
 
 /// The line p + q x through the bins' median ratios (weighted by count), if at least three bins
@@ -222,5 +231,11 @@ mod tests {
             Exposure::fit_vignetting(&mut samples(1.0, 0.95, 2000, 1)),
             None
         );
+        // corners far beyond ρ² = 1 (a principal point near the image's edge) stay finite
+        let e = Exposure {
+            gain: 1.0,
+            vignetting: 0.5,
+        };
+        assert!(e.factor(10.0).is_finite() && e.factor(10.0) <= 1.0 / MIN_FALLOFF);
     }
 }
