@@ -627,10 +627,11 @@ fn radial_of(camera: &Camera) -> (f64, f64, f64) {
 }
 
 /// The exposure of a level: the gain fitted with the running vignetting `vignetting.0`; at the
-/// finest level, with `fit`, the frame's own fit goes to `vignetting.1` for the update.
+/// finest level, with [`TrackerParams::fit_vignetting`], the frame's own fit goes to
+/// `vignetting.1` for the update.
 fn level_exposure(
     vignetting: &mut (f64, Option<f64>),
-    fit: bool,
+    p: &TrackerParams,
     terms: &IcpTerms<'_>,
     x: &[f64],
     finest: bool,
@@ -638,7 +639,7 @@ fn level_exposure(
     let mut samples = [(0.0f32, 0.0f32); 2 * BRIGHTNESS_SAMPLES];
     let n = terms.exposure_samples(x, &mut samples);
     let samples = &mut samples[..n];
-    if finest && fit {
+    if finest && p.fit_vignetting {
         vignetting.1 = Exposure::fit_vignetting(samples);
     }
     Exposure::with_vignetting(samples, vignetting.0)
@@ -764,6 +765,14 @@ impl Tracker {
         }
     }
 
+    /// Moves the running vignetting towards the frame's fit, if the frame was `tracked` and its
+    /// finest level fitted one.
+    fn update_vignetting(&mut self, tracked: bool) {
+        if let (true, Some(v)) = (tracked, self.vignetting.1.take()) {
+            self.vignetting.0 += VIGNETTING_RATE * (v - self.vignetting.0);
+        }
+    }
+
     /// Registers the live pyramid against the model, starting from `start` (camera-to-world).
     pub fn track(
         &mut self,
@@ -785,11 +794,9 @@ impl Tracker {
         let stride_of = |l: usize| level_stride(p, &live[l], l);
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let (z_mean, prior) = depth_and_prior(p, &live[levels - 1], start);
-        let mut inliers = 0;
-        let mut agreement = 0.0;
+        let (mut inliers, mut agreement) = (0, 0.0);
         let mut exposure = Exposure::NEUTRAL;
-        let mut covariance = None;
-        let mut stop = DenseStop::NoTerms;
+        let (mut covariance, mut stop) = (None, DenseStop::NoTerms);
         for l in (0..levels).rev() {
             let iterations = iterations_at(p, l);
             if iterations == 0 {
@@ -810,8 +817,7 @@ impl Tracker {
             // the exposure is the frame's, but each level's start pose is better than the last
             // one's, and with it the association the fit rests on: refitted per level
             if terms.photometric && p.fit_gain {
-                let fit = p.fit_vignetting;
-                exposure = level_exposure(&mut self.vignetting, fit, &terms, &x, l == finest);
+                exposure = level_exposure(&mut self.vignetting, p, &terms, &x, l == finest);
                 terms.exposure = exposure;
             }
             let options = solve_options(&groups, iterations);
@@ -840,9 +846,7 @@ impl Tracker {
         }
         let pose = se3::from_slice(&x);
         let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
-        if let (None, Some(v)) = (&failure, self.vignetting.1.take()) {
-            self.vignetting.0 += VIGNETTING_RATE * (v - self.vignetting.0);
-        }
+        self.update_vignetting(failure.is_none());
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
             covariance: covariance.filter(|_| failure.is_none()),
