@@ -749,9 +749,9 @@ pub struct Tracker {
 }
 
 /// Each tracked frame moves the running vignetting this fraction of the way to its own fit: a
-/// lens' falloff is the same in every frame, and one frame's fit is noisy (a shaking camera
-/// under a drifting gain, whose model holds each part at the gain it was seen with, fits
-/// ±0.1), so about twenty frames are averaged.
+/// lens' falloff is the same in every frame, and one frame's fit is not (under a drifting gain
+/// the model holds each part at the gain it was seen with, which one frame reads as a falloff;
+/// NOTES 87), so about twenty frames are averaged.
 const VIGNETTING_RATE: f64 = 0.05;
 
 impl Tracker {
