@@ -39,6 +39,30 @@ def ground_truth(seq):
     return t, p
 
 
+def classify(run, seq, near=0.3):
+    """The DCS weights of `run`'s loops (rigid_slam's JSON line, parsed) split into true ones (the
+    keyframes' true camera centres within `near` metres in sequence `seq`) and false ones; raises
+    ValueError for a loop without a weight (the graph was not solved)."""
+    frames = stamps(seq)
+    t, p = ground_truth(seq)
+
+    def centre(frame):
+        # the ground truth's pose nearest in time (its stamps ascend)
+        s = frames[frame]
+        i = bisect.bisect_left(t, s)
+        j = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - s))
+        return p[j]
+
+    true, false = [], []
+    for e in run["loop_events"]:
+        if e["weight"] is None:
+            # no weight: the graph was not solved, so no loop can be called switched off
+            raise ValueError(f"loop {e['from']}-{e['to']} has no DCS weight (the keyframe graph was not solved)")
+        d = math.dist(centre(e["from"]), centre(e["to"]))
+        (true if d <= near else false).append(e["weight"])
+    return true, false
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run")
@@ -48,28 +72,13 @@ def main():
     with open(a.run) as f:
         lines = [l for l in f.read().splitlines() if l.strip()]
     run = json.loads(lines[-1])
-    frames = stamps(a.sequence)
-    t, p = ground_truth(a.sequence)
-
-    def centre(frame):
-        # the ground truth's pose nearest in time (its stamps ascend)
-        s = frames[frame]
-        i = bisect.bisect_left(t, s)
-        near = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - s))
-        return p[near]
-
-    rows = []
-    for e in run["loop_events"]:
-        d = math.dist(centre(e["from"]), centre(e["to"]))
-        if e["weight"] is None:
-            # no weight: the graph was not solved, so no loop can be called switched off
-            sys.exit(f"{a.run}: loop {e['from']}-{e['to']} has no DCS weight (the keyframe graph was not solved)")
-        rows.append((d, e["weight"]))
-    true = [w for d, w in rows if d <= a.near]
-    false = [w for d, w in rows if d > a.near]
+    try:
+        true, false = classify(run, a.sequence, a.near)
+    except ValueError as e:
+        sys.exit(f"{a.run}: {e}")
     kept_false = sum(1 for w in false if w > 0.5)
     print(
-        f"{a.run}: {len(rows)} loops; true {len(true)} (kept {sum(1 for w in true if w > 0.5)}); "
+        f"{a.run}: {len(true) + len(false)} loops; true {len(true)} (kept {sum(1 for w in true if w > 0.5)}); "
         f"false {len(false)} (kept {kept_false}, largest weight {max(false, default=0.0):.2g}); "
         f"ATE {1e3 * run['ate_tracked']:.2f} mm tracked, {1e3 * run['ate_rmse']:.2f} mm corrected"
     )

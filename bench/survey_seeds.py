@@ -1,0 +1,95 @@
+#!/usr/bin/env python3
+"""Looping surveys over several layouts and seeds, one volume against sub-maps with loop closure
+(issue 24, point 4), for one or more rigid_slam binaries run alternately.
+
+usage: python3 bench/survey_seeds.py BIN [BIN ...] [--work DIR] [--cases room:51,twins:53,...]
+                                     [--frames 900] [--generate target/release/generate]
+
+Each case LAYOUT:SEED is a survey generated once into DIR (`generate rigid DIR/LAYOUT-SEED --motion
+survey --frames N --fps 15 --width 320 --height 240 --seed SEED --layout LAYOUT`, the Kinect sensor
+model) and kept for later runs. Every binary runs on it with one volume and with `--submaps`; the
+binaries alternate case by case, so that the machine's drift falls on all of them alike. Printed per
+case and binary: the one volume's ATE, the sub-maps' ATE as tracked and corrected, the ratio of the
+corrected ATE to the one volume's (issue 24 asks for at most 0.5), frames not tracked, and the loops
+sorted by `bench/loop_check.py`'s rule (a loop is false when its keyframes' true camera centres are
+more than 0.3 m apart; a kept false loop has a DCS weight above 0.5). Then the means per binary.
+
+The default cases are the CI gate's room survey and the twin room and office surveys of BENCHMARKS.md
+(seeds 51, 53, 52) and three seeds no setting was chosen on (61, 63, 62).
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from loop_check import classify  # noqa: E402
+
+DEFAULT_CASES = "room:51,twins:53,office:52,room:61,twins:63,office:62"
+
+
+def generate(gen, seq, layout, seed, frames):
+    if os.path.exists(os.path.join(seq, "groundtruth.txt")):
+        return
+    cmd = [gen, "rigid", seq, "--motion", "survey", "--frames", str(frames), "--fps", "15",
+           "--width", "320", "--height", "240", "--seed", str(seed), "--layout", layout, "-q"]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+
+
+def run(binary, seq, submaps):
+    cmd = [binary, seq, "--quiet"] + (["--submaps"] if submaps else [])
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def mm(x):
+    return "–" if x is None else f"{x * 1000:.2f}"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("binaries", nargs="+")
+    ap.add_argument("--work", default="/tmp/survey_seeds")
+    ap.add_argument("--cases", default=DEFAULT_CASES)
+    ap.add_argument("--frames", type=int, default=900)
+    ap.add_argument("--generate", default="target/release/generate")
+    a = ap.parse_args()
+    cases = []
+    for c in a.cases.split(","):
+        layout, _, seed = c.partition(":")
+        if not seed.isdigit():
+            sys.exit(f"--cases: '{c}' is not LAYOUT:SEED")
+        cases.append((layout, int(seed)))
+    os.makedirs(a.work, exist_ok=True)
+    print("| case | binary | one volume mm | sub-maps tracked mm | corrected mm | ratio | not tracked | "
+          "loops true (kept) / false (kept) |")
+    print("|---|---|---|---|---|---|---|---|")
+    sums = {b: [0.0, 0.0, 0] for b in a.binaries}
+    for i, (layout, seed) in enumerate(cases):
+        seq = os.path.join(a.work, f"{layout}-{seed}")
+        generate(a.generate, seq, layout, seed, a.frames)
+        order = a.binaries if i % 2 == 0 else list(reversed(a.binaries))
+        rows = {}
+        for b in order:
+            one, sub = run(b, seq, False), run(b, seq, True)
+            true, false = classify(sub, seq)
+            kept = lambda ws: sum(1 for w in ws if w > 0.5)
+            ratio = sub["ate_rmse"] / one["ate_rmse"] if one["ate_rmse"] else None
+            missed = (one["frames"] - one["tracked"], sub["frames"] - sub["tracked"])
+            rows[b] = (f"| {layout}:{seed} | {os.path.basename(b)} | {mm(one['ate_rmse'])} | "
+                       f"{mm(sub['ate_tracked'])} | {mm(sub['ate_rmse'])} | "
+                       f"{'–' if ratio is None else f'{ratio:.2f}'} | {missed[0]} / {missed[1]} | "
+                       f"{len(true)} ({kept(true)}) / {len(false)} ({kept(false)}) |")
+            s = sums[b]
+            s[0] += one["ate_rmse"] or 0.0
+            s[1] += sub["ate_rmse"] or 0.0
+            s[2] += 1
+        for b in a.binaries:
+            print(rows[b], flush=True)
+    for b, (one, sub, n) in sums.items():
+        print(f"mean over {n} cases, {b}: one volume {one / n * 1000:.2f} mm, corrected {sub / n * 1000:.2f} mm")
+
+
+if __name__ == "__main__":
+    main()
