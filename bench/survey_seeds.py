@@ -7,7 +7,7 @@ usage: python3 bench/survey_seeds.py BIN [BIN ...] [--work DIR] [--cases room:51
 
 Each case LAYOUT:SEED is a survey generated once into DIR (`generate rigid DIR/LAYOUT-SEED --motion
 survey --frames N --fps 15 --width 320 --height 240 --seed SEED --layout LAYOUT`, the Kinect sensor
-model) and kept for later runs. Every binary runs on it with one volume and with `--submaps`; the
+model) and kept for later runs (delete its folder to generate it again). Every binary runs on it with one volume and with `--submaps`; the
 binaries alternate case by case, so that the machine's drift falls on all of them alike. Printed per
 case and binary: the one volume's ATE, the sub-maps' ATE as tracked and corrected, the ratio of the
 corrected ATE to the one volume's (issue 24 asks for at most 0.5), frames not tracked, and the loops
@@ -65,7 +65,8 @@ def main():
     print("| case | binary | one volume mm | sub-maps tracked mm | corrected mm | ratio | not tracked | "
           "loops true (kept) / false (kept) |")
     print("|---|---|---|---|---|---|---|---|")
-    sums = {b: [0.0, 0.0, 0] for b in a.binaries}
+    # per binary, the one volume's and the corrected ATE of each case (None where a run has none)
+    ates = {b: [] for b in a.binaries}
     for i, (layout, seed) in enumerate(cases):
         seq = os.path.join(a.work, f"{layout}-{seed}")
         generate(a.generate, seq, layout, seed, a.frames)
@@ -77,18 +78,24 @@ def main():
             kept = lambda ws: sum(1 for w in ws if w > 0.5)
             ratio = sub["ate_rmse"] / one["ate_rmse"] if one["ate_rmse"] else None
             missed = (one["frames"] - one["tracked"], sub["frames"] - sub["tracked"])
-            rows[b] = (f"| {layout}:{seed} | {os.path.basename(b)} | {mm(one['ate_rmse'])} | "
+            rows[b] = (f"| {layout}:{seed} | {b} | {mm(one['ate_rmse'])} | "
                        f"{mm(sub['ate_tracked'])} | {mm(sub['ate_rmse'])} | "
                        f"{'–' if ratio is None else f'{ratio:.2f}'} | {missed[0]} / {missed[1]} | "
                        f"{len(true)} ({kept(true)}) / {len(false)} ({kept(false)}) |")
-            s = sums[b]
-            s[0] += one["ate_rmse"] or 0.0
-            s[1] += sub["ate_rmse"] or 0.0
-            s[2] += 1
+            ates[b].append((one["ate_rmse"], sub["ate_rmse"]))
         for b in a.binaries:
             print(rows[b], flush=True)
-    for b, (one, sub, n) in sums.items():
-        print(f"mean over {n} cases, {b}: one volume {one / n * 1000:.2f} mm, corrected {sub / n * 1000:.2f} mm")
+    for b, pairs in ates.items():
+        # a case without either ATE (nothing tracked) is left out of the means, and said so
+        both = [(o, c) for o, c in pairs if o is not None and c is not None]
+        missing = len(pairs) - len(both)
+        if not both:
+            print(f"{b}: no case has both ATEs")
+            continue
+        one = sum(o for o, _ in both) / len(both)
+        sub = sum(c for _, c in both) / len(both)
+        note = f" ({missing} case(s) without an ATE left out)" if missing else ""
+        print(f"mean over {len(both)} cases, {b}: one volume {one * 1000:.2f} mm, corrected {sub * 1000:.2f} mm{note}")
 
 
 if __name__ == "__main__":
