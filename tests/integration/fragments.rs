@@ -6,6 +6,7 @@
 //! have none.
 
 use dynamap::slam::eval::{ate, Alignment};
+use dynamap::slam::image::{ColorImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RigidSlam};
 use dynamap::slam::synthetic::layouts::{self, Layout};
@@ -14,9 +15,39 @@ use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::render::render;
 use std::collections::BTreeSet;
 use std::ops::Range;
+use std::sync::OnceLock;
 
 /// Frames of the survey at 6× speed (a frame every 0.2 s, 2.4° of the round).
 const STEP: usize = 6;
+/// The longest run's frames.
+const FRAMES: usize = 195;
+
+/// Ground truth, and each frame as the sensor gives it (raw depth, colour).
+type Survey = (Trajectory, Vec<(Image<u16>, ColorImage)>);
+
+/// The survey's first [`FRAMES`] frames, rendered once for all the runs of this file.
+fn survey() -> &'static Survey {
+    static SURVEY: OnceLock<Survey> = OnceLock::new();
+    SURVEY.get_or_init(|| {
+        let (cam, _) = super::submaps::short_submap_run();
+        let all = motion::procedural(Motion::Survey, FRAMES * STEP, 30.0);
+        let scene = layouts::build(Layout::Room, 3);
+        let noise = SensorNoise {
+            seed: 4,
+            ..SensorNoise::default()
+        };
+        let mut truth = Trajectory::default();
+        let mut frames = Vec::new();
+        for k in 0..FRAMES {
+            let (stamp, pose) = (all.stamps[k * STEP], all.poses[k * STEP]);
+            truth.push(stamp, pose);
+            let mut f = render(&scene, &cam, &pose);
+            let raw = noise.apply(k as u64, &f.depth, &f.cos_incidence, &mut f.color, 5000.0);
+            frames.push((raw, f.color));
+        }
+        (truth, frames)
+    })
+}
 
 /// The run: the survey's frames before `end` but those in `dropped`, each frame's outcome,
 /// the corrected trajectory of the frames in the map, and the keyframes left outside it.
@@ -36,26 +67,21 @@ fn run(end: usize, dropped: Range<usize>, one_volume: bool) -> Run {
     if one_volume {
         params.submaps = None;
     }
-    let all = motion::procedural(Motion::Survey, end * STEP, 30.0);
-    let scene = layouts::build(Layout::Room, 3);
-    let noise = SensorNoise {
-        seed: 4,
-        ..SensorNoise::default()
-    };
+    assert!(end <= FRAMES);
+    let (all, frames) = survey();
     let mut slam = RigidSlam::new(cam, params, all.poses[0]);
     let (mut outcomes, mut tracked, mut anchors) = (Vec::new(), Trajectory::default(), Vec::new());
     let mut placed = Vec::new();
     let mut truth = Trajectory::default();
     for k in (0..end).filter(|k| !dropped.contains(k)) {
-        let (stamp, pose) = (all.stamps[k * STEP], all.poses[k * STEP]);
+        let (stamp, pose) = (all.stamps[k], all.poses[k]);
         truth.push(stamp, pose);
-        let mut f = render(&scene, &cam, &pose);
-        let raw = noise.apply(k as u64, &f.depth, &f.cos_incidence, &mut f.color, 5000.0);
+        let (raw, color) = &frames[k];
         let stamps = FrameStamps {
             depth: stamp,
             color: stamp,
         };
-        let report = slam.process_timed(&raw, Some(&f.color), stamps);
+        let report = slam.process_timed(raw, Some(color), stamps);
         if report.outcome.is_fused() {
             tracked.push(stamp, report.pose);
             anchors.push(report.anchor);

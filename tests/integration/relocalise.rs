@@ -4,6 +4,8 @@
 //! somewhere wrong.
 
 use dynamap::slam::camera::Camera;
+use dynamap::slam::image::{ColorImage, Image};
+use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RelocaliseParams, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
@@ -19,40 +21,47 @@ fn there_and_back(gap: (usize, usize)) -> Vec<usize> {
     out.into_iter().chain(back).collect()
 }
 
-/// Runs the pipeline along `frames` of the orbit, with stamps at 30 Hz that skip the dropped
-/// frames when `skipped` is given as (first frame after the gap, frames dropped), without stamps
-/// otherwise; per frame: (orbit frame, outcome, position error m, rotation error deg).
-fn run(
-    frames: &[usize],
-    params: SlamParams,
-    skipped: Option<(usize, usize)>,
-) -> Vec<(usize, FrameOutcome, f64, f64)> {
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let gt = motion::procedural(Motion::Orbit, 100, 30.0);
+/// The sensor's frames (raw depth, colour) along `frames` of the orbit in the room, rendered
+/// once for every run.
+fn captures(cam: &Camera, gt: &Trajectory, frames: &[usize]) -> Vec<(Image<u16>, ColorImage)> {
     let scene = Scene::room(7);
     let noise = SensorNoise {
         seed: 5,
         ..SensorNoise::default()
     };
-    let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
+    frames
+        .iter()
+        .enumerate()
+        .map(|(n, &k)| {
+            let mut r = render(&scene, cam, &gt.poses[k]);
+            let raw = noise.apply_to(n as u64, &mut r, cam.depth_scale);
+            (raw, r.color)
+        })
+        .collect()
+}
+
+/// Runs the pipeline along `frames` of the orbit (their `captures`), with stamps at 30 Hz that
+/// skip the dropped frames when `skipped` is given as (first frame after the gap, frames
+/// dropped), without stamps otherwise; per frame: (orbit frame, outcome, position error m,
+/// rotation error deg).
+fn run(
+    (cam, gt): (&Camera, &Trajectory),
+    frames: &[usize],
+    captures: &[(Image<u16>, ColorImage)],
+    params: SlamParams,
+    skipped: Option<(usize, usize)>,
+) -> Vec<(usize, FrameOutcome, f64, f64)> {
+    let mut slam = RigidSlam::new(*cam, params, gt.poses[0]);
     let mut out = Vec::new();
-    for (n, &k) in frames.iter().enumerate() {
+    for (n, (&k, (raw, color))) in frames.iter().zip(captures).enumerate() {
         let pose: &Isometry3<f64> = &gt.poses[k];
-        let mut r = render(&scene, &cam, pose);
-        let raw = noise.apply(
-            n as u64,
-            &r.depth,
-            &r.cos_incidence,
-            &mut r.color,
-            cam.depth_scale,
-        );
         let report = match skipped {
             Some((after, dropped)) => {
                 let t = (n + if n >= after { dropped } else { 0 }) as f64 / 30.0;
                 let stamps = FrameStamps { depth: t, color: t };
-                slam.process_timed(&raw, Some(&r.color), stamps)
+                slam.process_timed(raw, Some(color), stamps)
             }
-            None => slam.process(&raw, Some(&r.color)),
+            None => slam.process(raw, Some(color)),
         };
         let d = pose.inverse() * report.pose;
         out.push((
@@ -81,12 +90,15 @@ fn a_gap_on_the_way_back_is_relocalised_from_a_keyframe_or_reported() {
         ..SlamParams::default()
     };
     let stamps = Some((after, 29));
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let gt = motion::procedural(Motion::Orbit, 100, 30.0);
+    let captures = captures(&cam, &gt, &frames);
     for (what, params, skipped) in [
         ("keyframes, stamps", SlamParams::default(), stamps),
         ("keyframes, no stamps", SlamParams::default(), None),
         ("no keyframes, stamps", without_keyframes, stamps),
     ] {
-        let run = run(&frames, params, skipped);
+        let run = run((&cam, &gt), &frames, &captures, params, skipped);
         for (n, (k, outcome, t, r)) in run.iter().enumerate() {
             assert!(
                 !outcome.is_fused() || (*t < 0.1 && *r < 5.0),

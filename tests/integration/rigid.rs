@@ -2,7 +2,7 @@
 
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
-use dynamap::slam::image::Image;
+use dynamap::slam::image::{ColorImage, DepthImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::rigid::{RigidSlam, SlamParams, TrackFailure};
 use dynamap::slam::synthetic::motion::{self, Motion};
@@ -10,8 +10,32 @@ use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::render::render;
 use dynamap::slam::synthetic::scene::Scene;
 
-/// Runs the pipeline on `frames` rendered frames of `motion` at 320×240 with sensor noise;
-/// `blank` frames get an empty depth image. Returns (ground truth, estimate, failed frames).
+/// `frames` frames of `motion` in the room rendered at 320×240 (their hits dropped), so that
+/// runs with other settings or sensors reuse one rendering.
+struct Views {
+    cam: Camera,
+    gt: Trajectory,
+    /// Per frame: depth (m), cos of incidence, colour.
+    frames: Vec<(DepthImage, Image<f32>, ColorImage)>,
+}
+
+fn views(m: Motion, frames: usize) -> Views {
+    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let gt = motion::procedural(m, frames, 30.0);
+    let scene = Scene::room(7);
+    let frames = gt
+        .poses
+        .iter()
+        .map(|pose| {
+            let r = render(&scene, &cam, pose);
+            (r.depth, r.cos_incidence, r.color)
+        })
+        .collect();
+    Views { cam, gt, frames }
+}
+
+/// Runs the pipeline on `frames` rendered frames of `motion` with sensor noise; `blank` frames
+/// get an empty depth image. Returns (ground truth, estimate, failed frames).
 fn run(
     m: Motion,
     frames: usize,
@@ -31,43 +55,34 @@ fn run_with(
         seed: 3,
         ..SensorNoise::default()
     };
-    run_sensor(m, frames, blank, params, noise)
+    run_sensor(&views(m, frames), blank, params, noise)
 }
 
-/// [`run_with`] through a given sensor model.
+/// [`run_with`] on given views through a given sensor model.
 fn run_sensor(
-    m: Motion,
-    frames: usize,
+    views: &Views,
     blank: std::ops::Range<usize>,
     params: SlamParams,
     noise: SensorNoise,
 ) -> (Trajectory, Trajectory, Vec<usize>) {
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
-    let gt = motion::procedural(m, frames, 30.0);
-    let scene = Scene::room(7);
+    let (cam, gt) = (views.cam, &views.gt);
     let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
     let mut est = Trajectory::default();
     let mut failed = Vec::new();
-    for (k, pose) in gt.poses.iter().enumerate() {
-        let mut r = render(&scene, &cam, pose);
-        let mut raw = noise.apply(
-            k as u64,
-            &r.depth,
-            &r.cos_incidence,
-            &mut r.color,
-            cam.depth_scale,
-        );
+    for (k, (depth, cos_incidence, color)) in views.frames.iter().enumerate() {
+        let mut color = color.clone();
+        let mut raw = noise.apply(k as u64, depth, cos_incidence, &mut color, cam.depth_scale);
         if blank.contains(&k) {
             raw = Image::new(cam.width, cam.height);
         }
-        let report = slam.process(&raw, Some(&r.color));
+        let report = slam.process(&raw, Some(&color));
         if let Some(why) = report.failure() {
             eprintln!("frame {k}: {why}");
             failed.push(k);
         }
         est.push(gt.stamps[k], report.pose);
     }
-    (gt, est, failed)
+    (gt.clone(), est, failed)
 }
 
 #[test]
@@ -87,6 +102,7 @@ fn an_exposure_drift_costs_no_accuracy() {
     let frames = 75; // the gain climbs to 1.15 at frame 37 and is back to 1 at 75
     let mut fit_mattered = false;
     for m in [Motion::Orbit, Motion::Shake] {
+        let views = views(m, frames);
         let ate_of = |gain_drift: f32, fit: bool| {
             let mut params = SlamParams::default();
             params.tracker.fit_gain = fit;
@@ -95,7 +111,7 @@ fn an_exposure_drift_costs_no_accuracy() {
                 gain_drift,
                 ..SensorNoise::default()
             };
-            let (gt, est, failed) = run_sensor(m, frames, 0..0, params, noise);
+            let (gt, est, failed) = run_sensor(&views, 0..0, params, noise);
             assert!(failed.is_empty(), "{m:?}: frames {failed:?} failed");
             ate(&gt, &est, Alignment::Se3, 1e-3).unwrap().stats.rmse
         };
