@@ -12,10 +12,11 @@ use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RigidSlam};
 use dynamap::slam::synthetic::layouts::{self, Layout};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
-use dynamap::slam::synthetic::render::render;
 use std::collections::BTreeSet;
 use std::ops::Range;
 use std::sync::OnceLock;
+
+use super::sensor_frame::sensor_frame;
 
 /// Frames of the survey at 6× speed (a frame every 0.2 s, 2.4° of the round).
 const STEP: usize = 6;
@@ -41,9 +42,7 @@ fn survey() -> &'static Survey {
         for k in 0..FRAMES {
             let (stamp, pose) = (all.stamps[k * STEP], all.poses[k * STEP]);
             truth.push(stamp, pose);
-            let mut f = render(&scene, &cam, &pose);
-            let raw = noise.apply(k as u64, &f.depth, &f.cos_incidence, &mut f.color, 5000.0);
-            frames.push((raw, f.color));
+            frames.push(sensor_frame(&scene, &cam, &pose, &noise, k));
         }
         (truth, frames)
     })

@@ -19,6 +19,7 @@ mod relocalise;
 mod rigid;
 mod robust;
 mod sensor;
+mod sensor_frame;
 mod solver;
 mod structure;
 mod submaps;

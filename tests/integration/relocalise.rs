@@ -9,9 +9,10 @@ use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RelocaliseParams, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
-use dynamap::slam::synthetic::render::render;
 use dynamap::slam::synthetic::scene::Scene;
 use nalgebra::Isometry3;
+
+use super::sensor_frame::sensor_frame;
 
 /// Orbit frames 0..100 and back to 0, with the frames between `gap.0` and `gap.1` (going back)
 /// dropped: the stream jumps from frame `gap.0` to frame `gap.1`.
@@ -32,11 +33,7 @@ fn captures(cam: &Camera, gt: &Trajectory, frames: &[usize]) -> Vec<(Image<u16>,
     frames
         .iter()
         .enumerate()
-        .map(|(n, &k)| {
-            let mut r = render(&scene, cam, &gt.poses[k]);
-            let raw = noise.apply_to(n as u64, &mut r, cam.depth_scale);
-            (raw, r.color)
-        })
+        .map(|(n, &k)| sensor_frame(&scene, cam, &gt.poses[k], &noise, n))
         .collect()
 }
 

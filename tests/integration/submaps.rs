@@ -3,6 +3,7 @@
 //! the older sub-maps give dense loops, and the frames carried with their keyframes to the
 //! graph's solution lie nearer the ground truth than the frames as tracked.
 
+use super::sensor_frame::sensor_frame;
 use dynamap::residuals::pose_graph::Measurement;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
@@ -14,7 +15,6 @@ use dynamap::slam::rigid::{RelocaliseParams, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::layouts::{self, Layout};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
-use dynamap::slam::synthetic::render::render;
 use dynamap::slam::synthetic::surface_error::{surface_error, SurfaceError};
 use nalgebra::{Isometry3, Matrix6};
 
@@ -95,9 +95,8 @@ fn run(layout: Layout, gt: &Trajectory) -> Run {
     let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
     let (mut tracked, mut anchors) = (Trajectory::default(), Vec::new());
     for (k, (stamp, pose)) in gt.stamps.iter().zip(&gt.poses).enumerate() {
-        let mut f = render(&scene, &cam, pose);
-        let raw = noise.apply(k as u64, &f.depth, &f.cos_incidence, &mut f.color, 5000.0);
-        let report = slam.process(&raw, Some(&f.color));
+        let (raw, color) = sensor_frame(&scene, &cam, pose, &noise, k);
+        let report = slam.process(&raw, Some(&color));
         assert!(
             report.failure().is_none(),
             "frame {k}: {:?}",
