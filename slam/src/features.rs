@@ -76,7 +76,7 @@ pub struct FeatureFrame<'a> {
 }
 
 /// Keypoints of one frame with valid depth: pixel, camera-frame point and descriptor.
-#[derive(Clone)]
+#[derive(Clone, Default)]
 pub struct Keypoints {
     /// Pixel (x, y) of each keypoint.
     pub pixels: Vec<(u32, u32)>,

@@ -187,11 +187,22 @@ fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
     // (at the time of writing three false loops pass the dense test, each 1.6-2 m off, and DCS
     // switches them off)
     let false_kept = r.loops.iter().filter(|l| l.0 > 0.1 && l.1 > 0.5).count();
-    assert!(
-        false_kept == 0 || after <= 1.1 * before,
+    let report = format!(
         "ATE {:.1} mm corrected against {:.1} mm tracked; loops (error m, weight): {:?}",
         1e3 * after,
         1e3 * before,
         r.loops
+    );
+    eprintln!("{report}");
+    assert!(false_kept == 0 || after <= 1.1 * before, "{report}");
+    // the look-alike must not crowd out the true place when the camera comes back to it: a
+    // loop that agrees with the track is preferred (NOTES 89). Here a true place always fits
+    // when the twin does, so no false loop is even added (before NOTES 89, three were, and DCS
+    // switched them off), and the true ones lower the error
+    let false_added = r.loops.iter().filter(|l| l.0 > 0.1).count();
+    let true_kept = r.loops.iter().filter(|l| l.0 < 0.05 && l.1 > 0.5).count();
+    assert!(
+        false_added == 0 && true_kept >= 1 && after < 0.8 * before,
+        "{report}"
     );
 }

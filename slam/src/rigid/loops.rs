@@ -36,7 +36,9 @@ pub struct LoopParams {
     /// A loop joins keyframes taken at least this many frames apart (default 300, 10 s at 30
     /// Hz): nearer ones are the odometry's business.
     pub min_frames_apart: usize,
-    /// Older keyframes, nearest by fern code, that a new keyframe is matched against (default 3).
+    /// Older keyframes, nearest by fern code, that a new keyframe is matched against (default 3);
+    /// with sub-maps, up to as many again that lie near its tracked pose
+    /// (`rigid::loop_candidates`).
     pub candidates: usize,
     /// RANSAC inliers a loop needs (default 30).
     pub min_inliers: usize,

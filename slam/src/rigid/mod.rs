@@ -7,6 +7,7 @@ mod color_timing;
 pub mod exposure;
 mod health;
 pub mod keyframes;
+mod loop_candidates;
 pub mod loops;
 mod motion_model;
 pub mod outcome;

@@ -8,6 +8,7 @@ use super::color_timing;
 use super::health::{Fit, Health};
 use super::keyframes::median_depth;
 use super::keyframes::{Candidate, Keyframe, Keyframes};
+use super::loop_candidates;
 use super::loops::LoopCandidate;
 use super::loops::{
     find_loop, median_z, BackgroundSolver, KeyframeGraph, LoopError, Optimised, Reach,
@@ -760,37 +761,32 @@ impl RigidSlam {
     }
 
     /// A loop from the new keyframe (the current frame) to an older keyframe in a frozen
-    /// sub-map: the older keyframes nearest by fern code, at least
-    /// [`super::loops::LoopParams::min_frames_apart`] frames back, are each tried as the start of
-    /// a dense track against their sub-map raycast from their pose; the best track that passes
-    /// the tracker's tests and reaches the relocaliser's floors on the recent fit is the loop.
+    /// sub-map: older keyframes at least [`super::loops::LoopParams::min_frames_apart`] frames
+    /// back, the nearest by fern code and those of the current map fragment whose tracked poses
+    /// lie near the new one's ([`loop_candidates::nearby`]), are each tried as the start of a
+    /// dense track against their sub-map raycast from their pose. Among the tracks that pass the
+    /// tracker's tests and reach the relocaliser's floors on the recent fit, one that agrees
+    /// with the track ([`loop_candidates::agrees_with_track`]) wins over one that does not, and
+    /// the better fit decides between equals.
     fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
         let submaps = self.submaps.as_ref()?;
         let until = submaps.frozen_until()?;
         let p = &self.params.relocalise;
         let apart = self.loops.params.min_frames_apart.max(1);
-        let keys = self.relocaliser.keyframes();
-        let frames = keys.frames();
-        let newest = frames.last()?;
         // keyframes of older map fragments are candidates however recent (no odometry joins
         // them), those of the current one only when old enough
         let since = self.relocaliser.fragment_start();
-        let old = |f: &Keyframe| f.frame < since || f.frame + apart <= self.frames;
-        let limit = frames.partition_point(|f| old(f) && f.frame <= until);
         // no loop before the recent frames say what a good fit is
         let floor = self.health.expected()?.scaled(p.min_fit_ratio);
-        let candidates: Vec<(usize, usize, Isometry3<f64>)> = keys
-            .nearest_code(&newest.code, 0..limit, self.loops.params.candidates)
-            .into_iter()
-            .map(|k| (k, frames[k].frame, frames[k].pose))
-            .collect();
+        let depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
+        let candidates = self.loop_candidates(since, until, apart, depth);
         let live = LiveFrame {
             levels: &self.pre.levels,
             color,
             camera: &self.camera,
             model_template: &self.model,
         };
-        let mut best: Option<(f64, LoopCandidate)> = None;
+        let mut best: Option<((bool, f64), LoopCandidate)> = None;
         for (k, frame, pose) in candidates {
             let Some(map) = submaps.containing(frame) else {
                 continue;
@@ -799,13 +795,35 @@ impl RigidSlam {
                 .relocaliser
                 .verify(&mut self.tracker, &map.volume, &live, &pose);
             let fraction = o.inlier_fraction();
-            let fits = fraction >= floor.fraction.max(p.min_inlier_fraction)
-                && o.agreement >= floor.agreement;
-            if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= fraction) {
+            let keys = self.relocaliser.keyframes().frames();
+            let agrees = frame >= since
+                && loop_candidates::agrees_with_track(
+                    keys,
+                    k,
+                    &self.pose,
+                    &o.pose,
+                    &self.loops.params,
+                    depth,
+                );
+            // a loop the track corroborates needs only the relocaliser's own floor; one it
+            // does not must also fit nearly as well as the recent frames
+            let fits = fraction >= p.min_inlier_fraction
+                && (agrees || (fraction >= floor.fraction && o.agreement >= floor.agreement));
+            tracing::debug!(
+                from = frame,
+                to = self.frames,
+                fraction,
+                agreement = o.agreement,
+                failed = o.failure.is_some(),
+                fits,
+                agrees,
+                "dense loop candidate"
+            );
+            let rank = (agrees, fraction);
+            if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= rank) {
                 continue;
             }
             // nothing but this loop places another map fragment: the features must agree
-            let keys = self.relocaliser.keyframes().frames();
             let newest = keys.last()?;
             if frame < since && !self.features_agree(&keys[k], newest, &o.pose) {
                 continue;
@@ -815,13 +833,42 @@ impl RigidSlam {
                 to: self.frames,
                 relative: pose.inverse() * o.pose,
                 inliers: o.inliers,
-                depth: 0.0,
+                depth,
             };
-            best = Some((fraction, found));
+            best = Some((rank, found));
         }
-        let (_, mut found) = best?;
-        found.depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
-        Some(found)
+        best.map(|(_, found)| found)
+    }
+
+    /// The keyframes a dense loop from the newest keyframe tries, as (index, frame, pose):
+    /// those taken by frame `until` (in frozen sub-maps) and either before `since` (older map
+    /// fragments) or `apart` frames back; the nearest by fern code first, then those near the
+    /// newest one's tracked pose in the current fragment (scene median depth `depth`).
+    fn loop_candidates(
+        &self,
+        since: usize,
+        until: usize,
+        apart: usize,
+        depth: f64,
+    ) -> Vec<(usize, usize, Isometry3<f64>)> {
+        let keys = self.relocaliser.keyframes();
+        let frames = keys.frames();
+        let Some(newest) = frames.last() else {
+            return Vec::new();
+        };
+        let old = |f: &Keyframe| f.frame < since || f.frame + apart <= self.frames;
+        let limit = frames.partition_point(|f| old(f) && f.frame <= until);
+        let count = self.loops.params.candidates;
+        let mut picked = keys.nearest_code(&newest.code, 0..limit, count);
+        for k in loop_candidates::nearby(frames, limit, since, &self.pose, depth, count) {
+            if !picked.contains(&k) {
+                picked.push(k);
+            }
+        }
+        picked
+            .into_iter()
+            .map(|k| (k, frames[k].frame, frames[k].pose))
+            .collect()
     }
 
     /// Whether the sparse features of keyframes `old` and `new` match (RANSAC finds a motion

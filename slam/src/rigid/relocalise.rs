@@ -340,7 +340,7 @@ impl Relocaliser {
             &mut self.maps,
         );
         model.update(&self.maps, start);
-        tracker.track(live.levels, model, start)
+        tracker.probe(live.levels, model, start)
     }
 
     /// The start poses: the last pose first, the features' motion, then the shifts and turns;
@@ -402,7 +402,7 @@ fn screen(
         .collect();
     let mut best: Option<(f64, usize, Isometry3<f64>)> = None;
     for (k, start) in starts.iter().enumerate() {
-        let o = tracker.track(levels, model, start);
+        let o = tracker.probe(levels, model, start);
         let fraction = o.inlier_fraction();
         if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
             best = Some((fraction, k, o.pose));

@@ -773,6 +773,21 @@ impl Tracker {
         }
     }
 
+    /// [`Self::track`] for a candidate pose that is being tried, not the frame's track (a
+    /// relocalisation start, a loop): the running vignetting is left as it was, so that it
+    /// learns from each frame once, against the model the frame is fused into.
+    pub fn probe(
+        &mut self,
+        live: &[Level],
+        model: &ModelPyramid,
+        start: &Isometry3<f64>,
+    ) -> TrackOutcome {
+        let running = self.vignetting.0;
+        let outcome = self.track(live, model, start);
+        self.vignetting.0 = running;
+        outcome
+    }
+
     /// Registers the live pyramid against the model, starting from `start` (camera-to-world).
     pub fn track(
         &mut self,
@@ -1119,12 +1134,21 @@ mod prior_tests {
 #[cfg(test)]
 mod degenerate_tests {
     use super::*;
-    use crate::image::DepthImage;
+    use crate::image::{ColorImage, DepthImage};
     use crate::preprocess::{PreprocessParams, Preprocessor};
 
     /// A model of the surface at depth `depth_at(u, v)` seen from the identity: its vertices, and
     /// normals from central differences (none on the border).
     fn surface_model(cam: &Camera, depth_at: impl Fn(usize, usize) -> f64) -> ModelPyramid {
+        textured_model(cam, depth_at, |_, _| 0)
+    }
+
+    /// [`surface_model`] with the grey level `grey(u, v)`.
+    fn textured_model(
+        cam: &Camera,
+        depth_at: impl Fn(usize, usize) -> f64,
+        grey: impl Fn(usize, usize) -> u8,
+    ) -> ModelPyramid {
         let (w, h) = (cam.width, cam.height);
         let point = |u: usize, v: usize| cam.back_project(u as f64, v as f64, depth_at(u, v));
         let mut maps = RaycastMaps::new();
@@ -1137,6 +1161,7 @@ mod degenerate_tests {
                 let p = point(u, v);
                 maps.vertices.data[v * w + u] = [p.x as f32, p.y as f32, p.z as f32];
                 maps.depth.data[v * w + u] = p.z as f32;
+                maps.colors.data[v * w + u] = [grey(u, v); 3];
                 if (1..w - 1).contains(&u) && (1..h - 1).contains(&v) {
                     let du = point(u + 1, v) - point(u - 1, v);
                     let dv = point(u, v + 1) - point(u, v - 1);
@@ -1149,6 +1174,51 @@ mod degenerate_tests {
         let mut model = ModelPyramid::new(cam, 3, 0);
         model.update(&maps, &Isometry3::identity());
         model
+    }
+
+    /// A textured, corrugated wall seen through a lens whose corners are 30 % darker, against a
+    /// model of it without the falloff: the frame's track moves the running vignetting towards
+    /// the falloff, a probe from the same start leaves it where it was.
+    #[test]
+    fn a_probe_leaves_the_running_vignetting_as_it_was() {
+        let (w, h) = (160, 120);
+        let cam = Camera::scaled_default(w, h);
+        let depth_at = |u: usize, v: usize| {
+            let (x, y) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
+            1.0 + 0.01 * (40.0 * x).sin() + 0.01 * (30.0 * y).sin()
+        };
+        let grey = |u: usize, v: usize| {
+            (128.0 + 60.0 * (u as f64 / 5.0).sin() * (v as f64 / 7.0).sin()) as u8
+        };
+        let model = textured_model(&cam, depth_at, grey);
+        let rho2 = |u: usize, v: usize| {
+            let (du, dv) = (u as f64 - cam.cx, v as f64 - cam.cy);
+            (du * du + dv * dv) / (cam.cx * cam.cx + cam.cy * cam.cy)
+        };
+        let mut depth = DepthImage::filled(w, h, 0.0);
+        let mut color = ColorImage::filled(w, h, [0; 3]);
+        for v in 0..h {
+            for u in 0..w {
+                depth.data[v * w + u] = depth_at(u, v) as f32;
+                let dark = grey(u, v) as f64 * (1.0 - 0.3 * rho2(u, v));
+                color.data[v * w + u] = [dark.round() as u8; 3];
+            }
+        }
+        let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+        let live = pre.process_metres(&depth, Some(&color));
+        let start = Isometry3::identity();
+        let mut tracker = Tracker::new(TrackerParams::default());
+        let probed = tracker.probe(live, &model, &start);
+        assert!(probed.failure.is_none(), "{:?}", probed.failure);
+        assert_eq!(tracker.vignetting.0, 0.0);
+        let tracked = tracker.track(live, &model, &start);
+        assert!(tracked.failure.is_none(), "{:?}", tracked.failure);
+        // 5 % of the way to a fit near 0.3
+        let running = tracker.vignetting.0;
+        assert!(
+            (0.01..0.02).contains(&running),
+            "running vignetting {running}"
+        );
     }
 
     /// A textureless wall seen square on, against a model of the same wall: three motions are
