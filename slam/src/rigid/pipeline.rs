@@ -764,10 +764,11 @@ impl RigidSlam {
     /// sub-map: older keyframes at least [`super::loops::LoopParams::min_frames_apart`] frames
     /// back, the nearest by fern code and those of the current map fragment whose tracked poses
     /// lie near the new one's ([`loop_candidates::nearby`]), are each tried as the start of a
-    /// dense track against their sub-map raycast from their pose. Among the tracks that pass the
-    /// tracker's tests and reach the relocaliser's floors on the recent fit, one that agrees
-    /// with the track ([`loop_candidates::agrees_with_track`]) wins over one that does not, and
-    /// the better fit decides between equals.
+    /// dense track against their sub-map raycast from their pose. A track must pass the
+    /// tracker's tests and the relocaliser's floor on the inlier fraction; one that agrees with
+    /// the track ([`loop_candidates::agrees_with_track`]) needs nothing more and wins over one
+    /// that does not, which must also reach the floors on the recent frames' fit. The better
+    /// fit decides between equals.
     fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
         let submaps = self.submaps.as_ref()?;
         let until = submaps.frozen_until()?;
