@@ -774,8 +774,8 @@ impl Tracker {
     }
 
     /// [`Self::track`] for a candidate pose that is being tried, not the frame's track (a
-    /// relocalisation start, a loop): the running vignetting is left as it was, so that it
-    /// learns from each frame once, against the model the frame is fused into.
+    /// relocalisation start, a loop): the running vignetting is left as it was, so that only a
+    /// frame's own track teaches it, once per frame (a relocalised frame does not).
     pub fn probe(
         &mut self,
         live: &[Level],
