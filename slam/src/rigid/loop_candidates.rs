@@ -3,8 +3,8 @@
 //!
 //! Appearance alone (the fern codes) cannot tell a place from its look-alike: in a room with two
 //! identical halves the nearest codes are often the twin's, and the twin also fits densely. Two
-//! cues that appearance lacks are used beside it, as local loop closure does in ElasticFusion
-//! (Whelan et al. 2015, §3.3: the model near the tracked pose is checked first):
+//! cues that appearance lacks are used beside it, as in ElasticFusion (Whelan et al., RSS 2015),
+//! whose local loop closure registers against the model near the tracked pose:
 //! - *where the track says the camera is*: keyframes of the same map fragment whose tracked
 //!   poses lie near the new keyframe's are candidates too ([`nearby`]);
 //! - *whether the loop agrees with the track*: a loop whose pose lies within the odometry's
