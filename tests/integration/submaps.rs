@@ -184,9 +184,6 @@ fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
     let r = run(Layout::Twins, &gt);
     let error = |t: &Trajectory| ate(&gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
     let (before, after) = (error(&r.tracked), error(&r.corrected));
-    // (at the time of writing three false loops pass the dense test, each 1.6-2 m off, and DCS
-    // switches them off)
-    let false_kept = r.loops.iter().filter(|l| l.0 > 0.1 && l.1 > 0.5).count();
     let report = format!(
         "ATE {:.1} mm corrected against {:.1} mm tracked; loops (error m, weight): {:?}",
         1e3 * after,
@@ -194,11 +191,10 @@ fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
         r.loops
     );
     eprintln!("{report}");
-    assert!(false_kept == 0 || after <= 1.1 * before, "{report}");
     // the look-alike must not crowd out the true place when the camera comes back to it: a
     // loop that agrees with the track is preferred (NOTES 89). Here a true place always fits
-    // when the twin does, so no false loop is even added (before NOTES 89, three were, and DCS
-    // switched them off), and the true ones lower the error
+    // when the twin does, so no false loop is even added (before NOTES 89 three were, each
+    // 1.6-2 m off, and DCS switched them off), and the true ones lower the error
     let false_added = r.loops.iter().filter(|l| l.0 > 0.1).count();
     let true_kept = r.loops.iter().filter(|l| l.0 < 0.05 && l.1 > 0.5).count();
     assert!(

@@ -64,22 +64,18 @@ pub(super) fn agrees_with_track(
     depth: f64,
 ) -> bool {
     let (metres, radians) = travelled(frames, k, tracked);
-    let odometry = |travel: f64| params.odometry_drift * travel + params.odometry_floor;
-    let loop_sigma = params.loop_deviation;
+    let (loop_r, loop_t) = params.loop_deviations(depth);
     let d = tracked.inverse() * found;
-    d.translation.vector.norm() <= 3.0 * (odometry(metres) + loop_sigma * depth.max(0.1))
-        && d.rotation.angle() <= 3.0 * (odometry(radians) + loop_sigma)
+    d.translation.vector.norm() <= 3.0 * (params.odometry_deviation(metres) + loop_t)
+        && d.rotation.angle() <= 3.0 * (params.odometry_deviation(radians) + loop_r)
 }
 
 /// The path length and the rotation summed along the keyframes from `frames[k]` to `last`.
 fn travelled(frames: &[Keyframe], k: usize, last: &Isometry3<f64>) -> (f64, f64) {
-    let poses: Vec<&Isometry3<f64>> = frames[k.min(frames.len())..]
-        .iter()
-        .map(|f| &f.pose)
-        .chain(std::iter::once(last))
-        .collect();
-    poses.windows(2).fold((0.0, 0.0), |(t, r), w| {
-        let d = w[0].inverse() * w[1];
+    let poses = frames[k.min(frames.len())..].iter().map(|f| &f.pose);
+    let next = poses.clone().skip(1).chain(std::iter::once(last));
+    poses.zip(next).fold((0.0, 0.0), |(t, r), (a, b)| {
+        let d = a.inverse() * b;
         (t + d.translation.vector.norm(), r + d.rotation.angle())
     })
 }

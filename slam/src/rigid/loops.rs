@@ -58,6 +58,20 @@ pub struct LoopParams {
     pub tracking_spread: bool,
 }
 
+impl LoopParams {
+    /// The odometry's deviation after travelling `travel` (metres, or radians):
+    /// [`Self::odometry_drift`] × `travel` + [`Self::odometry_floor`].
+    pub fn odometry_deviation(&self, travel: f64) -> f64 {
+        self.odometry_drift * travel + self.odometry_floor
+    }
+
+    /// A loop's deviations (radians, metres) at the median depth `depth` of what it matched
+    /// ([`Self::loop_deviation`]; depth floored at 0.1 m).
+    pub fn loop_deviations(&self, depth: f64) -> (f64, f64) {
+        (self.loop_deviation, self.loop_deviation * depth.max(0.1))
+    }
+}
+
 impl Default for LoopParams {
     fn default() -> Self {
         Self {
@@ -331,8 +345,8 @@ impl KeyframeGraph {
         if let Some((prev, prev_pose)) = self.last {
             let z = prev_pose.inverse() * pose;
             let p = &self.params;
-            let sigma_t = p.odometry_drift * z.translation.vector.norm() + p.odometry_floor;
-            let sigma_r = p.odometry_drift * z.rotation.angle() + p.odometry_floor;
+            let sigma_t = p.odometry_deviation(z.translation.vector.norm());
+            let sigma_r = p.odometry_deviation(z.rotation.angle());
             let drift = deviations(sigma_r, sigma_t).map(|d| d * d);
             let spread = spread.filter(|_| p.tracking_spread).copied();
             let covariance = Matrix6::from_diagonal(&drift) + spread.unwrap_or_default();
@@ -412,8 +426,7 @@ impl KeyframeGraph {
     /// it, beyond three of loop `c`'s deviations (links within one tree before and after are
     /// not checked again: they were when that tree formed).
     fn within_reach(&self, placements: &[Placement], c: &LoopCandidate) -> bool {
-        let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
-        let sigma_r = self.params.loop_deviation;
+        let (sigma_r, sigma_t) = self.params.loop_deviations(c.depth);
         self.fragment_starts
             .iter()
             .zip(&self.links)
@@ -455,8 +468,7 @@ impl KeyframeGraph {
             );
             return false;
         }
-        let sigma_t = self.params.loop_deviation * c.depth.max(0.1);
-        let sigma_r = self.params.loop_deviation;
+        let (sigma_r, sigma_t) = self.params.loop_deviations(c.depth);
         let weights = deviations(sigma_r, sigma_t).map(|d| 1.0 / (d * d));
         self.push_edge(c.from, c.to, c.relative, Matrix6::from_diagonal(&weights));
         self.loops.push(self.graph.edges.len() - 1);

@@ -885,11 +885,9 @@ impl RigidSlam {
         let Some(m) = fit_keypoints(&new.keypoints, &old.keypoints, &p.features) else {
             return false;
         };
-        let depth = median_z(&m.target);
+        let (sigma_r, sigma_t) = p.loops.loop_deviations(median_z(&m.target));
         let d = (old.pose * m.fit.motion).inverse() * dense;
-        let sigma = p.loops.loop_deviation;
-        d.translation.vector.norm() <= 3.0 * sigma * depth.max(0.1)
-            && d.rotation.angle() <= 3.0 * sigma
+        d.translation.vector.norm() <= 3.0 * sigma_t && d.rotation.angle() <= 3.0 * sigma_r
     }
 
     /// Raycasts the model at the current pose for the next frame's tracking.
