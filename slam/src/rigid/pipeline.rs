@@ -133,6 +133,9 @@ pub struct FrameReport {
     /// Of those pixels that land on the model, the share that agree with it (see
     /// [`TrackOutcome::agreement`]).
     pub agreement: f64,
+    /// Over the agreeing points, the correlation of the live intensities with the model's
+    /// ([`TrackOutcome::correlation`]).
+    pub correlation: f64,
     /// λ_min / λ_max of the frame's geometry (see [`TrackerParams::min_conditioning`]; 0 for
     /// the first frame).
     pub conditioning: f64,
@@ -402,6 +405,7 @@ impl RigidSlam {
             inliers: 0,
             inlier_fraction: 0.0,
             agreement: 0.0,
+            correlation: 0.0,
             conditioning: 0.0,
             anchor: None,
             placed: true,
@@ -430,6 +434,7 @@ impl RigidSlam {
         let fit = (!untracked).then_some(Fit {
             fraction: report.inlier_fraction,
             agreement: report.agreement,
+            correlation: report.correlation,
         });
         let agreement = fit.map(|f| f.agreement);
         let fused = located.and_then(|gain| {
@@ -608,10 +613,16 @@ impl RigidSlam {
                 || tracked.agreement < expected.agreement
                 || fraction < expected.fraction;
             let retry = doubtful && enabled && tracked.valid_pixels > 0;
-            match retry
-                .then(|| self.relocalise(color, Floors::default()))
-                .flatten()
-            {
+            // a pose that replaces the track needs only a better fraction, but its texture must
+            // match the model as the recent frames' did
+            let floors = Floors {
+                local: Fit {
+                    correlation: expected.correlation,
+                    ..Fit::default()
+                },
+                keyframe_ratio: 0.0,
+            };
+            match retry.then(|| self.relocalise(color, floors)).flatten() {
                 Some(found) if tracked.failure.is_some() || found.inlier_fraction() > fraction => {
                     (found, true)
                 }
@@ -626,6 +637,7 @@ impl RigidSlam {
         report.inliers = outcome.inliers;
         report.inlier_fraction = outcome.inlier_fraction();
         report.agreement = outcome.agreement;
+        report.correlation = outcome.correlation;
         if outcome.failure.is_none() {
             report.vignetting = outcome.vignetting;
         }
@@ -815,6 +827,7 @@ impl RigidSlam {
                 to = self.frames,
                 fraction,
                 agreement = o.agreement,
+                correlation = o.correlation,
                 failed = o.failure.is_some(),
                 fits,
                 agrees,
@@ -913,6 +926,7 @@ impl RigidSlam {
             inliers = report.inliers,
             fraction = report.inlier_fraction,
             agreement = report.agreement,
+            correlation = report.correlation,
             conditioning = report.conditioning,
             gain = report.gain,
             vignetting = report.vignetting,

@@ -13,12 +13,17 @@
 //! tracker's tests and, away from the last pose, a stricter inlier fraction
 //! ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also floors on its
 //! fit to the model ([`RelocaliseParams::min_fit_ratio`] × the recent frames' fit for the local
-//! round, × the keyframe's own agreement for the global one).
+//! round, × the keyframe's own agreement for the global one). The fit's third number, the
+//! correlation of the live texture with the model's, has the recent frames' floor in both rounds:
+//! it is what sees a pose slid along a wall, where every pixel still lands on the right plane
+//! (NOTES 90). The blind starts (shifts and turns) are tried only where something can tell their
+//! results apart: a geometry that fixes every motion, or a correlation floor of at least 0.5 (the
+//! recent frames' texture matched the model well).
 
 use super::health::Fit;
 use super::keyframes::{Candidate, Keyframe, KeyframeParams, Keyframes};
 use super::loops::LoopParams;
-use super::tracker::{ModelPyramid, TrackOutcome, Tracker};
+use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
 use crate::features::{detect, fit_keypoints, FeatureFrame, FeatureParams, Keypoints};
 use crate::image::{ColorImage, DepthImage};
@@ -100,8 +105,10 @@ pub(crate) struct LiveFrame<'a> {
 /// What a relocalised pose must reach, beyond the tracker's tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct Floors {
-    /// For a pose near the last one (the local round): its agreement with the model, and also
-    /// its inlier fraction unless the sparse features' motion led to it.
+    /// For a pose near the last one (the local round): its agreement with the model and its
+    /// correlation, and also its inlier fraction unless the sparse features' motion led to it
+    /// or the correlation is telling ([`Fit::telling`]). The correlation's floor holds for a
+    /// pose found from a keyframe too.
     pub local: Fit,
     /// For a pose found from a keyframe: this share of the agreement the keyframe was tracked
     /// with (the same view should match about as well as it did then).
@@ -206,13 +213,12 @@ impl Relocaliser {
             floors.local,
             frame,
         );
-        let ratio = floors.keyframe_ratio;
         let global = self.global(
             params,
             tracker,
             map.0,
             (live, keypoints),
-            ratio,
+            floors,
             (frame, place),
         );
         match (local, global) {
@@ -238,8 +244,14 @@ impl Relocaliser {
         floor: Fit,
         frame: usize,
     ) -> Option<TrackOutcome> {
-        let (starts, from_features) = self.starts(params, live.camera, keypoints, last);
-        let (screened, k, pose) = screen(tracker, model, live.levels, &starts)?;
+        // a blind search is only as good as the power to tell its results apart: where the
+        // geometry leaves a motion free, the fraction and the agreement cannot see a slide along
+        // it, and only a texture the recent frames matched well can
+        let constraint = FrameConstraint::of(live.levels);
+        let telling = floor.telling();
+        let blind = telling || constraint.conditioning >= tracker.params.min_conditioning;
+        let (starts, from_features) = self.starts(params, live.camera, keypoints, last, blind);
+        let (screened, k, pose) = screen(tracker, model, live.levels, &starts, floor.correlation)?;
         let o = self.verify(tracker, volume, live, &pose);
         let fraction = o.inlier_fraction();
         tracing::debug!(
@@ -249,6 +261,7 @@ impl Relocaliser {
             screened,
             fraction,
             agreement = o.agreement,
+            correlation = o.correlation,
             floor = ?floor,
             failure = o.failure.as_ref().map(ToString::to_string),
             "local relocalisation"
@@ -260,10 +273,14 @@ impl Relocaliser {
         } else {
             params.min_inlier_fraction
         };
-        // a dense pose the sparse features led to has both kinds of support; any other must
-        // also see as much of the model as the recent frames did
-        let supported = from_features == Some(k);
-        let fits = o.agreement >= floor.agreement && (supported || fraction >= floor.fraction);
+        // a dense pose the sparse features led to, or whose texture matches the model as the
+        // recent frames' did, has a second kind of support; any other must also see as much of
+        // the model as the recent frames did (where the camera moved on to what the model has
+        // not seen, the fraction falls at the right pose too)
+        let supported = from_features == Some(k) || telling;
+        let fits = o.agreement >= floor.agreement
+            && o.correlation >= floor.correlation
+            && (supported || fraction >= floor.fraction);
         (o.failure.is_none() && fraction >= strict && fits).then_some(o)
     }
 
@@ -274,7 +291,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         volume: &TsdfVolume,
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
-        ratio: f64,
+        floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
         let (color, keypoints) = live.color.zip(keypoints)?;
@@ -297,7 +314,7 @@ impl Relocaliser {
             };
             let start = into * key.pose * fit.motion;
             let keyframe = key.frame;
-            let floor = ratio * key.agreement.unwrap_or(0.0);
+            let floor = floors.keyframe_ratio * key.agreement.unwrap_or(0.0);
             let o = self.verify(tracker, volume, live, &start);
             let fraction = o.inlier_fraction();
             tracing::debug!(
@@ -307,13 +324,15 @@ impl Relocaliser {
                 inliers = fit.inlier_count(),
                 fraction,
                 agreement = o.agreement,
+                correlation = o.correlation,
                 floor,
                 failure = o.failure.as_ref().map(ToString::to_string),
                 "global relocalisation candidate"
             );
             let passes = o.failure.is_none()
                 && fraction >= params.min_inlier_fraction
-                && o.agreement >= floor;
+                && o.agreement >= floor
+                && o.correlation >= floors.local.correlation;
             if passes && best.as_ref().is_none_or(|b| fraction > b.0) {
                 best = Some((fraction, o));
             }
@@ -343,14 +362,15 @@ impl Relocaliser {
         tracker.probe(live.levels, model, start)
     }
 
-    /// The start poses: the last pose first, the features' motion, then the shifts and turns;
-    /// and the index of the features' start, if they gave one.
+    /// The start poses: the last pose first, the features' motion, then (if `blind`) the shifts
+    /// and turns; and the index of the features' start, if they gave one.
     fn starts(
         &self,
         p: &RelocaliseParams,
         camera: &Camera,
         keypoints: Option<&Keypoints>,
         last: Isometry3<f64>,
+        blind: bool,
     ) -> (Vec<Isometry3<f64>>, Option<usize>) {
         let mut starts = vec![last];
         let mut from_features = None;
@@ -368,32 +388,44 @@ impl Relocaliser {
                 starts.push(last * m.fit.motion);
             }
         }
-        for &d in &p.shifts {
-            for axis in 0..3 {
-                for sign in [-1.0, 1.0] {
-                    let mut t = Vector3::zeros();
-                    t[axis] = sign * d;
-                    starts.push(Translation3::from(t) * last);
-                }
-            }
-        }
-        for axis in [Vector3::x(), Vector3::y()] {
-            for sign in [-1.0, 1.0] {
-                let turn = UnitQuaternion::from_scaled_axis(axis * sign * p.turn_deg.to_radians());
-                starts.push(last * turn);
-            }
+        if blind {
+            starts.extend(blind_starts(p, last));
         }
         (starts, from_features)
     }
 }
 
+/// The blind search's starts around `last`: shifts along each world axis, then turns about the
+/// camera's x and y axes.
+fn blind_starts(p: &RelocaliseParams, last: Isometry3<f64>) -> Vec<Isometry3<f64>> {
+    let mut starts = Vec::new();
+    for &d in &p.shifts {
+        for axis in 0..3 {
+            for sign in [-1.0, 1.0] {
+                let mut t = Vector3::zeros();
+                t[axis] = sign * d;
+                starts.push(Translation3::from(t) * last);
+            }
+        }
+    }
+    for axis in [Vector3::x(), Vector3::y()] {
+        for sign in [-1.0, 1.0] {
+            let turn = UnitQuaternion::from_scaled_axis(axis * sign * p.turn_deg.to_radians());
+            starts.push(last * turn);
+        }
+    }
+    starts
+}
+
 /// Tracks every start on the coarsest level only; the best inlier fraction among the tracks that
-/// pass, its start's index and the pose it reached.
+/// pass and correlate with the model's texture at least `min_correlation`, its start's index and
+/// the pose it reached.
 fn screen(
     tracker: &mut Tracker,
     model: &ModelPyramid,
     levels: &[Level],
     starts: &[Isometry3<f64>],
+    min_correlation: f64,
 ) -> Option<(f64, usize, Isometry3<f64>)> {
     let full = std::mem::take(&mut tracker.params.iterations);
     let coarse = full.len().saturating_sub(1);
@@ -404,7 +436,17 @@ fn screen(
     for (k, start) in starts.iter().enumerate() {
         let o = tracker.probe(levels, model, start);
         let fraction = o.inlier_fraction();
-        if o.failure.is_none() && best.is_none_or(|b| fraction > b.0) {
+        tracing::trace!(
+            start = k,
+            fraction,
+            agreement = o.agreement,
+            correlation = o.correlation,
+            moved = (o.pose.translation.vector - starts[0].translation.vector).norm(),
+            failure = o.failure.as_ref().map(ToString::to_string),
+            "relocalisation start screened"
+        );
+        let passes = o.failure.is_none() && o.correlation >= min_correlation;
+        if passes && best.is_none_or(|b| fraction > b.0) {
             best = Some((fraction, k, o.pose));
         }
     }

@@ -474,6 +474,9 @@ fn emit_prior<E: FnMut(f64, &[f64; 6], usize)>(
     }
 }
 
+/// Fewer agreeing points and [`IcpTerms::correlation`] is not measured.
+const MIN_CORRELATION_POINTS: usize = 50;
+
 /// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_gain`]).
 const BRIGHTNESS_SAMPLES: usize = 2000;
 
@@ -582,6 +585,44 @@ impl IcpTerms<'_> {
         agree as f64 / hits.max(1) as f64
     }
 
+    /// The normalised cross-correlation of the live intensities (through the exposure) and the
+    /// model's over the grid points that agree with the model at `x` (as for
+    /// [`Self::agreement`]): ρ = Σ(l − l̄)(m − m̄) / √(Σ(l − l̄)² Σ(m − m̄)²). Blind to gain and
+    /// offset; where the geometry leaves a slide free (a wall, a wall and a floor) it is what
+    /// tells the true pose from a slid one. 0 without colour, or with fewer than
+    /// [`MIN_CORRELATION_POINTS`] points or no contrast.
+    fn correlation(&self, x: &[f64]) -> f64 {
+        if !self.photometric {
+            return 0.0;
+        }
+        let lin = self.prepare(x);
+        let slack = 0.1 * self.max_distance;
+        let sums = (0..self.grid.len())
+            .into_par_iter()
+            .filter_map(|k| {
+                let a = self.associate(k, &lin)?;
+                let tol = agreement_tolerance(a.p.z, slack);
+                if (lin.t.apply(&a.p) - a.q).norm_squared() > tol * tol {
+                    return None;
+                }
+                let (m, _) = self.field.sample(a.x.u, a.x.v)?;
+                let l = self.exposure.factor(self.rho2(a.pixel))
+                    * self.live.intensity.data[a.pixel] as f64;
+                Some([1.0, l, m, l * l, m * m, l * m])
+            })
+            .reduce(|| [0.0; 6], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+        let [n, sl, sm, sll, smm, slm] = sums;
+        if n < MIN_CORRELATION_POINTS as f64 {
+            return 0.0;
+        }
+        let cov = slm - sl * sm / n;
+        let (vl, vm) = (sll - sl * sl / n, smm - sm * sm / n);
+        if vl <= 0.0 || vm <= 0.0 {
+            return 0.0;
+        }
+        (cov / (vl * vm).sqrt()).clamp(-1.0, 1.0)
+    }
+
     /// Writes into `out` the pairs (ρ², l / m) of the pixels associated at `x` (about
     /// [`BRIGHTNESS_SAMPLES`] of them, evenly spread, darker than [`MIN_RATIO_INTENSITY`] left
     /// out) and returns their number. Ratios, not a fit of the slope: the model's texture is the
@@ -668,6 +709,10 @@ pub struct TrackOutcome {
     /// agree with it: the normal test passed and within three noise deviations of the model
     /// point (0 when not tracked).
     pub agreement: f64,
+    /// Over those agreeing points, the normalised cross-correlation of the live intensities
+    /// (through the exposure) with the model's, blind to gain and offset (0 when not tracked,
+    /// without colour, or with fewer than 50 such points).
+    pub correlation: f64,
     /// The exposure gain fitted on the finest level that ran, over the whole image
     /// ([`Exposure::image_gain`]): the model's intensity is about a I for the live intensity I
     /// (1 when not fitted).
@@ -696,6 +741,7 @@ impl TrackOutcome {
             inliers: 0,
             valid_pixels: 0,
             agreement: 0.0,
+            correlation: 0.0,
             gain: 1.0,
             vignetting: 0.0,
             covariance: None,
@@ -809,7 +855,7 @@ impl Tracker {
         let stride_of = |l: usize| level_stride(p, &live[l], l);
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let (z_mean, prior) = depth_and_prior(p, &live[levels - 1], start);
-        let (mut inliers, mut agreement) = (0, 0.0);
+        let (mut inliers, mut agreement, mut correlation) = (0, 0.0, 0.0);
         let mut exposure = Exposure::NEUTRAL;
         let (mut covariance, mut stop) = (None, DenseStop::NoTerms);
         for l in (0..levels).rev() {
@@ -846,7 +892,7 @@ impl Tracker {
             if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
-                agreement = terms.agreement(&x);
+                (agreement, correlation) = (terms.agreement(&x), terms.correlation(&x));
                 if !matches!(stop, DenseStop::NoTerms) {
                     covariance = geometric_covariance(&mut terms, &x, &groups, &mut self.partials);
                     if prior.is_some() && covariance.is_none() {
@@ -869,6 +915,7 @@ impl Tracker {
             inliers,
             valid_pixels,
             agreement,
+            correlation,
             gain: exposure.image_gain(),
             vignetting: exposure.vignetting,
         }
@@ -1176,6 +1223,19 @@ mod degenerate_tests {
         model
     }
 
+    /// The depth of a wall 1 m away, corrugated by 1 cm waves both ways.
+    fn corrugated(cam: &Camera) -> impl Fn(usize, usize) -> f64 + Copy + '_ {
+        move |u, v| {
+            let (x, y) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
+            1.0 + 0.01 * (40.0 * x).sin() + 0.01 * (30.0 * y).sin()
+        }
+    }
+
+    /// A grey level of smooth blobs.
+    fn blobs(u: usize, v: usize) -> u8 {
+        (128.0 + 60.0 * (u as f64 / 5.0).sin() * (v as f64 / 7.0).sin()) as u8
+    }
+
     /// A textured, corrugated wall seen through a lens whose corners are 30 % darker, against a
     /// model of it without the falloff: the frame's track moves the running vignetting towards
     /// the falloff, a probe from the same start leaves it where it was.
@@ -1183,13 +1243,8 @@ mod degenerate_tests {
     fn a_probe_leaves_the_running_vignetting_as_it_was() {
         let (w, h) = (160, 120);
         let cam = Camera::scaled_default(w, h);
-        let depth_at = |u: usize, v: usize| {
-            let (x, y) = ((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy);
-            1.0 + 0.01 * (40.0 * x).sin() + 0.01 * (30.0 * y).sin()
-        };
-        let grey = |u: usize, v: usize| {
-            (128.0 + 60.0 * (u as f64 / 5.0).sin() * (v as f64 / 7.0).sin()) as u8
-        };
+        let depth_at = corrugated(&cam);
+        let grey = blobs;
         let model = textured_model(&cam, depth_at, grey);
         let rho2 = |u: usize, v: usize| {
             let (du, dv) = (u as f64 - cam.cx, v as f64 - cam.cy);
@@ -1218,6 +1273,50 @@ mod degenerate_tests {
         assert!(
             (0.01..0.02).contains(&running),
             "running vignetting {running}"
+        );
+    }
+
+    /// A corrugated wall, tracked once with the model's own texture and once with another
+    /// (as where a wall's shape repeats and the view has slid along it): the agreement is high
+    /// in both, the correlation only where the texture is the model's.
+    #[test]
+    fn the_correlation_tells_a_texture_that_does_not_match_where_the_agreement_cannot() {
+        let (w, h) = (160, 120);
+        let cam = Camera::scaled_default(w, h);
+        let depth_at = corrugated(&cam);
+        let other = |u: usize, v: usize| {
+            (128.0 + 60.0 * (u as f64 / 6.0 + 1.0).sin() * (v as f64 / 4.0 + 2.0).sin()) as u8
+        };
+        let model = textured_model(&cam, depth_at, blobs);
+        let mut depth = DepthImage::filled(w, h, 0.0);
+        for v in 0..h {
+            for u in 0..w {
+                depth.data[v * w + u] = depth_at(u, v) as f32;
+            }
+        }
+        let mut tracker = Tracker::new(TrackerParams::default());
+        let mut outcome = |grey: &dyn Fn(usize, usize) -> u8| {
+            let mut color = ColorImage::filled(w, h, [0; 3]);
+            for v in 0..h {
+                for u in 0..w {
+                    color.data[v * w + u] = [grey(u, v); 3];
+                }
+            }
+            let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+            let live = pre.process_metres(&depth, Some(&color));
+            tracker.probe(live, &model, &Isometry3::identity())
+        };
+        let same = outcome(&blobs);
+        let slid = outcome(&other);
+        for o in [&same, &slid] {
+            assert!(o.failure.is_none(), "{:?}", o.failure);
+            assert!(o.agreement > 0.9, "agreement {}", o.agreement);
+        }
+        assert!(same.correlation > 0.9, "own texture: {}", same.correlation);
+        assert!(
+            slid.correlation < 0.3,
+            "another texture: {}",
+            slid.correlation
         );
     }
 
