@@ -6,14 +6,16 @@
 //! - global (after a gap the camera may be anywhere it has been): the keyframes of the map
 //!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the
 //!   frame's ([`super::keyframes`]) are matched by features, a rigid motion fitted by RANSAC on
-//!   the 3-D matches gives a pose, and the model raycast at that pose verifies it by dense
-//!   tracking.
+//!   the 3-D matches gives a pose (the keyframe's own pose where the features give none), and
+//!   the model raycast at that pose verifies it by dense tracking.
 //!
-//! Both rounds run and the higher inlier fraction wins. A pose is kept only when it passes the
-//! tracker's tests and, away from the last pose, a stricter inlier fraction
-//! ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also floors on its
-//! fit to the model ([`RelocaliseParams::min_fit_ratio`] × the recent frames' fit for the local
-//! round, × the keyframe's own agreement for the global one). The fit's third number, the
+//! Both rounds run, and of the poses that pass the one nearest the last pose wins (by the view's
+//! shift: the translation over the scene's depth plus the turn): places that look alike fit
+//! alike, and only the motion since the last pose tells them apart (NOTES 91). A pose is kept
+//! only when it passes the tracker's tests and, away from the last pose, a stricter inlier
+//! fraction ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also floors
+//! on its fit to the model ([`RelocaliseParams::min_fit_ratio`] × the recent frames' fit for the
+//! local round, × the keyframe's own agreement for the global one). The fit's third number, the
 //! correlation of the live texture with the model's, has the recent frames' floor in both rounds:
 //! it is what sees a pose slid along a wall, where every pixel still lands on the right plane
 //! (NOTES 90). The blind starts (shifts and turns) are tried only where something can tell their
@@ -23,7 +25,7 @@
 use super::health::Fit;
 use super::keyframes::{Candidate, Keyframe, KeyframeParams, Keyframes};
 use super::loops::LoopParams;
-use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker};
+use super::tracker::{mean_depth, FrameConstraint, ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
 use crate::features::{detect, fit_keypoints, FeatureFrame, FeatureParams, Keypoints};
 use crate::image::{ColorImage, DepthImage};
@@ -213,20 +215,23 @@ impl Relocaliser {
             floors.local,
             frame,
         );
+        // the scene's depth, against which a translation is weighed
+        let scale = mean_depth(&live.levels[live.levels.len() - 1]);
         let global = self.global(
             params,
             tracker,
             map.0,
             (live, keypoints),
+            (&last, scale),
             floors,
             (frame, place),
         );
+        // as between keyframes: of two poses that pass, the nearer the last one
         match (local, global) {
-            (Some(a), Some(b)) => Some(if b.inlier_fraction() > a.inlier_fraction() {
-                b
-            } else {
-                a
-            }),
+            (Some(a), Some(b)) => {
+                let nearer = view_shift(&last, &b.pose, scale) < view_shift(&last, &a.pose, scale);
+                Some(if nearer { b } else { a })
+            }
             (a, b) => a.or(b),
         }
     }
@@ -284,13 +289,20 @@ impl Relocaliser {
         (o.failure.is_none() && fraction >= strict && fits).then_some(o)
     }
 
-    /// The global round (see the module's documentation): the best verified keyframe pose.
+    /// The global round (see the module's documentation): of the keyframe poses that verify, the
+    /// one nearest the last pose ([`view_shift`] with the scene's depth `scale`). Each keyframe's start is the features' motion
+    /// from it or, when they give none, its own pose (the frame looks like the keyframe, so the
+    /// camera is near where it was: ElasticFusion's fern relocalisation, Whelan et al. 2016).
+    /// Nearest, not best fitting: two places that look alike fit alike (a twin room), and only
+    /// the motion since the last pose tells them apart.
+    #[allow(clippy::too_many_arguments)]
     fn global(
         &mut self,
         params: &RelocaliseParams,
         tracker: &mut Tracker,
         volume: &TsdfVolume,
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
+        (last, scale): (&Isometry3<f64>, f64),
         floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
@@ -303,28 +315,28 @@ impl Relocaliser {
         let mut best: Option<(f64, TrackOutcome)> = None;
         for k in nearest {
             let key = &self.keyframes.frames()[k];
-            let Some(m) = fit_keypoints(keypoints, &key.keypoints, &params.features) else {
-                continue;
-            };
-            let fit = m.fit;
             // live points map into the keyframe: T_live = T_key · M, in the current fragment's
             // frame
             let Some(into) = place(key.frame) else {
                 continue;
             };
-            let start = into * key.pose * fit.motion;
-            let keyframe = key.frame;
-            let floor = floors.keyframe_ratio * key.agreement.unwrap_or(0.0);
+            let m = fit_keypoints(keypoints, &key.keypoints, &params.features);
+            let motion = m.as_ref().map_or(Isometry3::identity(), |m| m.fit.motion);
+            let start = into * key.pose * motion;
+            let (keyframe, floor) = (
+                key.frame,
+                floors.keyframe_ratio * key.agreement.unwrap_or(0.0),
+            );
             let o = self.verify(tracker, volume, live, &start);
-            let fraction = o.inlier_fraction();
+            let (fraction, shift) = (o.inlier_fraction(), view_shift(last, &o.pose, scale));
             tracing::debug!(
                 frame,
                 keyframe,
-                matches = m.source.len(),
-                inliers = fit.inlier_count(),
+                inliers = m.as_ref().map(|m| m.fit.inlier_count()),
                 fraction,
                 agreement = o.agreement,
                 correlation = o.correlation,
+                shift,
                 floor,
                 failure = o.failure.as_ref().map(ToString::to_string),
                 "global relocalisation candidate"
@@ -333,8 +345,8 @@ impl Relocaliser {
                 && fraction >= params.min_inlier_fraction
                 && o.agreement >= floor
                 && o.correlation >= floors.local.correlation;
-            if passes && best.as_ref().is_none_or(|b| fraction > b.0) {
-                best = Some((fraction, o));
+            if passes && best.as_ref().is_none_or(|b| shift < b.0) {
+                best = Some((shift, o));
             }
         }
         best.map(|b| b.1)
@@ -417,6 +429,13 @@ fn blind_starts(p: &RelocaliseParams, last: Isometry3<f64>) -> Vec<Isometry3<f64
     starts
 }
 
+/// How far `pose` lies from `last` as the view sees it: the translation over the scene's depth
+/// `depth` plus the turn in radians (each about the share of the view that moves).
+fn view_shift(last: &Isometry3<f64>, pose: &Isometry3<f64>, depth: f64) -> f64 {
+    let d = last.inverse() * pose;
+    d.translation.vector.norm() / depth.max(0.1) + d.rotation.angle()
+}
+
 /// Tracks every start on the coarsest level only; the best inlier fraction among the tracks that
 /// pass and correlate with the model's texture at least `min_correlation`, its start's index and
 /// the pose it reached.
@@ -452,4 +471,33 @@ fn screen(
     }
     tracker.params.iterations = full;
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The view's shift weighs a translation by the scene's depth and adds the turn: a twin
+    /// place half a turn away is far however near its position, and the same step counts less
+    /// before a far scene.
+    #[test]
+    fn the_view_shift_is_the_translation_over_the_depth_plus_the_turn() {
+        let last = Isometry3::from_parts(
+            Translation3::new(0.4, -0.2, 1.3),
+            UnitQuaternion::from_euler_angles(0.1, 0.3, -0.2),
+        );
+        let step = last * Translation3::new(0.3, 0.0, 0.4);
+        assert!((view_shift(&last, &step, 2.0) - 0.25).abs() < 1e-12);
+        assert!((view_shift(&last, &step, 1.0) - 0.5).abs() < 1e-12);
+        let about = UnitQuaternion::from_scaled_axis(Vector3::y() * std::f64::consts::PI);
+        let twin = last * Translation3::new(0.1, 0.0, 0.0) * about;
+        let shift = view_shift(&last, &twin, 2.0);
+        assert!(
+            (shift - (0.05 + std::f64::consts::PI)).abs() < 1e-9,
+            "{shift}"
+        );
+        assert!(shift > view_shift(&last, &step, 1.0));
+        // a too small depth is taken as 0.1 m
+        assert!((view_shift(&last, &step, 0.0) - 5.0).abs() < 1e-12);
+    }
 }

@@ -1097,7 +1097,7 @@ fn geometric_conditioning(level: &Level) -> f64 {
 }
 
 /// The mean depth of a level's valid points (1 m when there are none).
-fn mean_depth(level: &Level) -> f64 {
+pub(super) fn mean_depth(level: &Level) -> f64 {
     let (sum, n) = level
         .vertices
         .data
