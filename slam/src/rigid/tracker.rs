@@ -474,8 +474,22 @@ fn emit_prior<E: FnMut(f64, &[f64; 6], usize)>(
     }
 }
 
-/// Fewer agreeing points and [`IcpTerms::correlation`] is not measured.
+/// Fewer agreeing points and the correlation is not measured ([`correlation_of`]).
 const MIN_CORRELATION_POINTS: usize = 50;
+
+/// ρ = Σ(l − l̄)(m − m̄) / √(Σ(l − l̄)² Σ(m − m̄)²) from the sums `[n, Σl, Σm, Σl², Σm², Σlm]`;
+/// 0 with fewer than [`MIN_CORRELATION_POINTS`] points or no contrast.
+fn correlation_of([n, sl, sm, sll, smm, slm]: [f64; 6]) -> f64 {
+    if n < MIN_CORRELATION_POINTS as f64 {
+        return 0.0;
+    }
+    let cov = slm - sl * sm / n;
+    let (vl, vm) = (sll - sl * sl / n, smm - sm * sm / n);
+    if vl <= 0.0 || vm <= 0.0 {
+        return 0.0;
+    }
+    (cov / (vl * vm).sqrt()).clamp(-1.0, 1.0)
+}
 
 /// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_gain`]).
 const BRIGHTNESS_SAMPLES: usize = 2000;
@@ -562,65 +576,61 @@ impl IcpTerms<'_> {
         })
     }
 
-    /// The share of the grid points landing on the model at `x` that pass the association's
-    /// normal test and lie within [`agreement_tolerance`] of their model point. Where the camera
-    /// sees what the model has not, points land nowhere and the share stays; at a wrong pose
-    /// they land on surfaces they do not match and it falls.
-    fn agreement(&self, x: &[f64]) -> f64 {
+    /// The agreement and the correlation at `x`, in one pass over the grid:
+    /// - the agreement: the share of the grid points landing on the model that pass the
+    ///   association's normal test and lie within [`agreement_tolerance`] of their model point.
+    ///   Where the camera sees what the model has not, points land nowhere and the share stays;
+    ///   at a wrong pose they land on surfaces they do not match and it falls;
+    /// - the correlation: over those agreeing points, the normalised cross-correlation of the
+    ///   live intensities (through the exposure) and the model's ([`correlation_of`]). Blind to
+    ///   gain and offset; where the geometry leaves a slide free (a wall, a wall and a floor) it
+    ///   is what tells the true pose from a slid one. 0 without colour.
+    fn fit_measures(&self, x: &[f64]) -> (f64, f64) {
         let lin = self.prepare(x);
         let slack = 0.1 * self.max_distance;
-        let (hits, agree) = (0..self.grid.len())
-            .into_par_iter()
-            .map(|k| {
-                let Some(landed) = self.project(k, &lin) else {
-                    return (0, 0);
-                };
-                let near = |a: Association| {
-                    let tol = agreement_tolerance(a.p.z, slack);
-                    (lin.t.apply(&a.p) - a.q).norm_squared() <= tol * tol
-                };
-                (1, self.test(landed, &lin).is_some_and(near) as usize)
-            })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-        agree as f64 / hits.max(1) as f64
-    }
-
-    /// The normalised cross-correlation of the live intensities (through the exposure) and the
-    /// model's over the grid points that agree with the model at `x` (as for
-    /// [`Self::agreement`]): ρ = Σ(l − l̄)(m − m̄) / √(Σ(l − l̄)² Σ(m − m̄)²). Blind to gain and
-    /// offset; where the geometry leaves a slide free (a wall, a wall and a floor) it is what
-    /// tells the true pose from a slid one. 0 without colour, or with fewer than
-    /// [`MIN_CORRELATION_POINTS`] points or no contrast.
-    fn correlation(&self, x: &[f64]) -> f64 {
-        if !self.photometric {
-            return 0.0;
-        }
-        let lin = self.prepare(x);
-        let slack = 0.1 * self.max_distance;
+        // [landed, agreeing, then over the agreeing points with intensities: n, Σl, Σm, Σl², Σm²,
+        // Σlm]
+        let add = |mut s: [f64; 8], k: usize| {
+            let Some(landed) = self.project(k, &lin) else {
+                return s;
+            };
+            s[0] += 1.0;
+            let Some(a) = self.test(landed, &lin) else {
+                return s;
+            };
+            let tol = agreement_tolerance(a.p.z, slack);
+            if (lin.t.apply(&a.p) - a.q).norm_squared() > tol * tol {
+                return s;
+            }
+            s[1] += 1.0;
+            if let Some((l, m)) = self.intensities(&a) {
+                for (slot, v) in s[2..].iter_mut().zip([1.0, l, m, l * l, m * m, l * m]) {
+                    *slot += v;
+                }
+            }
+            s
+        };
         let sums = (0..self.grid.len())
             .into_par_iter()
-            .filter_map(|k| {
-                let a = self.associate(k, &lin)?;
-                let tol = agreement_tolerance(a.p.z, slack);
-                if (lin.t.apply(&a.p) - a.q).norm_squared() > tol * tol {
-                    return None;
-                }
-                let (m, _) = self.field.sample(a.x.u, a.x.v)?;
-                let l = self.exposure.factor(self.rho2(a.pixel))
-                    * self.live.intensity.data[a.pixel] as f64;
-                Some([1.0, l, m, l * l, m * m, l * m])
-            })
-            .reduce(|| [0.0; 6], |a, b| std::array::from_fn(|i| a[i] + b[i]));
-        let [n, sl, sm, sll, smm, slm] = sums;
-        if n < MIN_CORRELATION_POINTS as f64 {
-            return 0.0;
+            .fold(|| [0.0; 8], add)
+            .reduce(|| [0.0; 8], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+        let [landed, agreeing, n, sl, sm, sll, smm, slm] = sums;
+        (
+            agreeing / landed.max(1.0),
+            correlation_of([n, sl, sm, sll, smm, slm]),
+        )
+    }
+
+    /// An associated point's live intensity (through the exposure) and the model's at its
+    /// projection, when the photometric term is on.
+    #[inline]
+    fn intensities(&self, a: &Association) -> Option<(f64, f64)> {
+        if !self.photometric {
+            return None;
         }
-        let cov = slm - sl * sm / n;
-        let (vl, vm) = (sll - sl * sl / n, smm - sm * sm / n);
-        if vl <= 0.0 || vm <= 0.0 {
-            return 0.0;
-        }
-        (cov / (vl * vm).sqrt()).clamp(-1.0, 1.0)
+        let (m, _) = self.field.sample(a.x.u, a.x.v)?;
+        let l = self.exposure.factor(self.rho2(a.pixel)) * self.live.intensity.data[a.pixel] as f64;
+        Some((l, m))
     }
 
     /// Writes into `out` the pairs (ρ², l / m) of the pixels associated at `x` (about
@@ -892,7 +902,7 @@ impl Tracker {
             if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
-                (agreement, correlation) = (terms.agreement(&x), terms.correlation(&x));
+                (agreement, correlation) = terms.fit_measures(&x);
                 if !matches!(stop, DenseStop::NoTerms) {
                     covariance = geometric_covariance(&mut terms, &x, &groups, &mut self.partials);
                     if prior.is_some() && covariance.is_none() {
