@@ -290,11 +290,11 @@ impl Relocaliser {
     }
 
     /// The global round (see the module's documentation): of the keyframe poses that verify, the
-    /// one nearest the last pose ([`view_shift`] with the scene's depth `scale`). Each keyframe's start is the features' motion
-    /// from it or, when they give none, its own pose (the frame looks like the keyframe, so the
-    /// camera is near where it was: ElasticFusion's fern relocalisation, Whelan et al. 2016).
-    /// Nearest, not best fitting: two places that look alike fit alike (a twin room), and only
-    /// the motion since the last pose tells them apart.
+    /// one nearest the last pose ([`view_shift`] with the scene's depth `scale`). Each keyframe's
+    /// start is the features' motion from it or, when they give none, its own pose (the frame
+    /// looks like the keyframe, so the camera is near where it was: ElasticFusion's fern
+    /// relocalisation, Whelan et al. 2016). Nearest, not best fitting: two places that look alike
+    /// fit alike (a twin room), and only the motion since the last pose tells them apart.
     #[allow(clippy::too_many_arguments)]
     fn global(
         &mut self,
