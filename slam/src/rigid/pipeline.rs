@@ -599,7 +599,7 @@ impl RigidSlam {
         {
             (TrackOutcome::failed(self.pose, why), false)
         } else if broken && enabled {
-            match self.relocalise(color, floors) {
+            match self.relocalise(color, floors, constraint.conditioning) {
                 Some(found) => (found, true),
                 None => (
                     TrackOutcome::failed(self.pose, TrackFailure::NotRelocalised),
@@ -622,7 +622,11 @@ impl RigidSlam {
                 },
                 keyframe_ratio: 0.0,
             };
-            match retry.then(|| self.relocalise(color, floors)).flatten() {
+            let conditioning = constraint.conditioning;
+            match retry
+                .then(|| self.relocalise(color, floors, conditioning))
+                .flatten()
+            {
                 Some(found) if tracked.failure.is_some() || found.inlier_fraction() > fraction => {
                     (found, true)
                 }
@@ -650,8 +654,14 @@ impl RigidSlam {
         }
     }
 
-    /// The relocaliser's pose for the live frame, if it finds one.
-    fn relocalise(&mut self, color: Option<&ColorImage>, floors: Floors) -> Option<TrackOutcome> {
+    /// The relocaliser's pose for the live frame (whose geometry's conditioning is
+    /// `conditioning`), if it finds one.
+    fn relocalise(
+        &mut self,
+        color: Option<&ColorImage>,
+        floors: Floors,
+        conditioning: f64,
+    ) -> Option<TrackOutcome> {
         let live = LiveFrame {
             levels: &self.pre.levels,
             color,
@@ -665,7 +675,7 @@ impl RigidSlam {
             &mut self.tracker,
             (&self.volume, &self.model),
             &live,
-            self.pose,
+            (self.pose, conditioning),
             floors,
             (self.frames, &place),
         );

@@ -25,7 +25,7 @@
 use super::health::Fit;
 use super::keyframes::{Candidate, Keyframe, KeyframeParams, Keyframes};
 use super::loops::LoopParams;
-use super::tracker::{mean_depth, FrameConstraint, ModelPyramid, TrackOutcome, Tracker};
+use super::tracker::{mean_depth, ModelPyramid, TrackOutcome, Tracker};
 use crate::camera::Camera;
 use crate::features::{detect, fit_keypoints, FeatureFrame, FeatureParams, Keypoints};
 use crate::image::{ColorImage, DepthImage};
@@ -183,7 +183,8 @@ impl Relocaliser {
     /// The live frame's pose: the better of the local and the global rounds' results that pass
     /// the tests (see the module's documentation) and reach the `floors`; `frame` only labels
     /// the log. `place` takes a keyframe's frame index to the motion from its map fragment's
-    /// frame into the current one's, `None` for fragments not joined to it.
+    /// frame into the current one's, `None` for fragments not joined to it. `conditioning` is
+    /// the live frame's ([`super::tracker::FrameConstraint`], measured once by the pipeline).
     #[allow(clippy::too_many_arguments)]
     pub fn relocalise(
         &mut self,
@@ -191,7 +192,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         map: (&TsdfVolume, &ModelPyramid),
         live: &LiveFrame<'_>,
-        last: Isometry3<f64>,
+        (last, conditioning): (Isometry3<f64>, f64),
         floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
@@ -211,7 +212,7 @@ impl Relocaliser {
             tracker,
             map,
             (live, keypoints),
-            last,
+            (last, conditioning),
             floors.local,
             frame,
         );
@@ -245,16 +246,15 @@ impl Relocaliser {
         tracker: &mut Tracker,
         (volume, model): (&TsdfVolume, &ModelPyramid),
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
-        last: Isometry3<f64>,
+        (last, conditioning): (Isometry3<f64>, f64),
         floor: Fit,
         frame: usize,
     ) -> Option<TrackOutcome> {
         // a blind search is only as good as the power to tell its results apart: where the
         // geometry leaves a motion free, the fraction and the agreement cannot see a slide along
         // it, and only a texture the recent frames matched well can
-        let constraint = FrameConstraint::of(live.levels);
         let telling = floor.telling();
-        let blind = telling || constraint.conditioning >= tracker.params.min_conditioning;
+        let blind = telling || conditioning >= tracker.params.min_conditioning;
         let (starts, from_features) = self.starts(params, live.camera, keypoints, last, blind);
         let (screened, k, pose) = screen(tracker, model, live.levels, &starts, floor.correlation)?;
         let o = self.verify(tracker, volume, live, &pose);
@@ -401,16 +401,15 @@ impl Relocaliser {
             }
         }
         if blind {
-            starts.extend(blind_starts(p, last));
+            push_blind_starts(p, last, &mut starts);
         }
         (starts, from_features)
     }
 }
 
-/// The blind search's starts around `last`: shifts along each world axis, then turns about the
-/// camera's x and y axes.
-fn blind_starts(p: &RelocaliseParams, last: Isometry3<f64>) -> Vec<Isometry3<f64>> {
-    let mut starts = Vec::new();
+/// Appends the blind search's starts around `last` to `starts`: shifts along each world axis,
+/// then turns about the camera's x and y axes.
+fn push_blind_starts(p: &RelocaliseParams, last: Isometry3<f64>, starts: &mut Vec<Isometry3<f64>>) {
     for &d in &p.shifts {
         for axis in 0..3 {
             for sign in [-1.0, 1.0] {
@@ -426,7 +425,6 @@ fn blind_starts(p: &RelocaliseParams, last: Isometry3<f64>) -> Vec<Isometry3<f64
             starts.push(last * turn);
         }
     }
-    starts
 }
 
 /// How far `pose` lies from `last` as the view sees it: the translation over the scene's depth

@@ -441,8 +441,7 @@ impl DenseTerms<6> for IcpTerms<'_> {
             emit(r * s, &jac.map(|j| j * s), 0);
         }
         if self.photometric {
-            let factor = self.exposure.factor(self.rho2(a.pixel));
-            let live_i = factor * self.live.intensity.data[a.pixel] as f64;
+            let live_i = self.live_intensity(a.pixel);
             if let Some((r, jac)) = photometric_at(
                 &a.x,
                 &lin.rel.rt,
@@ -629,8 +628,13 @@ impl IcpTerms<'_> {
             return None;
         }
         let (m, _) = self.field.sample(a.x.u, a.x.v)?;
-        let l = self.exposure.factor(self.rho2(a.pixel)) * self.live.intensity.data[a.pixel] as f64;
-        Some((l, m))
+        Some((self.live_intensity(a.pixel), m))
+    }
+
+    /// A live pixel's intensity through the exposure: l·a / (1 − v ρ²).
+    #[inline]
+    fn live_intensity(&self, pixel: usize) -> f64 {
+        self.exposure.factor(self.rho2(pixel)) * self.live.intensity.data[pixel] as f64
     }
 
     /// Writes into `out` the pairs (ρ², l / m) of the pixels associated at `x` (about
