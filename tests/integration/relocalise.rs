@@ -133,23 +133,26 @@ fn a_gap_on_the_way_back_is_relocalised_from_a_keyframe_or_reported() {
     }
 }
 
-/// A 15 Hz survey of the room (layout and Kinect model of seed 61, 320×240) from 49 s to 54 s,
-/// written once: the camera walks beside a wall and the floor, whose geometry leaves a slide
-/// along the wall free and whose texture is smooth.
-fn wall_survey(dir: &std::path::Path) -> TumSequence {
-    let full = motion::procedural(Motion::Survey, 810, 15.0);
+/// Frames `frames` of the 15 Hz survey in `layout` (layout and Kinect model of `seed`, 320×240),
+/// written to `dir`.
+fn survey(
+    dir: &std::path::Path,
+    (layout, seed): (Layout, u64),
+    frames: std::ops::Range<usize>,
+) -> TumSequence {
+    let full = motion::procedural(Motion::Survey, frames.end, 15.0);
     let part = Trajectory {
-        stamps: full.stamps[735..].to_vec(),
-        poses: full.poses[735..].to_vec(),
+        stamps: full.stamps[frames.clone()].to_vec(),
+        poses: full.poses[frames].to_vec(),
     };
     let model = KinectModel {
-        seed: 61,
+        seed,
         gain_drift: 0.15,
         ..KinectModel::default()
     };
     sequence::write_rigid(
         dir,
-        &layouts::build(Layout::Room, 61),
+        &layouts::build(layout, seed),
         &Camera::scaled_default(320, 240),
         &part,
         &Isometry3::identity(),
@@ -160,20 +163,34 @@ fn wall_survey(dir: &std::path::Path) -> TumSequence {
     TumSequence::open(dir).unwrap()
 }
 
-/// Before the correlation's test, the relocaliser's blind search slid this frame 0.64 m along
-/// the wall with an inlier fraction of 0.97 (the whole view lies on the two planes) and it was
-/// reported relocalised, and every later frame with it (NOTES 90).
-#[test]
-fn after_a_gap_beside_a_wall_no_frame_is_fused_slid_along_it() {
-    let dir = std::env::temp_dir().join(format!("dynamap-wall-gap-{}", std::process::id()));
+/// Frames `frames` of a survey (see [`survey`]) run from the first ground-truth pose with the
+/// frames stamped within `gap` dropped: asserts that no frame is fused in the map more than 10 cm
+/// or 5° from the truth, and that one of the first five frames after the gap is fused.
+fn survey_with_gap(scene: (Layout, u64), frames: std::ops::Range<usize>, gap: (f64, f64)) {
+    let dir = std::env::temp_dir().join(format!(
+        "dynamap-gap-{:?}-{}-{}",
+        scene.0,
+        frames.start,
+        std::process::id()
+    ));
     let _ = std::fs::remove_dir_all(&dir);
-    let seq = wall_survey(&dir);
+    let seq = survey(&dir, scene, frames);
+    let after = run_with_gap(&seq, gap);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        after.iter().take(5).any(|&fused| fused),
+        "nothing fused within 5 frames after the gap: {after:?}"
+    );
+}
+
+/// Runs `seq` from its first ground-truth pose with the frames stamped within `gap` dropped;
+/// asserts that no frame is fused in the map more than 10 cm or 5° from the truth, and returns
+/// whether each frame after the gap was fused.
+fn run_with_gap(seq: &TumSequence, gap: (f64, f64)) -> Vec<bool> {
     let gt = seq.groundtruth.clone().unwrap();
     let truth = |stamp: f64| gt.poses[gt.stamps.iter().position(|&s| s == stamp).unwrap()];
     let first = seq.load(0).unwrap();
     let mut slam = RigidSlam::new(seq.camera, SlamParams::default(), truth(first.timestamp));
-    // 0.6 s dropped from the stream, and the first frame after it unreadable
-    let (gap, resumed) = ((51.42, 52.01), 52.01);
     let mut after = Vec::new();
     for i in 0..seq.len() {
         let frame = seq.load(i).unwrap();
@@ -188,18 +205,35 @@ fn after_a_gap_beside_a_wall_no_frame_is_fused_slid_along_it() {
         let d = truth(frame.timestamp).inverse() * report.pose;
         let (t, r) = (d.translation.vector.norm(), d.rotation.angle().to_degrees());
         let outcome = &report.outcome;
+        // a new map fragment's frames are in a frame of their own until a loop places them
         assert!(
-            !outcome.is_fused() || (t < 0.1 && r < 5.0),
+            !(outcome.is_fused() && report.placed) || (t < 0.1 && r < 5.0),
             "{:.3} s: {outcome:?} but {t:.3} m, {r:.1}° off",
             frame.timestamp
         );
-        if frame.timestamp > resumed {
+        if frame.timestamp >= gap.1 {
             after.push(outcome.is_fused());
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(
-        after.iter().take(5).any(|&fused| fused),
-        "not found again within 5 frames: {after:?}"
-    );
+    after
+}
+
+/// Before the correlation's test, the relocaliser's blind search slid this frame 0.64 m along
+/// the wall with an inlier fraction of 0.97 (the whole view lies on the two planes) and it was
+/// reported relocalised, and every later frame with it (NOTES 90). From 49 s to 54 s of the
+/// survey the camera walks beside a wall and the floor, whose geometry leaves a slide along the
+/// wall free and whose texture is smooth; 0.6 s is dropped.
+#[test]
+fn after_a_gap_beside_a_wall_no_frame_is_fused_slid_along_it() {
+    survey_with_gap((Layout::Room, 61), 735..810, (51.42, 52.01));
+}
+
+/// In the room of two identical halves, after a 3-s gap the camera looks at a part of its half
+/// that no keyframe saw closer than 0.65 m and 38°; the twin half's keyframe verified (fraction
+/// 0.88, correlation 0.99) and the frame was reported relocalised 1.6 m and 180° off, every later
+/// frame with it. Reaching the twin meant turning 142° in 3.1 s, where the camera had turned at
+/// most 20°/s (NOTES 92): the frames are now not tracked, then start a new map fragment.
+#[test]
+fn after_a_gap_in_the_twin_room_no_frame_is_placed_in_the_other_half() {
+    survey_with_gap((Layout::Twins, 63), 0..375, (20.45, 23.5));
 }

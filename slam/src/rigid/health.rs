@@ -114,6 +114,11 @@ impl Health {
         }
     }
 
+    /// The stamp of the last fused frame.
+    pub(crate) fn last_stamp(&self) -> Option<f64> {
+        self.last_stamp
+    }
+
     /// Whether more than `factor` typical frame intervals passed since the last fused frame
     /// (frames dropped from the stream, or a stretch that could not be tracked).
     pub(crate) fn is_gap(&self, stamp: f64, factor: f64) -> bool {

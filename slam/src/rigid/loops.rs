@@ -150,6 +150,22 @@ pub struct Reach {
     pub rotation: f64,
 }
 
+impl Reach {
+    /// Whether the motion from `from` to `to` stays within this reach.
+    pub fn admits(&self, from: &Isometry3<f64>, to: &Isometry3<f64>) -> bool {
+        let d = from.inverse() * to;
+        d.translation.vector.norm() <= self.translation && d.rotation.angle() <= self.rotation
+    }
+
+    /// Each bound at least `floor`'s.
+    pub fn at_least(self, floor: Reach) -> Reach {
+        Reach {
+            translation: self.translation.max(floor.translation),
+            rotation: self.rotation.max(floor.rotation),
+        }
+    }
+}
+
 /// Where a map fragment lies: the oldest fragment of those loops joined it with (its root), and
 /// the motion from its tracking frame into the root's.
 #[derive(Clone, Copy, Debug)]
@@ -756,6 +772,28 @@ pub(super) fn median_z(points: &[Vector3<f64>]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A reach bounds the translation and the turn each, measured in the first pose's frame;
+    /// its floor raises either bound alone.
+    #[test]
+    fn a_reach_admits_a_motion_within_both_bounds() {
+        let from = Isometry3::new(Vector3::new(0.5, -1.0, 2.0), Vector3::new(0.2, 1.0, -0.4));
+        let step = |t: f64, turn: f64| from * Isometry3::new(Vector3::x() * t, Vector3::y() * turn);
+        let reach = Reach {
+            translation: 0.5,
+            rotation: 1.0,
+        };
+        assert!(reach.admits(&from, &step(0.49, 0.99)));
+        assert!(!reach.admits(&from, &step(0.51, 0.1)));
+        assert!(!reach.admits(&from, &step(0.1, 1.01)));
+        let floor = Reach {
+            translation: 0.6,
+            rotation: 0.2,
+        };
+        let raised = reach.at_least(floor);
+        assert_eq!((raised.translation, raised.rotation), (0.6, 1.0));
+        assert!(raised.admits(&from, &step(0.55, 0.99)));
+    }
 
     #[test]
     fn a_frame_moves_with_its_anchor_keyframe() {

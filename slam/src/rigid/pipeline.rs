@@ -208,6 +208,8 @@ pub struct RigidSlam {
     /// The stamps of the frame being processed and of the newest keyframe.
     stamp: f64,
     keyframe_stamp: f64,
+    /// The frame's stamps are the sensor's ([`Self::process_timed`]), not frame counts.
+    timed: bool,
 }
 
 /// When a frame's two images were captured, seconds.
@@ -261,6 +263,7 @@ impl RigidSlam {
             starting_map: false,
             stamp: 0.0,
             keyframe_stamp: 0.0,
+            timed: false,
         }
     }
 
@@ -329,22 +332,37 @@ impl RigidSlam {
 
     /// Processes one frame (raw depth in sensor units, optional colour) whose images were taken
     /// at the same instant, one frame interval after the last. Never fails on bad input: a frame
-    /// that cannot be tracked or fused is reported in [`FrameReport::outcome`].
+    /// that cannot be tracked or fused is reported in [`FrameReport::outcome`]. Without stamps
+    /// the time a dropped stretch took is unknown, so a relocalised pose is not held to the
+    /// camera's reach (see [`Self::process_timed`]).
     pub fn process(&mut self, depth_raw: &Image<u16>, color: Option<&ColorImage>) -> FrameReport {
         let t = self.calls as f64;
-        self.process_timed(depth_raw, color, FrameStamps { depth: t, color: t })
+        self.process_at(depth_raw, color, FrameStamps { depth: t, color: t }, false)
     }
 
     /// [`Self::process`] for images taken at the given instants: the motion is extrapolated by
-    /// time, and colour taken at another instant than depth is brought to the depth's
-    /// ([`SlamParams::register_color`]).
+    /// time, colour taken at another instant than depth is brought to the depth's
+    /// ([`SlamParams::register_color`]), and a relocalised pose must lie within the camera's
+    /// reach of the last one for the time elapsed (NOTES 92).
     pub fn process_timed(
         &mut self,
         depth_raw: &Image<u16>,
         color: Option<&ColorImage>,
         stamps: FrameStamps,
     ) -> FrameReport {
+        self.process_at(depth_raw, color, stamps, true)
+    }
+
+    /// [`Self::process_timed`], the stamps being the sensor's (`timed`) or frame counts.
+    fn process_at(
+        &mut self,
+        depth_raw: &Image<u16>,
+        color: Option<&ColorImage>,
+        stamps: FrameStamps,
+        timed: bool,
+    ) -> FrameReport {
         self.calls += 1;
+        self.timed = timed;
         let step = |tau: f64| self.motion.step(tau);
         let start = match self.motion.last_time() {
             Some(last) if self.params.predict_motion => {
@@ -662,6 +680,15 @@ impl RigidSlam {
         floors: Floors,
         conditioning: f64,
     ) -> Option<TrackOutcome> {
+        let since = self.health.last_stamp().unwrap_or(self.stamp);
+        let reach = if self.timed {
+            self.reach_after(self.stamp - since)
+        } else {
+            Reach {
+                translation: f64::INFINITY,
+                rotation: f64::INFINITY,
+            }
+        };
         let live = LiveFrame {
             levels: &self.pre.levels,
             color,
@@ -675,7 +702,7 @@ impl RigidSlam {
             &mut self.tracker,
             (&self.volume, &self.model),
             &live,
-            (self.pose, conditioning),
+            (self.pose, reach, conditioning),
             floors,
             (self.frames, &place),
         );
@@ -731,8 +758,11 @@ impl RigidSlam {
     fn keyframe_added(&mut self, color: Option<&ColorImage>, new_map: bool) {
         let spread = self.spread.take(&self.pose);
         if new_map {
-            self.loops
-                .start_fragment(self.frames, self.pose, self.reach());
+            self.loops.start_fragment(
+                self.frames,
+                self.pose,
+                self.reach_after(self.stamp - self.keyframe_stamp),
+            );
         } else {
             self.loops
                 .add_tracked_keyframe(self.frames, self.pose, spread.as_ref());
@@ -771,10 +801,10 @@ impl RigidSlam {
         }
     }
 
-    /// How far the camera can have gone since the newest keyframe: half as fast again as the
-    /// fastest it moved between two tracked frames, for the time since.
-    fn reach(&self) -> Reach {
-        let elapsed = (self.stamp - self.keyframe_stamp).max(0.0);
+    /// How far the camera can have gone `elapsed` after a pose: half as fast again as the
+    /// fastest it moved between two tracked frames, for that time.
+    fn reach_after(&self, elapsed: f64) -> Reach {
+        let elapsed = elapsed.max(0.0);
         let (v, w) = self.motion.fastest();
         Reach {
             translation: REACH_MARGIN * v * elapsed,

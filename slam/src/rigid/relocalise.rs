@@ -20,12 +20,14 @@
 //! it is what sees a pose slid along a wall, where every pixel still lands on the right plane
 //! (NOTES 90). The blind starts (shifts and turns) are tried only where something can tell their
 //! results apart: a geometry that fixes every motion, or a correlation floor of at least 0.5 (the
-//! recent frames' texture matched the model well).
+//! recent frames' texture matched the model well). Neither round may take the camera further
+//! than it can have gone since the last pose (NOTES 92): in a room with two identical halves, a
+//! 3-s gap was relocalised to the other half, 142° round, where the camera turns at most 20°/s.
 
 use super::health::Fit;
 use super::keyframes::{Candidate, Keyframe, KeyframeParams, Keyframes};
-use super::loops::LoopParams;
-use super::tracker::{mean_depth, ModelPyramid, TrackOutcome, Tracker};
+use super::loops::{LoopParams, Reach};
+use super::tracker::{mean_depth, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
 use crate::features::{detect, fit_keypoints, FeatureFrame, FeatureParams, Keypoints};
 use crate::image::{ColorImage, DepthImage};
@@ -183,8 +185,12 @@ impl Relocaliser {
     /// The live frame's pose: the better of the local and the global rounds' results that pass
     /// the tests (see the module's documentation) and reach the `floors`; `frame` only labels
     /// the log. `place` takes a keyframe's frame index to the motion from its map fragment's
-    /// frame into the current one's, `None` for fragments not joined to it. `conditioning` is
-    /// the live frame's ([`super::tracker::FrameConstraint`], measured once by the pipeline).
+    /// frame into the current one's, `None` for fragments not joined to it. A pose further from
+    /// the last one than `reach` (how far the camera can have gone since, never less than the
+    /// local round's own reach: [`local_extent`]) is refused, whatever its fit: where two places
+    /// look alike, the one the camera could not have reached is the wrong one (NOTES 92).
+    /// `conditioning` is the live frame's ([`super::tracker::FrameConstraint`], measured once by
+    /// the pipeline).
     #[allow(clippy::too_many_arguments)]
     pub fn relocalise(
         &mut self,
@@ -192,10 +198,11 @@ impl Relocaliser {
         tracker: &mut Tracker,
         map: (&TsdfVolume, &ModelPyramid),
         live: &LiveFrame<'_>,
-        (last, conditioning): (Isometry3<f64>, f64),
+        (last, reach, conditioning): (Isometry3<f64>, Reach, f64),
         floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
+        let reach = reach.at_least(local_extent(params, &tracker.params));
         // the live frame's keypoints, detected once for both rounds
         let keypoints = live.color.map(|color| {
             let now = FeatureFrame {
@@ -212,7 +219,7 @@ impl Relocaliser {
             tracker,
             map,
             (live, keypoints),
-            (last, conditioning),
+            (last, reach, conditioning),
             floors.local,
             frame,
         );
@@ -223,7 +230,7 @@ impl Relocaliser {
             tracker,
             map.0,
             (live, keypoints),
-            (&last, scale),
+            (&last, scale, reach),
             floors,
             (frame, place),
         );
@@ -246,7 +253,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         (volume, model): (&TsdfVolume, &ModelPyramid),
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
-        (last, conditioning): (Isometry3<f64>, f64),
+        (last, reach, conditioning): (Isometry3<f64>, Reach, f64),
         floor: Fit,
         frame: usize,
     ) -> Option<TrackOutcome> {
@@ -259,6 +266,7 @@ impl Relocaliser {
         let (screened, k, pose) = screen(tracker, model, live.levels, &starts, floor.correlation)?;
         let o = self.verify(tracker, volume, live, &pose);
         let fraction = o.inlier_fraction();
+        let reachable = reach.admits(&last, &o.pose);
         tracing::debug!(
             frame,
             candidates = starts.len(),
@@ -267,6 +275,7 @@ impl Relocaliser {
             fraction,
             agreement = o.agreement,
             correlation = o.correlation,
+            reachable,
             floor = ?floor,
             failure = o.failure.as_ref().map(ToString::to_string),
             "local relocalisation"
@@ -286,7 +295,7 @@ impl Relocaliser {
         let fits = o.agreement >= floor.agreement
             && o.correlation >= floor.correlation
             && (supported || fraction >= floor.fraction);
-        (o.failure.is_none() && fraction >= strict && fits).then_some(o)
+        (o.failure.is_none() && fraction >= strict && fits && reachable).then_some(o)
     }
 
     /// The global round (see the module's documentation): of the keyframe poses that verify, the
@@ -302,7 +311,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         volume: &TsdfVolume,
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
-        (last, scale): (&Isometry3<f64>, f64),
+        (last, scale, reach): (&Isometry3<f64>, f64, Reach),
         floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
@@ -329,6 +338,7 @@ impl Relocaliser {
             );
             let o = self.verify(tracker, volume, live, &start);
             let (fraction, shift) = (o.inlier_fraction(), view_shift(last, &o.pose, scale));
+            let reachable = reach.admits(last, &o.pose);
             tracing::debug!(
                 frame,
                 keyframe,
@@ -337,6 +347,7 @@ impl Relocaliser {
                 agreement = o.agreement,
                 correlation = o.correlation,
                 shift,
+                reachable,
                 floor,
                 failure = o.failure.as_ref().map(ToString::to_string),
                 "global relocalisation candidate"
@@ -344,7 +355,8 @@ impl Relocaliser {
             let passes = o.failure.is_none()
                 && fraction >= params.min_inlier_fraction
                 && o.agreement >= floor
-                && o.correlation >= floors.local.correlation;
+                && o.correlation >= floors.local.correlation
+                && reachable;
             if passes && best.as_ref().is_none_or(|b| shift < b.0) {
                 best = Some((shift, o));
             }
@@ -427,6 +439,17 @@ fn push_blind_starts(p: &RelocaliseParams, last: Isometry3<f64>, starts: &mut Ve
     }
 }
 
+/// How far the local round can carry a pose from the last one: its longest shift or its turn,
+/// and beyond that what one track accepts ([`super::TrackerParams::max_translation`] and
+/// [`super::TrackerParams::max_rotation_deg`]).
+fn local_extent(p: &RelocaliseParams, tracker: &TrackerParams) -> Reach {
+    let longest = p.shifts.iter().copied().fold(0.0, f64::max);
+    Reach {
+        translation: longest + tracker.max_translation,
+        rotation: (p.turn_deg + tracker.max_rotation_deg).to_radians(),
+    }
+}
+
 /// How far `pose` lies from `last` as the view sees it: the translation over the scene's depth
 /// `depth` plus the turn in radians (each about the share of the view that moves).
 fn view_shift(last: &Isometry3<f64>, pose: &Isometry3<f64>, depth: f64) -> f64 {
@@ -474,6 +497,15 @@ fn screen(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The local round's own reach is its longest shift or its turn plus what one track
+    /// accepts: 0.3 + 0.3 m and 10 + 30° by default.
+    #[test]
+    fn the_local_round_reaches_its_longest_start_plus_one_track() {
+        let e = local_extent(&RelocaliseParams::default(), &TrackerParams::default());
+        assert!((e.translation - 0.6).abs() < 1e-12, "{e:?}");
+        assert!((e.rotation - 40f64.to_radians()).abs() < 1e-12, "{e:?}");
+    }
 
     /// The view's shift weighs a translation by the scene's depth and adds the turn: a twin
     /// place half a turn away is far however near its position, and the same step counts less
