@@ -820,7 +820,9 @@ impl RigidSlam {
     /// tracker's tests and the relocaliser's floor on the inlier fraction; one that agrees with
     /// the track ([`loop_candidates::agrees_with_track`]) needs nothing more and wins over one
     /// that does not, which must also reach the floors on the recent frames' fit. The better
-    /// fit decides between equals.
+    /// fit decides between equals. A loop to another map fragment, which nothing else places,
+    /// also needs the sparse features to agree with it ([`Self::features_agree`]) or, where
+    /// the recent frames' correlation floor is telling, a correlation reaching it (NOTES 94).
     fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
         let submaps = self.submaps.as_ref()?;
         let until = submaps.frozen_until()?;
@@ -877,9 +879,12 @@ impl RigidSlam {
             if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= rank) {
                 continue;
             }
-            // nothing but this loop places another map fragment: the features must agree
+            // nothing but this loop places another map fragment: the features must agree, or
+            // the texture must match as the recent frames' did where that floor can tell
+            // (NOTES 94)
             let newest = keys.last()?;
-            if frame < since && !self.features_agree(&keys[k], newest, &o.pose) {
+            let textured = floor.telling() && o.correlation >= floor.correlation;
+            if frame < since && !textured && !self.features_agree(&keys[k], newest, &o.pose) {
                 continue;
             }
             let found = LoopCandidate {
