@@ -143,9 +143,12 @@ pub struct FrameReport {
     /// from: the newest one when the frame was fused. [`KeyframeGraph::corrected`] carries the
     /// pose along when a loop moves the keyframe. `None` before the first keyframe.
     pub anchor: Option<usize>,
-    /// Whether the pose is in the main map's frame: false for a frame of a new map fragment
-    /// that no loop has joined to the main map yet ([`KeyframeGraph::is_placed`]), whose pose
-    /// is in that fragment's own frame and says nothing of where it lies in the map.
+    /// Whether the frame's map fragment lies in the main map: false for a frame of a new map
+    /// fragment that no loop has joined to it yet ([`KeyframeGraph::is_placed`]), whose pose
+    /// says nothing of where it lies in the map. The pose stays in its fragment's tracking
+    /// frame either way: [`KeyframeGraph::between_fragments`] (from `anchor` to the first
+    /// keyframe) takes it into the main map's, and [`KeyframeGraph::corrected`] with the
+    /// graph's solution into the corrected map, as `rigid_slam`'s trajectory does.
     pub placed: bool,
     /// The exposure gain a the frame was tracked with: the model's intensity is about a I for
     /// the live intensity I (NOTES 60; 1 when not fitted or not tracked). The colour is fused
