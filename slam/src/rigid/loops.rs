@@ -151,10 +151,24 @@ pub struct Reach {
 }
 
 impl Reach {
+    /// No bound.
+    pub const UNBOUNDED: Reach = Reach {
+        translation: f64::INFINITY,
+        rotation: f64::INFINITY,
+    };
+
     /// Whether the motion from `from` to `to` stays within this reach.
     pub fn admits(&self, from: &Isometry3<f64>, to: &Isometry3<f64>) -> bool {
         let d = from.inverse() * to;
         d.translation.vector.norm() <= self.translation && d.rotation.angle() <= self.rotation
+    }
+
+    /// Each bound widened by `other`'s.
+    pub fn plus(self, other: Reach) -> Reach {
+        Reach {
+            translation: self.translation + other.translation,
+            rotation: self.rotation + other.rotation,
+        }
     }
 
     /// Each bound at least `floor`'s.
@@ -793,6 +807,8 @@ mod tests {
         let raised = reach.at_least(floor);
         assert_eq!((raised.translation, raised.rotation), (0.6, 1.0));
         assert!(raised.admits(&from, &step(0.55, 0.99)));
+        let wider = reach.plus(floor);
+        assert!((wider.translation - 1.1).abs() < 1e-12 && (wider.rotation - 1.2).abs() < 1e-12);
     }
 
     #[test]

@@ -687,10 +687,7 @@ impl RigidSlam {
         let reach = if self.timed {
             self.reach_after(self.stamp - since)
         } else {
-            Reach {
-                translation: f64::INFINITY,
-                rotation: f64::INFINITY,
-            }
+            Reach::UNBOUNDED
         };
         let live = LiveFrame {
             levels: &self.pre.levels,

@@ -332,6 +332,12 @@ impl Relocaliser {
             let m = fit_keypoints(keypoints, &key.keypoints, &params.features);
             let motion = m.as_ref().map_or(Isometry3::identity(), |m| m.fit.motion);
             let start = into * key.pose * motion;
+            // a track moves at most one track's motion from its start, so a start further than
+            // that beyond the reach cannot end within it: not worth a raycast and a track
+            if !reach.plus(one_track(&tracker.params)).admits(last, &start) {
+                tracing::debug!(frame, keyframe = key.frame, "keyframe start out of reach");
+                continue;
+            }
             let (keyframe, floor) = (
                 key.frame,
                 floors.keyframe_ratio * key.agreement.unwrap_or(0.0),
@@ -439,15 +445,24 @@ fn push_blind_starts(p: &RelocaliseParams, last: Isometry3<f64>, starts: &mut Ve
     }
 }
 
+/// The most one track may move a pose from its start ([`super::TrackerParams::max_translation`]
+/// and [`super::TrackerParams::max_rotation_deg`]; beyond, it fails as an implausible motion).
+fn one_track(tracker: &TrackerParams) -> Reach {
+    Reach {
+        translation: tracker.max_translation,
+        rotation: tracker.max_rotation_deg.to_radians(),
+    }
+}
+
 /// How far the local round can carry a pose from the last one: its longest shift or its turn,
-/// and beyond that what one track accepts ([`super::TrackerParams::max_translation`] and
-/// [`super::TrackerParams::max_rotation_deg`]).
+/// and beyond that [`one_track`].
 fn local_extent(p: &RelocaliseParams, tracker: &TrackerParams) -> Reach {
     let longest = p.shifts.iter().copied().fold(0.0, f64::max);
-    Reach {
-        translation: longest + tracker.max_translation,
-        rotation: (p.turn_deg + tracker.max_rotation_deg).to_radians(),
-    }
+    let starts = Reach {
+        translation: longest,
+        rotation: p.turn_deg.to_radians(),
+    };
+    starts.plus(one_track(tracker))
 }
 
 /// How far `pose` lies from `last` as the view sees it: the translation over the scene's depth
