@@ -497,9 +497,10 @@ fn deepdeform_depth(
 }
 
 /// DeepDeform seq258 (a shirt moved about 23 cm between frames 0 and 110): the scene flow of the
-/// masked shirt's pixels against the ground truth, EPE 3D under 5 cm (zero flow scores 23 cm).
+/// masked shirt's pixels against the ground truth, EPE 3D under issue 26's 1.5 cm (1.25 cm seen;
+/// 1.82 before NOTES 95; zero flow scores 23 cm), and 97 % of the pixels within 5 cm.
 #[test]
-fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
+fn deepdeform_shirt_scene_flow_is_within_one_and_a_half_centimetres() {
     use dynamap::slam::eval::epe3d;
     use dynamap::slam::image::Image;
     use dynamap::slam::io::flow::read_flow;
@@ -537,7 +538,12 @@ fn deepdeform_shirt_scene_flow_is_within_five_centimetres() {
     let epe = epe3d(&ours, &truth, None);
     println!("EPE {} m (zero flow {} m)", epe.stats.mean, zero.stats.mean);
     assert!(zero.stats.mean > 0.2, "zero flow {}", zero.stats.mean);
-    assert!(epe.stats.mean < 0.05, "EPE {} m", epe.stats.mean);
+    assert!(
+        epe.stats.mean < 0.015 && epe.within_5cm > 0.97,
+        "EPE {} m, {} within 5 cm",
+        epe.stats.mean,
+        epe.within_5cm
+    );
     assert_eq!(
         reg.verdict(),
         dynamap::slam::nonrigid::FrameVerdict::Registered

@@ -67,6 +67,9 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use warp_flags::WarpFlags;
 
+mod frame_flags;
+mod pairs;
+
 /// Non-rigid registration of one surface onto another.
 #[derive(Parser, Debug)]
 #[command(long_about = None)]
@@ -92,6 +95,9 @@ enum Mode {
     /// Plain sheets (no correspondences given) onto bent, rolled, folded, twisted and saddled
     /// copies, alone and moved rigidly, at several sizes and mesh resolutions (issue 26).
     Sheets(SheetArgs),
+    /// Generated frame pairs (a plate, a cylinder and a ball, bent, twisted and rippled, seen from
+    /// cameras apart) registered as `frames` does: EPE 3D per pair and the mean.
+    Pairs(pairs::PairArgs),
 }
 
 /// `sheets`: which sizes and meshes.
@@ -197,9 +203,9 @@ struct FrameArgs {
     /// before) and the warped source (blue, after).
     #[arg(long)]
     picture: Option<PathBuf>,
-    /// Graph and optimiser settings.
+    /// How the frames are registered.
     #[command(flatten)]
-    warp: WarpFlags,
+    registration: frame_flags::FrameFlags,
 }
 
 cli::has_common!(Args);
@@ -470,10 +476,7 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         args.target_mask.as_ref(),
     )
     .bad_input()?;
-    let mut settings = FrameSettings::default();
-    args.warp
-        .apply(&mut settings.graph, &mut settings.register)
-        .bad_input()?;
+    let settings = args.registration.settings()?;
     if let Some(path) = &args.mask_nodes {
         let nodes = read_graph_nodes(path).bad_input()?;
         let radius = settings.graph.spacing;
@@ -601,6 +604,9 @@ pub fn main() -> ExitCode {
             .mut_subcommand("frames", |c| {
                 WarpFlags::show_defaults(c, &frames.graph, &frames.register)
             })
+            .mut_subcommand("pairs", |c| {
+                WarpFlags::show_defaults(c, &frames.graph, &frames.register)
+            })
         },
         run,
     )
@@ -612,6 +618,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         Some(Mode::Meshes(m)) => register_mesh_files(m),
         Some(Mode::Frames(f)) => register_frame_pair(f),
         Some(Mode::Sheets(a)) => sheet_experiment(a, session),
+        Some(Mode::Pairs(a)) => pairs::pair_experiment(a, session),
     }
 }
 

@@ -587,8 +587,41 @@ fn nonrigid_register_sheets_prints_each_case_and_the_worst() {
     );
 }
 
+/// `pairs`: one row per generated pair (three surfaces × three fields for one seed) and the
+/// mean; no seeds and a negative `--nearest-within` are bad input.
+#[test]
+fn nonrigid_register_pairs_prints_each_pair_and_the_mean() {
+    let out = run(
+        "nonrigid_register",
+        &["pairs", "--seeds", "1", "--first-seed", "4", "-q"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), 11, "{stdout}");
+    assert!(
+        lines[0].starts_with("pair") && lines[1].starts_with("plane-bend-4"),
+        "{stdout}"
+    );
+    assert!(
+        lines[10].starts_with("mean EPE") && lines[10].ends_with("not registered"),
+        "{stdout}"
+    );
+    assert_exit(
+        &run("nonrigid_register", &["pairs", "--seeds", "0"]),
+        2,
+        &["--seeds"],
+    );
+    assert_exit(
+        &run("nonrigid_register", &["pairs", "--nearest-within=-1"]),
+        2,
+        &["--nearest-within"],
+    );
+}
+
 /// `frames` without a mask: the object from graph nodes, the verdict and the surface distance in
-/// the JSON, and the picture; a cut nodes file is bad input naming the file.
+/// the JSON, and the picture; a cut nodes file is bad input naming the file, and so is a
+/// negative `--nearest-within`.
 #[test]
 fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
     use dynamap_slam::image::Image;
@@ -655,6 +688,9 @@ fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
     let mut both = args("nodes.bin");
     both.extend(["--mask".to_string(), path("a.png")]);
     assert_exit(&run_with(both), 2, &["--mask"]);
+    let mut negative = args("nodes.bin");
+    negative.push("--nearest-within=-0.1".to_string());
+    assert_exit(&run_with(negative), 2, &["--nearest-within", "-0.1"]);
     let _ = std::fs::remove_dir_all(Path::new(&dir));
 }
 

@@ -1,19 +1,23 @@
 //! Registering one RGB-D frame onto another, DeepDeform's setting (Bozic et al., CVPR 2020): two
 //! frames of one sensor, the object masked in the source, and a motion too large for projective
 //! association alone. The source's valid pixels become points; a deformation graph is sampled over
-//! them; sparse colour matches ([`crate::features`]) give the rigid start, which the warp-field
-//! optimiser refines against the target's depth (projective association) and deforms. The result is
-//! each source pixel's scene flow.
+//! them; sparse colour matches ([`crate::features`]) give the rigid start and hold their points
+//! throughout, and the warp-field optimiser refines the start against the target's depth and
+//! deforms it (projective association, and the nearest point where the target sees through a
+//! point: [`super::frame_target`]). The result is each source pixel's scene flow.
 
+use super::frame_target::SeenThroughTarget;
 use super::graph::{DeformationGraph, GraphError, GraphParams};
-use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
+use super::register::{
+    DepthTarget, RegisterError, RegisterParams, RegisterSummary, Seeds, WarpOptimiser,
+};
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams, FrameMatches};
 use crate::image::{
     valid, BilateralParams, ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID,
 };
 use crate::preprocess::{Level, PreprocessParams, Preprocessor};
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 /// A borrowed view of one RGB-D frame for registration (the frames read from disk are
 /// [`crate::io::tum::RgbdFrame`]): depth in metres (0 where missing), optional colour and object
@@ -43,6 +47,13 @@ pub struct FrameSettings {
     pub data_stride: usize,
     /// Depth smoothing before normals.
     pub bilateral: BilateralParams,
+    /// Where the target's camera sees through a warped point (no depth at its pixel, or depth
+    /// beyond the association gate behind it), the point takes the nearest of the target's points
+    /// within this distance, metres ([`SeenThroughTarget`]; default 0.05, half the gate).
+    pub nearest_within: f64,
+    /// Whether the feature matches hold their source points through every stage, not only give
+    /// the rigid start (default true).
+    pub hold_matches: bool,
 }
 
 impl Default for FrameSettings {
@@ -75,6 +86,8 @@ impl Default for FrameSettings {
             features: Some(FeatureParams::default()),
             data_stride: 2,
             bilateral: BilateralParams::default(),
+            nearest_within: 0.05,
+            hold_matches: true,
         }
     }
 }
@@ -328,6 +341,87 @@ fn feature_start(
     }
 }
 
+/// A feature match tied to the source's points: the point's index, its partner in the target
+/// and the target's normal there.
+#[derive(Clone, Copy, Debug)]
+struct TiedMatch {
+    point: usize,
+    target: Vector3<f64>,
+    normal: Vector3<f64>,
+}
+
+/// Ties each match to the source point at its pixel and the target's normal at its partner's;
+/// matches without either are left out.
+fn tie_matches(
+    pairs: &[(Vector3<f64>, Vector3<f64>)],
+    source: &FrameView<'_>,
+    target: &FrameView<'_>,
+    target_normals: &NormalMap,
+    pixels: &[usize],
+) -> Vec<TiedMatch> {
+    let w = source.camera.width;
+    let mut point_of = vec![u32::MAX; w * source.camera.height];
+    for (k, &i) in pixels.iter().enumerate() {
+        point_of[i] = k as u32;
+    }
+    let pixel = |camera: &Camera, p: &Vector3<f64>| camera.project_to_pixel(&Point3::from(*p));
+    pairs
+        .iter()
+        .filter_map(|(s, t)| {
+            let (u, v) = pixel(source.camera, s)?;
+            let (tu, tv) = pixel(target.camera, t)?;
+            let n = target_normals.data[tv * target.camera.width + tu];
+            let k = point_of[v * w + u];
+            (k != u32::MAX && valid(&n)).then(|| TiedMatch {
+                point: k as usize,
+                target: *t,
+                normal: vector(&n),
+            })
+        })
+        .collect()
+}
+
+/// The matches as correspondences held through every stage ([`Seeds::pinned`]): each match's
+/// source point joins the data points (if it is not one) and is pinned to its partner. Depth
+/// constrains a smooth surface only along its normal; the matches hold it along itself. `None`
+/// without matches.
+fn held_seeds(
+    held: &[TiedMatch],
+    normals: &[Vector3<f64>],
+    data: &mut Vec<usize>,
+) -> Option<Seeds> {
+    if held.is_empty() {
+        return None;
+    }
+    let mut data_of = vec![u32::MAX; normals.len()];
+    for (j, &k) in data.iter().enumerate() {
+        data_of[k] = j as u32;
+    }
+    let mut pinned = Vec::with_capacity(held.len());
+    for m in held {
+        if data_of[m.point] == u32::MAX {
+            data_of[m.point] = data.len() as u32;
+            data.push(m.point);
+        }
+        pinned.push(data_of[m.point]);
+    }
+    let mut matches: Vec<(Vector3<f64>, Vector3<f64>)> = data
+        .iter()
+        .map(|&k| (Vector3::zeros(), normals[k]))
+        .collect();
+    for (m, &j) in held.iter().zip(&pinned) {
+        matches[j as usize] = (m.target, m.normal);
+    }
+    Some(Seeds {
+        matches,
+        stages: 0,
+        tukey_scale: 1.0,
+        replace_all: false,
+        iterations: 0,
+        pinned,
+    })
+}
+
 /// Registers `source` onto `target`: every valid source pixel inside its mask is a point (its raw
 /// depth back-projected), a graph is sampled over them, the rigid start comes from feature matches
 /// when both frames have colour, and the field is optimised against the target's depth with data
@@ -354,13 +448,28 @@ pub fn register_frames(
     let bindings = graph.bind_all(&points);
     let matches = feature_start(source, target, settings);
     let start = matches.as_ref().map_or(Isometry3::identity(), |m| m.motion);
+    let held = match matches.as_ref().filter(|_| settings.hold_matches) {
+        Some(m) => {
+            let inliers: Vec<_> = (m.source.iter().copied())
+                .zip(m.target.iter().copied())
+                .collect();
+            tie_matches(&inliers, source, target, &target_normals, &pixels)
+        }
+        None => Vec::new(),
+    };
+    let mut data = data;
+    let seeds = held_seeds(&held, &normals, &mut data);
     let pick = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> { data.iter().map(|&k| v[k]).collect() };
     let data_bindings: Vec<_> = data.iter().map(|&k| bindings[k]).collect();
-    let depth_target = DepthTarget {
-        camera: target.camera,
-        vertices: &target_vertices,
-        normals: &target_normals,
-    };
+    let depth_target = SeenThroughTarget::new(
+        DepthTarget {
+            camera: target.camera,
+            vertices: &target_vertices,
+            normals: &target_normals,
+        },
+        settings.register.max_distance,
+        settings.nearest_within,
+    );
     let mut optimiser = WarpOptimiser::new(settings.register.clone());
     let summary = optimiser.optimise_from(
         &mut graph,
@@ -369,7 +478,7 @@ pub fn register_frames(
         &data_bindings,
         &depth_target,
         &[start],
-        None,
+        seeds.as_ref(),
     )?;
     let (mut warped, mut warped_normals) = (Vec::new(), Vec::new());
     graph.warp_all(

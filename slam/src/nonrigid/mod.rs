@@ -25,6 +25,7 @@
 pub mod boundary;
 pub mod descriptors;
 pub mod frame_surface;
+pub mod frame_target;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
@@ -43,6 +44,7 @@ mod voxel_bindings;
 pub use boundary::{rim_matches, RimMatches};
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
+pub use frame_target::SeenThroughTarget;
 pub use frames::{
     frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameVerdict,
     FrameView, MIN_MATCHED_FRACTION,

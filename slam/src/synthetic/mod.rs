@@ -10,6 +10,8 @@
 //! - [`motion`]: camera trajectories, procedural (orbit, shake, fast rotation) or from a TUM file;
 //! - [`deform`]: surfaces deformed over time by known smooth fields (bend, twist, wave), with
 //!   per-pixel scene flow and the deformed mesh per frame;
+//! - [`frame_pair`]: two frames of a deforming surface from cameras apart, before a wall or
+//!   not, with the true scene flow (frame-to-frame registration);
 //! - [`plate`]: the thesis' flat 21 × 13 grid and its five target deformations (Table 4.1);
 //! - [`sheet`]: plain sheets bent, rolled, folded, twisted and saddled (issue 26), at any size;
 //! - [`sequence`]: writing everything in the TUM layout;
@@ -22,6 +24,7 @@
 pub mod bvh;
 pub mod deform;
 pub mod faults;
+pub mod frame_pair;
 pub mod kinect;
 pub mod layouts;
 pub mod motion;

@@ -1,0 +1,44 @@
+//! The flags of a frame-to-frame registration, shared by `frames` and `pairs`.
+
+use crate::cli::{bad_input, InputError};
+use crate::warp_flags::WarpFlags;
+use anyhow::Result;
+use dynamap_slam::nonrigid::FrameSettings;
+
+/// How two frames are registered: the graph and optimiser, and the two ways the target holds
+/// the source beyond projective association (NOTES 95).
+#[derive(clap::Args, Debug)]
+pub(super) struct FrameFlags {
+    /// Where the target is seen through a warped point (no depth there, or depth beyond the
+    /// association gate behind it), the point takes the nearest target point within this
+    /// distance, metres; 0 leaves it to projective association [default: 0.05]
+    #[arg(long, value_name = "METRES")]
+    nearest_within: Option<f64>,
+    /// The feature matches only start the fit (rigidly) instead of also holding their points
+    /// throughout.
+    #[arg(long)]
+    matches_start_only: bool,
+    /// Graph and optimiser settings.
+    #[command(flatten)]
+    warp: WarpFlags,
+}
+
+impl FrameFlags {
+    /// The defaults with these flags applied; a bad value is bad input.
+    pub(super) fn settings(&self) -> Result<FrameSettings> {
+        let mut settings = FrameSettings::default();
+        self.warp
+            .apply(&mut settings.graph, &mut settings.register)
+            .bad_input()?;
+        if let Some(within) = self.nearest_within {
+            if !(within >= 0.0 && within.is_finite()) {
+                return Err(bad_input(format!(
+                    "--nearest-within must be a finite distance of 0 or more, not {within}"
+                )));
+            }
+            settings.nearest_within = within;
+        }
+        settings.hold_matches = !self.matches_start_only;
+        Ok(settings)
+    }
+}

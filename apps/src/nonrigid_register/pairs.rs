@@ -1,0 +1,82 @@
+//! `nonrigid_register pairs`: generated frame pairs ([`FramePairCase::set`]) registered frame to
+//! frame, one row each (EPE 3D of the surface's pixels against the true scene flow), and the
+//! mean: the held-out check of the frame registration's settings, which were chosen on
+//! DeepDeform's shirt.
+
+use super::frame_flags::FrameFlags;
+use crate::cli::{self, Session};
+use anyhow::Result;
+use dynamap_slam::nonrigid::{register_frames, FrameVerdict, FrameView};
+use dynamap_slam::synthetic::frame_pair::FramePairCase;
+
+/// `pairs`: which seeds, a wall or not, and the two settings to compare.
+#[derive(clap::Args, Debug)]
+pub(super) struct PairArgs {
+    /// The first texture seed.
+    #[arg(long, default_value_t = 1)]
+    first_seed: u64,
+    /// Seeds per surface and field (9 pairs each).
+    #[arg(long, default_value_t = 2)]
+    seeds: u64,
+    /// A textured wall 0.8 m behind the surface.
+    #[arg(long)]
+    wall: bool,
+    /// How the frames are registered, as `frames`.
+    #[command(flatten)]
+    registration: FrameFlags,
+}
+
+/// Registers every pair of the set and prints its row, then the mean EPE.
+pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> {
+    let settings = args.registration.settings()?;
+    if args.seeds == 0 {
+        return Err(cli::bad_input("--seeds must be at least 1"));
+    }
+    let cases = FramePairCase::set(args.first_seed, args.seeds, args.wall);
+    let bar = session.progress(cases.len() as u64, "pairs");
+    let row = |line: String| bar.suspend(|| println!("{line}"));
+    row(format!(
+        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>7} {:>10}",
+        "pair", "frame", "zero cm", "EPE cm", "< 5 cm", "matches", "seconds", "registered"
+    ));
+    let (mut sum, mut not_registered) = (0.0, 0);
+    for case in &cases {
+        let pair = case.render();
+        let source = FrameView::new(
+            &pair.camera,
+            &pair.source.0,
+            Some(&pair.source.1),
+            Some(&pair.mask),
+        );
+        let target = FrameView::new(&pair.camera, &pair.target.0, Some(&pair.target.1), None);
+        let reg = register_frames(&source, &target, &settings)?;
+        let (epe, zero) = pair.score(&reg.points, &reg.warped);
+        let registered = reg.verdict() == FrameVerdict::Registered;
+        sum += epe.stats.mean;
+        not_registered += usize::from(!registered);
+        bar.inc(1);
+        row(format!(
+            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>7.2} {:>10}",
+            case.name(),
+            case.frame,
+            100.0 * zero.stats.mean,
+            100.0 * epe.stats.mean,
+            epe.within_5cm,
+            reg.matches.as_ref().map_or("none".to_string(), |m| format!(
+                "{}/{}",
+                m.source.len(),
+                m.matches
+            )),
+            reg.summary.seconds,
+            if registered { "yes" } else { "no" }
+        ));
+    }
+    bar.finish_and_clear();
+    println!(
+        "mean EPE {:.3} cm over {} pairs; {} not registered",
+        100.0 * sum / cases.len().max(1) as f64,
+        cases.len(),
+        not_registered
+    );
+    Ok(())
+}
