@@ -319,6 +319,9 @@ pub struct FrameMatches {
     pub keypoints: (usize, usize),
     /// Matches before RANSAC.
     pub matches: usize,
+    /// The matches the rigid motion did not fit (source and target points): on a deforming
+    /// object many are true ([`crate::nonrigid::frame_matches::grow_matches`]).
+    pub rejected: Vec<(Vector3<f64>, Vector3<f64>)>,
 }
 
 /// The matches of two keypoint sets and the rigid motion RANSAC fits to them.
@@ -366,12 +369,18 @@ pub fn match_frames(
             .map(|(p, _)| *p)
             .collect()
     };
+    let rejected = (m.source.iter().zip(&m.target))
+        .zip(&m.fit.inliers)
+        .filter(|(_, &k)| !k)
+        .map(|((s, t), _)| (*s, *t))
+        .collect();
     Some(FrameMatches {
         source: keep(&m.source),
         target: keep(&m.target),
         motion: m.fit.motion,
         keypoints: (ka.len(), kb.len()),
         matches: m.source.len(),
+        rejected,
     })
 }
 

@@ -6,18 +6,19 @@
 //! deforms it (projective association, and the nearest point where the target sees through a
 //! point: [`super::frame_target`]). The result is each source pixel's scene flow.
 
+use super::frame_matches::{
+    fit_to_matches, grown_and_tied, held_seeds, Bound, MatchFrames, TiedMatch,
+};
 use super::frame_target::SeenThroughTarget;
 use super::graph::{DeformationGraph, GraphError, GraphParams};
-use super::register::{
-    DepthTarget, RegisterError, RegisterParams, RegisterSummary, Seeds, WarpOptimiser,
-};
+use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams, FrameMatches};
 use crate::image::{
     valid, BilateralParams, ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID,
 };
 use crate::preprocess::{Level, PreprocessParams, Preprocessor};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 
 /// A borrowed view of one RGB-D frame for registration (the frames read from disk are
 /// [`crate::io::tum::RgbdFrame`]): depth in metres (0 where missing), optional colour and object
@@ -341,85 +342,21 @@ fn feature_start(
     }
 }
 
-/// A feature match tied to the source's points: the point's index, its partner in the target
-/// and the target's normal there.
-#[derive(Clone, Copy, Debug)]
-struct TiedMatch {
-    point: usize,
-    target: Vector3<f64>,
-    normal: Vector3<f64>,
-}
-
-/// Ties each match to the source point at its pixel and the target's normal at its partner's;
-/// matches without either are left out.
-fn tie_matches(
-    pairs: &[(Vector3<f64>, Vector3<f64>)],
-    source: &FrameView<'_>,
-    target: &FrameView<'_>,
-    target_normals: &NormalMap,
-    pixels: &[usize],
+/// The matches that shape the warp ([`super::frame_matches`]): none without matches or when the
+/// settings keep them to the rigid start.
+fn held_matches(
+    matches: Option<&FrameMatches>,
+    frames: &MatchFrames<'_>,
+    settings: &FrameSettings,
 ) -> Vec<TiedMatch> {
-    let w = source.camera.width;
-    let mut point_of = vec![u32::MAX; w * source.camera.height];
-    for (k, &i) in pixels.iter().enumerate() {
-        point_of[i] = k as u32;
+    let tolerance = settings
+        .features
+        .as_ref()
+        .map_or(0.0, |f| f.inlier_distance);
+    match matches.filter(|_| settings.hold_matches) {
+        Some(m) => grown_and_tied(m, frames, settings.graph.spacing, tolerance),
+        None => Vec::new(),
     }
-    let pixel = |camera: &Camera, p: &Vector3<f64>| camera.project_to_pixel(&Point3::from(*p));
-    pairs
-        .iter()
-        .filter_map(|(s, t)| {
-            let (u, v) = pixel(source.camera, s)?;
-            let (tu, tv) = pixel(target.camera, t)?;
-            let n = target_normals.data[tv * target.camera.width + tu];
-            let k = point_of[v * w + u];
-            (k != u32::MAX && valid(&n)).then(|| TiedMatch {
-                point: k as usize,
-                target: *t,
-                normal: vector(&n),
-            })
-        })
-        .collect()
-}
-
-/// The matches as correspondences held through every stage ([`Seeds::pinned`]): each match's
-/// source point joins the data points (if it is not one) and is pinned to its partner. Depth
-/// constrains a smooth surface only along its normal; the matches hold it along itself. `None`
-/// without matches.
-fn held_seeds(
-    held: &[TiedMatch],
-    normals: &[Vector3<f64>],
-    data: &mut Vec<usize>,
-) -> Option<Seeds> {
-    if held.is_empty() {
-        return None;
-    }
-    let mut data_of = vec![u32::MAX; normals.len()];
-    for (j, &k) in data.iter().enumerate() {
-        data_of[k] = j as u32;
-    }
-    let mut pinned = Vec::with_capacity(held.len());
-    for m in held {
-        if data_of[m.point] == u32::MAX {
-            data_of[m.point] = data.len() as u32;
-            data.push(m.point);
-        }
-        pinned.push(data_of[m.point]);
-    }
-    let mut matches: Vec<(Vector3<f64>, Vector3<f64>)> = data
-        .iter()
-        .map(|&k| (Vector3::zeros(), normals[k]))
-        .collect();
-    for (m, &j) in held.iter().zip(&pinned) {
-        matches[j as usize] = (m.target, m.normal);
-    }
-    Some(Seeds {
-        matches,
-        stages: 0,
-        tukey_scale: 1.0,
-        replace_all: false,
-        iterations: 0,
-        pinned,
-    })
 }
 
 /// Registers `source` onto `target`: every valid source pixel inside its mask is a point (its raw
@@ -448,14 +385,23 @@ pub fn register_frames(
     let bindings = graph.bind_all(&points);
     let matches = feature_start(source, target, settings);
     let start = matches.as_ref().map_or(Isometry3::identity(), |m| m.motion);
-    let held = match matches.as_ref().filter(|_| settings.hold_matches) {
-        Some(m) => {
-            let inliers: Vec<_> = (m.source.iter().copied())
-                .zip(m.target.iter().copied())
-                .collect();
-            tie_matches(&inliers, source, target, &target_normals, &pixels)
-        }
-        None => Vec::new(),
+    let frames = MatchFrames {
+        source: source.camera,
+        target: target.camera,
+        target_normals: &target_normals,
+        pixels: &pixels,
+    };
+    let held = held_matches(matches.as_ref(), &frames, settings);
+    let bound = Bound {
+        points: &points,
+        normals: &normals,
+        bindings: &bindings,
+    };
+    let start = if held.is_empty() {
+        start
+    } else {
+        fit_to_matches(&mut graph, &held, &bound, &settings.register, &start)?;
+        Isometry3::identity()
     };
     let mut data = data;
     let seeds = held_seeds(&held, &normals, &mut data);

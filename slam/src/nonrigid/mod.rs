@@ -24,6 +24,7 @@
 
 pub mod boundary;
 pub mod descriptors;
+pub mod frame_matches;
 pub mod frame_surface;
 pub mod frame_target;
 pub mod frames;
