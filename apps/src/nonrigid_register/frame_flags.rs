@@ -14,8 +14,8 @@ pub(super) struct FrameFlags {
     /// distance, metres; 0 leaves it to projective association [default: 0.05]
     #[arg(long, value_name = "METRES")]
     nearest_within: Option<f64>,
-    /// The feature matches only start the fit (rigidly) instead of also holding their points
-    /// throughout.
+    /// The feature matches only start the fit (rigidly) instead of also shaping the warp (grown
+    /// by local agreement, fitted first, held throughout).
     #[arg(long)]
     matches_start_only: bool,
     /// Graph and optimiser settings.

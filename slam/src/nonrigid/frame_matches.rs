@@ -10,7 +10,9 @@
 //! near every match instead of near the rigid start.
 
 use super::graph::{Binding, DeformationGraph};
-use super::register::{RegisterError, RegisterParams, Seeds, Target, WarpOptimiser};
+use super::register::{
+    RegisterError, RegisterParams, RegisterSummary, Seeds, Target, WarpOptimiser,
+};
 use crate::camera::Camera;
 use crate::eval::umeyama;
 use crate::features::FrameMatches;
@@ -184,17 +186,17 @@ impl Target for MatchesOnly {
 /// Fits the warp to the matches alone from the rigid motion `start`: the matched points pinned to
 /// their partners point to point, under Tukey's c twice the farthest partner from the start (so
 /// that none is rejected; the matches were verified), the regulariser's schedule as `params`', no
-/// stay prior.
+/// stay prior. What the optimiser did; `None` (and the graph untouched) without matches.
 pub(super) fn fit_to_matches(
     graph: &mut DeformationGraph,
     held: &[TiedMatch],
     bound: &Bound<'_>,
     params: &RegisterParams,
     start: &Isometry3<f64>,
-) -> Result<(), RegisterError> {
+) -> Result<Option<RegisterSummary>, RegisterError> {
     let mut data = Vec::new();
     let Some(seeds) = held_seeds(held, bound.normals, &mut data) else {
-        return Ok(());
+        return Ok(None);
     };
     let farthest = held
         .iter()
@@ -209,7 +211,7 @@ pub(super) fn fit_to_matches(
     };
     let pick = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> { data.iter().map(|&k| v[k]).collect() };
     let bindings: Vec<Binding> = data.iter().map(|&k| bound.bindings[k]).collect();
-    WarpOptimiser::new(fit).optimise_from(
+    let summary = WarpOptimiser::new(fit).optimise_from(
         graph,
         &pick(bound.points),
         &pick(bound.normals),
@@ -218,7 +220,7 @@ pub(super) fn fit_to_matches(
         &[*start],
         Some(&seeds),
     )?;
-    Ok(())
+    Ok(Some(summary))
 }
 
 #[cfg(test)]

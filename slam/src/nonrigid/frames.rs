@@ -1,10 +1,11 @@
 //! Registering one RGB-D frame onto another, DeepDeform's setting (Bozic et al., CVPR 2020): two
 //! frames of one sensor, the object masked in the source, and a motion too large for projective
 //! association alone. The source's valid pixels become points; a deformation graph is sampled over
-//! them; sparse colour matches ([`crate::features`]) give the rigid start and hold their points
-//! throughout, and the warp-field optimiser refines the start against the target's depth and
-//! deforms it (projective association, and the nearest point where the target sees through a
-//! point: [`super::frame_target`]). The result is each source pixel's scene flow.
+//! them; sparse colour matches ([`crate::features`]) give the rigid start and, grown by local
+//! agreement, a first fit of the warp that they hold throughout ([`super::frame_matches`]); the
+//! warp-field optimiser then refines it against the target's depth (projective association, and
+//! the nearest point where the target sees through a point: [`super::frame_target`]). The result
+//! is each source pixel's scene flow.
 
 use super::frame_matches::{
     fit_to_matches, grown_and_tied, held_seeds, Bound, MatchFrames, TiedMatch,
@@ -52,8 +53,10 @@ pub struct FrameSettings {
     /// beyond the association gate behind it), the point takes the nearest of the target's points
     /// within this distance, metres ([`SeenThroughTarget`]; default 0.05, half the gate).
     pub nearest_within: f64,
-    /// Whether the feature matches hold their source points through every stage, not only give
-    /// the rigid start (default true).
+    /// Whether the feature matches shape the warp, not only give the rigid start (default true):
+    /// RANSAC's inliers grown by the matches that agree with them locally, the warp fitted to
+    /// them before the depth is looked at, and held through every stage
+    /// ([`super::frame_matches`]).
     pub hold_matches: bool,
 }
 
@@ -397,11 +400,11 @@ pub fn register_frames(
         normals: &normals,
         bindings: &bindings,
     };
-    let start = if held.is_empty() {
-        start
-    } else {
-        fit_to_matches(&mut graph, &held, &bound, &settings.register, &start)?;
+    let fit = fit_to_matches(&mut graph, &held, &bound, &settings.register, &start)?;
+    let start = if fit.is_some() {
         Isometry3::identity()
+    } else {
+        start
     };
     let mut data = data;
     let seeds = held_seeds(&held, &normals, &mut data);
@@ -417,7 +420,7 @@ pub fn register_frames(
         settings.nearest_within,
     );
     let mut optimiser = WarpOptimiser::new(settings.register.clone());
-    let summary = optimiser.optimise_from(
+    let mut summary = optimiser.optimise_from(
         &mut graph,
         &pick(&points),
         &pick(&normals),
@@ -426,6 +429,9 @@ pub fn register_frames(
         &[start],
         seeds.as_ref(),
     )?;
+    if let Some(fit) = fit {
+        summary.take_in_first(&fit);
+    }
     let (mut warped, mut warped_normals) = (Vec::new(), Vec::new());
     graph.warp_all(
         &bindings,

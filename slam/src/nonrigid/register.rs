@@ -283,6 +283,18 @@ pub struct RegisterSummary {
     pub photometric: Option<PhotometricFit>,
 }
 
+impl RegisterSummary {
+    /// Counts `first`, an optimisation run before this one on the same graph, in this summary:
+    /// its iterations, seconds and times are added, and the rigid motion it applied comes before
+    /// this one's pre-alignment.
+    pub fn take_in_first(&mut self, first: &RegisterSummary) {
+        self.iterations += first.iterations;
+        self.seconds += first.seconds;
+        self.times.add(&first.times);
+        self.prealigned *= first.prealigned;
+    }
+}
+
 /// Seconds spent in each stage of one optimisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RegisterTimes {
@@ -868,6 +880,38 @@ fn check_inputs(
 mod tests {
     use super::*;
     use crate::image::Image;
+
+    #[test]
+    fn a_first_optimisation_is_counted_and_its_rigid_motion_comes_first() {
+        let summary = |iterations, seconds, prealigned| RegisterSummary {
+            iterations,
+            data_cost: 1.0,
+            regulariser_cost: 2.0,
+            matched: 3,
+            seconds,
+            times: RegisterTimes {
+                linear: seconds,
+                ..RegisterTimes::default()
+            },
+            prealigned,
+            photometric: None,
+        };
+        let a = Isometry3::new(Vector3::new(0.1, 0.0, 0.0), Vector3::new(0.0, 0.3, 0.0));
+        let b = Isometry3::new(Vector3::new(0.0, 0.2, 0.0), Vector3::new(0.1, 0.0, 0.0));
+        let mut last = summary(5, 0.5, b);
+        last.take_in_first(&summary(7, 0.25, a));
+        assert_eq!(
+            (last.iterations, last.seconds, last.times.linear),
+            (12, 0.75, 0.75)
+        );
+        let p = Point3::new(0.3, -0.2, 1.0);
+        assert!((last.prealigned * p - b * (a * p)).norm() < 1e-12);
+        assert_eq!(
+            (last.data_cost, last.matched),
+            (1.0, 3),
+            "the last one's fit stands"
+        );
+    }
 
     #[test]
     fn a_seed_overrides_only_a_partner_beyond_the_gate_or_a_missing_one() {
