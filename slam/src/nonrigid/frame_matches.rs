@@ -35,11 +35,12 @@ pub fn grow_matches(
     let mut accepted = inliers.to_vec();
     let mut left = candidates.to_vec();
     let first = accepted.len();
+    let mut near = (Vec::new(), Vec::new());
     loop {
         let before = accepted.len();
         let mut k = 0;
         while k < left.len() {
-            if agrees(&accepted, &left[k], radius, tolerance) {
+            if agrees(&accepted, &left[k], (radius, tolerance), &mut near) {
                 accepted.push(left.swap_remove(k));
             } else {
                 k += 1;
@@ -52,17 +53,25 @@ pub fn grow_matches(
 }
 
 /// Whether the rigid motion of the accepted matches within `radius` of `m`'s source point (at
-/// least three) carries it within `tolerance` of its partner.
-fn agrees(accepted: &[MatchPair], m: &MatchPair, radius: f64, tolerance: f64) -> bool {
-    let (a, b): (Vec<Point3<f64>>, Vec<Point3<f64>>) = accepted
-        .iter()
-        .filter(|(s, _)| (s - m.0).norm() <= radius)
-        .map(|(s, t)| (Point3::from(*s), Point3::from(*t)))
-        .unzip();
+/// least three) carries it within `tolerance` of its partner; `near` holds those matches' two
+/// sides (buffers reused across calls).
+fn agrees(
+    accepted: &[MatchPair],
+    m: &MatchPair,
+    (radius, tolerance): (f64, f64),
+    near: &mut (Vec<Point3<f64>>, Vec<Point3<f64>>),
+) -> bool {
+    let (a, b) = near;
+    a.clear();
+    b.clear();
+    for (s, t) in accepted.iter().filter(|(s, _)| (s - m.0).norm() <= radius) {
+        a.push(Point3::from(*s));
+        b.push(Point3::from(*t));
+    }
     if a.len() < 3 {
         return false;
     }
-    umeyama(&a, &b, false)
+    umeyama(a, b, false)
         .is_some_and(|f| (f.isometry * Point3::from(m.0) - Point3::from(m.1)).norm() <= tolerance)
 }
 

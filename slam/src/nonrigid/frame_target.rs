@@ -10,18 +10,16 @@
 //! pulled back to. Where the target's depth lies in front of the point instead, the point may be
 //! hidden and is left to projective association (which rejects the occluder by the gates).
 
-use super::register::{DepthTarget, Target};
+use super::register::{CloudTarget, DepthTarget, Target};
 use crate::image::valid;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 
-/// [`DepthTarget`] with a closest-point fallback for points the target sees through.
+/// [`DepthTarget`] with a closest-point fallback ([`CloudTarget`]) for points the target sees
+/// through.
 pub struct SeenThroughTarget<'a> {
     depth: DepthTarget<'a>,
-    /// The frame's points that have a normal, and their normals.
-    points: Vec<Vector3<f64>>,
-    normals: Vec<Vector3<f64>>,
-    tree: ImmutableKdTree<f64, 3>,
+    /// The frame's points that have a normal (none when `within` is 0: no fallback).
+    nearest: Option<CloudTarget>,
     /// The target's depth at the point's pixel must lie this far behind it (metres) for the
     /// point to count as seen through.
     behind: f64,
@@ -34,19 +32,16 @@ impl<'a> SeenThroughTarget<'a> {
     /// or depth more than `behind` beyond it; it then takes the nearest of the frame's points
     /// within `within`, or none.
     pub fn new(depth: DepthTarget<'a>, behind: f64, within: f64) -> Self {
-        let (mut points, mut normals) = (Vec::new(), Vec::new());
-        for (v, n) in depth.vertices.data.iter().zip(&depth.normals.data) {
-            if valid(v) && valid(n) {
-                points.push(Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64));
-                normals.push(Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64));
-            }
-        }
-        let coords: Vec<[f64; 3]> = points.iter().map(|p| (*p).into()).collect();
+        let vector = |v: &[f32; 3]| Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+        let nearest = (within > 0.0).then(|| {
+            let points: Vec<_> = depth.vertices.data.iter().map(vector).collect();
+            let normals: Vec<_> = depth.normals.data.iter().map(vector).collect();
+            // pixels without a vertex or a normal are NaN, which the cloud leaves out
+            CloudTarget::new(&points, &normals)
+        });
         Self {
             depth,
-            tree: ImmutableKdTree::new_from_slice(&coords),
-            points,
-            normals,
+            nearest,
             behind,
             within,
         }
@@ -66,15 +61,8 @@ impl Target for SeenThroughTarget<'_> {
         if !self.sees_through(p)? {
             return self.depth.associate(p);
         }
-        if self.points.is_empty() {
-            return None;
-        }
-        let near = self.tree.nearest_one::<SquaredEuclidean>(&(*p).into());
-        if near.distance > self.within * self.within {
-            return None;
-        }
-        let k = near.item as usize;
-        Some((self.points[k], self.normals[k]))
+        let (q, n) = self.nearest.as_ref()?.associate(p)?;
+        ((q - p).norm_squared() <= self.within * self.within).then_some((q, n))
     }
 }
 

@@ -207,7 +207,22 @@ impl DeformingScene {
         frame: usize,
         noise: &super::noise::SensorNoise,
     ) -> (Image<u16>, crate::image::ColorImage) {
-        let mut r = render(&self.scene_at(frame), camera, pose);
+        let (depth, color, _) = self.sensor_frame_seen(camera, pose, frame, noise);
+        (depth, color)
+    }
+
+    /// [`Self::sensor_frame`], and which pixels see the deforming surface (not the background
+    /// nor nothing): the object's mask.
+    pub fn sensor_frame_seen(
+        &self,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        frame: usize,
+        noise: &super::noise::SensorNoise,
+    ) -> (Image<u16>, crate::image::ColorImage, Image<bool>) {
+        let scene = self.scene_at(frame);
+        let surface = scene.objects.len() - 1;
+        let mut r = render(&scene, camera, pose);
         let depth = noise.apply(
             frame as u64,
             &r.depth,
@@ -215,7 +230,13 @@ impl DeformingScene {
             &mut r.color,
             camera.depth_scale,
         );
-        (depth, r.color)
+        let seen = r
+            .hits
+            .iter()
+            .map(|h| h.as_ref().is_some_and(|h| h.object == surface))
+            .collect();
+        let mask = Image::from_vec(camera.width, camera.height, seen).expect("one hit per pixel");
+        (depth, r.color, mask)
     }
 
     /// The deformed surface at `frame`, in world coordinates (the ground-truth mesh).

@@ -5,7 +5,6 @@
 
 use super::deform::{surface, DeformingScene, Field, SurfaceKind};
 use super::noise::SensorNoise;
-use super::render::render;
 use super::scene::Shape;
 use super::texture::Texture;
 use crate::camera::Camera;
@@ -105,16 +104,8 @@ impl FramePairCase {
             depth_to_metres(raw, &camera, &mut out);
             out
         };
-        let (d0, c0) = scene.sensor_frame(&camera, &Isometry3::identity(), 0, &noise);
+        let (d0, c0, mask) = scene.sensor_frame_seen(&camera, &Isometry3::identity(), 0, &noise);
         let (d1, c1) = scene.sensor_frame(&camera, &self.moved, self.frame, &noise);
-        let first = scene.scene_at(0);
-        let surface = first.objects.len() - 1;
-        let hits = render(&first, &camera, &Isometry3::identity()).hits;
-        let on_surface = hits
-            .iter()
-            .map(|h| h.as_ref().is_some_and(|h| h.object == surface));
-        let mask = Image::from_vec(camera.width, camera.height, on_surface.collect())
-            .expect("one hit per pixel");
         FramePair {
             source: (metres(&d0), c0),
             mask,
