@@ -112,6 +112,13 @@ struct Args {
     /// The photometric references are taken from a tracked frame every this many frames.
     #[arg(long, default_value_t = FusionParams::default().photometric_keyframe_every)]
     photometric_keyframe_every: usize,
+    /// Weight of the chromaticity term, (R − B)/(R + G + B) against the canonical model's (0:
+    /// none; used when the frames have colour).
+    #[arg(long, default_value_t = FusionParams::default().register.chroma_weight)]
+    chroma_weight: f64,
+    /// Tukey's c of the chromaticity term.
+    #[arg(long, default_value_t = FusionParams::default().register.chroma_tukey)]
+    chroma_tukey: f64,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -128,6 +135,14 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.register.photometric_tukey = args.photometric_tukey;
     p.photometric_window = args.photometric_window;
     p.photometric_keyframe_every = args.photometric_keyframe_every;
+    p.register.chroma_weight = args.chroma_weight;
+    p.register.chroma_tukey = args.chroma_tukey;
+    if !(p.register.chroma_weight >= 0.0 && p.register.chroma_weight.is_finite()) {
+        return Err(cli::bad_input("--chroma-weight must be a number ≥ 0"));
+    }
+    if !(p.register.chroma_tukey > 0.0 && p.register.chroma_tukey.is_finite()) {
+        return Err(cli::bad_input("--chroma-tukey must be a positive number"));
+    }
     if !(p.register.photometric_weight >= 0.0 && p.register.photometric_weight.is_finite()) {
         return Err(cli::bad_input("--photometric-weight must be a number ≥ 0"));
     }
@@ -469,7 +484,7 @@ fn process_frame(
     tally.errors.extend(error.map(|e| (i, e)));
     let s = report.summary.as_ref();
     tracing::debug!(
-        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, chromaticity residual {:.4} of {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
         report.nodes,
         report.added_nodes,
         s.map_or(0, |s| s.matched),
@@ -477,6 +492,8 @@ fn process_frame(
         s.map_or(0, |s| s.iterations),
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.residual),
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.texture),
+        s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.residual),
+        s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.texture),
         error.unwrap_or(f64::NAN) * 1e3,
         report.times.optimise * 1e3,
         report.times.fuse * 1e3,

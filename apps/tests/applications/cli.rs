@@ -773,4 +773,14 @@ fn nonrigid_slam_tracks_a_wave_seen_by_the_kinect_model() {
         2,
         &["--photometric-keyframe-every"],
     );
+    assert_exit(
+        &run("nonrigid_slam", &["--chroma-weight", "nan", "--quiet"]),
+        2,
+        &["--chroma-weight"],
+    );
+    assert_exit(
+        &run("nonrigid_slam", &["--chroma-tukey=-0.1", "--quiet"]),
+        2,
+        &["--chroma-tukey"],
+    );
 }

@@ -5,7 +5,8 @@
 //! 2. warp the canonical surface samples by the current field and optimise the field against the
 //!    live depth (projective association, [`WarpOptimiser`]), starting from the last frame's field,
 //!    and, with colour, against the live intensities: each sample's intensity in a recent tracked
-//!    frame, over its local mean (module `photometric`), holds motion along the surface;
+//!    frame, over its local mean (module `photometric`), and the chromaticity it was first seen
+//!    with (module `chroma`) hold motion along the surface;
 //! 3. fuse the live depth into the canonical volume through the warp: each voxel centre near the
 //!    surface is carried into the live frame by the blend of its K nearest nodes (kept across
 //!    frames, `voxel_bindings`), projected, and its projective signed distance fused
@@ -17,6 +18,7 @@
 //! The canonical frame is the first camera frame. The warp carries canonical points into the live
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
+use super::chroma::{cell_key, ChromaImage, ChromaReferences};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::photometric::{PhotometricTarget, RatioImage};
 use super::reference_frame::ReferenceFrame;
@@ -48,7 +50,8 @@ pub struct FusionParams {
     pub graph: GraphParams,
     /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 100 for one round
     /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 2 cm, point weight
-    /// 0.1, stay weight 0.01, photometric weight 0.3 under Tukey c = 0.1).
+    /// 0.1, stay weight 0.01, photometric weight 0.3 under Tukey c = 0.1, chromaticity weight
+    /// 0.3 under Tukey c = 0.1).
     pub register: RegisterParams,
     /// The pyramid level whose depth the data term associates with (default 1: 320 × 240 from
     /// 640 × 480).
@@ -101,6 +104,8 @@ impl Default for FusionParams {
                 refine_iterations: 4,
                 photometric_weight: 0.3,
                 photometric_tukey: 0.1,
+                chroma_weight: 0.3,
+                chroma_tukey: 0.1,
             },
             data_level: 1,
             data_spacing: 0.01,
@@ -177,6 +182,13 @@ pub struct NonRigidFusion {
     has_ratio: bool,
     /// The frame the references are taken from.
     reference_frame: ReferenceFrame,
+    /// The data level's chromaticity, when the frame has colour and the term is weighted.
+    chroma: ChromaImage,
+    has_chroma: bool,
+    /// Each data point's chromaticity when first seen (NaN: not yet).
+    chroma_reference: Vec<f32>,
+    /// The same, per canonical cube, kept across re-samplings.
+    chroma_book: ChromaReferences,
 }
 
 impl NonRigidFusion {
@@ -202,6 +214,10 @@ impl NonRigidFusion {
             ratio: RatioImage::default(),
             has_ratio: false,
             reference_frame: ReferenceFrame::default(),
+            chroma: ChromaImage::default(),
+            has_chroma: false,
+            chroma_reference: Vec::new(),
+            chroma_book: ChromaReferences::default(),
         }
     }
 
@@ -302,6 +318,10 @@ impl NonRigidFusion {
             self.ratio
                 .compute(&level.intensity, self.params.photometric_window);
         }
+        self.has_chroma = color.is_some() && self.params.register.chroma_weight > 0.0;
+        if let (true, Some(c)) = (self.has_chroma, color) {
+            self.chroma.compute(c, self.data_level());
+        }
         report.times.preprocess = t.elapsed().as_secs_f64();
         let result = match self.graph.is_some() {
             false => self.start(color, &mut report),
@@ -347,7 +367,9 @@ impl NonRigidFusion {
         self.volume = volume;
         self.graph = Some(graph);
         self.voxel_bindings.clear();
+        self.chroma_book.clear();
         self.resample(&surface);
+        self.learn_chroma(true);
         self.take_reference();
         report.times.surface = t.elapsed().as_secs_f64();
         Ok(())
@@ -362,6 +384,7 @@ impl NonRigidFusion {
         self.track(report)?;
         self.fuse(color, report)?;
         let t = Instant::now();
+        self.learn_chroma(false);
         let surface = mesh_points(&self.volume.extract_mesh());
         let graph = self.graph.as_mut().expect("started");
         report.added_nodes = graph.extend(&surface.0);
@@ -401,12 +424,18 @@ impl NonRigidFusion {
             vertices: &level.vertices,
             normals: &level.normals,
         };
-        let textured = self.has_ratio.then(|| TexturedDepthTarget {
+        let photometric = self.has_ratio.then(|| PhotometricTarget {
+            live: self.ratio.live(&level.camera),
+            reference: &self.reference,
+        });
+        let chroma = self.has_chroma.then(|| PhotometricTarget {
+            live: self.chroma.live(&level.camera),
+            reference: &self.chroma_reference,
+        });
+        let textured = (photometric.is_some() || chroma.is_some()).then_some(TexturedDepthTarget {
             depth,
-            photometric: PhotometricTarget {
-                live: self.ratio.live(&level.camera),
-                reference: &self.reference,
-            },
+            photometric,
+            chroma,
         });
         let target: &dyn Target = match &textured {
             Some(t) => t,
@@ -499,24 +528,57 @@ impl NonRigidFusion {
         }
     }
 
+    /// Data points without a chromaticity take the live one where they are seen: at the start,
+    /// every point whose pixel's depth lies within the gate of it (the first frame's surface, at
+    /// the identity); after a tracked frame, every point matched at the end of its optimisation.
+    fn learn_chroma(&mut self, start: bool) {
+        if !self.has_chroma {
+            return;
+        }
+        let cell = self.params.data_spacing.max(1e-6);
+        let level = &self.pre.levels[self.data_level()];
+        let live = self.chroma.live(&level.camera);
+        if start {
+            let depth = DepthTarget {
+                camera: &level.camera,
+                vertices: &level.vertices,
+                normals: &level.normals,
+            };
+            let gate = self.params.register.max_distance;
+            let seen = self.points.iter().enumerate().filter_map(|(i, p)| {
+                let (q, _) = depth.associate(p)?;
+                ((q - p).norm() <= gate).then_some((i, *p))
+            });
+            let points = &self.points;
+            self.chroma_book
+                .learn(points, cell, seen, &live, &mut self.chroma_reference);
+        } else {
+            let seen = self.optimiser.matched_points();
+            self.chroma_book
+                .learn(&self.points, cell, seen, &live, &mut self.chroma_reference);
+        }
+    }
+
     /// The pyramid level the data terms work on.
     fn data_level(&self) -> usize {
         self.params.data_level.min(self.pre.levels.len() - 1)
     }
 
-    /// Thins the canonical surface to the data points (one per `data_spacing` cube) and binds them.
+    /// Thins the canonical surface to the data points (one per `data_spacing` cube), binds them,
+    /// and gives them their cubes' chromaticities.
     fn resample(&mut self, (points, normals): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)) {
         let cell = self.params.data_spacing.max(1e-6);
         let mut seen = FxHashSet::default();
         self.points.clear();
         self.normals.clear();
         for (p, n) in points.iter().zip(normals) {
-            let key = p.map(|v| (v / cell).floor() as i64);
-            if seen.insert((key.x, key.y, key.z)) {
+            if seen.insert(cell_key(p, cell)) {
                 self.points.push(*p);
                 self.normals.push(*n);
             }
         }
+        self.chroma_book
+            .assign(&self.points, cell, &mut self.chroma_reference);
         let graph = self.graph.as_ref().expect("started");
         self.bindings = graph.bind_all(&self.points);
         self.since_refresh = 0;

@@ -9,6 +9,8 @@
 //! - [`photometric`]: the photometric data term of tracking: each data point's intensity (over its
 //!   local mean) in a recent tracked frame ([`reference_frame`]) against the live image, for
 //!   motion along the surface that depth cannot see.
+//! - [`chroma`]: the chromaticity term of tracking: colour that shading and exposure leave as it
+//!   is, compared with the canonical model's.
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp (each
 //!   voxel's nodes cached across frames, `voxel_bindings`), the field tracked frame to frame
 //!   against live depth, the graph grown with the surface.
@@ -23,6 +25,7 @@
 //!   graph's nodes, and the median distance from a registered source to the target's surface.
 
 pub mod boundary;
+pub mod chroma;
 pub mod descriptors;
 pub mod frame_matches;
 pub mod frame_surface;
@@ -43,6 +46,7 @@ mod system;
 mod voxel_bindings;
 
 pub use boundary::{rim_matches, RimMatches};
+pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frame_target::SeenThroughTarget;

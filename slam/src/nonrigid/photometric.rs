@@ -76,12 +76,7 @@ impl RatioImage {
 
     /// The ratio image as the photometric term samples it, with the intrinsics of its level.
     pub fn live<'a>(&'a self, camera: &'a Camera) -> LiveIntensity<'a> {
-        LiveIntensity {
-            camera,
-            intensity: &self.image,
-            gradient_x: &self.gradient_x,
-            gradient_y: &self.gradient_y,
-        }
+        LiveIntensity::of(camera, [&self.image, &self.gradient_x, &self.gradient_y])
     }
 }
 
@@ -107,7 +102,17 @@ pub struct LiveIntensity<'a> {
     pub gradient_y: &'a GrayImage,
 }
 
-impl LiveIntensity<'_> {
+impl<'a> LiveIntensity<'a> {
+    /// An image with its two gradients, `[I, ∂I/∂u, ∂I/∂v]`, seen through `camera`.
+    pub fn of(camera: &'a Camera, [intensity, gradient_x, gradient_y]: [&'a GrayImage; 3]) -> Self {
+        Self {
+            camera,
+            intensity,
+            gradient_x,
+            gradient_y,
+        }
+    }
+
     /// The intensity at the projection of the camera-frame point `p` and its derivative by `p`
     /// (`∇Iᵀ ∂π/∂x`), or `None` behind the camera or within a pixel of the border (where the
     /// gradients are not defined).
@@ -240,12 +245,7 @@ pub(crate) mod tests {
         }
 
         pub(crate) fn live<'a>(&'a self, camera: &'a Camera) -> LiveIntensity<'a> {
-            LiveIntensity {
-                camera,
-                intensity: &self.gray,
-                gradient_x: &self.gx,
-                gradient_y: &self.gy,
-            }
+            LiveIntensity::of(camera, [&self.gray, &self.gx, &self.gy])
         }
     }
 

@@ -78,6 +78,15 @@ pub enum RegisterError {
     },
 }
 
+/// The two colour terms of tracking.
+#[derive(Clone, Copy)]
+enum Colour {
+    /// Intensity over its local mean (module `photometric`).
+    Ratio,
+    /// Chromaticity (module `chroma`).
+    Chroma,
+}
+
 /// Where warped points find their partners.
 pub trait Target: Sync {
     /// The target point and unit normal associated with the warped point `p` (before rejection).
@@ -86,6 +95,12 @@ pub trait Target: Sync {
     /// The live intensities and the data points' reference intensities, for the photometric
     /// term (module `photometric`), if the target has them.
     fn photometric(&self) -> Option<PhotometricTarget<'_>> {
+        None
+    }
+
+    /// The live chromaticities and the data points' canonical chromaticities, for the
+    /// chromaticity term (module `chroma`), if the target has them.
+    fn chroma(&self) -> Option<PhotometricTarget<'_>> {
         None
     }
 }
@@ -151,13 +166,15 @@ impl Target for DepthTarget<'_> {
     }
 }
 
-/// A live depth frame with its intensities: projective association as [`DepthTarget`], and the
-/// photometric term beside it.
+/// A live depth frame with its colour: projective association as [`DepthTarget`], and the
+/// photometric and chromaticity terms beside it.
 pub struct TexturedDepthTarget<'a> {
     /// The depth.
     pub depth: DepthTarget<'a>,
-    /// The intensities.
-    pub photometric: PhotometricTarget<'a>,
+    /// The intensities over their local means, with references from a recent frame.
+    pub photometric: Option<PhotometricTarget<'a>>,
+    /// The chromaticities, with the canonical model's as references.
+    pub chroma: Option<PhotometricTarget<'a>>,
 }
 
 impl Target for TexturedDepthTarget<'_> {
@@ -166,7 +183,11 @@ impl Target for TexturedDepthTarget<'_> {
     }
 
     fn photometric(&self) -> Option<PhotometricTarget<'_>> {
-        Some(self.photometric)
+        self.photometric
+    }
+
+    fn chroma(&self) -> Option<PhotometricTarget<'_>> {
+        self.chroma
     }
 }
 
@@ -212,6 +233,11 @@ pub struct RegisterParams {
     pub photometric_weight: f64,
     /// Tukey's c of the photometric term, intensity units (default 0.1).
     pub photometric_tukey: f64,
+    /// Weight of the chromaticity term `λ ρ(c(π(W(v))) − c_canonical)` (module `chroma`), for a
+    /// target that has chromaticities ([`Target::chroma`]; default 0: none).
+    pub chroma_weight: f64,
+    /// Tukey's c of the chromaticity term (default 0.1).
+    pub chroma_tukey: f64,
 }
 
 impl Default for RegisterParams {
@@ -231,6 +257,8 @@ impl Default for RegisterParams {
             refine_iterations: 0,
             photometric_weight: 0.0,
             photometric_tukey: 0.1,
+            chroma_weight: 0.0,
+            chroma_tukey: 0.1,
         }
     }
 }
@@ -281,6 +309,8 @@ pub struct RegisterSummary {
     pub prealigned: Isometry3<f64>,
     /// How well the photometric term is met at the end, when it was used.
     pub photometric: Option<PhotometricFit>,
+    /// How well the chromaticity term is met at the end, when it was used.
+    pub chroma: Option<PhotometricFit>,
 }
 
 impl RegisterSummary {
@@ -351,6 +381,16 @@ impl WarpOptimiser {
         }
     }
 
+    /// The data points that had a partner at the end of the last optimisation, with their
+    /// warped positions.
+    pub fn matched_points(&self) -> impl Iterator<Item = (usize, Vector3<f64>)> + '_ {
+        self.warped
+            .iter()
+            .zip(&self.matches)
+            .enumerate()
+            .filter_map(|(i, (w, m))| m.map(|_| (i, *w)))
+    }
+
     /// Moves `graph`'s nodes so the canonical `points` (with `normals`, bound by `bindings`) land on
     /// `target`. Inputs that do not belong together are an error, not a panic.
     pub fn optimise(
@@ -392,7 +432,9 @@ impl WarpOptimiser {
     ) -> Result<RegisterSummary, RegisterError> {
         let start = Instant::now();
         check_inputs(graph, points, normals, bindings, seeds)?;
-        let photometric = self.photometric_term(target, points.len())?;
+        let photometric = self.colour_term(target.photometric(), Colour::Ratio, points.len())?;
+        let chroma = self.colour_term(target.chroma(), Colour::Chroma, points.len())?;
+        let colour = [photometric, chroma];
         let mut times = RegisterTimes::default();
         let mut clock = Instant::now();
         let mut lap = |t: &mut f64| {
@@ -420,8 +462,7 @@ impl WarpOptimiser {
                 }
                 lap(&mut times.associate);
                 let mut evaluate = 0.0;
-                let done =
-                    self.minimise_round(points, bindings, seeded, photometric, &mut evaluate)?;
+                let done = self.minimise_round(points, bindings, seeded, colour, &mut evaluate)?;
                 iterations += done.iterations;
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`
@@ -440,12 +481,14 @@ impl WarpOptimiser {
         self.associate(graph, points, normals, bindings, target);
         lap(&mut times.associate);
         let (data_cost, matched) = self.data_cost();
-        let photometric = photometric.map(|ph| {
-            PhotometricFit::measure(
-                &ph.target,
-                &self.warped,
-                self.matches.iter().map(Option::is_some),
-            )
+        let [photometric, chroma] = colour.map(|term| {
+            term.map(|ph| {
+                PhotometricFit::measure(
+                    &ph.target,
+                    &self.warped,
+                    self.matches.iter().map(Option::is_some),
+                )
+            })
         });
         Ok(RegisterSummary {
             iterations,
@@ -456,6 +499,7 @@ impl WarpOptimiser {
             times,
             prealigned,
             photometric,
+            chroma,
         })
     }
 
@@ -466,7 +510,7 @@ impl WarpOptimiser {
         points: &[Vector3<f64>],
         bindings: &[Binding],
         seeded: Option<&Seeds>,
-        photometric: Option<Photometric<'_>>,
+        [photometric, chroma]: [Option<Photometric<'_>>; 2],
         evaluate: &mut f64,
     ) -> Result<Minimised, RegisterError> {
         let terms = WarpTerms {
@@ -479,6 +523,7 @@ impl WarpOptimiser {
             anchors: &self.anchors,
             stay_weight: self.params.stay_weight,
             photometric,
+            chroma,
         };
         let steps = Steps {
             iterations: seeded.map_or(self.params.iterations, |s| {
@@ -490,17 +535,22 @@ impl WarpOptimiser {
         Ok(self.system.minimise(&terms, steps, evaluate)?)
     }
 
-    /// The photometric term when it is weighted and `target` has intensities; reference
-    /// intensities that are not one per point are an error.
-    fn photometric_term<'t>(
+    /// A colour term when it is weighted and the target has it; references that are not one
+    /// per point are an error.
+    fn colour_term<'t>(
         &self,
-        target: &'t dyn Target,
+        target: Option<PhotometricTarget<'t>>,
+        kind: Colour,
         points: usize,
     ) -> Result<Option<Photometric<'t>>, RegisterError> {
-        let Some(t) = target
-            .photometric()
-            .filter(|_| self.params.photometric_weight > 0.0)
-        else {
+        let (weight, tukey) = match kind {
+            Colour::Ratio => (
+                self.params.photometric_weight,
+                self.params.photometric_tukey,
+            ),
+            Colour::Chroma => (self.params.chroma_weight, self.params.chroma_tukey),
+        };
+        let Some(t) = target.filter(|_| weight > 0.0) else {
             return Ok(None);
         };
         if t.reference.len() != points {
@@ -511,8 +561,8 @@ impl WarpOptimiser {
         }
         Ok(Some(Photometric {
             target: t,
-            weight: self.params.photometric_weight,
-            tukey: self.params.photometric_tukey,
+            weight,
+            tukey,
         }))
     }
 
@@ -895,6 +945,7 @@ mod tests {
             },
             prealigned,
             photometric: None,
+            chroma: None,
         };
         let a = Isometry3::new(Vector3::new(0.1, 0.0, 0.0), Vector3::new(0.0, 0.3, 0.0));
         let b = Isometry3::new(Vector3::new(0.0, 0.2, 0.0), Vector3::new(0.1, 0.0, 0.0));

@@ -95,6 +95,8 @@ pub(crate) struct WarpTerms<'a> {
     pub stay_weight: f64,
     /// The photometric term, if any.
     pub photometric: Option<Photometric<'a>>,
+    /// The chromaticity term, if any (module `chroma`).
+    pub chroma: Option<Photometric<'a>>,
 }
 
 /// The photometric term of a round: live intensities, reference intensities, weight λ and
@@ -124,6 +126,31 @@ impl Photometric<'_> {
     fn cost(&self, r: f64) -> (f64, f64) {
         let [rho, w, _] = Tukey(self.tukey).evaluate(r * r);
         (0.5 * self.weight * rho, self.weight * w)
+    }
+
+    /// Point i's ½λρ at its warped position p (0 without a residual).
+    #[inline]
+    fn cost_at(term: Option<&Self>, i: usize, p: &Vector3<f64>) -> f64 {
+        term.and_then(|ph| Some(ph.cost(ph.residual(i, p)?.0).0))
+            .unwrap_or(0.0)
+    }
+
+    /// Point i's row at p with `dp = ∂p/∂b`: ½λρ, residual r, IRLS weight and `G = dpᵀ ∂I/∂p`
+    /// (all zero without a residual).
+    #[inline]
+    fn row(
+        term: Option<&Self>,
+        i: usize,
+        p: &Vector3<f64>,
+        dp: &SMatrix<f64, 3, 8>,
+    ) -> (f64, f64, f64, SMatrix<f64, 8, 1>) {
+        match term.and_then(|ph| Some((ph, ph.residual(i, p)?))) {
+            Some((ph, (r, di))) => {
+                let (c, w) = ph.cost(r);
+                (c, r, w, dp.transpose() * di)
+            }
+            None => (0.0, 0.0, 0.0, SMatrix::<f64, 8, 1>::zeros()),
+        }
     }
 }
 
@@ -577,40 +604,32 @@ fn data_terms(
     let v = &terms.points[i];
     let Some((slots, pairs, grads)) = acc else {
         let p = transform_point(&blended, v);
-        let photometric = terms
-            .photometric
-            .and_then(|ph| Some(ph.cost(ph.residual(i, &p)?.0).0));
         return match_terms(&(p - q), &n, terms.tukey, terms.point_weight).0
-            + photometric.unwrap_or(0.0);
+            + Photometric::cost_at(terms.photometric.as_ref(), i, &p)
+            + Photometric::cost_at(terms.chroma.as_ref(), i, &p);
     };
     let (p, dp) = transform_point_jacobian(&blended, v);
     let d = p - q;
     let (mut cost, w1, w2) = match_terms(&d, &n, terms.tukey, terms.point_weight);
-    // the photometric row: r₃ = I(π(p)) − I_ref, G₃ = dpᵀ ∂I/∂p, under weight w₃
-    let (r3, w3, u3) = match terms
-        .photometric
-        .and_then(|ph| Some((ph, ph.residual(i, &p)?)))
-    {
-        Some((ph, (r, di))) => {
-            let (c3, w3) = ph.cost(r);
-            cost += c3;
-            (r, w3, dp.transpose() * di)
-        }
-        None => (0.0, 0.0, SMatrix::<f64, 8, 1>::zeros()),
-    };
-    if w1 == 0.0 && w2 == 0.0 && w3 == 0.0 {
+    // the photometric row: r₃ = I(π(p)) − I_ref, G₃ = dpᵀ ∂I/∂p, under weight w₃; the
+    // chromaticity row r₄ likewise
+    let (c3, r3, w3, u3) = Photometric::row(terms.photometric.as_ref(), i, &p, &dp);
+    let (c4, r4, w4, u4) = Photometric::row(terms.chroma.as_ref(), i, &p, &dp);
+    cost += c3 + c4;
+    if w1 == 0.0 && w2 == 0.0 && w3 == 0.0 && w4 == 0.0 {
         return cost;
     }
     let r1 = n.dot(&d);
     let u = dp.transpose() * n;
     let mut m = [0.0; PACKED];
     for y in 0..8 {
-        let (uy, cy, vy) = (u[y], dp.column(y), u3[y]);
+        let (uy, cy, vy, zy) = (u[y], dp.column(y), u3[y], u4[y]);
         for x in 0..=y {
-            m[packed(x, y)] = w1 * u[x] * uy + w2 * dp.column(x).dot(&cy) + w3 * u3[x] * vy;
+            m[packed(x, y)] =
+                w1 * u[x] * uy + w2 * dp.column(x).dot(&cy) + w3 * u3[x] * vy + w4 * u4[x] * zy;
         }
     }
-    let g8 = u * (w1 * r1) + dp.transpose() * d * w2 + u3 * (w3 * r3);
+    let g8 = u * (w1 * r1) + dp.transpose() * d * w2 + u3 * (w3 * r3) + u4 * (w4 * r4);
     let mut c = [0.0; MAX_NEIGHBOURS];
     for a in 0..k {
         c[a] = signs[a] * b.weights[a];
@@ -913,15 +932,12 @@ mod tests {
         let (edges, anchors) = edges_and_anchors(&graph, &motions);
         let (tukey, pw, stay) = (0.05, 0.3, 0.2);
         let terms = WarpTerms {
-            points: &points,
-            bindings: &bindings,
-            matches: &matches,
             tukey,
             point_weight: pw,
             edges: &edges,
             anchors: &anchors,
             stay_weight: stay,
-            photometric: None,
+            ..data_only(&points, &bindings, &matches)
         };
         let mut ws = WarpSystem::default();
         ws.prepare(&graph, &bindings, FactorPrecision::Double)
@@ -989,15 +1005,14 @@ mod tests {
         }
     }
 
-    /// The photometric rows' gradient is the derivative of their cost: every node's six
-    /// right-perturbation coordinates against central differences of `cost_at`, on a ramp
-    /// (whose bilinear samples and central-difference gradients are exact but for the images'
-    /// f32 rounding, so that only the chain through the projection and the blend is tested).
+    /// The photometric and chromaticity rows' gradient is the derivative of their cost: every
+    /// node's six right-perturbation coordinates against central differences of `cost_at`, on a
+    /// ramp (whose bilinear samples and central-difference gradients are exact but for the
+    /// images' f32 rounding, so that only the chain through the projection and the blend is
+    /// tested).
     #[test]
     fn the_photometric_gradient_is_the_derivative_of_its_cost() {
         use crate::camera::Camera;
-        use crate::image::{GrayImage, Image};
-        use crate::nonrigid::photometric::tests::WithGradients;
         let (graph, points, bindings, matches) = scene_at(Vector3::new(-0.1, -0.1, 0.9));
         let motions: Vec<Isometry3<f64>> = graph
             .nodes
@@ -1005,38 +1020,13 @@ mod tests {
             .map(|n| dynamap_residuals::deform::rigid_motion(&n.motion))
             .collect();
         let camera = Camera::tum_default().level(1);
-        let mut gray: GrayImage = Image::new(camera.width, camera.height);
-        for y in 0..camera.height {
-            for x in 0..camera.width {
-                let (u, v) = (x as f32, y as f32);
-                gray.set(x, y, 0.3 + 0.001 * u + 0.0015 * v);
-            }
-        }
-        let gray = WithGradients::of(gray);
+        let gray = ramp(&camera);
         let live = gray.live(&camera);
         let mut ws = WarpSystem::default();
         ws.prepare(&graph, &bindings, FactorPrecision::Double)
             .unwrap();
         ws.set_motions(motions.iter().copied());
-        // references a little off the intensities the points show now, one without any
-        let reference: Vec<f32> = points
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                let b = &bindings[i];
-                let nodes: Vec<_> = b.nodes[..b.count]
-                    .iter()
-                    .map(|&k| ws.dqs[k as usize])
-                    .collect();
-                let p = transform_point(&blend(&nodes, &b.weights[..b.count]).0, v);
-                let (value, _) = live.sample(&p).expect("in view");
-                if i == 7 {
-                    f32::NAN
-                } else {
-                    (value + 0.02 * (i as f64).cos()) as f32
-                }
-            })
-            .collect();
+        let reference = references_near(&points, &bindings, &ws.dqs, &live);
         let photometric = Photometric {
             target: PhotometricTarget {
                 live,
@@ -1045,8 +1035,23 @@ mod tests {
             weight: 0.7,
             tukey: 1.0,
         };
+        // the chromaticity rows beside them, on the same image with other references
+        let other: Vec<f32> = reference
+            .iter()
+            .enumerate()
+            .map(|(i, r)| r - 0.015 * (i as f32).sin())
+            .collect();
+        let chroma = Photometric {
+            target: PhotometricTarget {
+                live,
+                reference: &other,
+            },
+            weight: 0.4,
+            tukey: 1.0,
+        };
         let mut terms = data_only(&points, &bindings, &matches);
         terms.photometric = Some(photometric);
+        terms.chroma = Some(chroma);
         let cost = ws.linearise(&terms);
         let again = cost_at(&terms, &motions, &ws.dqs.clone());
         assert!((cost - again).abs() < 1e-12 * cost, "{cost} {again}");
@@ -1073,6 +1078,47 @@ mod tests {
         }
     }
 
+    /// An intensity ramp over the image, with its gradients.
+    fn ramp(camera: &crate::camera::Camera) -> crate::nonrigid::photometric::tests::WithGradients {
+        use crate::image::{GrayImage, Image};
+        let mut gray: GrayImage = Image::new(camera.width, camera.height);
+        for y in 0..camera.height {
+            for x in 0..camera.width {
+                let (u, v) = (x as f32, y as f32);
+                gray.set(x, y, 0.3 + 0.001 * u + 0.0015 * v);
+            }
+        }
+        crate::nonrigid::photometric::tests::WithGradients::of(gray)
+    }
+
+    /// References a little off the intensities the warped points show in `live`, point 7
+    /// without any.
+    fn references_near(
+        points: &[Vector3<f64>],
+        bindings: &[Binding],
+        dqs: &[DualQuaternion<f64>],
+        live: &crate::nonrigid::photometric::LiveIntensity<'_>,
+    ) -> Vec<f32> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let b = &bindings[i];
+                let nodes: Vec<_> = b.nodes[..b.count]
+                    .iter()
+                    .map(|&k| dqs[k as usize])
+                    .collect();
+                let p = transform_point(&blend(&nodes, &b.weights[..b.count]).0, v);
+                let (value, _) = live.sample(&p).expect("in view");
+                if i == 7 {
+                    f32::NAN
+                } else {
+                    (value + 0.02 * (i as f64).cos()) as f32
+                }
+            })
+            .collect()
+    }
+
     /// Data terms alone (Tukey's c 5 cm, point-to-point weight 0.1).
     fn data_only<'a>(
         points: &'a [Vector3<f64>],
@@ -1089,6 +1135,7 @@ mod tests {
             anchors: &[],
             stay_weight: 0.0,
             photometric: None,
+            chroma: None,
         }
     }
 

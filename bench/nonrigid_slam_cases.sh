@@ -1,0 +1,25 @@
+#!/bin/bash
+# Runs `nonrigid_slam` on generated deforming sequences, one line per set of flags, each case's
+# mean / worst-frame tracking error in millimetres (the JSON line's error_mean, error_max_frame).
+#
+#   bench/nonrigid_slam_cases.sh "plane:bend:3 cylinder:twist:7" "--chroma-weight 0" "--chroma-weight 0.3"
+#
+# Cases are surface:field:seed. Environment: BIN (default target/release/nonrigid_slam), SENSOR
+# (default kinect), FRAMES (default 100).
+set -euo pipefail
+BIN=${BIN:-target/release/nonrigid_slam}
+CASES="$1"
+shift
+for flags in "$@"; do
+  line="[$flags]"
+  for c in $CASES; do
+    IFS=: read -r surface field seed <<< "$c"
+    # shellcheck disable=SC2086
+    r=$("$BIN" --surface "$surface" --field "$field" --seed "$seed" --sensor "${SENSOR:-kinect}" \
+        --max-frames "${FRAMES:-100}" --quiet $flags \
+      | grep -o '"error_mean": [0-9.]*, "error_max_frame": [0-9.]*' \
+      | awk '{printf "%.1f/%.1f", $2 * 1000, $4 * 1000}')
+    line="$line $surface-$field-$seed=${r:-failed}"
+  done
+  echo "$line"
+done
