@@ -91,7 +91,7 @@ enum Mode {
     /// diagonal D.
     Meshes(MeshArgs),
     /// One RGB-D frame (a depth PNG) onto another: warped points, scene flow and its EPE.
-    Frames(FrameArgs),
+    Frames(Box<FrameArgs>),
     /// Plain sheets (no correspondences given) onto bent, rolled, folded, twisted and saddled
     /// copies, alone and moved rigidly, at several sizes and mesh resolutions (issue 26).
     Sheets(SheetArgs),

@@ -18,6 +18,10 @@ pub(super) struct FrameFlags {
     /// by local agreement, fitted first, held throughout).
     #[arg(long)]
     matches_start_only: bool,
+    /// Weight of the chromaticity term, (R − B)/(R + G + B) of the source pixel against the
+    /// target's where the warp carries it (0: none; both frames need colour) [default: 0.3]
+    #[arg(long, value_name = "WEIGHT")]
+    chroma_weight: Option<f64>,
     /// Graph and optimiser settings.
     #[command(flatten)]
     warp: WarpFlags,
@@ -39,6 +43,14 @@ impl FrameFlags {
             settings.nearest_within = within;
         }
         settings.hold_matches = !self.matches_start_only;
+        if let Some(w) = self.chroma_weight {
+            if !(w >= 0.0 && w.is_finite()) {
+                return Err(bad_input(format!(
+                    "--chroma-weight must be a finite weight of 0 or more, not {w}"
+                )));
+            }
+            settings.register.chroma_weight = w;
+        }
         Ok(settings)
     }
 }

@@ -10,6 +10,7 @@
 //! pulled back to. Where the target's depth lies in front of the point instead, the point may be
 //! hidden and is left to projective association (which rejects the occluder by the gates).
 
+use super::photometric::PhotometricTarget;
 use super::register::{CloudTarget, DepthTarget, Target};
 use crate::image::valid;
 use nalgebra::{Point3, Vector3};
@@ -25,6 +26,8 @@ pub struct SeenThroughTarget<'a> {
     behind: f64,
     /// The nearest point is taken only within this distance (metres).
     within: f64,
+    /// The chromaticity term, when given.
+    chroma: Option<PhotometricTarget<'a>>,
 }
 
 impl<'a> SeenThroughTarget<'a> {
@@ -44,7 +47,13 @@ impl<'a> SeenThroughTarget<'a> {
             nearest,
             behind,
             within,
+            chroma: None,
         }
+    }
+
+    /// The same target with the chromaticity term `chroma` (module `chroma`).
+    pub fn with_chroma(self, chroma: Option<PhotometricTarget<'a>>) -> Self {
+        Self { chroma, ..self }
     }
 
     /// Whether the target's camera sees through `p`: its pixel has no depth, or depth more than
@@ -63,6 +72,10 @@ impl Target for SeenThroughTarget<'_> {
         }
         let (q, n) = self.nearest.as_ref()?.associate(p)?;
         ((q - p).norm_squared() <= self.within * self.within).then_some((q, n))
+    }
+
+    fn chroma(&self) -> Option<PhotometricTarget<'_>> {
+        self.chroma
     }
 }
 

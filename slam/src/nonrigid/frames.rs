@@ -7,11 +7,13 @@
 //! the nearest point where the target sees through a point: [`super::frame_target`]). The result
 //! is each source pixel's scene flow.
 
+use super::chroma::ChromaImage;
 use super::frame_matches::{
     fit_to_matches, grown_and_tied, held_seeds, Bound, MatchFrames, TiedMatch,
 };
 use super::frame_target::SeenThroughTarget;
 use super::graph::{DeformationGraph, GraphError, GraphParams};
+use super::photometric::PhotometricTarget;
 use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
 use crate::camera::Camera;
 use crate::features::{match_frames, FeatureFrame, FeatureParams, FrameMatches};
@@ -65,7 +67,8 @@ impl Default for FrameSettings {
     /// feature-matched start; λ from 100 to 1 over three stages; association within 10 cm and 45°;
     /// Tukey's c 8 cm (a tighter c rejects the parts that deform most from the rigid start before
     /// the field can reach them: 3 cm left 2.7 cm of error on the generated pair of
-    /// `tests/integration/nonrigid.rs`, 8 cm 0.8 cm); a weak stay prior for what depth cannot see.
+    /// `tests/integration/nonrigid.rs`, 8 cm 0.8 cm); a weak stay prior for what depth cannot see;
+    /// the chromaticity term at weight 0.3 under Tukey's c 0.1, as in tracking (NOTES 96).
     fn default() -> Self {
         Self {
             graph: GraphParams {
@@ -85,6 +88,7 @@ impl Default for FrameSettings {
                 stay_weight: 0.01,
                 damping: 1e-4,
                 refine_iterations: 0,
+                chroma_weight: 0.3,
                 ..RegisterParams::default()
             },
             features: Some(FeatureParams::default()),
@@ -401,15 +405,13 @@ pub fn register_frames(
         bindings: &bindings,
     };
     let fit = fit_to_matches(&mut graph, &held, &bound, &settings.register, &start)?;
-    let start = if fit.is_some() {
-        Isometry3::identity()
-    } else {
-        start
-    };
+    // a fit to the matches has moved the nodes already
+    let start = fit.as_ref().map_or(start, |_| Isometry3::identity());
     let mut data = data;
     let seeds = held_seeds(&held, &normals, &mut data);
     let pick = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> { data.iter().map(|&k| v[k]).collect() };
     let data_bindings: Vec<_> = data.iter().map(|&k| bindings[k]).collect();
+    let chroma = FrameChroma::of([source, target], settings, (&data, &pixels));
     let depth_target = SeenThroughTarget::new(
         DepthTarget {
             camera: target.camera,
@@ -418,7 +420,8 @@ pub fn register_frames(
         },
         settings.register.max_distance,
         settings.nearest_within,
-    );
+    )
+    .with_chroma(chroma.as_ref().map(|c| c.term(target.camera)));
     let mut optimiser = WarpOptimiser::new(settings.register.clone());
     let mut summary = optimiser.optimise_from(
         &mut graph,
@@ -450,6 +453,47 @@ pub fn register_frames(
         matches,
         data_points: data.len(),
     })
+}
+
+/// The chromaticity term of a frame pair (module `chroma`), when both frames have colour and the
+/// term is weighted: the target's chromaticity at full resolution, and the source's at each data
+/// point's pixel as the references. Shading and exposure leave the chromaticity as it is, so the
+/// source's own pixel can be the reference.
+struct FrameChroma {
+    target: ChromaImage,
+    references: Vec<f32>,
+}
+
+impl FrameChroma {
+    /// From `[source, target]`, for the data points `data` (indices into `pixels`).
+    fn of(
+        [source, target]: [&FrameView<'_>; 2],
+        settings: &FrameSettings,
+        (data, pixels): (&[usize], &[usize]),
+    ) -> Option<Self> {
+        let (Some(sc), Some(tc)) = (source.color, target.color) else {
+            return None;
+        };
+        if settings.register.chroma_weight <= 0.0 {
+            return None;
+        }
+        let mut image = ChromaImage::default();
+        image.compute(sc, 0);
+        let references = data.iter().map(|&k| image.image.data[pixels[k]]).collect();
+        image.compute(tc, 0);
+        Some(Self {
+            target: image,
+            references,
+        })
+    }
+
+    /// The term, the target's chromaticities seen through `camera`.
+    fn term<'a>(&'a self, camera: &'a Camera) -> PhotometricTarget<'a> {
+        PhotometricTarget {
+            live: self.target.live(camera),
+            reference: &self.references,
+        }
+    }
 }
 
 #[cfg(test)]

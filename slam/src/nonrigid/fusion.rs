@@ -48,7 +48,7 @@ pub struct FusionParams {
     pub tsdf: TsdfParams,
     /// The deformation graph (default spacing 5 cm).
     pub graph: GraphParams,
-    /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 100 for one round
+    /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 30 for one round
     /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 2 cm, point weight
     /// 0.1, stay weight 0.01, photometric weight 0.3 under Tukey c = 0.1, chromaticity weight
     /// 0.3 under Tukey c = 0.1).
@@ -92,7 +92,7 @@ impl Default for FusionParams {
             register: RegisterParams {
                 rigid_iterations: 3,
                 rigid_max_distance: 0.1,
-                schedule: vec![100.0],
+                schedule: vec![30.0],
                 rounds: 1,
                 iterations: 2,
                 max_distance: 0.05,
