@@ -549,9 +549,8 @@ impl NonRigidFusion {
                 let (q, _) = depth.associate(p)?;
                 ((q - p).norm() <= gate).then_some((i, *p))
             });
-            let points = &self.points;
             self.chroma_book
-                .learn(points, cell, seen, &live, &mut self.chroma_reference);
+                .learn(&self.points, cell, seen, &live, &mut self.chroma_reference);
         } else {
             let seen = self.optimiser.matched_points();
             self.chroma_book

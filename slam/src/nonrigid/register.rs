@@ -98,8 +98,9 @@ pub trait Target: Sync {
         None
     }
 
-    /// The live chromaticities and the data points' canonical chromaticities, for the
-    /// chromaticity term (module `chroma`), if the target has them.
+    /// The live chromaticities and the data points' reference chromaticities (where each was
+    /// first seen, or its own source pixel's), for the chromaticity term (module `chroma`), if
+    /// the target has them.
     fn chroma(&self) -> Option<PhotometricTarget<'_>> {
         None
     }
@@ -173,7 +174,7 @@ pub struct TexturedDepthTarget<'a> {
     pub depth: DepthTarget<'a>,
     /// The intensities over their local means, with references from a recent frame.
     pub photometric: Option<PhotometricTarget<'a>>,
-    /// The chromaticities, with the canonical model's as references.
+    /// The chromaticities, with each point's first-seen one as its reference.
     pub chroma: Option<PhotometricTarget<'a>>,
 }
 
@@ -233,8 +234,8 @@ pub struct RegisterParams {
     pub photometric_weight: f64,
     /// Tukey's c of the photometric term, intensity units (default 0.1).
     pub photometric_tukey: f64,
-    /// Weight of the chromaticity term `λ ρ(c(π(W(v))) − c_canonical)` (module `chroma`), for a
-    /// target that has chromaticities ([`Target::chroma`]; default 0: none).
+    /// Weight of the chromaticity term `λ ρ(c(π(W(v))) − c_ref)` (module `chroma`), for a target
+    /// that has chromaticities ([`Target::chroma`]; default 0: none).
     pub chroma_weight: f64,
     /// Tukey's c of the chromaticity term (default 0.1).
     pub chroma_tukey: f64,
