@@ -385,17 +385,10 @@ fn a_bent_cylinder_is_held_by_the_chromaticity_of_its_pixels() {
     use dynamap::slam::nonrigid::{FrameSettings, FrameVerdict};
     use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
     use dynamap::slam::synthetic::frame_pair::FramePairCase;
-    let case = FramePairCase {
-        kind: SurfaceKind::Cylinder,
-        field: Field::Bend,
-        seed: 1,
-        moved: Isometry3::from_parts(
-            Translation3::new(0.09, 0.02, 0.0),
-            UnitQuaternion::from_scaled_axis(Vector3::y() * 6f64.to_radians()),
-        ),
-        frame: 8,
-        wall: false,
-    };
+    let case = FramePairCase::set(1, 1, false)
+        .into_iter()
+        .find(|c| c.kind == SurfaceKind::Cylinder && c.field == Field::Bend)
+        .expect("the set has a bent cylinder");
     let (reg, held, _) = frame_pair(&case, &FrameSettings::default());
     let mut settings = FrameSettings::default();
     settings.register.chroma_weight = 0.0;

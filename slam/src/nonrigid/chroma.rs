@@ -108,16 +108,6 @@ impl ChromaReferences {
         self.by_cell.clear();
     }
 
-    /// Cubes with a reference.
-    pub fn len(&self) -> usize {
-        self.by_cell.len()
-    }
-
-    /// Whether no cube has a reference.
-    pub fn is_empty(&self) -> bool {
-        self.by_cell.is_empty()
-    }
-
     /// Each canonical point's reference (NaN where its cube has none yet), into `out`.
     pub fn assign(&self, points: &[Vector3<f64>], cell: f64, out: &mut Vec<f32>) {
         out.clear();
@@ -236,9 +226,13 @@ mod tests {
             &mut refs,
         );
         assert_eq!((refs[0], refs[1]), (0.25, 0.5));
-        let moved = [points[0] + Vector3::new(0.002, 0.003, 0.001)];
+        let moved = [
+            points[0] + Vector3::new(0.002, 0.003, 0.001),
+            points[1],
+            Vector3::new(0.5, 0.0, 1.0),
+        ];
         book.assign(&moved, cell, &mut refs);
-        assert_eq!(refs, vec![0.25]);
-        assert_eq!(book.len(), 2);
+        assert_eq!(refs[..2], [0.25, 0.5]);
+        assert!(refs[2].is_nan(), "a cube never seen has no reference");
     }
 }

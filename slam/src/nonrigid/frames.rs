@@ -7,7 +7,7 @@
 //! the nearest point where the target sees through a point: [`super::frame_target`]). The result
 //! is each source pixel's scene flow.
 
-use super::chroma::ChromaImage;
+use super::chroma::{chromaticity, ChromaImage};
 use super::frame_matches::{
     fit_to_matches, grown_and_tied, held_seeds, Bound, MatchFrames, TiedMatch,
 };
@@ -477,9 +477,13 @@ impl FrameChroma {
         if settings.register.chroma_weight <= 0.0 {
             return None;
         }
+        // the source's chromaticity is needed at the data points' pixels only (dark ones 0, as
+        // in the target's image)
+        let references = data
+            .iter()
+            .map(|&k| chromaticity(sc.data[pixels[k]]).unwrap_or(0.0))
+            .collect();
         let mut image = ChromaImage::default();
-        image.compute(sc, 0);
-        let references = data.iter().map(|&k| image.image.data[pixels[k]]).collect();
         image.compute(tc, 0);
         Some(Self {
             target: image,

@@ -78,15 +78,6 @@ pub enum RegisterError {
     },
 }
 
-/// The two colour terms of tracking.
-#[derive(Clone, Copy)]
-enum Colour {
-    /// Intensity over its local mean (module `photometric`).
-    Ratio,
-    /// Chromaticity (module `chroma`).
-    Chroma,
-}
-
 /// Where warped points find their partners.
 pub trait Target: Sync {
     /// The target point and unit normal associated with the warped point `p` (before rejection).
@@ -433,9 +424,7 @@ impl WarpOptimiser {
     ) -> Result<RegisterSummary, RegisterError> {
         let start = Instant::now();
         check_inputs(graph, points, normals, bindings, seeds)?;
-        let photometric = self.colour_term(target.photometric(), Colour::Ratio, points.len())?;
-        let chroma = self.colour_term(target.chroma(), Colour::Chroma, points.len())?;
-        let colour = [photometric, chroma];
+        let colour = colour_terms(target, &self.params, points.len())?;
         let mut times = RegisterTimes::default();
         let mut clock = Instant::now();
         let mut lap = |t: &mut f64| {
@@ -534,37 +523,6 @@ impl WarpOptimiser {
             refine_iterations: self.params.refine_iterations,
         };
         Ok(self.system.minimise(&terms, steps, evaluate)?)
-    }
-
-    /// A colour term when it is weighted and the target has it; references that are not one
-    /// per point are an error.
-    fn colour_term<'t>(
-        &self,
-        target: Option<PhotometricTarget<'t>>,
-        kind: Colour,
-        points: usize,
-    ) -> Result<Option<Photometric<'t>>, RegisterError> {
-        let (weight, tukey) = match kind {
-            Colour::Ratio => (
-                self.params.photometric_weight,
-                self.params.photometric_tukey,
-            ),
-            Colour::Chroma => (self.params.chroma_weight, self.params.chroma_tukey),
-        };
-        let Some(t) = target.filter(|_| weight > 0.0) else {
-            return Ok(None);
-        };
-        if t.reference.len() != points {
-            return Err(RegisterError::Intensities {
-                references: t.reference.len(),
-                points,
-            });
-        }
-        Ok(Some(Photometric {
-            target: t,
-            weight,
-            tukey,
-        }))
     }
 
     /// Builds the system's structure for `graph` and `bindings`, starts it from the nodes'
@@ -925,6 +883,42 @@ fn check_inputs(
         });
     }
     Ok(())
+}
+
+/// The photometric and chromaticity terms, each when it is weighted and `target` has it.
+fn colour_terms<'t>(
+    target: &'t dyn Target,
+    p: &RegisterParams,
+    points: usize,
+) -> Result<[Option<Photometric<'t>>; 2], RegisterError> {
+    let photometric = (p.photometric_weight, p.photometric_tukey);
+    Ok([
+        colour_term(target.photometric(), photometric, points)?,
+        colour_term(target.chroma(), (p.chroma_weight, p.chroma_tukey), points)?,
+    ])
+}
+
+/// A colour term of `(weight, tukey)` when it is weighted and the target has it; references that
+/// are not one per point are an error.
+fn colour_term(
+    target: Option<PhotometricTarget<'_>>,
+    (weight, tukey): (f64, f64),
+    points: usize,
+) -> Result<Option<Photometric<'_>>, RegisterError> {
+    let Some(t) = target.filter(|_| weight > 0.0) else {
+        return Ok(None);
+    };
+    if t.reference.len() != points {
+        return Err(RegisterError::Intensities {
+            references: t.reference.len(),
+            points,
+        });
+    }
+    Ok(Some(Photometric {
+        target: t,
+        weight,
+        tukey,
+    }))
 }
 
 #[cfg(test)]
