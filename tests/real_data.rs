@@ -597,6 +597,8 @@ fn deepdeform_seq017_is_masked_by_its_nodes_and_its_verdict_agrees_with_the_surf
     match reg.verdict() {
         FrameVerdict::Registered => assert!(after < 0.01, "registered at {after} m"),
         FrameVerdict::NotRegistered { .. } => assert!(after >= 0.01, "not registered at {after} m"),
+        // on the surface, slid along it: the distance says nothing
+        FrameVerdict::ColourDisagrees(_) => {}
     }
 }
 

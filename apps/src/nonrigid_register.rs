@@ -57,7 +57,7 @@ use dynamap_slam::nonrigid::{
     bounding_diagonal, clean_surface_settings, frame_points, mask_near_nodes, median_distance,
     mesh_points, register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
     FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding, SurfaceMesh,
-    SurfaceRegistration, SurfaceVerdict, MIN_MATCHED_FRACTION,
+    SurfaceRegistration, SurfaceVerdict, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -519,6 +519,12 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "inliers": m.source.len(),
     })));
     json["registered"] = verdict_json(reg.verdict());
+    json["colour_check"] = serde_json::json!(reg.colour.map(|c| serde_json::json!({
+        "aligned": c.aligned,
+        "off": c.off,
+        "flat": c.flat,
+        "floor": c.floor,
+    })));
     json["surface_distance"] = serde_json::json!({
         "before": median_distance(&reg.points, &surface),
         "after": median_distance(&reg.warped, &surface),
@@ -549,6 +555,16 @@ fn verdict_json(verdict: FrameVerdict) -> serde_json::Value {
                 "not registered: {matched} of {data_points} data points ended on the target \
                  (at least {:.0} % must)",
                 100.0 * MIN_MATCHED_FRACTION
+            );
+            false.into()
+        }
+        FrameVerdict::ColourDisagrees(c) => {
+            tracing::warn!(
+                "not registered: the colour disagrees on {} of {} textured patches (at most {:.0} \
+                 % may): the surface slid",
+                c.off,
+                c.off + c.aligned,
+                100.0 * MAX_OFF_FRACTION
             );
             false.into()
         }

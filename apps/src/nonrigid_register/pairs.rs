@@ -36,8 +36,16 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
     let bar = session.progress(cases.len() as u64, "pairs");
     let row = |line: String| bar.suspend(|| println!("{line}"));
     row(format!(
-        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>7} {:>10}",
-        "pair", "frame", "zero cm", "EPE cm", "< 5 cm", "matches", "seconds", "registered"
+        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>7} {:>11} {:>12}",
+        "pair",
+        "frame",
+        "zero cm",
+        "EPE cm",
+        "< 5 cm",
+        "matches",
+        "seconds",
+        "registered",
+        "colour off"
     ));
     let (mut sum, mut not_registered) = (0.0, 0);
     for case in &cases {
@@ -51,12 +59,13 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         let target = FrameView::new(&pair.camera, &pair.target.0, Some(&pair.target.1), None);
         let reg = register_frames(&source, &target, &settings)?;
         let (epe, zero) = pair.score(&reg.points, &reg.warped);
-        let registered = reg.verdict() == FrameVerdict::Registered;
+        let verdict = reg.verdict();
+        let registered = verdict == FrameVerdict::Registered;
         sum += epe.stats.mean;
         not_registered += usize::from(!registered);
         bar.inc(1);
         row(format!(
-            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>7.2} {:>10}",
+            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>7.2} {:>11} {:>12}",
             case.name(),
             case.frame,
             100.0 * zero.stats.mean,
@@ -68,7 +77,16 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
                 m.matches
             )),
             reg.summary.seconds,
-            if registered { "yes" } else { "no" }
+            match verdict {
+                FrameVerdict::Registered => "yes",
+                FrameVerdict::NotRegistered { .. } => "no: depth",
+                FrameVerdict::ColourDisagrees(_) => "no: colour",
+            },
+            reg.colour.as_ref().map_or("-".to_string(), |c| format!(
+                "{:.2} of {}",
+                c.fraction_off(),
+                c.off + c.aligned
+            ))
         ));
     }
     bar.finish_and_clear();

@@ -9,8 +9,8 @@
 //! - [`photometric`]: the photometric data term of tracking: each data point's intensity (over its
 //!   local mean) in a recent tracked frame ([`reference_frame`]) against the live image, for
 //!   motion along the surface that depth cannot see.
-//! - [`chroma`]: the chromaticity term of tracking: colour that shading and exposure leave as it
-//!   is, compared with the canonical model's.
+//! - [`chroma`]: the chromaticity term of tracking and frame registration: colour that shading
+//!   and exposure leave as it is, compared with what each point showed when first seen.
 //! - [`fusion`]: the DynamicFusion-style pipeline: a canonical TSDF fused through the warp (each
 //!   voxel's nodes cached across frames, `voxel_bindings`), the field tracked frame to frame
 //!   against live depth, the graph grown with the surface.
@@ -22,10 +22,12 @@
 //!   lies on the target and covers it (registered or not).
 //! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
 //!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
-//!   graph's nodes, and the median distance from a registered source to the target's surface.
+//!   graph's nodes, and the median distance from a registered source to the target's surface;
+//!   [`colour_check`]: whether the colour agrees with a frame registration, patch by patch.
 
 pub mod boundary;
 pub mod chroma;
+pub mod colour_check;
 pub mod descriptors;
 pub mod frame_matches;
 pub mod frame_surface;
@@ -47,12 +49,13 @@ mod voxel_bindings;
 
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
+pub use colour_check::ColourCheck;
 pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frame_target::SeenThroughTarget;
 pub use frames::{
     frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameVerdict,
-    FrameView, MIN_MATCHED_FRACTION,
+    FrameView, COLOUR_TOLERANCE, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
 pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
