@@ -92,6 +92,50 @@ fn the_graph_grows_only_over_new_surface() {
 /// each the default where `None`.
 type ColourWeights = (Option<f64>, Option<f64>);
 
+/// Non-rigid fusion's failure paths, each typed, none fusing: a blank first frame does not start
+/// the model, an image of the wrong size is refused, and after a good start a blank frame and
+/// a frame of the plate 1.5 m further away are lost, leaving the field as it was; the next good
+/// frame is tracked again.
+#[test]
+fn nonrigid_fusion_reports_each_failure_and_keeps_its_field() {
+    use dynamap::slam::camera::Camera;
+    use dynamap::slam::image::Image;
+    use dynamap::slam::nonrigid::{FusionFailure, FusionParams, NonRigidFusion};
+    use dynamap::slam::synthetic::deform::{surface, DeformingScene, Field, SurfaceKind};
+    use dynamap::slam::synthetic::noise::SensorNoise;
+
+    let scene = DeformingScene::new(surface(SurfaceKind::Plane, 60), Field::Bend, 3);
+    let camera = Camera::tum_default().level(1);
+    let mut slam = NonRigidFusion::new(camera, FusionParams::default());
+    let noise = SensorNoise::default();
+    let frame = |k, pose: &Isometry3<f64>| scene.sensor_frame(&camera, pose, k, &noise);
+    let (depth, color) = frame(0, &Isometry3::identity());
+    let blank = Image::filled(depth.width, depth.height, 0u16);
+    let failure = slam.process(&blank, Some(&color), None).failure;
+    assert_eq!(failure, Some(FusionFailure::TooLittleDepth { pixels: 0 }));
+    assert!(slam.graph().is_none(), "a blank frame starts nothing");
+    let small = Image::filled(depth.width / 2, depth.height, 1000u16);
+    let failure = slam.process(&small, None, None).failure;
+    assert!(matches!(failure, Some(FusionFailure::ImageSize { .. })), "{failure:?}");
+    assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
+    let (depth, color) = frame(1, &Isometry3::identity());
+    assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
+    let field = |slam: &NonRigidFusion| slam.warp_points(slam.data_points());
+    let before = field(&slam);
+    let failure = slam.process(&blank, Some(&color), None).failure;
+    assert!(matches!(failure, Some(FusionFailure::Lost { matched: 0, .. })), "{failure:?}");
+    let away = Isometry3::translation(0.0, 0.0, -1.5);
+    let (far, far_color) = frame(2, &away);
+    let failure = slam.process(&far, Some(&far_color), None).failure;
+    assert!(
+        matches!(failure, Some(FusionFailure::Lost { .. } | FusionFailure::Register(_))),
+        "{failure:?}"
+    );
+    assert_eq!(field(&slam), before, "a frame not tracked leaves the field as it was");
+    let (depth, color) = frame(2, &Isometry3::identity());
+    assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
+}
+
 /// Tracks `frames` frames of the generated plate under `field` (texture `seed`); see
 /// [`track_surface`].
 fn track_plate(

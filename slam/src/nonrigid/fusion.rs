@@ -23,7 +23,8 @@ use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::photometric::{PhotometricTarget, RatioImage};
 use super::reference_frame::ReferenceFrame;
 use super::register::{
-    DepthTarget, RegisterParams, RegisterSummary, Target, TexturedDepthTarget, WarpOptimiser,
+    DepthTarget, RegisterError, RegisterParams, RegisterSummary, Target, TexturedDepthTarget,
+    WarpOptimiser,
 };
 use super::surface::mesh_points;
 use super::voxel_bindings::{BlockGeometry, CachedWarp, VoxelBindings};
@@ -31,7 +32,7 @@ use crate::camera::Camera;
 use crate::image::{valid, ColorImage, Image};
 use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
-use crate::tsdf::{TsdfParams, TsdfVolume, BLOCK};
+use crate::tsdf::{TsdfError, TsdfParams, TsdfVolume, BLOCK};
 use dynamap_residuals::deform::{rigid_motion, transform_point};
 use kiddo::ImmutableKdTree;
 use nalgebra::{DualQuaternion, Isometry3, Point3, Vector3};
@@ -140,11 +141,50 @@ impl FusionTimes {
     }
 }
 
+/// Why a frame was not fused.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FusionFailure {
+    /// An image of another size than the camera's.
+    #[error("a {}x{} image does not match the camera's {}x{}", image.0, image.1, camera.0, camera.1)]
+    ImageSize {
+        /// The image's width and height.
+        image: (usize, usize),
+        /// The camera's.
+        camera: (usize, usize),
+    },
+    /// The first frame has too little valid depth on the object to start the model.
+    #[error("only {pixels} valid depth pixels on the object to start the model")]
+    TooLittleDepth {
+        /// Valid depth pixels (at least [`MIN_START_PIXELS`] are needed).
+        pixels: usize,
+    },
+    /// The field could not be optimised.
+    #[error(transparent)]
+    Register(#[from] RegisterError),
+    /// Too few of the surface's points matched the live depth: tracking is lost.
+    #[error("only {matched} of {points} surface points matched the live depth")]
+    Lost {
+        /// Data points with a partner at the end.
+        matched: usize,
+        /// Data points.
+        points: usize,
+    },
+    /// The deformation graph could not be sampled over the first frame's surface.
+    #[error(transparent)]
+    Graph(#[from] GraphError),
+    /// The volume could not take the frame (its block budget).
+    #[error(transparent)]
+    Volume(#[from] TsdfError),
+}
+
+/// Valid depth pixels on the object that the first frame needs to start the model.
+pub const MIN_START_PIXELS: usize = 100;
+
 /// What happened to one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FusionReport {
     /// Why the frame was not fused, if it was not (the field is then left as it was).
-    pub failure: Option<String>,
+    pub failure: Option<FusionFailure>,
     /// Nodes after the frame.
     pub nodes: usize,
     /// Nodes added by the frame.
@@ -292,10 +332,10 @@ impl NonRigidFusion {
             .chain(mask.map(|m| (m.width, m.height)));
         for s in sizes {
             if s != size {
-                report.failure = Some(format!(
-                    "a {}x{} image does not match the camera's {}x{}",
-                    s.0, s.1, size.0, size.1
-                ));
+                report.failure = Some(FusionFailure::ImageSize {
+                    image: s,
+                    camera: size,
+                });
                 return report;
             }
         }
@@ -339,30 +379,25 @@ impl NonRigidFusion {
         &mut self,
         color: Option<&ColorImage>,
         report: &mut FusionReport,
-    ) -> Result<(), String> {
+    ) -> Result<(), FusionFailure> {
         let level = &self.pre.levels[0];
         let seen = level.depth.data.iter().filter(|d| **d > 0.0).count();
-        if seen < 100 {
-            return Err(format!(
-                "only {seen} valid depth pixels on the object to start the model"
-            ));
+        if seen < MIN_START_PIXELS {
+            return Err(FusionFailure::TooLittleDepth { pixels: seen });
         }
         let t = Instant::now();
         let mut volume = TsdfVolume::new(self.params.tsdf);
-        volume
-            .integrate(
-                &level.depth,
-                &level.normals,
-                color,
-                &self.camera,
-                &Isometry3::identity(),
-            )
-            .map_err(|e| e.to_string())?;
+        volume.integrate(
+            &level.depth,
+            &level.normals,
+            color,
+            &self.camera,
+            &Isometry3::identity(),
+        )?;
         report.times.fuse = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let surface = mesh_points(&volume.extract_mesh());
-        let graph = DeformationGraph::sample(&surface.0, self.params.graph)
-            .map_err(|e: GraphError| e.to_string())?;
+        let graph = DeformationGraph::sample(&surface.0, self.params.graph)?;
         report.added_nodes = graph.nodes.len();
         self.volume = volume;
         self.graph = Some(graph);
@@ -380,7 +415,7 @@ impl NonRigidFusion {
         &mut self,
         color: Option<&ColorImage>,
         report: &mut FusionReport,
-    ) -> Result<(), String> {
+    ) -> Result<(), FusionFailure> {
         self.track(report)?;
         self.fuse(color, report)?;
         let t = Instant::now();
@@ -402,7 +437,7 @@ impl NonRigidFusion {
 
     /// Optimises the field against the live depth (and intensities); a frame that cannot be
     /// tracked leaves the field as it was and is an error.
-    fn track(&mut self, report: &mut FusionReport) -> Result<(), String> {
+    fn track(&mut self, report: &mut FusionReport) -> Result<(), FusionFailure> {
         let graph = self.graph.as_mut().expect("started");
         let t = Instant::now();
         self.backup.clear();
@@ -447,16 +482,15 @@ impl NonRigidFusion {
                 .optimise(graph, &self.points, &self.normals, &self.bindings, target);
         report.times.optimise = t.elapsed().as_secs_f64();
         let failure = match &outcome {
-            Err(e) => Some(e.to_string()),
+            Err(e) => Some(FusionFailure::Register(e.clone())),
             Ok(s)
                 if (s.matched as f64)
                     < self.params.min_matched_fraction * self.points.len() as f64 =>
             {
-                Some(format!(
-                    "only {} of {} surface points matched the live depth",
-                    s.matched,
-                    self.points.len()
-                ))
+                Some(FusionFailure::Lost {
+                    matched: s.matched,
+                    points: self.points.len(),
+                })
             }
             Ok(_) => None,
         };
@@ -477,7 +511,7 @@ impl NonRigidFusion {
         &mut self,
         color: Option<&ColorImage>,
         report: &mut FusionReport,
-    ) -> Result<(), String> {
+    ) -> Result<(), FusionFailure> {
         let graph = self.graph.as_ref().expect("started");
         let t = Instant::now();
         let level = &self.pre.levels[0];
@@ -499,16 +533,14 @@ impl NonRigidFusion {
             graph,
             bindings: &self.voxel_bindings,
         };
-        self.volume
-            .integrate_warped(
-                &level.depth,
-                &level.normals,
-                color,
-                &self.camera,
-                &touched,
-                &warp,
-            )
-            .map_err(|e| e.to_string())?;
+        self.volume.integrate_warped(
+            &level.depth,
+            &level.normals,
+            color,
+            &self.camera,
+            &touched,
+            &warp,
+        )?;
         report.times.fuse = t.elapsed().as_secs_f64();
         Ok(())
     }

@@ -57,7 +57,7 @@ pub use frames::{
     frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameVerdict,
     FrameView, COLOUR_TOLERANCE, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
-pub use fusion::{FusionParams, FusionReport, FusionTimes, NonRigidFusion};
+pub use fusion::{FusionFailure, FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use mesh_point::MeshPoint;
 pub use mesh_target::MeshTarget;
