@@ -116,22 +116,35 @@ fn nonrigid_fusion_reports_each_failure_and_keeps_its_field() {
     assert!(slam.graph().is_none(), "a blank frame starts nothing");
     let small = Image::filled(depth.width / 2, depth.height, 1000u16);
     let failure = slam.process(&small, None, None).failure;
-    assert!(matches!(failure, Some(FusionFailure::ImageSize { .. })), "{failure:?}");
+    assert!(
+        matches!(failure, Some(FusionFailure::ImageSize { .. })),
+        "{failure:?}"
+    );
     assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
     let (depth, color) = frame(1, &Isometry3::identity());
     assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
     let field = |slam: &NonRigidFusion| slam.warp_points(slam.data_points());
     let before = field(&slam);
     let failure = slam.process(&blank, Some(&color), None).failure;
-    assert!(matches!(failure, Some(FusionFailure::Lost { matched: 0, .. })), "{failure:?}");
+    assert!(
+        matches!(failure, Some(FusionFailure::Lost { matched: 0, .. })),
+        "{failure:?}"
+    );
     let away = Isometry3::translation(0.0, 0.0, -1.5);
     let (far, far_color) = frame(2, &away);
     let failure = slam.process(&far, Some(&far_color), None).failure;
     assert!(
-        matches!(failure, Some(FusionFailure::Lost { .. } | FusionFailure::Register(_))),
+        matches!(
+            failure,
+            Some(FusionFailure::Lost { .. } | FusionFailure::Register(_))
+        ),
         "{failure:?}"
     );
-    assert_eq!(field(&slam), before, "a frame not tracked leaves the field as it was");
+    assert_eq!(
+        field(&slam),
+        before,
+        "a frame not tracked leaves the field as it was"
+    );
     let (depth, color) = frame(2, &Isometry3::identity());
     assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
 }

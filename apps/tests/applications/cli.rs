@@ -607,6 +607,16 @@ fn nonrigid_register_pairs_prints_each_pair_and_the_mean() {
         lines[10].starts_with("mean EPE") && lines[10].ends_with("not registered"),
         "{stdout}"
     );
+    // the pairs have colour: each row ends with its colour check, "<fraction off> of <patches>"
+    for line in &lines[1..10] {
+        let words: Vec<&str> = line.split_whitespace().rev().take(3).collect();
+        assert!(
+            words[1] == "of"
+                && words[0].parse::<usize>().is_ok()
+                && words[2].parse::<f64>().is_ok(),
+            "{line}"
+        );
+    }
     assert_exit(
         &run("nonrigid_register", &["pairs", "--seeds", "0"]),
         2,
@@ -675,6 +685,10 @@ fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     let json = result_json(&out);
     assert_eq!(json["registered"], true, "{json}");
+    assert!(
+        json["colour_check"].is_null(),
+        "no colour, no colour check: {json}"
+    );
     let d = &json["surface_distance"];
     let (before, after) = (d["before"].as_f64().unwrap(), d["after"].as_f64().unwrap());
     assert!(before > 0.005 && after < 0.5 * before, "{json}");
