@@ -18,10 +18,10 @@
 //!   the patches. It holds the sensors' noise, compression and the colour's small changes between
 //!   the frames (DeepDeform seq258's floor is 75 times the noise that Immerkær's estimator finds
 //!   in its images: their JPEG chroma is smoothed, and the frames differ by more);
-//! - the *signal* `S` of a slide of the tolerance `t`: the target's own squared difference under
-//!   a shift of `t` pixels less that under one pixel, `mean_x (C_t(x + t) − C_t(x))² − mean_x
-//!   (C_t(x + 1) − C_t(x))²` over the four directions (both hold the noise twice; their
-//!   difference is the texture's).
+//! - the *signal* `S` of a slide of the tolerance `t` (in pixels at the patch's depth, at least
+//!   two): the target's own squared difference under a shift of `t` pixels less that under one
+//!   pixel, `mean_x (C_t(x + t) − C_t(x))² − mean_x (C_t(x + 1) − C_t(x))²` over the four
+//!   directions (both hold the noise twice; their difference is the texture's).
 //!
 //! A patch is *textured* when `S > M F`, a slide of the tolerance would stand out of the floor
 //! ([`MARGIN`] `= M`), and *off* when `e(0) > M F + S`: more is left than the floor and a slide
