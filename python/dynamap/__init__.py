@@ -4,7 +4,8 @@ The solver (``Problem``, ``Options``, ``Summary``), the library's residuals (pos
 and prior factors, BAL's reprojection, point-to-plane) and residuals written in Python, g2o pose
 graphs (``PoseGraph``, ``solve_pose_graph``), BAL problems (``BalProblem``, ``solve_bal``), and
 dense rigid SLAM (``RigidSlam``, ``Sequence``, ``generate_sequence``), and meshes (``read_mesh``,
-``write_mesh``, non-rigid ``register_meshes``), with numpy arrays in and out. Every error is a ``DynamapError`` (``InputError`` for files and
+``write_mesh``, non-rigid ``register_meshes``) and RGB-D frames (non-rigid ``register_frames``),
+with numpy arrays in and out. Every error is a ``DynamapError`` (``InputError`` for files and
 arrays, ``ProblemError`` for a problem built wrongly, ``SolveError`` for a solve that cannot
 proceed), or a ``ValueError`` / ``TypeError`` for an argument of the wrong kind.
 """
@@ -32,6 +33,7 @@ from ._dynamap import (
     prior_se2,
     prior_se3,
     read_mesh,
+    register_frames,
     register_meshes,
     solve_bal,
     solve_pose_graph,
@@ -61,6 +63,7 @@ __all__ = [
     "prior_se2",
     "prior_se3",
     "read_mesh",
+    "register_frames",
     "register_meshes",
     "solve_bal",
     "solve_pose_graph",

@@ -276,6 +276,26 @@ def register_meshes(
     on the target and most of the target covered, areas within 1.5x) and fit (on_target,
     covered, area_ratio, source_area_ratio, median_distance, tolerance)."""
 
+def register_frames(
+    source_depth: ArrayLike,
+    target_depth: ArrayLike,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    depth_scale: float = 1000.0,
+    source_color: Optional[ArrayLike] = None,
+    target_color: Optional[ArrayLike] = None,
+    mask: Optional[ArrayLike] = None,
+) -> Dict[str, Any]:
+    """The source RGB-D frame registered onto the target with the deformation graph, as
+    `nonrigid_register frames` does: depth as uint16 sensor units (depth_scale per metre) or
+    float metres, colour height x width x 3 uint8, the source's object as a bool mask. Gives
+    points and warped (n x 3), pixels (row-major source pixel of each point), flow (height x
+    width x 3, NaN off the object), nodes, matched, data_points, iterations, seconds,
+    registered (bool), verdict ("registered", "depth" or "colour") and colour_check (aligned,
+    off, flat, floor; None without colour)."""
+
 def check_jacobians(
     residual: Union[Residual, PythonResidual],
     values: Seq[ArrayLike],

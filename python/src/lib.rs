@@ -3,7 +3,7 @@
 //! The extension module `dynamap._dynamap`, which the Python package `dynamap` re-exports: the
 //! solver (`Problem`, `Options`, `Summary`, the built-in residuals and residuals written in
 //! Python), g2o pose graphs and BAL problems, dense rigid SLAM and non-rigid registration of
-//! meshes, with numpy arrays in and out. Build it with maturin (`pip install ./python`); its
+//! meshes and RGB-D frames, with numpy arrays in and out. Build it with maturin (`pip install ./python`); its
 //! tests are Python's (`python/tests`, pytest).
 //!
 //! Modules:
@@ -12,7 +12,8 @@
 //! - `options` (`Options`, `Summary`), `builtin` (the library's residuals), `callback`
 //!   (residuals written in Python), `check` (`check_jacobians`), `problem` (`Problem`);
 //! - `posegraph` (`PoseGraph`), `bal` (`BalProblem`), `meshes` (`read_mesh`, `write_mesh`,
-//!   `register_meshes`), `slam` (`RigidSlam`, `Sequence`, `generate_sequence`).
+//!   `register_meshes`), `frames` (`register_frames`), `slam` (`RigidSlam`, `Sequence`,
+//!   `generate_sequence`).
 
 mod arrays;
 mod bal;
@@ -20,6 +21,7 @@ mod builtin;
 mod callback;
 mod check;
 mod errors;
+mod frames;
 mod kernels;
 mod manifolds;
 mod meshes;
@@ -60,5 +62,6 @@ fn _dynamap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(meshes::read_mesh_file, m)?)?;
     m.add_function(wrap_pyfunction!(meshes::write_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(meshes::register_meshes, m)?)?;
+    m.add_function(wrap_pyfunction!(frames::register_frames, m)?)?;
     Ok(())
 }

@@ -74,7 +74,11 @@ fn pose_from(a: &Bound<'_, PyAny>) -> PyResult<Isometry3<f64>> {
 
 /// A depth array as raw sensor units: uint16 as given, float32/float64 metres times
 /// `depth_scale` (NaN, infinite or non-positive depths are holes).
-fn depth_image(depth: &Bound<'_, PyAny>, camera: &Camera, frame: usize) -> PyResult<Image<u16>> {
+pub(crate) fn depth_image(
+    depth: &Bound<'_, PyAny>,
+    camera: &Camera,
+    frame: usize,
+) -> PyResult<Image<u16>> {
     let shape = depth
         .cast::<PyUntypedArray>()
         .map_err(|_| PyValueError::new_err(format!("frame {frame}: depth must be a numpy array")))?
@@ -117,7 +121,7 @@ fn to_units(metres: f64, scale: f64) -> u16 {
 }
 
 /// A colour array (height × width × 3, uint8).
-fn color_image(
+pub(crate) fn color_image(
     color: &PyReadonlyArray3<'_, u8>,
     camera: &Camera,
     frame: usize,
