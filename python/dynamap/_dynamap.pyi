@@ -294,7 +294,8 @@ def register_frames(
     points and warped (n x 3), pixels (row-major source pixel of each point), flow (height x
     width x 3, NaN off the object), nodes, matched, data_points, iterations, seconds,
     registered (bool), verdict ("registered", "depth" or "colour") and colour_check (aligned,
-    off, flat, floor; None without colour)."""
+    off, flat, floor; None without colour). An array of the wrong shape or type raises
+    ValueError naming it (the source's images are frame 0, the target's frame 1)."""
 
 def check_jacobians(
     residual: Union[Residual, PythonResidual],

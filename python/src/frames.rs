@@ -12,8 +12,10 @@ use dynamap_slam::nonrigid::{
     FrameView,
 };
 use nalgebra::Vector3;
-use numpy::PyUntypedArrayMethods;
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArray};
+use numpy::{
+    PyArray1, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArray,
+    PyUntypedArrayMethods,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -74,7 +76,9 @@ fn mask_image(mask: &PyReadonlyArray2<'_, bool>, camera: &Camera) -> PyResult<Im
 /// point), `flow` (height × width × 3, NaN off the object), `nodes`, `matched`, `data_points`,
 /// `iterations`, `seconds`, `registered` (bool), `verdict` ("registered", "depth": too little
 /// of the source ended on the target, or "colour": its colour disagrees, slid along the
-/// surface) and `colour_check` (aligned, off, flat, floor; None without colour).
+/// surface) and `colour_check` (aligned, off, flat, floor; None without colour). An array of the
+/// wrong shape or type is a `ValueError` naming it (the source's images are frame 0, the
+/// target's frame 1).
 #[pyfunction]
 #[pyo3(signature = (source_depth, target_depth, fx, fy, cx, cy, depth_scale = 1000.0, source_color = None, target_color = None, mask = None))]
 #[allow(clippy::too_many_arguments)]
@@ -152,6 +156,7 @@ fn registration_dict<'py>(
     Ok(d)
 }
 
+/// The colour check's counts and floor.
 fn colour_dict<'py>(py: Python<'py>, c: &ColourCheck) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("aligned", c.aligned)?;
