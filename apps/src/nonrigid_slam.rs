@@ -137,19 +137,21 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.photometric_keyframe_every = args.photometric_keyframe_every;
     p.register.chroma_weight = args.chroma_weight;
     p.register.chroma_tukey = args.chroma_tukey;
-    if !(p.register.chroma_weight >= 0.0 && p.register.chroma_weight.is_finite()) {
-        return Err(cli::bad_input("--chroma-weight must be a number ≥ 0"));
-    }
-    if !(p.register.chroma_tukey > 0.0 && p.register.chroma_tukey.is_finite()) {
-        return Err(cli::bad_input("--chroma-tukey must be a positive number"));
-    }
-    if !(p.register.photometric_weight >= 0.0 && p.register.photometric_weight.is_finite()) {
-        return Err(cli::bad_input("--photometric-weight must be a number ≥ 0"));
-    }
-    if !(p.register.photometric_tukey > 0.0 && p.register.photometric_tukey.is_finite()) {
-        return Err(cli::bad_input(
-            "--photometric-tukey must be a positive number",
-        ));
+    let r = &p.register;
+    for (term, weight, tukey) in [
+        ("photometric", r.photometric_weight, r.photometric_tukey),
+        ("chroma", r.chroma_weight, r.chroma_tukey),
+    ] {
+        if !(weight >= 0.0 && weight.is_finite()) {
+            return Err(cli::bad_input(format!(
+                "--{term}-weight must be a number ≥ 0"
+            )));
+        }
+        if !(tukey > 0.0 && tukey.is_finite()) {
+            return Err(cli::bad_input(format!(
+                "--{term}-tukey must be a positive number"
+            )));
+        }
     }
     if p.photometric_window == 0 || p.photometric_keyframe_every == 0 {
         return Err(cli::bad_input(

@@ -4,7 +4,7 @@
 
 use crate::arrays;
 use crate::errors;
-use crate::slam::{color_image, depth_image};
+use crate::slam::{color_image, depth_image, pinhole};
 use dynamap_slam::camera::Camera;
 use dynamap_slam::image::{depth_to_metres, DepthImage, Image};
 use dynamap_slam::nonrigid::{
@@ -20,28 +20,17 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-/// The pinhole camera of images shaped like `depth` (height × width).
+/// The pinhole camera of images shaped like `depth` (height × width; see `slam::pinhole`).
 fn camera_of(depth: &Bound<'_, PyAny>, intrinsics: [f64; 4], depth_scale: f64) -> PyResult<Camera> {
     let shape = depth
         .cast::<PyUntypedArray>()
         .map_err(|_| PyValueError::new_err("source_depth must be a numpy array"))?
         .shape()
         .to_vec();
-    let [fx, fy, cx, cy] = intrinsics;
-    let finite = intrinsics
-        .iter()
-        .chain([&depth_scale])
-        .all(|v| v.is_finite());
-    let ok = finite && fx != 0.0 && fy != 0.0 && depth_scale > 0.0;
     match shape[..] {
-        [h, w] if ok && h >= 8 && w >= 8 => {
-            let mut camera = Camera::new(fx, fy, cx, cy, w, h);
-            camera.depth_scale = depth_scale;
-            Ok(camera)
-        }
+        [h, w] => pinhole(intrinsics, (w, h), depth_scale),
         _ => Err(PyValueError::new_err(format!(
-            "the frames need finite non-zero focal lengths, a positive depth scale and depth \
-             images of at least 8 x 8 (source_depth has shape {shape:?})"
+            "source_depth must be height x width, not of shape {shape:?}"
         ))),
     }
 }
@@ -141,12 +130,7 @@ fn registration_dict<'py>(
     d.set_item("seconds", reg.summary.seconds)?;
     let verdict = reg.verdict();
     d.set_item("registered", verdict == FrameVerdict::Registered)?;
-    let name = match verdict {
-        FrameVerdict::Registered => "registered",
-        FrameVerdict::NotRegistered { .. } => "depth",
-        FrameVerdict::ColourDisagrees(_) => "colour",
-    };
-    d.set_item("verdict", name)?;
+    d.set_item("verdict", verdict.name())?;
     let colour = reg
         .colour
         .as_ref()

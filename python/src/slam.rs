@@ -72,6 +72,25 @@ fn pose_from(a: &Bound<'_, PyAny>) -> PyResult<Isometry3<f64>> {
     ))
 }
 
+/// A pinhole camera of `(width, height)` images with intrinsics `[fx, fy, cx, cy]` (pixels) and
+/// raw depth in `depth_scale` units per metre; anything else than finite non-zero focal lengths,
+/// a positive depth scale and images of at least 8 × 8 is a `ValueError`.
+pub(crate) fn pinhole(
+    [fx, fy, cx, cy]: [f64; 4],
+    (width, height): (usize, usize),
+    depth_scale: f64,
+) -> PyResult<Camera> {
+    let ok = [fx, fy, cx, cy, depth_scale].iter().all(|v| v.is_finite()) && fx != 0.0 && fy != 0.0;
+    if !ok || depth_scale <= 0.0 || width < 8 || height < 8 {
+        return Err(PyValueError::new_err(format!(
+            "the camera needs finite non-zero focal lengths, a positive depth scale and images of at least 8 x 8 (got {width} x {height})"
+        )));
+    }
+    let mut camera = Camera::new(fx, fy, cx, cy, width, height);
+    camera.depth_scale = depth_scale;
+    Ok(camera)
+}
+
 /// A depth array as raw sensor units: uint16 as given, float32/float64 metres times
 /// `depth_scale` (NaN, infinite or non-positive depths are holes).
 pub(crate) fn depth_image(
@@ -175,15 +194,7 @@ impl RigidSlam {
         initial_pose: Option<&Bound<'_, PyAny>>,
         voxel_size: Option<f32>,
     ) -> PyResult<Self> {
-        let ok =
-            [fx, fy, cx, cy, depth_scale].iter().all(|v| v.is_finite()) && fx != 0.0 && fy != 0.0;
-        if !ok || depth_scale <= 0.0 || width < 8 || height < 8 {
-            return Err(PyValueError::new_err(
-                "the camera needs finite non-zero focal lengths, a positive depth scale and images of at least 8 x 8",
-            ));
-        }
-        let mut camera = Camera::new(fx, fy, cx, cy, width, height);
-        camera.depth_scale = depth_scale;
+        let camera = pinhole([fx, fy, cx, cy], (width, height), depth_scale)?;
         let mut params = SlamParams::default();
         // frame by frame, a new map's poses would be in its own frame, and this trajectory has
         // no keyframe graph to place them: a lost track stays lost until relocalised

@@ -44,7 +44,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         "< 5 cm",
         "matches",
         "seconds",
-        "registered",
+        "verdict",
         "colour off"
     ));
     let (mut sum, mut not_registered) = (0.0, 0);
@@ -77,11 +77,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
                 m.matches
             )),
             reg.summary.seconds,
-            match verdict {
-                FrameVerdict::Registered => "yes",
-                FrameVerdict::NotRegistered { .. } => "no: depth",
-                FrameVerdict::ColourDisagrees(_) => "no: colour",
-            },
+            verdict.name(),
             reg.colour.as_ref().map_or("-".to_string(), |c| format!(
                 "{:.2} of {}",
                 c.fraction_off(),

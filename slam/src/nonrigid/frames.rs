@@ -205,6 +205,18 @@ pub fn frame_verdict(
     }
 }
 
+impl FrameVerdict {
+    /// The verdict by name: "registered", "depth" (too little of the source ended on the
+    /// target) or "colour" (on the surface, but slid along it).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Registered => "registered",
+            Self::NotRegistered { .. } => "depth",
+            Self::ColourDisagrees(_) => "colour",
+        }
+    }
+}
+
 impl FrameRegistration {
     /// Whether most of the source ended on the target, and its colour with it
     /// ([`frame_verdict`]).
@@ -625,6 +637,12 @@ mod tests {
             ),
             "the depth's verdict comes first"
         );
+        let names = [
+            frame_verdict(90, 100, Some(&fine)).name(),
+            frame_verdict(10, 100, Some(&fine)).name(),
+            frame_verdict(90, 100, Some(&slid)).name(),
+        ];
+        assert_eq!(names, ["registered", "depth", "colour"]);
         let grey = check(0, 0);
         assert_eq!(
             frame_verdict(90, 100, Some(&grey)),
