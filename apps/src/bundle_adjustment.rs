@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example bundle_adjustment -- problem.txt [--huber 1.0 | --kernel cauchy:1]
 //!        [--linear-solver auto|schur-dense|schur-sparse|schur-iterative|cholesky] [--max-iterations 50]
-//!        [--pcg-tolerance 1e-6]
+//!        [--pcg-tolerance 1e-6] [--output solved.txt]
 //! cargo run --release --example bundle_adjustment     # a generated problem with a known optimum
 //! ```
 //!
@@ -76,6 +76,10 @@ struct Args {
     /// A folder for a plot of the cost per iteration (cost.png).
     #[arg(long, value_name = "DIR")]
     preview: Option<PathBuf>,
+    /// Write the solved problem here as a BAL file (the observations as read, the cameras and
+    /// points as solved), written to a temporary file and renamed.
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -173,6 +177,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
         .with_context(|| format!("{name}: bundle adjustment failed"))?;
     log.finish();
     data.update_from(&solve);
+    if let Some(out) = &args.output {
+        bal::file::write(out, &data)?;
+    }
     if let Some(dir) = &args.preview {
         write_preview(dir, &args, &name, &summary, &log)?;
     }

@@ -318,13 +318,29 @@ fn robust_kernels_from_the_command_line_and_generated_problems() {
         ],
     );
     assert!(gen.status.success(), "{}", text(&gen.stderr));
-    let solved = run("bundle_adjustment", &[&bal, "--kernel", "cauchy:2", "-q"]);
+    let out = path("solved.txt");
+    let solved = run(
+        "bundle_adjustment",
+        &[&bal, "--kernel", "cauchy:2", "-q", "--output", &out],
+    );
     assert!(solved.status.success(), "{}", text(&solved.stderr));
     let d = result_json(&solved);
     assert_eq!(d["kernel"], "cauchy:2");
     let costs = d["costs"].as_array().unwrap();
     assert_eq!(costs.len(), d["iterations"].as_u64().unwrap() as usize + 1);
-    assert!(d["cost_final"].as_f64().unwrap() < d["cost_initial"].as_f64().unwrap());
+    let cost_final = d["cost_final"].as_f64().unwrap();
+    assert!(cost_final < d["cost_initial"].as_f64().unwrap());
+    // the solved problem written by --output starts where the solve ended
+    let again = run(
+        "bundle_adjustment",
+        &[&out, "--kernel", "cauchy:2", "-q", "--max-iterations", "1"],
+    );
+    assert!(again.status.success(), "{}", text(&again.stderr));
+    let start = result_json(&again)["cost_initial"].as_f64().unwrap();
+    assert!(
+        (start - cost_final).abs() <= 1e-9 * cost_final,
+        "{start} against {cost_final}"
+    );
     // a pose graph with wrong loops under DCS converges
     let g2o = path("pg.g2o");
     let gen = run(
