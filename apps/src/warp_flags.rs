@@ -43,11 +43,16 @@ pub struct WarpFlags {
     /// system is factorised anew (0: every step factorises).
     #[arg(long)]
     pub refine_iterations: Option<usize>,
+    /// Coverage matches onto a whole-shape target (a mesh or a cloud, not a depth frame): a
+    /// target point farther than this many of the source's point spacings from every warped
+    /// point pulls the nearest one (0: none).
+    #[arg(long)]
+    pub cover: Option<f64>,
 }
 
 impl WarpFlags {
     /// The flags' argument ids with the values `graph` and `register` give them, as text.
-    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 12] {
+    fn values(graph: &GraphParams, register: &RegisterParams) -> [(&'static str, String); 13] {
         let schedule: Vec<String> = register.schedule.iter().map(|w| w.to_string()).collect();
         [
             ("spacing", graph.spacing.to_string()),
@@ -62,6 +67,7 @@ impl WarpFlags {
             ("stay_weight", register.stay_weight.to_string()),
             ("damping", register.damping.to_string()),
             ("refine_iterations", register.refine_iterations.to_string()),
+            ("cover", register.cover.to_string()),
         ]
     }
 
@@ -125,6 +131,10 @@ impl WarpFlags {
         set(&self.stay_weight, &mut register.stay_weight);
         set(&self.damping, &mut register.damping);
         set(&self.refine_iterations, &mut register.refine_iterations);
+        set(&self.cover, &mut register.cover);
+        if !(register.cover >= 0.0 && register.cover.is_finite()) {
+            anyhow::bail!("--cover must be 0 or a positive number of point spacings");
+        }
         if !(register.damping > 0.0 && register.damping.is_finite()) {
             anyhow::bail!("--damping must be a positive number");
         }

@@ -297,17 +297,13 @@ fn a_reader_that_stops_early_ends_the_run_without_a_panic() {
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
-#[test]
-fn robust_kernels_from_the_command_line_and_generated_problems() {
-    let dir = scratch("robust");
-    let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
-    // a bundle adjustment with outliers, written as BAL, solved under Cauchy
-    let bal = path("bal.txt");
+/// Writes a generated bundle adjustment of 8 cameras with outliers to `path` as BAL.
+fn generate_small_bal(path: &str) {
     let gen = run(
         "generate_problem",
         &[
             "bal",
-            &bal,
+            path,
             "--cameras",
             "8",
             "--points-per-camera",
@@ -318,29 +314,22 @@ fn robust_kernels_from_the_command_line_and_generated_problems() {
         ],
     );
     assert!(gen.status.success(), "{}", text(&gen.stderr));
-    let out = path("solved.txt");
-    let solved = run(
-        "bundle_adjustment",
-        &[&bal, "--kernel", "cauchy:2", "-q", "--output", &out],
-    );
+}
+
+#[test]
+fn robust_kernels_from_the_command_line_and_generated_problems() {
+    let dir = scratch("robust");
+    let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    // a bundle adjustment with outliers, written as BAL, solved under Cauchy
+    let bal = path("bal.txt");
+    generate_small_bal(&bal);
+    let solved = run("bundle_adjustment", &[&bal, "--kernel", "cauchy:2", "-q"]);
     assert!(solved.status.success(), "{}", text(&solved.stderr));
     let d = result_json(&solved);
     assert_eq!(d["kernel"], "cauchy:2");
     let costs = d["costs"].as_array().unwrap();
     assert_eq!(costs.len(), d["iterations"].as_u64().unwrap() as usize + 1);
-    let cost_final = d["cost_final"].as_f64().unwrap();
-    assert!(cost_final < d["cost_initial"].as_f64().unwrap());
-    // the solved problem written by --output starts where the solve ended
-    let again = run(
-        "bundle_adjustment",
-        &[&out, "--kernel", "cauchy:2", "-q", "--max-iterations", "1"],
-    );
-    assert!(again.status.success(), "{}", text(&again.stderr));
-    let start = result_json(&again)["cost_initial"].as_f64().unwrap();
-    assert!(
-        (start - cost_final).abs() <= 1e-9 * cost_final,
-        "{start} against {cost_final}"
-    );
+    assert!(d["cost_final"].as_f64().unwrap() < d["cost_initial"].as_f64().unwrap());
     // a pose graph with wrong loops under DCS converges
     let g2o = path("pg.g2o");
     let gen = run(
@@ -381,6 +370,42 @@ fn robust_kernels_from_the_command_line_and_generated_problems() {
         &run("generate_problem", &["bal", &bal, "--views", "5:2"]),
         2,
         &["LO <= HI"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bundle_adjustment_writes_the_solved_problem_that_starts_where_it_ended() {
+    let dir = scratch("bal-output");
+    let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let (bal, out) = (path("bal.txt"), path("solved.txt"));
+    generate_small_bal(&bal);
+    let solved = run(
+        "bundle_adjustment",
+        &[&bal, "--huber", "2", "-q", "--output", &out],
+    );
+    assert!(solved.status.success(), "{}", text(&solved.stderr));
+    let d = result_json(&solved);
+    let cost_final = d["cost_final"].as_f64().unwrap();
+    assert!(cost_final < d["cost_initial"].as_f64().unwrap());
+    let again = run(
+        "bundle_adjustment",
+        &[&out, "--huber", "2", "-q", "--max-iterations", "1"],
+    );
+    assert!(again.status.success(), "{}", text(&again.stderr));
+    let start = result_json(&again)["cost_initial"].as_f64().unwrap();
+    assert!(
+        (start - cost_final).abs() <= 1e-9 * cost_final,
+        "{start} against {cost_final}"
+    );
+    // an output that cannot be written is an error naming it
+    let blocked = path("no-such-folder/solved.txt");
+    let failed = run("bundle_adjustment", &[&bal, "-q", "--output", &blocked]);
+    assert!(!failed.status.success());
+    assert!(
+        text(&failed.stderr).contains("no-such-folder"),
+        "{}",
+        text(&failed.stderr)
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -107,6 +107,7 @@ impl Default for FusionParams {
                 photometric_tukey: 0.1,
                 chroma_weight: 0.3,
                 chroma_tukey: 0.1,
+                cover: 0.0,
             },
             data_level: 1,
             data_spacing: 0.01,

@@ -4,7 +4,7 @@
 //! to half the target's spacing, and the point-to-point term follows it.
 
 use super::mesh_point::{faces_around, MeshPoint};
-use super::register::Target;
+use super::register::{Samples, Target};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 
@@ -93,6 +93,10 @@ impl Target for MeshTarget {
     fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
         let m = self.nearest(p)?;
         Some((m.blend(&self.points), m.normal(&self.normals)))
+    }
+
+    fn samples(&self) -> Option<Samples<'_>> {
+        Some((&self.points, &self.normals))
     }
 }
 

@@ -28,6 +28,7 @@
 pub mod boundary;
 pub mod chroma;
 pub mod colour_check;
+mod coverage;
 pub mod descriptors;
 pub mod frame_matches;
 pub mod frame_surface;
@@ -65,7 +66,7 @@ pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioIma
 pub use reference_frame::ReferenceFrame;
 pub use register::{
     principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
-    RegisterSummary, RegisterTimes, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
+    RegisterSummary, RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
 };
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,

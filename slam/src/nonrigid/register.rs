@@ -15,6 +15,7 @@
 //! factorisation for as long as the graph stays the same and the points' node pairs fit its
 //! structure (rounds, stages, and further calls and frames).
 
+use super::coverage::{sampling_spacing, Coverage, CoverageGates};
 use super::graph::{Binding, DeformationGraph};
 use super::photometric::{PhotometricFit, PhotometricTarget};
 use super::system::{match_terms, Minimised, Photometric, Steps, WarpSystem, WarpTerms};
@@ -78,6 +79,9 @@ pub enum RegisterError {
     },
 }
 
+/// A whole-shape target's points and their unit normals ([`Target::samples`]).
+pub type Samples<'a> = (&'a [Vector3<f64>], &'a [Vector3<f64>]);
+
 /// Where warped points find their partners.
 pub trait Target: Sync {
     /// The target point and unit normal associated with the warped point `p` (before rejection).
@@ -93,6 +97,12 @@ pub trait Target: Sync {
     /// first seen, or its own source pixel's), for the chromaticity term (module `chroma`), if
     /// the target has them.
     fn chroma(&self) -> Option<PhotometricTarget<'_>> {
+        None
+    }
+
+    /// The target's own points and unit normals, for coverage matches (module `coverage`), if it
+    /// is a whole shape: a mesh or a cloud, not a view.
+    fn samples(&self) -> Option<Samples<'_>> {
         None
     }
 }
@@ -129,6 +139,10 @@ impl Target for CloudTarget {
         }
         let k = self.tree.nearest_one::<SquaredEuclidean>(&(*p).into()).item as usize;
         Some((self.points[k], self.normals[k]))
+    }
+
+    fn samples(&self) -> Option<Samples<'_>> {
+        Some((&self.points, &self.normals))
     }
 }
 
@@ -230,6 +244,12 @@ pub struct RegisterParams {
     pub chroma_weight: f64,
     /// Tukey's c of the chromaticity term (default 0.1).
     pub chroma_tukey: f64,
+    /// Coverage distance, in multiples of the points' sampling spacing (their median distance to
+    /// the nearest other point): in every round, a sample of a whole-shape target
+    /// ([`Target::samples`]) farther than this from every warped point is uncovered, and the
+    /// warped point nearest it takes it as its partner (module `coverage`; default 0: none; a
+    /// view's target, a depth frame, has no samples).
+    pub cover: f64,
 }
 
 impl Default for RegisterParams {
@@ -251,6 +271,7 @@ impl Default for RegisterParams {
             photometric_tukey: 0.1,
             chroma_weight: 0.0,
             chroma_tukey: 0.1,
+            cover: 0.0,
         }
     }
 }
@@ -356,6 +377,7 @@ pub struct WarpOptimiser {
     warped: Vec<Vector3<f64>>,
     warped_normals: Vec<Vector3<f64>>,
     matches: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
+    coverage: Coverage,
 }
 
 impl WarpOptimiser {
@@ -370,6 +392,7 @@ impl WarpOptimiser {
             warped: Vec::new(),
             warped_normals: Vec::new(),
             matches: Vec::new(),
+            coverage: Coverage::default(),
         }
     }
 
@@ -432,6 +455,7 @@ impl WarpOptimiser {
             *t += (now - clock).as_secs_f64();
             clock = now;
         };
+        let cover = self.coverage_distance(points, target);
         let prealigned = self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
         self.start_system(graph, bindings)?;
@@ -444,6 +468,7 @@ impl WarpOptimiser {
             for _ in 0..self.params.rounds {
                 lap(&mut times.update);
                 self.associate(graph, points, normals, bindings, target);
+                self.cover(target, cover);
                 if let Some(s) = seeded {
                     self.take_seeds(s);
                 }
@@ -578,6 +603,37 @@ impl WarpOptimiser {
                     .associate(p)
                     .filter(|(q, nq)| (q - p).norm_squared() <= d2 && nq.dot(n) >= min_cos);
             });
+    }
+
+    /// With a coverage distance (`cover`, from [`Self::coverage_distance`]) and a whole-shape
+    /// target, gives the warped points nearest the target's uncovered samples those samples as
+    /// partners (module `coverage`).
+    fn cover(&mut self, target: &dyn Target, cover: f64) {
+        let Some(samples) = target.samples().filter(|_| cover > 0.0) else {
+            return;
+        };
+        let gates = CoverageGates {
+            cover,
+            max_distance: self.params.max_distance,
+            min_cos: self.params.max_normal_angle_deg.to_radians().cos(),
+        };
+        self.coverage.pull(
+            (&self.warped, &self.warped_normals),
+            samples,
+            gates,
+            &mut self.matches,
+        );
+    }
+
+    /// The coverage distance of an optimisation of `points` onto `target`:
+    /// [`RegisterParams::cover`] times the points' sampling spacing, 0 for none (no coverage
+    /// set, or a target that is a view, not a whole shape).
+    fn coverage_distance(&self, points: &[Vector3<f64>], target: &dyn Target) -> f64 {
+        if self.params.cover > 0.0 && target.samples().is_some() {
+            self.params.cover * sampling_spacing(points)
+        } else {
+            0.0
+        }
     }
 
     /// Replaces each point's association by its seed where the two disagree by more than the

@@ -1,0 +1,176 @@
+//! Coverage matches: closest point from the target back to the warped source, for a whole shape
+//! registered onto a whole shape.
+//!
+//! Closest point from the source alone lets a limb slide along itself: a leg that ends short of
+//! the target's foot has every point on the target's leg, so nothing pulls it down, and the foot
+//! stays uncovered (the camel's hind legs, 7 → 1, ended 0.1 of the diagonal up their legs). The
+//! reverse direction of a symmetric (two-sided) ICP sees it: a target sample whose nearest warped
+//! source point lies farther than the coverage distance is uncovered, and that source point is
+//! given the nearest such sample as its partner instead of its own closest point (one partner per
+//! point keeps the data term as it is). Round after round the limb is drawn out to the end. The
+//! same gates as forward matching apply: the distance gate and the normals' angle.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+/// A match: target point and unit normal.
+type Match = (Vector3<f64>, Vector3<f64>);
+
+/// The gates of a coverage round.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CoverageGates {
+    /// A target sample is uncovered when its nearest warped point is farther than this.
+    pub cover: f64,
+    /// … and no partner is taken farther than this (the forward matches' gate).
+    pub max_distance: f64,
+    /// The cosine of the largest angle between the two normals.
+    pub min_cos: f64,
+}
+
+/// Reusable buffers of the coverage rounds.
+#[derive(Default)]
+pub(crate) struct Coverage {
+    coords: Vec<[f64; 3]>,
+    /// Per target sample: the nearest warped point and the squared distance, if uncovered.
+    nearest: Vec<Option<(u32, f64)>>,
+    /// Per warped point: the nearest uncovered sample that chose it, and the squared distance.
+    chosen: Vec<Option<(u32, f64)>>,
+}
+
+impl Coverage {
+    /// Gives each warped point that is the nearest of some uncovered target sample (within the
+    /// gates) the nearest such sample as its partner in `matches`. Returns how many points were
+    /// given one.
+    pub fn pull(
+        &mut self,
+        warped: (&[Vector3<f64>], &[Vector3<f64>]),
+        samples: (&[Vector3<f64>], &[Vector3<f64>]),
+        gates: CoverageGates,
+        matches: &mut [Option<Match>],
+    ) -> usize {
+        let (points, normals) = warped;
+        self.coords.clear();
+        self.coords
+            .extend(points.iter().map(|p| <[f64; 3]>::from(*p)));
+        if self.coords.is_empty() {
+            return 0;
+        }
+        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&self.coords);
+        let (cover2, gate2) = (gates.cover * gates.cover, gates.max_distance.powi(2));
+        self.nearest.clear();
+        self.nearest.resize(samples.0.len(), None);
+        self.nearest
+            .par_iter_mut()
+            .zip(samples.0.par_iter().zip(samples.1.par_iter()))
+            .for_each(|(out, (q, n))| {
+                if !q.iter().chain(n.iter()).all(|v| v.is_finite()) {
+                    return;
+                }
+                let near = tree.nearest_one::<SquaredEuclidean>(&(*q).into());
+                let i = near.item as usize;
+                if near.distance > cover2
+                    && near.distance <= gate2
+                    && normals[i].dot(n) >= gates.min_cos
+                {
+                    *out = Some((i as u32, near.distance));
+                }
+            });
+        self.chosen.clear();
+        self.chosen.resize(points.len(), None);
+        for (s, found) in self.nearest.iter().enumerate() {
+            if let Some((i, d2)) = *found {
+                let slot = &mut self.chosen[i as usize];
+                if slot.is_none_or(|(_, best)| d2 < best) {
+                    *slot = Some((s as u32, d2));
+                }
+            }
+        }
+        let mut pulled = 0;
+        for (m, c) in matches.iter_mut().zip(&self.chosen) {
+            if let Some((s, _)) = *c {
+                *m = Some((samples.0[s as usize], samples.1[s as usize]));
+                pulled += 1;
+            }
+        }
+        pulled
+    }
+}
+
+/// The median distance from a point to its nearest neighbour: the points' sampling (a mesh's
+/// edge length), 0 for fewer than two.
+pub(crate) fn sampling_spacing(points: &[Vector3<f64>]) -> f64 {
+    let coords: Vec<[f64; 3]> = points
+        .iter()
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .map(|p| (*p).into())
+        .collect();
+    if coords.len() < 2 {
+        return 0.0;
+    }
+    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&coords);
+    let two = std::num::NonZero::new(2).expect("2 is not 0");
+    let mut d: Vec<f64> = coords
+        .par_iter()
+        .map(|q| {
+            let near = tree.nearest_n::<SquaredEuclidean>(q, two);
+            near.last().map_or(0.0, |n| n.distance.sqrt())
+        })
+        .collect();
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row of points along x at spacing 1, normals +z.
+    fn row(from: f64, count: usize) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let p = (0..count)
+            .map(|k| Vector3::new(from + k as f64, 0.0, 0.0))
+            .collect();
+        (p, vec![Vector3::z(); count])
+    }
+
+    #[test]
+    fn the_end_of_a_short_limb_is_given_the_nearest_uncovered_sample() {
+        // source 0..5, target 0..8: samples 6, 7 and 8 are uncovered and all nearest to point 5
+        let (src, sn) = row(0.0, 6);
+        let (tgt, tn) = row(0.0, 9);
+        let mut matches: Vec<Option<Match>> =
+            src.iter().map(|p| Some((*p, Vector3::z()))).collect();
+        let gates = CoverageGates {
+            cover: 0.5,
+            max_distance: 10.0,
+            min_cos: 0.5,
+        };
+        let mut c = Coverage::default();
+        let pulled = c.pull((&src, &sn), (&tgt, &tn), gates, &mut matches);
+        assert_eq!(pulled, 1);
+        assert_eq!(
+            matches[5].unwrap().0,
+            tgt[6],
+            "the nearest uncovered sample"
+        );
+        assert!(
+            (0..5).all(|i| matches[i].unwrap().0 == src[i]),
+            "the rest as they were"
+        );
+        // beyond the distance gate, or with normals apart, nothing is pulled
+        let mut again = matches.clone();
+        let far = CoverageGates {
+            max_distance: 0.9,
+            ..gates
+        };
+        assert_eq!(c.pull((&src, &sn), (&tgt, &tn), far, &mut again), 0);
+        let flipped = vec![-Vector3::z(); tgt.len()];
+        assert_eq!(c.pull((&src, &sn), (&tgt, &flipped), gates, &mut again), 0);
+        // a covered target, non-finite samples and an empty source pull nothing
+        let (same, sn2) = row(0.0, 6);
+        assert_eq!(c.pull((&src, &sn), (&same, &sn2), gates, &mut again), 0);
+        let nan = vec![Vector3::repeat(f64::NAN); 3];
+        assert_eq!(c.pull((&src, &sn), (&nan, &nan), gates, &mut again), 0);
+        assert_eq!(c.pull((&[], &[]), (&tgt, &tn), gates, &mut []), 0);
+    }
+}
