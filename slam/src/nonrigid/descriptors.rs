@@ -9,17 +9,25 @@
 //!
 //! The anchors are spread over the source's core by farthest-point sampling. Their partners must
 //! be known: [`descriptor_matches`] takes them from a registration of the whole shape (the core
-//! moves little, so closest point is right there). Surface distances are shortest paths along
-//! the mesh edges (Dijkstra), not along a nearest-neighbour graph, whose edges cut across
-//! nearby parts.
+//! moves little, so closest point is right there). The core alone places the limbs poorly: a
+//! hoof is far from every core anchor, and a small error in where those anchors land moves it
+//! along its leg. So each descriptor also holds the distances to the shape's extremities, whose
+//! partners are found from surface distances and handedness (module `extremities`). Surface
+//! distances are shortest paths along the mesh edges (Dijkstra), not along a nearest-neighbour
+//! graph, whose edges cut across nearby parts.
 
+use super::extent::bounding_diagonal;
+use super::extremities::{assign, Extremities, EXTREMITIES};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use petgraph::graph::{NodeIndex, UnGraph};
 use rayon::prelude::*;
 
-/// Number of anchors, the length of a descriptor.
+/// Number of core anchors.
 pub(crate) const ANCHORS: usize = 16;
+
+/// The length of a descriptor: the core anchors' distances, then the extremities'.
+const DESCRIPTOR: usize = ANCHORS + EXTREMITIES;
 
 /// A mesh's vertices and triangles.
 #[derive(Clone, Copy, Debug)]
@@ -103,16 +111,6 @@ pub(crate) fn core_anchors(
     anchors
 }
 
-/// Each vertex's shortest-path distances along the mesh edges to the `ANCHORS` anchors. A vertex
-/// the anchor cannot reach (another component) gets twice the largest distance found, so that it
-/// stays far from every reachable one.
-pub(crate) fn geodesic_descriptors(
-    mesh: MeshRef<'_>,
-    anchors: &[usize; ANCHORS],
-) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
-    Ok(SurfacePaths::along_edges(mesh)?.descriptors(anchors))
-}
-
 /// A mesh's graph of shortest paths, built once and asked from many sets of anchors.
 pub(crate) struct SurfacePaths {
     vertices: usize,
@@ -165,8 +163,9 @@ impl SurfacePaths {
         Self { vertices: n, graph }
     }
 
-    /// Each vertex's shortest-path distances to the `ANCHORS` anchors (see
-    /// [`geodesic_descriptors`] for unreachable vertices).
+    /// Each vertex's shortest-path distances to the `ANCHORS` anchors. A vertex the anchor
+    /// cannot reach (another component) gets twice the largest distance found, so that it stays
+    /// far from every reachable one.
     pub(crate) fn descriptors(&self, anchors: &[usize; ANCHORS]) -> Vec<[f64; ANCHORS]> {
         let columns: Vec<Vec<f64>> = anchors
             .par_iter()
@@ -196,6 +195,11 @@ impl SurfacePaths {
             })
             .collect();
         self.rows(&columns)
+    }
+
+    /// Every vertex's shortest-path distance from vertex `v`.
+    pub(crate) fn column(&self, v: usize) -> Vec<f64> {
+        self.distances_from(&self.graph, NodeIndex::new(v))
     }
 
     /// Every vertex's shortest-path distance from `start` in `graph`.
@@ -271,13 +275,64 @@ pub fn descriptor_matches(
         tree.nearest_one::<SquaredEuclidean>(&warped[anchors[k]].into())
             .item as usize
     });
-    let from = geodesic_descriptors(source, &anchors)?;
-    let to = geodesic_descriptors(target, &partners)?;
-    let tree: ImmutableKdTree<f64, ANCHORS> = ImmutableKdTree::new_from_slice(&to);
+    let (source_paths, target_paths) = (
+        SurfacePaths::along_edges(source)?,
+        SurfacePaths::along_edges(target)?,
+    );
+    let from = source_paths.descriptors(&anchors);
+    let to = target_paths.descriptors(&partners);
+    let (from, to) = with_extremities(
+        (&source_paths, source.points, &from),
+        (&target_paths, target.points, &to),
+    );
+    let tree: ImmutableKdTree<f64, DESCRIPTOR> = ImmutableKdTree::new_from_slice(&to);
     Ok(from
         .par_iter()
         .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
         .collect())
+}
+
+/// The core descriptors of both meshes, each extended by the vertex's surface distances to the
+/// mesh's extremities (module `extremities`), the target's in the order of their assigned
+/// source partners: the core anchors place the body, the extremities the limbs along their
+/// length. Where the extremities are not found on both or not assigned (a mesh too small, a
+/// shape without distinct tips), both get zeros there, which change no distance.
+fn with_extremities(
+    source: (&SurfacePaths, &[Vector3<f64>], &[[f64; ANCHORS]]),
+    target: (&SurfacePaths, &[Vector3<f64>], &[[f64; ANCHORS]]),
+) -> (Vec<[f64; DESCRIPTOR]>, Vec<[f64; DESCRIPTOR]>) {
+    let found = Extremities::find(|v| source.0.column(v), source.1)
+        .zip(Extremities::find(|v| target.0.column(v), target.1));
+    let extended = |core: &[[f64; ANCHORS]], columns: Option<Vec<&[f64]>>| {
+        core.iter()
+            .enumerate()
+            .map(|(v, d)| {
+                std::array::from_fn(|k| match (k.checked_sub(ANCHORS), &columns) {
+                    (None, _) => d[k],
+                    (Some(e), Some(c)) => c[e][v],
+                    (Some(_), None) => 0.0,
+                })
+            })
+            .collect::<Vec<[f64; DESCRIPTOR]>>()
+    };
+    let diagonal = bounding_diagonal(target.1);
+    let assigned = found.and_then(|(es, et)| {
+        let perm = assign(
+            (&es, source.1, source.2),
+            (&et, target.1, target.2),
+            diagonal,
+        )?;
+        Some((es, et, perm))
+    });
+    let Some((es, et, perm)) = assigned else {
+        return (extended(source.2, None), extended(target.2, None));
+    };
+    let source_columns = es.columns.iter().map(Vec::as_slice).collect();
+    let target_columns = perm.iter().map(|&k| et.columns[k].as_slice()).collect();
+    (
+        extended(source.2, Some(source_columns)),
+        extended(target.2, Some(target_columns)),
+    )
 }
 
 /// A test surface (also used by `surface`'s tests): an open tube of `rings` × `around` vertices, radius 0.2 and length 2 along z, whose
@@ -320,6 +375,14 @@ pub(crate) fn tube(rings: usize, around: usize, bend: f64) -> (Vec<Vector3<f64>>
 mod tests {
     use super::*;
     use nalgebra::{Rotation3, Vector3};
+
+    /// Each vertex's shortest-path distances along the mesh edges to the `ANCHORS` anchors.
+    fn geodesic_descriptors(
+        mesh: MeshRef<'_>,
+        anchors: &[usize; ANCHORS],
+    ) -> Result<Vec<[f64; ANCHORS]>, DescriptorError> {
+        Ok(SurfacePaths::along_edges(mesh)?.descriptors(anchors))
+    }
 
     /// Matches of the straight tube onto a copy bent by `bend` radians, moved rigidly and
     /// renumbered. Returns how many vertices found their own copy, the largest distance (on the

@@ -30,6 +30,8 @@ pub mod chroma;
 pub mod colour_check;
 mod coverage;
 pub mod descriptors;
+mod extent;
+mod extremities;
 pub mod frame_matches;
 pub mod frame_surface;
 pub mod frame_target;

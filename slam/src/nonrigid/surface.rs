@@ -6,6 +6,7 @@
 
 use super::boundary::{rim_matches, RimMatches};
 use super::descriptors::{descriptor_matches, DescriptorError, MeshRef};
+pub use super::extent::bounding_diagonal;
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
 use super::mesh_target::MeshTarget;
@@ -134,16 +135,14 @@ pub fn clean_surface_settings(d: f64) -> (GraphParams, RegisterParams) {
 /// the widest of the three keeps the most margin for surfaces meshed apart (NOTES 101).
 pub const COVER_SPACINGS: f64 = 1.5;
 
-/// The diagonal of the points' axis-aligned bounding box.
-pub fn bounding_diagonal(points: &[Vector3<f64>]) -> f64 {
-    let (lo, hi) = points.iter().fold(
-        (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        ),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    );
-    (hi - lo).norm()
+/// How much less of the two shares (on the target, covered) a seeded pass may leave than the pass
+/// before it and still replace it ([`fits_as_well`]).
+const PASS_SLACK: f64 = 0.02;
+
+/// Whether `next` lies on its target about as well as `last` or better: the sum of the shares on
+/// the target and covered is at most [`PASS_SLACK`] lower.
+fn fits_as_well(next: &SurfaceFit, last: &SurfaceFit) -> bool {
+    next.on_target + next.covered >= last.on_target + last.covered - PASS_SLACK
 }
 
 /// A mesh's vertices and normals in double precision.
@@ -526,9 +525,21 @@ impl Passes {
                 .into_iter()
                 .map(|k| MeshPoint::vertex(k as u32))
                 .collect();
-            last = self.run(Some(&self.seeds(&partner, normals, seeding)))?;
-            iterations += last.summary.iterations;
-            times.add(&last.summary.times);
+            let next = self.run(Some(&self.seeds(&partner, normals, seeding)))?;
+            iterations += next.summary.iterations;
+            times.add(&next.summary.times);
+            // seeds that carried the shape off (limbs' extremities assigned wrongly) leave it
+            // lying on the target less well than the pass before: that pass is kept, and the
+            // next would be seeded the same way
+            if !fits_as_well(&next.fit, &last.fit) {
+                tracing::debug!(
+                    before = ?last.fit,
+                    seeded = ?next.fit,
+                    "a seeded pass fitted worse than the pass before; kept the one before"
+                );
+                break;
+            }
+            last = next;
         }
         last.summary.iterations = iterations;
         last.summary.times = times;
@@ -795,6 +806,25 @@ mod tests {
         assert!(
             with.0 < 0.9 * without.0 && with.1 < 0.8 * without.1,
             "mean and largest error with coverage {with:?}, without {without:?}"
+        );
+    }
+
+    #[test]
+    fn a_pass_is_kept_unless_it_lies_on_the_target_worse_than_the_one_before() {
+        let fit = |on_target, covered| SurfaceFit {
+            on_target,
+            covered,
+            median_distance: 0.0,
+            tolerance: 0.03,
+            area_ratio: None,
+            source_area_ratio: None,
+        };
+        let before = fit(1.0, 0.95);
+        assert!(fits_as_well(&fit(1.0, 0.99), &before));
+        assert!(fits_as_well(&fit(0.99, 0.94), &before), "within the slack");
+        assert!(
+            !fits_as_well(&fit(0.98, 0.86), &before),
+            "a shape carried off"
         );
     }
 
