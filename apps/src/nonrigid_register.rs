@@ -12,8 +12,10 @@
 //! vertices (in their order) and normals warped. Lengths default to fractions of the source's
 //! bounding-box diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
 //! are registered in a first pass by closest point and then in passes seeded by geodesic
-//! descriptors (`register_meshes`, NOTES 47 and 48); `--seeded-passes 0` registers by closest
-//! point alone. One JSON line last: nodes, iterations, seconds, final data and regulariser costs,
+//! descriptors to the core and the extremities (`register_meshes`, NOTES 47, 48 and 102);
+//! `--seeded-passes 0` registers by closest point alone. In every round a target point farther
+//! than `--cover` source point spacings from the warped source pulls the nearest warped point
+//! (NOTES 101; 0 turns it off). One JSON line last: nodes, iterations, seconds, final data and regulariser costs,
 //! and whether it `registered` (`fit`: the shares of the warped source within a node spacing of
 //! the target and of the target covered, at least half each, and the source's area at rest and
 //! warped over the target's, each within 1.5× of 1; a warning says which failed).
