@@ -718,3 +718,66 @@ fn bal_dubrovnik_converges_to_zero_cost() {
     let summary = solve_bal(&data, 100);
     assert!(summary.final_cost < 1e-12, "{}", summary.table());
 }
+
+/// Issue 26, point 3: a pair that barely moves must not get worse. DeepDeform seq258's masked
+/// shirt registered onto its own frame, and onto that frame with every depth 2 mm farther: the
+/// warped shirt ends no farther from the target's surface than it started (within 0.5 mm; the
+/// depth's quantisation at 1 m is 1 mm), within 1 mm of it and, moved, at most half as far as
+/// before; its motion is the 0 or 2 mm to within 1 mm, and the verdict says registered (seen:
+/// 0 → 0.07 mm and 2.03 → 0.07 mm).
+#[test]
+fn deepdeform_a_pair_that_barely_moves_does_not_get_worse() {
+    use dynamap::slam::io::images::read_mask;
+    use dynamap::slam::nonrigid::{
+        frame_points, median_distance, register_frames, FrameSettings, FrameVerdict, FrameView,
+    };
+
+    let dir = data("nonrigid/deepdeform_2pairs/train/seq258");
+    let camera = deepdeform_camera();
+    let d0 = deepdeform_depth(&dir, "000000.png", &camera);
+    let c0 = read_color(dir.join("color/000000.jpg")).unwrap();
+    let mask = read_mask(dir.join("mask/000000_shirt.png")).unwrap();
+    let mut farther = d0.clone();
+    farther
+        .data
+        .iter_mut()
+        .filter(|z| **z > 0.0)
+        .for_each(|z| *z += 0.002);
+    for (name, target_depth, shift) in [("itself", &d0, 0.0), ("2 mm farther", &farther, 0.002)] {
+        let target = FrameView::new(&camera, target_depth, Some(&c0), None);
+        let reg = register_frames(
+            &FrameView::new(&camera, &d0, Some(&c0), Some(&mask)),
+            &target,
+            &FrameSettings::default(),
+        )
+        .unwrap();
+        let surface = frame_points(&target);
+        let after = median_distance(&reg.warped, &surface).unwrap();
+        let before = median_distance(&reg.points, &surface).unwrap();
+        let mut moved: Vec<f64> = reg
+            .points
+            .iter()
+            .zip(&reg.warped)
+            .map(|(p, w)| (w - p).norm())
+            .collect();
+        moved.sort_by(f64::total_cmp);
+        let median_moved = moved[moved.len() / 2];
+        println!(
+            "onto {name}: median distance {before} m -> {after} m, median motion {median_moved} m"
+        );
+        assert_eq!(reg.verdict(), FrameVerdict::Registered, "onto {name}");
+        assert!(
+            after <= before + 0.0005,
+            "onto {name}: {before} m -> {after} m"
+        );
+        // issue 26's target for masked real pairs: at most 1 mm, and at most half of before
+        assert!(
+            after <= 0.001 && (shift == 0.0 || after <= 0.5 * before),
+            "onto {name}: {before} m -> {after} m"
+        );
+        assert!(
+            (median_moved - shift).abs() < 0.001,
+            "onto {name}: median motion {median_moved} m"
+        );
+    }
+}
