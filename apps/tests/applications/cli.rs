@@ -268,6 +268,11 @@ fn nonrigid_register_takes_one_subcommand_per_input_with_its_own_flags() {
         ],
     );
     assert_exit(&flow, 2, &["--flow"]);
+    let cover = run(
+        "nonrigid_register",
+        &["meshes", &path("flat.ply"), &path("bent.ply"), "--cover=-1"],
+    );
+    assert_exit(&cover, 2, &["--cover"]);
     let frames = run(
         "nonrigid_register",
         &[
