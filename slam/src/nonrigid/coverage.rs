@@ -7,8 +7,10 @@
 //! reverse direction of a symmetric (two-sided) ICP sees it: a target sample whose nearest warped
 //! source point lies farther than the coverage distance is uncovered, and that source point is
 //! given the nearest such sample as its partner instead of its own closest point (one partner per
-//! point keeps the data term as it is). Round after round the limb is drawn out to the end. The
-//! same gates as forward matching apply: the distance gate and the normals' angle.
+//! point keeps the data term as it is). Round after round the limb is drawn towards its end, as
+//! far as the regulariser and the other points' matches let it (on 7 → 1 not all the way, NOTES
+//! 101). The same gates as forward matching apply: the distance gate and the normals' angle; a
+//! sample farther than the data terms' Tukey c gets no weight.
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
