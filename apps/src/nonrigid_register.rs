@@ -15,10 +15,11 @@
 //! descriptors to the core and the extremities (`register_meshes`, NOTES 47, 48 and 102);
 //! `--seeded-passes 0` registers by closest point alone. In every round a target point farther
 //! than `--cover` source point spacings from the warped source pulls the nearest warped point
-//! (NOTES 101; 0 turns it off). One JSON line last: nodes, iterations, seconds, final data and regulariser costs,
-//! and whether it `registered` (`fit`: the shares of the warped source within a node spacing of
-//! the target and of the target covered, at least half each, and the source's area at rest and
-//! warped over the target's, each within 1.5× of 1; a warning says which failed).
+//! (NOTES 101; 0 turns it off). One JSON line last: nodes, iterations, seconds, final data and
+//! regulariser costs, and whether it `registered` (`fit`: the shares of the warped source within
+//! a node spacing of the target and of the target covered, at least half each, and the source's
+//! area at rest and warped over the target's, each within 1.5× of 1; a warning says which
+//! failed).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given

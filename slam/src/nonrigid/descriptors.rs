@@ -244,95 +244,135 @@ fn mesh_edges(mesh: MeshRef<'_>) -> Result<Vec<(u32, u32)>, DescriptorError> {
 /// For every source vertex, the target vertex whose geodesic descriptor is nearest its own.
 /// The anchors are the core anchors of the source (the `core_fraction` nearest its centroid);
 /// each anchor's partner is the target vertex nearest its position in `warped`, the source
-/// registered onto the target as a whole.
+/// registered onto the target as a whole. (For several `warped` of one pair,
+/// [`DescriptorPair`] does the work that does not depend on them once.)
 pub fn descriptor_matches(
     source: MeshRef<'_>,
     warped: &[Vector3<f64>],
     target: MeshRef<'_>,
     core_fraction: f64,
 ) -> Result<Vec<usize>, DescriptorError> {
-    if warped.len() != source.points.len() {
-        return Err(DescriptorError::Mismatch {
-            warped: warped.len(),
-            vertices: source.points.len(),
-        });
-    }
-    for mesh in [source, target] {
-        if mesh.points.len() < ANCHORS {
-            return Err(DescriptorError::TooFewVertices(mesh.points.len()));
-        }
-        if mesh.faces.is_empty() {
-            return Err(DescriptorError::NoFaces);
-        }
-    }
-    let anchors = core_anchors(source.points, ANCHORS, core_fraction);
-    let anchors: [usize; ANCHORS] = anchors
-        .try_into()
-        .map_err(|_| DescriptorError::TooFewVertices(source.points.len()))?;
-    let coords: Vec<[f64; 3]> = target.points.iter().map(|p| (*p).into()).collect();
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
-    let partners: [usize; ANCHORS] = std::array::from_fn(|k| {
-        tree.nearest_one::<SquaredEuclidean>(&warped[anchors[k]].into())
-            .item as usize
-    });
-    let (source_paths, target_paths) = (
-        SurfacePaths::along_edges(source)?,
-        SurfacePaths::along_edges(target)?,
-    );
-    let from = source_paths.descriptors(&anchors);
-    let to = target_paths.descriptors(&partners);
-    let (from, to) = with_extremities(
-        (&source_paths, source.points, &from),
-        (&target_paths, target.points, &to),
-    );
-    let tree: ImmutableKdTree<f64, DESCRIPTOR> = ImmutableKdTree::new_from_slice(&to);
-    Ok(from
-        .par_iter()
-        .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
-        .collect())
+    check_warped(source, warped)?;
+    DescriptorPair::new(source, target, core_fraction)?.matches(warped)
 }
 
-/// The core descriptors of both meshes, each extended by the vertex's surface distances to the
-/// mesh's extremities (module `extremities`), the target's in the order of their assigned
-/// source partners: the core anchors place the body, the extremities the limbs along their
-/// length. Where the extremities are not found on both or not assigned (a mesh too small, a
-/// shape without distinct tips), both get zeros there, which change no distance.
-fn with_extremities(
-    source: (&SurfacePaths, &[Vector3<f64>], &[[f64; ANCHORS]]),
-    target: (&SurfacePaths, &[Vector3<f64>], &[[f64; ANCHORS]]),
-) -> (Vec<[f64; DESCRIPTOR]>, Vec<[f64; DESCRIPTOR]>) {
-    let found = Extremities::find(|v| source.0.column(v), source.1)
-        .zip(Extremities::find(|v| target.0.column(v), target.1));
-    let extended = |core: &[[f64; ANCHORS]], columns: Option<Vec<&[f64]>>| {
-        core.iter()
-            .enumerate()
-            .map(|(v, d)| {
-                std::array::from_fn(|k| match (k.checked_sub(ANCHORS), &columns) {
-                    (None, _) => d[k],
-                    (Some(e), Some(c)) => c[e][v],
-                    (Some(_), None) => 0.0,
+/// `warped` must hold one point per source vertex.
+fn check_warped(source: MeshRef<'_>, warped: &[Vector3<f64>]) -> Result<(), DescriptorError> {
+    if warped.len() == source.points.len() {
+        Ok(())
+    } else {
+        Err(DescriptorError::Mismatch {
+            warped: warped.len(),
+            vertices: source.points.len(),
+        })
+    }
+}
+
+/// What [`descriptor_matches`] needs of a pair of meshes that does not depend on where the
+/// source was registered: the source's core anchors and its descriptors to them, the target's
+/// surface paths, and both meshes' extremities (module `extremities`).
+pub struct DescriptorPair<'a> {
+    source: MeshRef<'a>,
+    target: MeshRef<'a>,
+    anchors: [usize; ANCHORS],
+    from: Vec<[f64; ANCHORS]>,
+    target_paths: SurfacePaths,
+    target_tree: ImmutableKdTree<f64, 3>,
+    extremities: Option<(Extremities, Extremities)>,
+}
+
+impl<'a> DescriptorPair<'a> {
+    /// The pair, with the core anchors over the `core_fraction` of the source nearest its
+    /// centroid; meshes smaller than the anchors, without triangles or with a face naming a
+    /// missing vertex are errors.
+    pub fn new(
+        source: MeshRef<'a>,
+        target: MeshRef<'a>,
+        core_fraction: f64,
+    ) -> Result<Self, DescriptorError> {
+        for mesh in [source, target] {
+            if mesh.points.len() < ANCHORS {
+                return Err(DescriptorError::TooFewVertices(mesh.points.len()));
+            }
+            if mesh.faces.is_empty() {
+                return Err(DescriptorError::NoFaces);
+            }
+        }
+        let anchors: [usize; ANCHORS] = core_anchors(source.points, ANCHORS, core_fraction)
+            .try_into()
+            .map_err(|_| DescriptorError::TooFewVertices(source.points.len()))?;
+        let (source_paths, target_paths) = (
+            SurfacePaths::along_edges(source)?,
+            SurfacePaths::along_edges(target)?,
+        );
+        let extremities = Extremities::find(|v| source_paths.column(v), source.points)
+            .zip(Extremities::find(|v| target_paths.column(v), target.points));
+        let coords: Vec<[f64; 3]> = target.points.iter().map(|p| (*p).into()).collect();
+        Ok(Self {
+            from: source_paths.descriptors(&anchors),
+            source,
+            target,
+            anchors,
+            target_paths,
+            target_tree: ImmutableKdTree::new_from_slice(&coords),
+            extremities,
+        })
+    }
+
+    /// [`descriptor_matches`] with the source registered onto the target at `warped`.
+    pub fn matches(&self, warped: &[Vector3<f64>]) -> Result<Vec<usize>, DescriptorError> {
+        check_warped(self.source, warped)?;
+        let partners: [usize; ANCHORS] = std::array::from_fn(|k| {
+            self.target_tree
+                .nearest_one::<SquaredEuclidean>(&warped[self.anchors[k]].into())
+                .item as usize
+        });
+        let to = self.target_paths.descriptors(&partners);
+        let (from, to) = self.with_extremities(&to);
+        let tree: ImmutableKdTree<f64, DESCRIPTOR> = ImmutableKdTree::new_from_slice(&to);
+        Ok(from
+            .par_iter()
+            .map(|d| tree.nearest_one::<SquaredEuclidean>(d).item as usize)
+            .collect())
+    }
+
+    /// The core descriptors of both meshes (`to` the target's), each extended by the vertex's
+    /// surface distances to the mesh's extremities, the target's in the order of their assigned
+    /// source partners: the core anchors place the body, the extremities the limbs along their
+    /// length. Where the extremities are not found on both or not assigned (a mesh too small,
+    /// a shape without distinct tips), both get zeros there, which change no distance.
+    fn with_extremities(
+        &self,
+        to: &[[f64; ANCHORS]],
+    ) -> (Vec<[f64; DESCRIPTOR]>, Vec<[f64; DESCRIPTOR]>) {
+        let extended = |core: &[[f64; ANCHORS]], columns: Option<Vec<&[f64]>>| {
+            core.iter()
+                .enumerate()
+                .map(|(v, d)| {
+                    std::array::from_fn(|k| match (k.checked_sub(ANCHORS), &columns) {
+                        (None, _) => d[k],
+                        (Some(e), Some(c)) => c[e][v],
+                        (Some(_), None) => 0.0,
+                    })
                 })
-            })
-            .collect::<Vec<[f64; DESCRIPTOR]>>()
-    };
-    let diagonal = bounding_diagonal(target.1);
-    let assigned = found.and_then(|(es, et)| {
-        let perm = assign(
-            (&es, source.1, source.2),
-            (&et, target.1, target.2),
-            diagonal,
-        )?;
-        Some((es, et, perm))
-    });
-    let Some((es, et, perm)) = assigned else {
-        return (extended(source.2, None), extended(target.2, None));
-    };
-    let source_columns = es.columns.iter().map(Vec::as_slice).collect();
-    let target_columns = perm.iter().map(|&k| et.columns[k].as_slice()).collect();
-    (
-        extended(source.2, Some(source_columns)),
-        extended(target.2, Some(target_columns)),
-    )
+                .collect::<Vec<[f64; DESCRIPTOR]>>()
+        };
+        let (source, target) = (self.source.points, self.target.points);
+        let assigned = self.extremities.as_ref().and_then(|(es, et)| {
+            let diagonal = bounding_diagonal(target);
+            let perm = assign((es, source, &self.from), (et, target, to), diagonal)?;
+            Some((es, et, perm))
+        });
+        let Some((es, et, perm)) = assigned else {
+            return (extended(&self.from, None), extended(to, None));
+        };
+        let source_columns = es.columns.iter().map(Vec::as_slice).collect();
+        let target_columns = perm.iter().map(|&k| et.columns[k].as_slice()).collect();
+        (
+            extended(&self.from, Some(source_columns)),
+            extended(to, Some(target_columns)),
+        )
+    }
 }
 
 /// A test surface (also used by `surface`'s tests): an open tube of `rings` × `around` vertices, radius 0.2 and length 2 along z, whose

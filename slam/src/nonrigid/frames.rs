@@ -473,14 +473,9 @@ pub fn register_frames(
         summary.take_in_first(&fit);
     }
     let (warped, warped_normals) = warped_by(&graph, &bindings, (&points, &normals));
-    let colour = chroma.as_ref().and_then(|c| {
-        c.check(
-            source,
-            target,
-            (&pixels, &warped),
-            (&target_vertices, settings),
-        )
-    });
+    let colour = chroma
+        .as_ref()
+        .and_then(|c| c.check(target, &warped, (&target_vertices, settings)));
     Ok(FrameRegistration {
         colour,
         pixels,
@@ -525,17 +520,22 @@ fn seen_through<'a>(
 }
 
 /// The chromaticity of a frame pair (module `chroma`), when both frames have colour: the
-/// target's at full resolution, and the source's at each data point's pixel as the references
-/// of the term, when it is weighted. Shading and exposure leave the chromaticity as it is, so
-/// the source's own pixel can be the reference. The colour check reads it too.
+/// target's at full resolution, the source's at each of its points' pixels (read by the colour
+/// check), and at the data points' pixels the references of the term, when it is weighted.
+/// Shading and exposure leave the chromaticity as it is, so the source's own pixel can be the
+/// reference.
 struct FrameChroma {
     target: ChromaImage,
+    /// Per source point (NaN: too dark).
+    source: Vec<f32>,
+    /// Per data point (0: too dark, as in the target's image).
     references: Vec<f32>,
 }
 
 impl FrameChroma {
-    /// From `[source, target]`, for the data points `data` (indices into `pixels`), when both
-    /// have colour (the colour check needs it whether or not the term is weighted).
+    /// From `[source, target]`, for the source's points at `pixels` and the data points `data`
+    /// (indices into `pixels`), when both have colour (the colour check needs it whether or not
+    /// the term is weighted).
     fn of(
         [source, target]: [&FrameView<'_>; 2],
         (data, pixels): (&[usize], &[usize]),
@@ -543,40 +543,37 @@ impl FrameChroma {
         let (Some(sc), Some(tc)) = (source.color, target.color) else {
             return None;
         };
-        // the source's chromaticity is needed at the data points' pixels only (dark ones 0, as
-        // in the target's image)
+        let source: Vec<f32> = pixels
+            .iter()
+            .map(|&k| chromaticity(sc.data[k]).unwrap_or(f32::NAN))
+            .collect();
         let references = data
             .iter()
-            .map(|&k| chromaticity(sc.data[pixels[k]]).unwrap_or(0.0))
+            .map(|&k| if source[k].is_nan() { 0.0 } else { source[k] })
             .collect();
         let mut image = ChromaImage::default();
         image.compute(tc, 0);
         Some(Self {
             target: image,
+            source,
             references,
         })
     }
 
-    /// The colour check (module `colour_check`) of the source's `pixels` carried to `warped`,
-    /// on patches of a twentieth of the image's width, with a tolerance of
-    /// [`COLOUR_TOLERANCE`] of the graph's node spacing.
+    /// The colour check (module `colour_check`) of the source's points carried to `warped`, on
+    /// patches of a twentieth of the image's width, with a tolerance of [`COLOUR_TOLERANCE`] of
+    /// the graph's node spacing.
     fn check(
         &self,
-        source: &FrameView<'_>,
         target: &FrameView<'_>,
-        (pixels, warped): (&[usize], &[Vector3<f64>]),
+        warped: &[Vector3<f64>],
         (target_vertices, settings): (&VertexMap, &FrameSettings),
     ) -> Option<ColourCheck> {
-        let colour = source.color?;
-        let values: Vec<f32> = pixels
-            .iter()
-            .map(|&k| chromaticity(colour.data[k]).unwrap_or(f32::NAN))
-            .collect();
         let input = CheckInput {
             camera: target.camera,
             target: &self.target.image,
             target_vertices,
-            source: &values,
+            source: &self.source,
             warped,
             gate: settings.register.max_distance,
         };

@@ -53,7 +53,7 @@ mod voxel_bindings;
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
 pub use colour_check::ColourCheck;
-pub use descriptors::{descriptor_matches, DescriptorError, MeshRef};
+pub use descriptors::{descriptor_matches, DescriptorError, DescriptorPair, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frame_target::SeenThroughTarget;
 pub use frames::{

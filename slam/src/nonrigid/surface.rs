@@ -5,7 +5,7 @@
 //! so anyone can score them.
 
 use super::boundary::{rim_matches, RimMatches};
-use super::descriptors::{descriptor_matches, DescriptorError, MeshRef};
+use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
 pub use super::extent::bounding_diagonal;
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
@@ -424,7 +424,7 @@ pub fn register_mesh_or_cloud(
 ///    stage; its core lands where it belongs.
 /// 2. Every source vertex is matched to the target vertex of nearest geodesic descriptor, with
 ///    anchors on the source's core and their partners from the pass before
-///    ([`descriptor_matches`]).
+///    ([`DescriptorPair::matches`]).
 /// 3. The registration runs again from the start. In its first `seeding.stages` stages a
 ///    point takes its descriptor match wherever that lies farther than the association gate
 ///    from its closest-point match ([`WarpOptimiser::optimise_from`]); later stages
@@ -512,6 +512,8 @@ impl Passes {
         let mut last = self.run_with(first, None)?;
         self.keep_rigid_start(&last.summary.prealigned);
         let (mut iterations, mut times) = (last.summary.iterations, last.summary.times);
+        // what the descriptors need that no pass changes, prepared for the first seeded pass
+        let mut pair: Option<DescriptorPair<'_>> = None;
         for _ in 0..seeding.passes {
             // anchors are placed by the pass before: one that left the source off the target
             // (a target beyond the rigid gate) has nothing to place them by, and seeds from it
@@ -520,7 +522,13 @@ impl Passes {
             if last.fit.on_target < MIN_SHARE {
                 break;
             }
-            let partner = descriptor_matches(source, &last.points, target, seeding.core_fraction)?;
+            if pair.is_none() {
+                pair = Some(DescriptorPair::new(source, target, seeding.core_fraction)?);
+            }
+            let partner = pair
+                .as_ref()
+                .expect("prepared above")
+                .matches(&last.points)?;
             let partner: Vec<MeshPoint> = partner
                 .into_iter()
                 .map(|k| MeshPoint::vertex(k as u32))
