@@ -360,18 +360,23 @@ impl<'a> DescriptorPair<'a> {
         let (source, target) = (self.source.points, self.target.points);
         let assigned = self.extremities.as_ref().and_then(|(es, et)| {
             let diagonal = bounding_diagonal(target);
-            let perm = assign((es, source, &self.from), (et, target, to), diagonal)?;
-            Some((es, et, perm))
+            let found = assign((es, source, &self.from), (et, target, to), diagonal)?;
+            Some((es, et, found))
         });
-        let Some((es, et, perm)) = assigned else {
+        let Some((es, et, found)) = assigned else {
             return (extended(&self.from, None), extended(to, None));
         };
         let source_columns = es.columns.iter().map(Vec::as_slice).collect();
-        let target_columns = perm.iter().map(|&k| et.columns[k].as_slice()).collect();
-        (
-            extended(&self.from, Some(source_columns)),
-            extended(to, Some(target_columns)),
-        )
+        let target_columns = found
+            .perm
+            .iter()
+            .map(|&k| et.columns[k].as_slice())
+            .collect();
+        let mut target = extended(to, Some(target_columns));
+        // in the source's units: a target larger along its surface would otherwise match each
+        // limb's points to points farther out along the limb (NOTES 104)
+        target.iter_mut().flatten().for_each(|d| *d /= found.scale);
+        (extended(&self.from, Some(source_columns)), target)
     }
 }
 
@@ -471,6 +476,93 @@ mod tests {
     #[test]
     fn a_moved_and_renumbered_copy_is_matched_vertex_for_vertex() {
         let (right, _, n) = match_bent_copy(0.0);
+        assert_eq!(
+            right, n,
+            "{right} of {n} vertices matched to their own copy"
+        );
+    }
+
+    /// A six-armed star: a hub of 12 vertices round a centre, and arms of 8 rows of two
+    /// vertices and a tip, 0.8–1.8 long, on a saddle `z = 0.15 x y` (so that no triple of tips
+    /// is coplanar).
+    fn star() -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+        let (hub, width, rows): (f64, f64, usize) = (0.3, 0.2, 8);
+        let on_saddle = |x: f64, y: f64| Vector3::new(x, y, 0.15 * x * y);
+        let mut points = vec![on_saddle(0.0, 0.0)];
+        let mut faces = Vec::new();
+        let half = (0.5 * width / hub).atan();
+        for k in 0..6 {
+            let angle = std::f64::consts::TAU * k as f64 / 6.0;
+            for side in [-half, half] {
+                points.push(on_saddle(
+                    hub * (angle + side).cos(),
+                    hub * (angle + side).sin(),
+                ));
+            }
+        }
+        for k in 0..12u32 {
+            faces.push([0, 1 + k, 1 + (k + 1) % 12]);
+        }
+        for k in 0..6 {
+            let angle = std::f64::consts::TAU * k as f64 / 6.0;
+            let (along, across) = (
+                Vector3::new(angle.cos(), angle.sin(), 0.0),
+                Vector3::new(-angle.sin(), angle.cos(), 0.0),
+            );
+            let length = 0.8 + 0.2 * k as f64;
+            let mut last = [1 + 2 * k as u32, 2 + 2 * k as u32];
+            for r in 1..=rows {
+                let c = along * (hub + length * r as f64 / rows as f64);
+                let row = [points.len() as u32, points.len() as u32 + 1];
+                for s in [-0.5, 0.5] {
+                    let p = c + across * (s * width);
+                    points.push(on_saddle(p.x, p.y));
+                }
+                faces.push([last[0], row[0], row[1]]);
+                faces.push([last[0], row[1], last[1]]);
+                last = row;
+            }
+            let tip = along * (hub + length + 0.1);
+            faces.push([last[0], points.len() as u32, last[1]]);
+            points.push(on_saddle(tip.x, tip.y));
+        }
+        (points, faces)
+    }
+
+    #[test]
+    fn a_copy_larger_along_its_surface_is_matched_vertex_for_vertex() {
+        // every surface distance of the target is 1.3 times the source's: the extremities'
+        // distances say so, and the target's descriptors are taken in the source's units
+        let (points, faces) = star();
+        let n = points.len();
+        let new_of = |v: usize| (v * 11 + 5) % n;
+        let renumbered: std::collections::HashSet<usize> = (0..n).map(new_of).collect();
+        assert_eq!(renumbered.len(), n, "a renumbering");
+        let motion = Rotation3::from_euler_angles(-0.4, 0.2, 1.1);
+        let mut target = vec![Vector3::zeros(); n];
+        for (v, p) in points.iter().enumerate() {
+            target[new_of(v)] = motion * (p * 1.3) + Vector3::new(0.5, 1.0, -2.0);
+        }
+        let target_faces: Vec<[u32; 3]> = faces
+            .iter()
+            .map(|f| f.map(|v| new_of(v as usize) as u32))
+            .collect();
+        let registered: Vec<Vector3<f64>> = (0..n).map(|v| target[new_of(v)]).collect();
+        let source = MeshRef {
+            points: &points,
+            faces: &faces,
+        };
+        let pair = DescriptorPair::new(
+            source,
+            MeshRef {
+                points: &target,
+                faces: &target_faces,
+            },
+            0.5,
+        )
+        .unwrap();
+        let matches = pair.matches(&registered).unwrap();
+        let right = (0..n).filter(|&v| matches[v] == new_of(v)).count();
         assert_eq!(
             right, n,
             "{right} of {n} vertices matched to their own copy"

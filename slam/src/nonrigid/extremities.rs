@@ -22,13 +22,14 @@ pub(crate) const EXTREMITIES: usize = 6;
 /// ordered pair and divided by the target's bounding-box diagonal.
 const HANDEDNESS_WEIGHT: f64 = 0.25;
 
-/// The largest disagreement of the surface distances between assigned extremities, as a share
-/// of their sum ([`assign`]). On the camel's 30 maps 0.02–0.11; on a tube, whose farthest points
-/// lie anywhere round its rims, 0.20–0.28.
+/// The largest disagreement of the surface distances between assigned extremities, in the
+/// source's units ([`intrinsic_scale`]), as a share of their sum ([`assign`]). On the camel's
+/// 30 maps 0.02–0.09 (NOTES 104); on a tube, whose farthest points lie anywhere round its rims,
+/// 0.17–0.22.
 const MAX_MUTUAL: f64 = 0.15;
 
-/// The same for the distances from the extremities to the core anchors: the camel 0.02–0.16, a
-/// tube 0.24–0.46.
+/// The same for the distances from the extremities to the core anchors: the camel 0.02–0.13, a
+/// tube 0.24–0.28.
 const MAX_TO_CORE: f64 = 0.2;
 
 /// A shape's extremities and each one's surface distance to every vertex.
@@ -87,6 +88,26 @@ impl Extremities {
 pub(crate) type ExtremitySide<'a, const N: usize> =
     (&'a Extremities, &'a [Vector3<f64>], &'a [[f64; N]]);
 
+/// The target's intrinsic size over the source's: the sum of the surface distances between its
+/// extremities over the source's (a sum over every pair, the same in any order). A bend of the
+/// limbs leaves it at 1; a shape that is larger along its surface, or stretched, scales it. The
+/// camel's poses differ by up to 10 % (pose 1, whose legs are stretched the furthest; NOTES 104).
+/// `None` when either sum is 0 or not finite.
+fn intrinsic_scale(source: &Extremities, target: &Extremities) -> Option<f64> {
+    let sum = |e: &Extremities| e.mutual().iter().flatten().sum::<f64>();
+    let scale = sum(target) / sum(source);
+    (scale.is_finite() && scale > 0.0).then_some(scale)
+}
+
+/// An assignment of the target's extremities to the source's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Assignment {
+    /// For each source extremity, the index of its partner among the target's.
+    pub perm: [usize; EXTREMITIES],
+    /// The target's surface distances over the source's ([`intrinsic_scale`]).
+    pub scale: f64,
+}
+
 /// For each source extremity, the index of its partner among the target's: the assignment
 /// that keeps the surface distances best, between extremities and from each extremity to the
 /// core anchors (the core places the body, which tells a left leg from a right one and the
@@ -94,17 +115,22 @@ pub(crate) type ExtremitySide<'a, const N: usize> =
 /// [`HANDEDNESS_WEIGHT`] times the target's diagonal. `None` when even that assignment leaves
 /// the distances between the extremities off by more than [`MAX_MUTUAL`] of their sum, or those
 /// to the core by more than [`MAX_TO_CORE`]: the points found on the two shapes are not the same
-/// ones (a symmetric shape, a tube's rim, has no distinct tips).
+/// ones (a symmetric shape, a tube's rim, has no distinct tips). The target's distances are
+/// compared in the source's units (over [`intrinsic_scale`], returned with the assignment), so
+/// that a shape larger along its surface is assigned as one of the same size.
 pub(crate) fn assign<const N: usize>(
     source: ExtremitySide<'_, N>,
     target: ExtremitySide<'_, N>,
     diagonal: f64,
-) -> Option<[usize; EXTREMITIES]> {
-    let (ds, dt) = (source.0.mutual(), target.0.mutual());
+) -> Option<Assignment> {
+    let scale = intrinsic_scale(source.0, target.0)?;
+    let (ds, mut dt) = (source.0.mutual(), target.0.mutual());
     let core = |side: &ExtremitySide<'_, N>| -> Vec<[f64; N]> {
         side.0.vertices.iter().map(|&v| side.2[v]).collect()
     };
-    let (cs, ct) = (core(&source), core(&target));
+    let (cs, mut ct) = (core(&source), core(&target));
+    dt.iter_mut().flatten().for_each(|d| *d /= scale);
+    ct.iter_mut().flatten().for_each(|d| *d /= scale);
     let identity: [usize; EXTREMITIES] = std::array::from_fn(|k| k);
     let hands = source.0.handedness(source.1, &identity);
     let mut best = (f64::INFINITY, identity, [f64::INFINITY; 2]);
@@ -133,7 +159,10 @@ pub(crate) fn assign<const N: usize>(
     let total: f64 = ds.iter().flatten().sum();
     let core_total: f64 = cs.iter().flatten().sum();
     let [mutual, to_core] = best.2;
-    (mutual <= MAX_MUTUAL * total && to_core <= MAX_TO_CORE * core_total).then_some(best.1)
+    (mutual <= MAX_MUTUAL * total && to_core <= MAX_TO_CORE * core_total).then_some(Assignment {
+        perm: best.1,
+        scale,
+    })
 }
 
 /// Every triple a < b < c of extremity indices.
@@ -237,7 +266,9 @@ mod tests {
         let found = [4, 0, 5, 2, 1, 3];
         let (es, cs) = side(&source, [0, 1, 2, 3, 4, 5], &[6, 7, 8]);
         let (et, ct) = side(&target, found, &[6, 7, 8]);
-        let perm = assign((&es, &source, &cs), (&et, &target, &ct), 4.0).unwrap();
+        let perm = assign((&es, &source, &cs), (&et, &target, &ct), 4.0)
+            .unwrap()
+            .perm;
         for k in 0..EXTREMITIES {
             assert_eq!(found[perm[k]], k, "extremity {k}: {perm:?}");
         }
@@ -247,11 +278,20 @@ mod tests {
         let (es, cs) = side(&source, [0, 1, 2, 3, 4, 5], &[]);
         for found in [[4, 0, 5, 2, 1, 3], [5, 0, 4, 3, 1, 2]] {
             let (et, ct) = side(&target, found, &[]);
-            let perm = assign((&es, &source, &cs), (&et, &target, &ct), 4.0).unwrap();
+            let perm = assign((&es, &source, &cs), (&et, &target, &ct), 4.0)
+                .unwrap()
+                .perm;
             for k in 0..EXTREMITIES {
                 assert_eq!(found[perm[k]], k, "by handedness, extremity {k}: {perm:?}");
             }
         }
+        // a copy 1.3 times as large along its surface is assigned the same way, and says so
+        let larger: Vec<Vector3<f64>> = target.iter().map(|p| p * 1.3).collect();
+        let (es, cs) = side(&source, [0, 1, 2, 3, 4, 5], &[6, 7, 8]);
+        let (el, cl) = side(&larger, found, &[6, 7, 8]);
+        let got = assign((&es, &source, &cs), (&el, &larger, &cl), 4.0).unwrap();
+        assert!((got.scale - 1.3).abs() < 1e-12, "{got:?}");
+        assert!((0..EXTREMITIES).all(|k| found[got.perm[k]] == k), "{got:?}");
         // points that are not the same ones on the two shapes are not assigned
         let mut other = target.clone();
         other[2] += Vector3::new(0.0, 1.5, -1.0);
