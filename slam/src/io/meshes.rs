@@ -79,8 +79,13 @@ fn push_polygon(
     Ok(())
 }
 
-/// Parses OFF text: `OFF`, then `nv nf ne`, nv lines `x y z`, nf lines `n i_1 … i_n`.
+/// Parses OFF text: `OFF`, then `nv nf ne`, nv lines `x y z`, nf lines `n i_1 … i_n`. The
+/// variants of the format that add per-vertex data after the position (`COFF` colours, `NOFF`
+/// normals, `STOFF` texture coordinates, and their combinations such as `CNOFF`) are read for
+/// their positions; the counts may follow the keyword on its line, even without a space
+/// (`OFF490 518 0`, as in some of ModelNet's files); a byte-order mark before it is skipped.
 pub fn parse_off(text: &str, path: &Path) -> Result<Mesh, IoError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     // (1-based line number, fields) of the lines that carry data
     let mut lines = text.lines().enumerate().filter_map(|(i, l)| {
         let l = l.split('#').next().unwrap_or("").trim();
@@ -89,13 +94,28 @@ pub fn parse_off(text: &str, path: &Path) -> Result<Mesh, IoError> {
     let (n0, first) = lines
         .next()
         .ok_or_else(|| IoError::file(path, "empty file"))?;
-    // the counts may follow "OFF" on the same line
-    let counts = match first.first() {
-        Some(&"OFF") if first.len() > 1 => (n0, first[1..].to_vec()),
-        Some(&"OFF") => lines
-            .next()
-            .ok_or_else(|| IoError::file(path, "no counts line after 'OFF'"))?,
-        _ => {
+    let counts = match off_keyword(first[0]) {
+        Some(Ok(rest)) => {
+            let on_line: Vec<&str> = std::iter::once(rest)
+                .filter(|r| !r.is_empty())
+                .chain(first[1..].iter().copied())
+                .collect();
+            if on_line.is_empty() {
+                lines
+                    .next()
+                    .ok_or_else(|| IoError::file(path, "no counts line after 'OFF'"))?
+            } else {
+                (n0, on_line)
+            }
+        }
+        Some(Err(keyword)) => {
+            return Err(IoError::line(
+                path,
+                n0,
+                format!("'{keyword}' (a point dimension other than 3) is not supported"),
+            ))
+        }
+        None => {
             return Err(IoError::line(
                 path,
                 n0,
@@ -146,43 +166,71 @@ pub fn parse_off(text: &str, path: &Path) -> Result<Mesh, IoError> {
     Ok(mesh)
 }
 
-/// Parses OBJ text: `v x y z` and `f a b c …` lines (indices 1-based, negative ones relative, each
-/// possibly `v/vt/vn`); other statements are skipped.
+/// The OFF keyword at the start of `word`: the rest of the word after it (counts written without
+/// a space), an error for the n-dimensional and homogeneous variants (`nOFF`, `4OFF`), or `None`
+/// when the word is no OFF keyword.
+fn off_keyword(word: &str) -> Option<Result<&str, &str>> {
+    let at = word.find("OFF")?;
+    let prefix = &word[..at];
+    let rest = &word[at + 3..];
+    let dimension = prefix.ends_with('4') || prefix.ends_with('n');
+    let known = prefix
+        .trim_end_matches(['4', 'n'])
+        .strip_prefix("ST")
+        .unwrap_or(prefix.trim_end_matches(['4', 'n']));
+    let known = known.strip_prefix('C').unwrap_or(known);
+    let known = known.strip_prefix('N').unwrap_or(known);
+    let digits = rest.chars().all(|c| c.is_ascii_digit());
+    match (known.is_empty() && digits, dimension) {
+        (false, _) => None,
+        (true, true) => Some(Err(word)),
+        (true, false) => Some(Ok(rest)),
+    }
+}
+
+/// Parses OBJ text: `v x y z` and `f a b c …` lines (indices 1-based, negative ones relative to
+/// the vertices read so far, each possibly `v/vt/vn`); other statements are skipped. A face may
+/// name a vertex defined further down the file: indices are checked once every vertex is read.
 pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
     let mut mesh = Mesh::default();
-    let mut corners = Vec::new();
+    // every face's corners, flat, and (line, first corner) per face
+    let (mut corners, mut faces) = (Vec::new(), Vec::new());
     for (i, l) in text.lines().enumerate() {
         let line = i + 1;
         let f: Vec<&str> = l.split_whitespace().collect();
         match f.first() {
             Some(&"v") => mesh.vertices.push(point(&f[1..], path, line)?),
             Some(&"f") => {
-                corners.clear();
-                let nv = mesh.vertices.len() as i64;
+                faces.push((line, corners.len()));
+                let so_far = mesh.vertices.len() as i64;
                 for s in &f[1..] {
-                    let idx: i64 = s
-                        .split('/')
-                        .next()
-                        .and_then(|v| v.parse().ok())
-                        .ok_or_else(|| {
-                            IoError::line(path, line, format!("'{s}' is not a vertex index"))
-                        })?;
-                    let abs = if idx < 0 { nv + idx } else { idx - 1 };
-                    if abs < 0 || idx == 0 {
-                        return Err(IoError::line(
-                            path,
-                            line,
-                            format!("vertex index {idx} is out of range"),
-                        ));
-                    }
-                    corners.push(abs as u32);
+                    corners.push(obj_index(s, so_far, path, line)?);
                 }
-                push_polygon(&mut mesh, &corners, nv as usize, path, line)?;
             }
             _ => {}
         }
     }
+    let nv = mesh.vertices.len();
+    for (k, &(line, start)) in faces.iter().enumerate() {
+        let end = faces.get(k + 1).map_or(corners.len(), |f| f.1);
+        push_polygon(&mut mesh, &corners[start..end], nv, path, line)?;
+    }
     Ok(mesh)
+}
+
+/// A face corner's 0-based vertex index from `v`, `v/vt`, `v//vn` or `v/vt/vn` (`so_far`
+/// vertices read before it, which a negative index counts back from).
+fn obj_index(s: &str, so_far: i64, path: &Path, line: usize) -> Result<u32, IoError> {
+    let idx: i64 = s
+        .split('/')
+        .next()
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| IoError::line(path, line, format!("'{s}' is not a vertex index")))?;
+    let abs = if idx < 0 { so_far + idx } else { idx - 1 };
+    u32::try_from(abs)
+        .ok()
+        .filter(|_| idx != 0)
+        .ok_or_else(|| IoError::line(path, line, format!("vertex index {idx} is out of range")))
 }
 
 #[cfg(test)]
@@ -204,6 +252,57 @@ mod tests {
         .unwrap();
         assert_eq!(off.faces, vec![[0, 1, 2], [0, 2, 3]]);
         assert_eq!(off, obj);
+    }
+
+    /// The unit square of `off_and_obj_give_the_same_square`, as two triangles.
+    fn square() -> Mesh {
+        let p = Path::new("square");
+        parse_off("OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n", p).unwrap()
+    }
+
+    #[test]
+    fn off_variants_and_odd_headers_are_read_for_their_positions() {
+        let p = Path::new("odd.off");
+        let body = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n";
+        let coloured = "0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n1 1 0 0 0 255 255\n\
+                        0 1 0 9 9 9 255\n4 0 1 2 3 128 128 128\n";
+        let normals = "0 0 0 0 0 1\n1 0 0 0 0 1\n1 1 0 0 0 1\n0 1 0 0 0 1\n4 0 1 2 3\n";
+        for text in [
+            format!("OFF 4 1 0\n{body}"),
+            format!("OFF4 1 0\n{body}"),
+            format!("\u{feff}OFF\r\n4 1 0\r\n{}", body.replace('\n', "\r\n")),
+            format!("COFF\n4 1 0\n{coloured}"),
+            format!("NOFF\n4 1 0\n{normals}"),
+            format!("CNOFF\n4 1 0\n{coloured}"),
+            format!("STOFF\n# texture coordinates after each position\n4 1 0\n{normals}"),
+        ] {
+            let mesh = parse_off(&text, p).unwrap_or_else(|e| panic!("{text:?}: {e}"));
+            assert_eq!(mesh, square(), "{text:?}");
+        }
+        for (text, says) in [
+            (format!("4OFF\n4 1 0\n{body}"), "dimension"),
+            (format!("nOFF\n3\n4 1 0\n{body}"), "dimension"),
+            (
+                format!("OFFICE\n4 1 0\n{body}"),
+                "does not start with 'OFF'",
+            ),
+            ("COFF four 1 0\n".to_string(), "counts"),
+        ] {
+            let e = parse_off(&text, p).unwrap_err();
+            assert!(e.message.contains(says) && e.line == 1, "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn obj_faces_may_name_vertices_further_down_the_file() {
+        let p = Path::new("late.obj");
+        let late = parse_obj("f 1 2 3 4\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n", p).unwrap();
+        assert_eq!(late, square());
+        let e = parse_obj("v 0 0 0\nf 1 2 5\nv 1 0 0\nv 1 1 0\n", p).unwrap_err();
+        assert_eq!(e.line, 2, "{e}");
+        // a negative index counts back from the vertices read before the face
+        let e = parse_obj("v 0 0 0\nf -1 -2 -3\nv 1 0 0\nv 1 1 0\n", p).unwrap_err();
+        assert!(e.line == 2 && e.message.contains("-2"), "{e}");
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! PLY meshes (Turk, *The PLY Polygon File Format*, 1994): written as binary little-endian with
-//! positions, normals, colours and triangles; read back from binary little-endian or ASCII.
+//! positions, normals, colours and triangles; read from binary little- or big-endian or ASCII,
+//! with LF or CR LF header lines.
 
 use super::{write_atomic, IoError};
 use crate::mesh::Mesh;
@@ -89,18 +90,40 @@ impl Kind {
             Kind::U8 | Kind::I8 => 1,
         }
     }
-    fn read(self, b: &[u8]) -> f64 {
+    /// The value at the start of `b` (at least [`Self::size`] bytes), in the byte order `order`.
+    fn read(self, b: &[u8], order: ByteOrder) -> f64 {
+        let mut raw = [0u8; 8];
+        raw[..self.size()].copy_from_slice(&b[..self.size()]);
+        if order == ByteOrder::Big {
+            raw[..self.size()].reverse();
+        }
+        let four = || raw[..4].try_into().unwrap();
+        let two = || raw[..2].try_into().unwrap();
         match self {
-            Kind::F32 => f32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
-            Kind::F64 => f64::from_le_bytes(b[..8].try_into().unwrap()),
-            Kind::I32 => i32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
-            Kind::U32 => u32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
-            Kind::I16 => i16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
-            Kind::U16 => u16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
-            Kind::U8 => b[0] as f64,
-            Kind::I8 => b[0] as i8 as f64,
+            Kind::F32 => f32::from_le_bytes(four()) as f64,
+            Kind::F64 => f64::from_le_bytes(raw),
+            Kind::I32 => i32::from_le_bytes(four()) as f64,
+            Kind::U32 => u32::from_le_bytes(four()) as f64,
+            Kind::I16 => i16::from_le_bytes(two()) as f64,
+            Kind::U16 => u16::from_le_bytes(two()) as f64,
+            Kind::U8 => raw[0] as f64,
+            Kind::I8 => raw[0] as i8 as f64,
         }
     }
+}
+
+/// How a PLY body stores its values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Encoding {
+    Ascii,
+    Binary(ByteOrder),
+}
+
+/// A binary body's byte order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum ByteOrder {
+    Little,
+    Big,
 }
 
 struct Element {
@@ -110,8 +133,8 @@ struct Element {
     props: Vec<(String, Kind, Option<Kind>)>,
 }
 
-/// Reads a PLY mesh (binary little-endian or ASCII; vertices with optional normals and colours,
-/// triangle faces).
+/// Reads a PLY mesh (binary of either byte order, or ASCII; vertices with optional normals and
+/// colours, polygon faces fanned into triangles).
 pub fn read(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
     let path = path.as_ref();
     let bytes =
@@ -121,21 +144,16 @@ pub fn read(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
 
 /// Decodes PLY bytes; `path` names them in errors.
 pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .ok_or_else(|| IoError::file(path, "no 'end_header' line"))?;
-    let header = std::str::from_utf8(&bytes[..end])
-        .map_err(|_| IoError::file(path, "header is not text"))?;
-    let body = &bytes[end + 11..];
-    let (elements, ascii) = parse_header(header, path)?;
+    let (header, body) = split_header(bytes, path)?;
+    let (elements, encoding) = parse_header(header, path)?;
     check_counts(&elements, body.len(), path)?;
-    let mut values = if ascii {
-        let text =
-            std::str::from_utf8(body).map_err(|_| IoError::file(path, "ASCII body is not text"))?;
-        Values::Ascii(text.split_whitespace())
-    } else {
-        Values::Binary(body)
+    let mut values = match encoding {
+        Encoding::Ascii => {
+            let text = std::str::from_utf8(body)
+                .map_err(|_| IoError::file(path, "ASCII body is not text"))?;
+            Values::Ascii(text.split_whitespace())
+        }
+        Encoding::Binary(order) => Values::Binary(body, order),
     };
     let mut mesh = Mesh::default();
     for el in elements.iter().filter(|e| !e.props.is_empty()) {
@@ -147,18 +165,45 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Mesh, IoError> {
     Ok(mesh)
 }
 
-/// The header's elements with their properties, and whether the body is ASCII.
-fn parse_header(header: &str, path: &Path) -> Result<(Vec<Element>, bool), IoError> {
+/// The header's text (up to its `end_header` line, which may end in CR LF as files written on
+/// Windows do) and the body after it.
+fn split_header<'a>(bytes: &'a [u8], path: &Path) -> Result<(&'a str, &'a [u8]), IoError> {
+    let tag = b"end_header";
+    let end = bytes
+        .windows(tag.len())
+        .enumerate()
+        .filter(|(_, w)| w == tag)
+        .map(|(i, _)| i)
+        .find(|&i| {
+            (i == 0 || bytes[i - 1] == b'\n')
+                && matches!(&bytes[i + tag.len()..], [b'\n', ..] | [b'\r', b'\n', ..])
+        })
+        .ok_or_else(|| IoError::file(path, "no 'end_header' line"))?;
+    let header = std::str::from_utf8(&bytes[..end])
+        .map_err(|_| IoError::file(path, "header is not text"))?;
+    let newline = if bytes[end + tag.len()] == b'\r' {
+        2
+    } else {
+        1
+    };
+    Ok((header, &bytes[end + tag.len() + newline..]))
+}
+
+/// The header's elements with their properties, and how the body is encoded.
+fn parse_header(header: &str, path: &Path) -> Result<(Vec<Element>, Encoding), IoError> {
     let mut elements: Vec<Element> = Vec::new();
-    let mut ascii = false;
+    let mut encoding = None;
     for (i, line) in header.lines().enumerate() {
         let f: Vec<&str> = line.split_whitespace().collect();
         let err = |m: &str| IoError::line(path, i + 1, m.to_string());
         match f.first().copied() {
             Some("ply") | Some("comment") | Some("obj_info") | None => {}
             Some("format") => match f.get(1).copied() {
-                Some("binary_little_endian") => ascii = false,
-                Some("ascii") => ascii = true,
+                Some("binary_little_endian") => {
+                    encoding = Some(Encoding::Binary(ByteOrder::Little))
+                }
+                Some("binary_big_endian") => encoding = Some(Encoding::Binary(ByteOrder::Big)),
+                Some("ascii") => encoding = Some(Encoding::Ascii),
                 other => return Err(err(&format!("unsupported format {other:?}"))),
             },
             Some("element") => {
@@ -181,7 +226,9 @@ fn parse_header(header: &str, path: &Path) -> Result<(Vec<Element>, bool), IoErr
             Some(other) => return Err(err(&format!("unknown header keyword '{other}'"))),
         }
     }
-    Ok((elements, ascii))
+    let encoding =
+        encoding.ok_or_else(|| IoError::file(path, "the header has no 'format' line"))?;
+    Ok((elements, encoding))
 }
 
 /// A `property` line's (name, type, list item type), split into words.
@@ -221,10 +268,10 @@ fn check_counts(elements: &[Element], body: usize, path: &Path) -> Result<(), Io
     }
 }
 
-/// The body's values in order: words of an ASCII body, or little-endian binary.
+/// The body's values in order: words of an ASCII body, or binary in a byte order.
 enum Values<'a> {
     Ascii(std::str::SplitWhitespace<'a>),
-    Binary(&'a [u8]),
+    Binary(&'a [u8], ByteOrder),
 }
 
 impl Values<'_> {
@@ -235,11 +282,11 @@ impl Values<'_> {
                 .next()
                 .and_then(|s| s.parse::<f64>().ok())
                 .ok_or_else(|| IoError::file(path, "ASCII body ends early or has a non-number")),
-            Values::Binary(body) => {
+            Values::Binary(body, order) => {
                 if body.len() < k.size() {
                     return Err(IoError::file(path, "binary body ends early"));
                 }
-                let v = k.read(body);
+                let v = k.read(body, *order);
                 *body = &body[k.size()..];
                 Ok(v)
             }
@@ -299,6 +346,15 @@ fn read_entry(
                 format!("face {} has {} vertices", mesh.faces.len(), face.len()),
             ));
         }
+        if let Some(bad) = face
+            .iter()
+            .find(|&&v| v < 0.0 || v.fract() != 0.0 || v > u32::MAX as f64)
+        {
+            return Err(IoError::file(
+                path,
+                format!("face {} has vertex index {bad}", mesh.faces.len()),
+            ));
+        }
         for k in 1..face.len() - 1 {
             mesh.faces
                 .push([face[0] as u32, face[k] as u32, face[k + 1] as u32]);
@@ -355,6 +411,56 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("face 0"));
+    }
+
+    /// `mesh` (no normals or colours) as binary big-endian PLY with double coordinates.
+    fn big_endian(mesh: &Mesh) -> Vec<u8> {
+        let mut out = format!(
+            "ply\r\nformat binary_big_endian 1.0\r\nelement vertex {}\r\n\
+             property double x\r\nproperty double y\r\nproperty double z\r\n\
+             element face {}\r\nproperty list uchar uint vertex_indices\r\nend_header\r\n",
+            mesh.vertices.len(),
+            mesh.faces.len()
+        )
+        .into_bytes();
+        for v in &mesh.vertices {
+            for c in v.coords.iter() {
+                out.extend_from_slice(&(*c as f64).to_be_bytes());
+            }
+        }
+        for f in &mesh.faces {
+            out.push(3);
+            for i in f {
+                out.extend_from_slice(&i.to_be_bytes());
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn big_endian_files_with_windows_line_ends_are_read() {
+        let mut m = tetrahedron();
+        m.colors.clear();
+        m.normals.clear();
+        let back = decode(&big_endian(&m), Path::new("big.ply")).unwrap();
+        assert_eq!(back, m);
+    }
+
+    #[test]
+    fn face_indices_must_be_whole_and_not_negative_and_the_format_stated() {
+        let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                    property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                    end_header\n0 0 0\n1 0 0\n0 1 0\n";
+        for (face, says) in [("3 0 -1 2\n", "-1"), ("3 0 1.5 2\n", "1.5")] {
+            let e = decode(format!("{head}{face}").as_bytes(), Path::new("f.ply")).unwrap_err();
+            assert!(e.to_string().contains(says), "{e}");
+        }
+        let no_format = head.replace("format ascii 1.0\n", "");
+        let e = decode(
+            format!("{no_format}3 0 1 2\n").as_bytes(),
+            Path::new("g.ply"),
+        );
+        assert!(e.unwrap_err().to_string().contains("'format'"));
     }
 
     proptest::proptest! {
