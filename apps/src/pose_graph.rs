@@ -62,7 +62,7 @@ enum AlgorithmKind {
 #[derive(Parser, Debug)]
 #[command(version, long_about = None)]
 struct Args {
-    /// The g2o file (VERTEX_SE2/EDGE_SE2 or VERTEX_SE3:QUAT/EDGE_SE3:QUAT). Without it, a synthetic
+    /// The g2o file (VERTEX_SE2/EDGE_SE2 or VERTEX_SE3:QUAT/EDGE_SE3:QUAT, or TORO's planar VERTEX2/EDGE2). Without it, a synthetic
     /// sphere graph with a known optimum is generated and solved.
     graph: Option<PathBuf>,
     /// Where to write the optimised graph (g2o, written through a temporary file).

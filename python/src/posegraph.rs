@@ -127,8 +127,8 @@ impl PoseGraph {
 
 #[pymethods]
 impl PoseGraph {
-    /// Reads a g2o file (VERTEX_SE2 / EDGE_SE2 or VERTEX_SE3:QUAT / EDGE_SE3:QUAT). Raises
-    /// `InputError` naming the file and line of a fault.
+    /// Reads a g2o file (VERTEX_SE2 / EDGE_SE2 or VERTEX_SE3:QUAT / EDGE_SE3:QUAT, or TORO's planar
+    /// VERTEX2 / EDGE2). Raises `InputError` naming the file and line of a fault.
     #[staticmethod]
     #[pyo3(signature = (path, strict = false))]
     fn read(py: Python<'_>, path: PathBuf, strict: bool) -> PyResult<Self> {

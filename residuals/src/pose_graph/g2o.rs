@@ -1,6 +1,9 @@
 //! The g2o text format for pose graphs: `VERTEX_SE2`, `EDGE_SE2`, `VERTEX_SE3:QUAT`,
 //! `EDGE_SE3:QUAT` and `FIX` (Kümmerle et al., *g2o: A General Framework for Graph Optimization*,
-//! ICRA 2011).
+//! ICRA 2011). The planar lines of TORO's `.graph` files (Grisetti et al., RSS 2007), in which
+//! published graphs such as Olson's Manhattan and the Intel lab are also distributed, are read
+//! too: `VERTEX2` as `VERTEX_SE2`, and `EDGE2` with TORO's order of the information entries,
+//! `I11 I12 I22 I33 I13 I23`. Graphs are always written with g2o's tags.
 //!
 //! Information matrices are stored as their upper triangle, row by row. For SE(3), g2o orders the
 //! coordinates `[x, y, z, qx, qy, qz]`; they are permuted to the solver's `[ω; v]` on reading and back
@@ -39,6 +42,10 @@ fn place(line: usize) -> String {
 const SE2_VERTEX: &[&str] = &["id", "x", "y", "theta"];
 const SE2_EDGE: &[&str] = &[
     "from", "to", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33",
+];
+/// TORO's planar edge: g2o's fields with the information entries in another order.
+const TORO_EDGE: &[&str] = &[
+    "from", "to", "dx", "dy", "dtheta", "I11", "I12", "I22", "I33", "I13", "I23",
 ];
 const SE3_VERTEX: &[&str] = &["id", "x", "y", "z", "qx", "qy", "qz", "qw"];
 
@@ -218,11 +225,11 @@ fn parse_lines<S: AsRef<str>>(
         let rest: Vec<&str> = tokens.collect();
         check_dimension(&p, tag, &mut dimension)?;
         match tag {
-            "VERTEX_SE2" | "VERTEX_SE3:QUAT" => {
+            "VERTEX_SE2" | "VERTEX2" | "VERTEX_SE3:QUAT" => {
                 let (id, pose) = parse_vertex(&p, tag, &rest)?;
                 add_vertex(&mut graph, &mut vertex_lines, &p, id, pose)?;
             }
-            "EDGE_SE2" | "EDGE_SE3:QUAT" => {
+            "EDGE_SE2" | "EDGE2" | "EDGE_SE3:QUAT" => {
                 let (edge, repair) = parse_edge(&p, tag, &rest, &edge3, policy)?;
                 graph.edges.push(edge);
                 repairs.extend(repair);
@@ -237,7 +244,7 @@ fn parse_lines<S: AsRef<str>>(
             }
             other => {
                 return Err(p.err(format!(
-                    "unknown tag '{other}' (expected VERTEX_SE2, EDGE_SE2, VERTEX_SE3:QUAT, EDGE_SE3:QUAT or FIX)"
+                    "unknown tag '{other}' (expected VERTEX_SE2, EDGE_SE2, VERTEX_SE3:QUAT, EDGE_SE3:QUAT, FIX, or TORO's VERTEX2 and EDGE2)"
                 )));
             }
         }
@@ -272,7 +279,7 @@ fn check_dimension(
     dimension: &mut Option<(Dimension, usize)>,
 ) -> Result<(), G2oError> {
     let this_dim = match tag {
-        "VERTEX_SE2" | "EDGE_SE2" => Dimension::Two,
+        "VERTEX_SE2" | "EDGE_SE2" | "VERTEX2" | "EDGE2" => Dimension::Two,
         "VERTEX_SE3:QUAT" | "EDGE_SE3:QUAT" => Dimension::Three,
         _ => return Ok(()),
     };
@@ -289,9 +296,9 @@ fn check_dimension(
     Ok(())
 }
 
-/// A VERTEX_SE2 or VERTEX_SE3:QUAT line's id and pose.
+/// A VERTEX_SE2 (or VERTEX2) or VERTEX_SE3:QUAT line's id and pose.
 fn parse_vertex(p: &LineParser<'_>, tag: &str, rest: &[&str]) -> Result<(usize, Pose), G2oError> {
-    let (names, pose) = if tag == "VERTEX_SE2" {
+    let (names, pose) = if tag != "VERTEX_SE3:QUAT" {
         p.count(tag, rest, SE2_VERTEX)?;
         let v = p.nums(&rest[1..], &SE2_VERTEX[1..])?;
         (
@@ -334,8 +341,8 @@ fn add_vertex(
     }
 }
 
-/// An EDGE_SE2 or EDGE_SE3:QUAT line, which must join two vertices; an information matrix that is
-/// not positive definite is refused or repaired as `policy` says.
+/// An EDGE_SE2, EDGE2 or EDGE_SE3:QUAT line, which must join two vertices; an information matrix
+/// that is not positive definite is refused or repaired as `policy` says.
 fn parse_edge(
     p: &LineParser<'_>,
     tag: &str,
@@ -349,6 +356,15 @@ fn parse_edge(
         Measurement::Se2 {
             z: Isometry2::new(Vector2::new(v[0], v[1]), v[2]),
             information: upper::<3>(&v[3..9]),
+        }
+    } else if tag == "EDGE2" {
+        p.count(tag, rest, TORO_EDGE)?;
+        let v = p.nums(&rest[2..], &TORO_EDGE[2..])?;
+        // I11 I12 I22 I33 I13 I23 into g2o's I11 I12 I13 I22 I23 I33
+        let g2o_order = [v[3], v[4], v[7], v[5], v[8], v[6]];
+        Measurement::Se2 {
+            z: Isometry2::new(Vector2::new(v[0], v[1]), v[2]),
+            information: upper::<3>(&g2o_order),
         }
     } else {
         p.count(tag, rest, edge3)?;
@@ -518,6 +534,46 @@ mod tests {
             }
             _ => unreachable!(),
         }
+    }
+
+    #[test]
+    fn toros_planar_lines_are_the_same_graph_with_its_information_order() {
+        // the information [[10, 1, 2], [1, 20, 3], [2, 3, 30]]: g2o writes I11 I12 I13 I22 I23
+        // I33, TORO I11 I12 I22 I33 I13 I23
+        let g2o = parse(
+            "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0.1\nEDGE_SE2 0 1 1 0 0.1 10 1 2 20 3 30\n",
+            "a.g2o",
+        )
+        .unwrap();
+        let toro = parse(
+            "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0.1\nEDGE2 0 1 1 0 0.1 10 1 20 30 2 3\n",
+            "a.graph",
+        )
+        .unwrap();
+        assert_eq!(toro.dimension, Dimension::Two);
+        assert_eq!(toro.vertices, g2o.vertices);
+        match (&toro.edges[0].measurement, &g2o.edges[0].measurement) {
+            (
+                Measurement::Se2 {
+                    z: a,
+                    information: i,
+                },
+                Measurement::Se2 {
+                    z: b,
+                    information: j,
+                },
+            ) => {
+                assert_eq!((a, i), (b, j));
+                assert_eq!(i[(0, 2)], 2.0);
+                assert_eq!(i[(2, 1)], 3.0);
+            }
+            _ => unreachable!(),
+        }
+        // TORO's lines are planar: with a 3-D line they mix dimensions
+        let mixed = message("VERTEX2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n");
+        assert!(mixed.contains("mixes dimensions"), "{mixed}");
+        let short = message("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 10 0 10 10 0\n");
+        assert!(short.contains("missing field I23"), "{short}");
     }
 
     #[test]
