@@ -46,6 +46,7 @@ pub mod register;
 mod rim;
 mod rim_map;
 pub mod surface;
+pub mod surface_area;
 pub mod surface_fit;
 mod system;
 mod voxel_bindings;

@@ -650,6 +650,35 @@ mod tests {
         assert!(two.summary.iterations > one.summary.iterations);
     }
 
+    /// A scan's noise on the target's vertices multiplies its triangles' area, but the verdict
+    /// measures areas without it (NOTES 107): onto a bent copy whose vertices are jittered by up
+    /// to 0.04 per coordinate (about an edge's length), the tube registers and says so.
+    #[test]
+    fn a_noisy_target_is_registered() {
+        use rand::{RngExt, SeedableRng};
+        let mut pair = TubePair::new(48, 32, 0.6);
+        let clean = TubePair::new(48, 32, 0.6);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut noise = || rng.random_range(-0.04..0.04);
+        for p in pair.target.0.iter_mut() {
+            *p += Vector3::new(noise(), noise(), noise());
+        }
+        pair.target.1 = with_normals(&pair.target.0, &pair.faces);
+        let raw = crate::nonrigid::surface_area::area;
+        let inflated = raw(&pair.target.0, &pair.faces) / raw(&pair.source.0, &pair.faces);
+        assert!(
+            inflated > 1.5,
+            "the noise raises the target's area {inflated} times"
+        );
+        let reg = pair.register(1);
+        let (before, after) = (clean.error(&pair.source.0), clean.error(&reg.points));
+        assert!(
+            after < 0.5 * before,
+            "against the clean copy {after} (before {before})"
+        );
+        assert_eq!(reg.verdict(), SurfaceVerdict::Registered, "{:?}", reg.fit);
+    }
+
     /// Onto a copy beyond the rigid gate (two diagonals away), or onto a third of the bent
     /// copy, the optimiser still returns a field; the verdict says it did not register.
     #[test]

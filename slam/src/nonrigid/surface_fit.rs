@@ -8,11 +8,14 @@
 //! - `covered`: the share of target points within the tolerance of a warped source point: a
 //!   source gathered onto part of the target leaves the rest bare;
 //! - for a mesh onto a mesh, `source_area_ratio` and `area_ratio`: the source's area before and
-//!   after the warp over the target's. Bending keeps area, so a whole shape and the whole of
-//!   another pose of it keep both near 1 (the camel's 30 maps 0.96–1.04 after); onto part of
-//!   the target, the source folds (the camel onto its own half: 1.95 after, though 99 % of it
-//!   then lies on the half and covers 85 %) or shrinks (a sheet onto a third of its bent copy:
-//!   1.05 after, 2.75 before).
+//!   after the warp over the target's, each measured without its vertices' noise
+//!   ([`denoised_area`], NOTES 107). Bending keeps area, so a whole shape and the whole of
+//!   another pose of it keep both near 1 (the camel's 30 maps and 38 chained pairs 0.96–1.02
+//!   after, 0.93–1.08 before, and onto a copy with noise of 1 % of its diagonal 0.93–1.11);
+//!   onto part of the target, the source folds (the camel onto its own half: 1.62 after and
+//!   2.14 before, though 99 % of it then lies on the half and covers 81 %) or shrinks (the
+//!   source's area at rest is then a multiple of the target's: a tube onto the first third of
+//!   its bent copy, in `surface`'s tests).
 //!
 //! The tolerance is the graph's node spacing: the warp's resolution, relative to the source's
 //! size as every setting of [`clean_surface_settings`](super::clean_surface_settings) is.
@@ -24,6 +27,7 @@
 
 use super::graph::DeformationGraph;
 use super::register::Target;
+use super::surface_area::denoised_area;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -113,7 +117,11 @@ impl SurfaceFit {
 
     /// Sets [`Self::area_ratio`] and [`Self::source_area_ratio`]: the area of the triangles
     /// `faces` over the source's points `at_rest` and `warped` against the target's
-    /// (`target.1` over `target.0`). Left `None` when the target's area is 0.
+    /// (`target.1` over `target.0`), all three measured without their vertices' noise
+    /// ([`denoised_area`]): noise of 0.5 % of the camel's diagonal on the target's vertices
+    /// had made a right registration's ratios 0.54 (NOTES 107). The warped source is measured
+    /// so too, because the warp lays it on the target's noise. Left `None` when the target's
+    /// area is 0.
     pub fn add_areas(
         &mut self,
         at_rest: &[Vector3<f64>],
@@ -121,10 +129,10 @@ impl SurfaceFit {
         faces: &[[u32; 3]],
         target: (&[Vector3<f64>], &[[u32; 3]]),
     ) {
-        let whole = area(target.0, target.1);
+        let whole = denoised_area(target.0, target.1);
         if whole > 0.0 {
-            self.area_ratio = Some(area(warped, faces) / whole);
-            self.source_area_ratio = Some(area(at_rest, faces) / whole);
+            self.area_ratio = Some(denoised_area(warped, faces) / whole);
+            self.source_area_ratio = Some(denoised_area(at_rest, faces) / whole);
         }
     }
 
@@ -140,23 +148,6 @@ impl SurfaceFit {
             SurfaceVerdict::NotRegistered(*self)
         }
     }
-}
-
-/// The total area of the triangles `faces` over `points` (triangles naming a missing vertex
-/// left out).
-fn area(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
-    faces
-        .iter()
-        .filter_map(|f| {
-            let [a, b, c] = [
-                points.get(f[0] as usize)?,
-                points.get(f[1] as usize)?,
-                points.get(f[2] as usize)?,
-            ];
-            Some(0.5 * (b - a).cross(&(c - a)).norm())
-        })
-        .filter(|x| x.is_finite())
-        .sum()
 }
 
 #[cfg(test)]
@@ -261,8 +252,9 @@ mod tests {
         let mut fit = SurfaceFit::measure(&folded, &target, &points, &graph(&points));
         fit.add_areas(&points, &folded, &faces, (&points, &left));
         assert_eq!(fit.on_target, 1.0);
+        // (measured after smoothing, which rounds the fold's crease a little)
         let ratio = fit.area_ratio.unwrap();
-        assert!((ratio - 2.0).abs() < 1e-9, "{ratio}");
+        assert!((ratio - 2.0).abs() < 0.05, "{ratio}");
         assert!(matches!(fit.verdict(), SurfaceVerdict::NotRegistered(_)));
         // shrunk onto it instead, the source's own area still says it is twice the target
         let shrunk: Vec<Vector3<f64>> = points
