@@ -192,6 +192,8 @@ fn off_keyword(word: &str) -> Option<Result<&str, &str>> {
 /// the vertices read so far, each possibly `v/vt/vn`); other statements are skipped. A face may
 /// name a vertex defined further down the file: indices are checked once every vertex is read.
 pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
+    // a byte-order mark would hide the first statement's keyword
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut mesh = Mesh::default();
     // every face's corners, flat, and (line, first corner) per face
     let (mut corners, mut faces) = (Vec::new(), Vec::new());
@@ -298,6 +300,8 @@ mod tests {
         let p = Path::new("late.obj");
         let late = parse_obj("f 1 2 3 4\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n", p).unwrap();
         assert_eq!(late, square());
+        let marked = "\u{feff}v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+        assert_eq!(parse_obj(marked, p).unwrap(), square());
         let e = parse_obj("v 0 0 0\nf 1 2 5\nv 1 0 0\nv 1 1 0\n", p).unwrap_err();
         assert_eq!(e.line, 2, "{e}");
         // a negative index counts back from the vertices read before the face

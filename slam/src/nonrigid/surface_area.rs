@@ -12,6 +12,7 @@
 //! open sheet does not shrink across its boundary.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// Taubin's shrinking factor (his example's k_PB ≈ 0.1 pair, λ = 0.33, μ = −0.34).
 const LAMBDA: f64 = 0.33;
@@ -99,11 +100,11 @@ impl Links {
 
     /// One smoothing step with `factor` from `now` into `next`.
     fn step(&self, now: &[Vector3<f64>], factor: f64, next: &mut [Vector3<f64>]) {
-        for (i, out) in next.iter_mut().enumerate() {
+        next.par_iter_mut().enumerate().for_each(|(i, out)| {
             let p = now[i];
             *out = p;
             if self.rim[i] || !p.iter().all(|x| x.is_finite()) {
-                continue;
+                return;
             }
             let (mut sum, mut count) = (Vector3::zeros(), 0usize);
             for &j in &self.neighbours[self.start[i]..self.start[i + 1]] {
@@ -116,7 +117,7 @@ impl Links {
             if count > 0 {
                 *out = p + factor * (sum / count as f64 - p);
             }
-        }
+        });
     }
 }
 
