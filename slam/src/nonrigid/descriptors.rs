@@ -278,6 +278,8 @@ pub struct DescriptorPair<'a> {
     from: Vec<[f64; ANCHORS]>,
     target_paths: SurfacePaths,
     target_tree: ImmutableKdTree<f64, 3>,
+    /// The target's bounding-box diagonal, the unit of the extremities' handedness term.
+    target_diagonal: f64,
     extremities: Option<(Extremities, Extremities)>,
 }
 
@@ -315,6 +317,7 @@ impl<'a> DescriptorPair<'a> {
             anchors,
             target_paths,
             target_tree: ImmutableKdTree::new_from_slice(&coords),
+            target_diagonal: bounding_diagonal(target.points),
             extremities,
         })
     }
@@ -359,8 +362,8 @@ impl<'a> DescriptorPair<'a> {
         };
         let (source, target) = (self.source.points, self.target.points);
         let assigned = self.extremities.as_ref().and_then(|(es, et)| {
-            let diagonal = bounding_diagonal(target);
-            let found = assign((es, source, &self.from), (et, target, to), diagonal)?;
+            let side = (es, source, self.from.as_slice());
+            let found = assign(side, (et, target, to), self.target_diagonal)?;
             Some((es, et, found))
         });
         let Some((es, et, found)) = assigned else {

@@ -72,15 +72,25 @@ impl Extremities {
         std::array::from_fn(|i| std::array::from_fn(|j| self.columns[i][self.vertices[j]]))
     }
 
-    /// The signs of `det(a − o, b − o, c − o)` over every triple a < b < c of extremities taken in
-    /// `order`, o the centroid of `points`.
-    fn handedness(&self, points: &[Vector3<f64>], order: &[usize; EXTREMITIES]) -> Vec<bool> {
+    /// The extremities' positions relative to the centroid o of `points`.
+    fn about_centroid(&self, points: &[Vector3<f64>]) -> [Vector3<f64>; EXTREMITIES] {
         let o = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
-        let at = |k: usize| points[self.vertices[order[k]]] - o;
-        triples()
-            .map(|(a, b, c)| Matrix3::from_columns(&[at(a), at(b), at(c)]).determinant() > 0.0)
-            .collect()
+        self.vertices.map(|v| points[v] - o)
     }
+}
+
+/// The number of triples a < b < c of extremities.
+const TRIPLES: usize = EXTREMITIES * (EXTREMITIES - 1) * (EXTREMITIES - 2) / 6;
+
+/// The signs of `det(a − o, b − o, c − o)` over every triple a < b < c of the extremities
+/// `at` (relative to the centroid o, [`Extremities::about_centroid`]) taken in `order`.
+fn handedness(at: &[Vector3<f64>; EXTREMITIES], order: &[usize; EXTREMITIES]) -> [bool; TRIPLES] {
+    let mut signs = [false; TRIPLES];
+    for (sign, (a, b, c)) in signs.iter_mut().zip(triples()) {
+        let columns = [at[order[a]], at[order[b]], at[order[c]]];
+        *sign = Matrix3::from_columns(&columns).determinant() > 0.0;
+    }
+    signs
 }
 
 /// One shape's side of an assignment: its extremities, its vertices and each vertex's surface
@@ -111,7 +121,7 @@ pub(crate) struct Assignment {
 /// For each source extremity, the index of its partner among the target's: the assignment
 /// that keeps the surface distances best, between extremities and from each extremity to the
 /// core anchors (the core places the body, which tells a left leg from a right one and the
-/// head from the tail), with each reversed triple ([`Extremities::handedness`]) counted
+/// head from the tail), with each reversed triple ([`handedness`]) counted
 /// [`HANDEDNESS_WEIGHT`] times the target's diagonal. `None` when even that assignment leaves
 /// the distances between the extremities off by more than [`MAX_MUTUAL`] of their sum, or those
 /// to the core by more than [`MAX_TO_CORE`]: the points found on the two shapes are not the same
@@ -132,7 +142,8 @@ pub(crate) fn assign<const N: usize>(
     dt.iter_mut().flatten().for_each(|d| *d /= scale);
     ct.iter_mut().flatten().for_each(|d| *d /= scale);
     let identity: [usize; EXTREMITIES] = std::array::from_fn(|k| k);
-    let hands = source.0.handedness(source.1, &identity);
+    let hands = handedness(&source.0.about_centroid(source.1), &identity);
+    let target_at = target.0.about_centroid(target.1);
     let mut best = (f64::INFINITY, identity, [f64::INFINITY; 2]);
     for_each_permutation(|perm| {
         let mutual: f64 = (0..EXTREMITIES)
@@ -144,9 +155,7 @@ pub(crate) fn assign<const N: usize>(
             .map(|(a, b)| (a - b).abs())
             .sum();
         let spread = mutual + to_core;
-        let reversed = target
-            .0
-            .handedness(target.1, perm)
+        let reversed = handedness(&target_at, perm)
             .iter()
             .zip(&hands)
             .filter(|(a, b)| a != b)
@@ -329,6 +338,6 @@ mod tests {
             assert!(seen.insert(*p), "{p:?} twice");
         });
         assert_eq!(seen.len(), 720);
-        assert_eq!(triples().count(), 20);
+        assert_eq!(triples().count(), TRIPLES);
     }
 }

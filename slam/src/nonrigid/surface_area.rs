@@ -42,16 +42,41 @@ pub fn area(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
 /// [`area`] after 40 steps of Taubin's smoothing of the vertices (module docs). Vertices that
 /// are not finite neither move nor pull their neighbours.
 pub fn denoised_area(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
-    let links = Links::new(points.len(), faces);
-    let mut now = points.to_vec();
-    let mut next = now.clone();
-    for _ in 0..STEPS {
-        for factor in [LAMBDA, MU] {
-            links.step(&now, factor, &mut next);
-            std::mem::swap(&mut now, &mut next);
+    Denoiser::new(points.len(), faces).area(points)
+}
+
+/// [`denoised_area`] for several placements of one mesh's vertices (a source at rest and
+/// warped): the mesh's links are found once.
+pub struct Denoiser<'a> {
+    faces: &'a [[u32; 3]],
+    links: Links,
+}
+
+impl<'a> Denoiser<'a> {
+    /// For a mesh of `vertices` vertices joined by `faces`.
+    pub fn new(vertices: usize, faces: &'a [[u32; 3]]) -> Self {
+        Self {
+            faces,
+            links: Links::new(vertices, faces),
         }
     }
-    area(&now, faces)
+
+    /// The denoised area of the mesh with its vertices at `points` (one per vertex; with another
+    /// count, the links are found for them).
+    pub fn area(&self, points: &[Vector3<f64>]) -> f64 {
+        if points.len() != self.links.rim.len() {
+            return Denoiser::new(points.len(), self.faces).area(points);
+        }
+        let mut now = points.to_vec();
+        let mut next = now.clone();
+        for _ in 0..STEPS {
+            for factor in [LAMBDA, MU] {
+                self.links.step(&now, factor, &mut next);
+                std::mem::swap(&mut now, &mut next);
+            }
+        }
+        area(&now, self.faces)
+    }
 }
 
 /// Each vertex's neighbours along the triangles' edges, and whether it lies on the rim.

@@ -27,7 +27,7 @@
 
 use super::graph::DeformationGraph;
 use super::register::Target;
-use super::surface_area::denoised_area;
+use super::surface_area::{denoised_area, Denoiser};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -131,8 +131,9 @@ impl SurfaceFit {
     ) {
         let whole = denoised_area(target.0, target.1);
         if whole > 0.0 {
-            self.area_ratio = Some(denoised_area(warped, faces) / whole);
-            self.source_area_ratio = Some(denoised_area(at_rest, faces) / whole);
+            let source = Denoiser::new(at_rest.len(), faces);
+            self.area_ratio = Some(source.area(warped) / whole);
+            self.source_area_ratio = Some(source.area(at_rest) / whole);
         }
     }
 
