@@ -48,7 +48,8 @@ def classify(run, seq, near=0.3):
 
     def centre(frame):
         # the ground truth's pose nearest in time (its stamps ascend)
-        s = frames[frame]
+        # keyframes are named by the pipeline's frame number, counted from 1
+        s = frames[frame - 1]
         i = bisect.bisect_left(t, s)
         j = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - s))
         return p[j]

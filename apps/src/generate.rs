@@ -1,9 +1,9 @@
 //! Write a rendered RGB-D sequence with ground truth in the TUM layout.
 //!
 //! ```text
-//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep|survey]
+//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep|survey|corridor]
 //!                                            [--sensor kinect|ideal] [--frames N] [--width W --height H]
-//!                                            [--layout room|bare|office|twins] [--seed K] [--no-noise] [--gain-drift A]
+//!                                            [--layout room|bare|office|twins|corridor] [--seed K] [--no-noise] [--gain-drift A]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
 //! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
@@ -42,6 +42,7 @@ enum RigidMotion {
     FastRotation,
     Sweep,
     Survey,
+    Corridor,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -98,7 +99,8 @@ enum Kind {
         #[arg(long, value_enum, default_value = "kinect")]
         sensor: SensorArg,
         /// The scene: `room` (furnished), `bare` (the same room with plain floor and walls),
-        /// `office` (drawn from the seed) or `twins` (two identical halves).
+        /// `office` (drawn from the seed), `twins` (two identical halves) or `corridor` (a ring
+        /// corridor round a block, for `--motion corridor`).
         #[arg(long, default_value = "room")]
         layout: Layout,
     },
@@ -254,6 +256,7 @@ fn write_rigid(
                 RigidMotion::FastRotation => Motion::FastRotation,
                 RigidMotion::Sweep => Motion::Sweep,
                 RigidMotion::Survey => Motion::Survey,
+                RigidMotion::Corridor => Motion::Corridor,
             };
             (
                 motion::procedural(m, common.frames, common.fps),

@@ -66,7 +66,8 @@ struct Args {
     #[arg(long)]
     mesh: Option<PathBuf>,
     /// Where to write the keyframes' pose graph (g2o text: odometry and the loops found, the
-    /// vertices at the graph's optimum, loops under DCS), solved after the run.
+    /// vertices at the graph's optimum, loops under DCS), solved after the run. A vertex's id is
+    /// its keyframe's frame number counted from 1.
     #[arg(long)]
     graph: Option<PathBuf>,
     /// Where to write a PNG of the fused model raycast from the last pose (shaded by its normals).
@@ -781,8 +782,8 @@ fn correct(
     }
 }
 
-/// The loops found, each with its keyframes, inliers and DCS weight at the solution, for the
-/// JSON line.
+/// The loops found, each with its keyframes (named, as in the log and the `--graph` file, by
+/// their frame number counted from 1), inliers and DCS weight at the solution, for the JSON line.
 fn loop_events(graph: &KeyframeGraph, solved: Option<&Optimised>) -> serde_json::Value {
     let weight = |from, to| {
         solved

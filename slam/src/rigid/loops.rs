@@ -44,6 +44,16 @@ pub struct LoopParams {
     pub min_inliers: usize,
     /// DCS's Φ (default 1, as Agarwal et al. recommend for χ² in units of the information).
     pub dcs_phi: f64,
+    /// Each solve starts with Φ this many times [`Self::dcs_phi`] and lowers it tenfold per
+    /// stage to `dcs_phi`, each stage starting where the last ended (default 1000; 1 solves
+    /// once at `dcs_phi`). Graduated non-convexity (Yang et al., RA-L 2020) applied to DCS:
+    /// DCS's cost of a loop, 4Φ²χ²/(Φ + χ²)², *rises* as χ² falls towards Φ, so from the
+    /// tracked poses a loop that disagrees by more than a few deviations (a drift of 10 cm
+    /// against a loop good to 1.5 cm) is a local minimum the solver never leaves, and every
+    /// true loop of a long lap is switched off. A large Φ first lets the loops that agree with
+    /// each other close the lap; a false loop (a look-alike place, metres and half a turn off)
+    /// stays far out in χ² at every stage.
+    pub graduated: f64,
     /// Odometry deviation per metre travelled and per radian turned between two keyframes
     /// (default 0.02: 2 cm a metre, about 1° a radian), plus [`Self::odometry_floor`].
     pub odometry_drift: f64,
@@ -79,6 +89,7 @@ impl Default for LoopParams {
             candidates: 3,
             min_inliers: 30,
             dcs_phi: 1.0,
+            graduated: 1000.0,
             odometry_drift: 0.02,
             odometry_floor: 0.002,
             loop_deviation: 0.01,
@@ -546,20 +557,27 @@ impl KeyframeGraph {
             .iter()
             .map(|&k| (self.graph.edges[k].from, self.graph.edges[k].to))
             .collect();
-        let kernel = NamedKernel::Dcs(self.params.dcs_phi);
-        let mut pg = self
-            .graph
-            .build_problem_with(&poses, |e| {
-                loops.contains(&(e.from, e.to)).then_some(kernel)
-            })
-            .map_err(LoopError::Build)?;
-        let mut solver = Solver::new(Options {
-            max_iterations: 100,
-            ..Options::default()
-        });
-        let summary = solver.solve(&mut pg.problem)?;
-        let solved: BTreeMap<usize, Isometry3<f64>> = pg
-            .poses()
+        let mut poses = poses;
+        let mut iterations = 0;
+        let mut converged = false;
+        for phi in self.phi_schedule() {
+            let kernel = NamedKernel::Dcs(phi);
+            let mut pg = self
+                .graph
+                .build_problem_with(&poses, |e| {
+                    loops.contains(&(e.from, e.to)).then_some(kernel)
+                })
+                .map_err(LoopError::Build)?;
+            let mut solver = Solver::new(Options {
+                max_iterations: 100,
+                ..Options::default()
+            });
+            let summary = solver.solve(&mut pg.problem)?;
+            iterations += summary.num_iterations();
+            converged = summary.termination.converged();
+            poses = pg.poses();
+        }
+        let solved: BTreeMap<usize, Isometry3<f64>> = poses
             .into_iter()
             .filter_map(|(id, p)| match p {
                 Pose::Se3(x) => Some((id, x)),
@@ -570,10 +588,24 @@ impl KeyframeGraph {
         Ok(Optimised {
             poses: solved,
             loop_weights,
-            converged: summary.termination.converged(),
-            iterations: summary.num_iterations(),
+            converged,
+            iterations,
             revision: self.revision,
         })
+    }
+
+    /// DCS's Φ for each stage of a solve, [`LoopParams::graduated`] times
+    /// [`LoopParams::dcs_phi`] down by tenfold steps to Φ itself.
+    fn phi_schedule(&self) -> Vec<f64> {
+        let phi = self.params.dcs_phi;
+        let mut out = Vec::new();
+        let mut p = phi * self.params.graduated.max(1.0);
+        while p > phi * 1.5 {
+            out.push(p);
+            p /= 10.0;
+        }
+        out.push(phi);
+        out
     }
 
     /// DCS's weight min(1, 2Φ/(Φ + χ²)) of each loop edge at `poses`.
@@ -894,7 +926,15 @@ mod tests {
     /// worth) reaches, so the chain's claimed uncertainty is honest and the loop must take the
     /// drift out.
     fn drifted(truth: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
-        let error = Isometry3::new(Vector3::new(0.0008, -0.0004, 0.0002), Vector3::z() * 0.0006);
+        drifted_by(truth, 1.0)
+    }
+
+    /// [`drifted`] with the drift per step scaled by `scale`.
+    fn drifted_by(truth: &[Isometry3<f64>], scale: f64) -> Vec<Isometry3<f64>> {
+        let error = Isometry3::new(
+            Vector3::new(0.0008, -0.0004, 0.0002) * scale,
+            Vector3::z() * 0.0006 * scale,
+        );
         let mut out = vec![truth[0]];
         for w in truth.windows(2) {
             let step = w[0].inverse() * w[1];
@@ -944,7 +984,53 @@ mod tests {
         assert!(closed.loop_weights[0].2 > 0.5, "{:?}", closed.loop_weights);
         // a warm start from the solution ends where it starts
         let again = g.optimise(Some(&closed)).unwrap();
-        assert!(again.iterations <= 2, "{} iterations", again.iterations);
+        let stages = g.phi_schedule().len();
+        assert!(
+            again.iterations <= stages + 1,
+            "{} iterations",
+            again.iterations
+        );
+    }
+
+    /// Two laps of the circle whose odometry drifted six times as fast as [`drifted`]'s (the
+    /// first lap ends 22 cm and 8° off; the worst keyframe of the second 43 cm),
+    /// each keyframe of the second lap looped to the same place on the first, the graph solved
+    /// after each loop from the last solution (as the pipeline's background solver does): from
+    /// the tracked poses the first loop disagrees by 14 of its deviations. Solved at Φ = 1
+    /// alone, DCS switches off each loop as it comes and keeps the drift; graduated, it closes
+    /// them.
+    #[test]
+    fn true_loops_after_a_long_drift_are_kept() {
+        let lap = circle(40);
+        let truth: Vec<Isometry3<f64>> = lap.iter().chain(&lap).copied().collect();
+        let solve = |params: LoopParams| {
+            let mut g = KeyframeGraph::new(params);
+            for (k, x) in drifted_by(&truth, 6.0).into_iter().enumerate() {
+                g.add_keyframe(k, x);
+            }
+            let mut last: Option<Optimised> = None;
+            for k in 40..80 {
+                assert!(g.add_loop(&true_loop(&truth, k - 40, k)));
+                last = Some(g.optimise(last.as_ref()).unwrap());
+            }
+            last.unwrap()
+        };
+        let kept = |o: &Optimised| o.loop_weights.iter().filter(|w| w.2 > 0.5).count();
+        let before = worst(
+            &drifted_by(&truth, 6.0).into_iter().enumerate().collect(),
+            &truth,
+        );
+        let once = solve(LoopParams {
+            graduated: 1.0,
+            ..LoopParams::default()
+        });
+        assert_eq!(kept(&once), 0, "{:?}", once.loop_weights);
+        assert!(worst(&once.poses, &truth) > 0.8 * before);
+        let graduated = solve(LoopParams::default());
+        assert!(graduated.converged);
+        assert_eq!(kept(&graduated), 40, "{:?}", graduated.loop_weights);
+        let after = worst(&graduated.poses, &truth);
+        assert!(before > 0.1 && after < 0.2 * before, "{before} → {after}");
     }
 
     /// The circle's drifted keyframes, those from `split` on in a second map fragment whose
@@ -1069,13 +1155,14 @@ mod tests {
 
     #[test]
     fn the_tracking_spread_puts_a_slide_where_it_happened() {
-        // the drift model alone spreads the 6 cm over every edge; the span's own spread of
-        // 5 cm along x takes it out of that edge, leaving the keyframes on either side near
-        // their truth
+        // the drift model alone spreads the 6 cm over every edge (35 mm worst; 57 mm when DCS
+        // ran at Φ = 1 alone, the loop 4 deviations off and half switched off); the span's own
+        // spread of 5 cm along x takes it out of that edge, leaving the keyframes on either
+        // side near their truth (12 mm)
         let plain = slid_walk(None);
         let spread = slid_walk(Some(0.05));
         assert!(plain > 0.02, "{plain}");
-        assert!(spread < 0.3 * plain, "{plain} → {spread}");
+        assert!(spread < 0.4 * plain, "{plain} → {spread}");
         // a spread that is not finite leaves the drift model alone
         assert!((slid_walk(Some(f64::NAN)) - plain).abs() < 1e-9);
     }
@@ -1113,7 +1200,12 @@ mod tests {
         // the same graph again starts at its solution
         worker.submit(&g);
         let again = worker.finish().unwrap().unwrap();
-        assert!(again.iterations <= 2, "{} iterations", again.iterations);
+        let stages = g.phi_schedule().len();
+        assert!(
+            again.iterations <= stages + 1,
+            "{} iterations",
+            again.iterations
+        );
         assert!(worker.poll().unwrap().is_some());
     }
 

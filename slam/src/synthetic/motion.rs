@@ -21,6 +21,95 @@ pub enum Motion {
     /// hand-held sway, so that the camera returns to each place 30 s after it left and the table
     /// (behind it) is never in view: a loop for loop closure.
     Survey,
+    /// A walk round the ring corridor of `layouts::Layout::Corridor` ([`CORRIDOR`]) along its
+    /// middle, once every [`CORRIDOR_LAP`] seconds (0.46 m/s), looking 45° outwards from the
+    /// direction of travel and 15° down at the outer wall, with a hand-held sway: an 18-m loop
+    /// whose start is seen again only after a lap, where drift builds up with nothing older to
+    /// snap to.
+    Corridor,
+}
+
+/// A ring corridor: the space between an outer rectangle and a central block, both centred on
+/// the origin with sides along x and y.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ring {
+    /// The outer walls' half-sizes along x and y, metres.
+    pub outer: (f64, f64),
+    /// The central block's half-sizes along x and y, metres.
+    pub inner: (f64, f64),
+    /// The ceiling's height, metres.
+    pub height: f64,
+}
+
+/// The corridor of [`Motion::Corridor`]: 1.6 m wide all round, 2.6 m high.
+pub const CORRIDOR: Ring = Ring {
+    outer: (3.6, 2.8),
+    inner: (2.0, 1.2),
+    height: 2.6,
+};
+
+/// Seconds per lap of [`Motion::Corridor`].
+pub const CORRIDOR_LAP: f64 = 40.0;
+
+impl Ring {
+    /// Half-sizes of the corridor's middle line.
+    fn middle(&self) -> (f64, f64) {
+        (
+            (self.outer.0 + self.inner.0) / 2.0,
+            (self.outer.1 + self.inner.1) / 2.0,
+        )
+    }
+
+    /// The radius of the middle line's rounded corners: a third of the corridor's width.
+    fn corner_radius(&self) -> f64 {
+        (self.outer.0 - self.inner.0).min(self.outer.1 - self.inner.1) / 3.0
+    }
+
+    /// The length of the middle line (a rectangle with rounded corners).
+    pub fn lap_length(&self) -> f64 {
+        let (cx, cy) = self.middle();
+        let r = self.corner_radius();
+        4.0 * (cx - r) + 4.0 * (cy - r) + std::f64::consts::TAU * r
+    }
+
+    /// The point `s` metres along the middle line (anticlockwise seen from above, from the middle
+    /// of the side at +x) and the heading there (radians from +x).
+    pub fn along(&self, s: f64) -> (Point3<f64>, f64) {
+        let (cx, cy) = self.middle();
+        let r = self.corner_radius();
+        let dir = |a: f64| Vector3::new(a.cos(), a.sin(), 0.0);
+        let mut s = s.rem_euclid(self.lap_length());
+        let mut p = Point3::new(cx, 0.0, 0.0);
+        let mut heading = std::f64::consts::FRAC_PI_2;
+        // half a side, then a corner, then three whole sides and corners, then half a side
+        let sides = [
+            cy - r,
+            2.0 * (cx - r),
+            2.0 * (cy - r),
+            2.0 * (cx - r),
+            cy - r,
+        ];
+        for (k, &length) in sides.iter().enumerate() {
+            if s <= length || k == sides.len() - 1 {
+                return (p + dir(heading) * s.min(length), heading);
+            }
+            s -= length;
+            p += dir(heading) * length;
+            let centre = p + dir(heading + std::f64::consts::FRAC_PI_2) * r;
+            let arc = r * std::f64::consts::FRAC_PI_2;
+            if s <= arc {
+                let turned = heading + s / r;
+                return (
+                    centre - dir(turned + std::f64::consts::FRAC_PI_2) * r,
+                    turned,
+                );
+            }
+            s -= arc;
+            heading += std::f64::consts::FRAC_PI_2;
+            p = centre - dir(heading + std::f64::consts::FRAC_PI_2) * r;
+        }
+        unreachable!("the last side returns")
+    }
 }
 
 /// The point the room's objects are arranged around (the table top).
@@ -83,6 +172,7 @@ pub fn procedural(motion: Motion, frames: usize, fps: f64) -> Trajectory {
                 Isometry3::from_parts(base.translation, base.rotation * shake)
             }
             Motion::Survey => survey(f / fps),
+            Motion::Corridor => corridor(f / fps),
             Motion::FastRotation => {
                 let a = (3.0 * f).to_radians();
                 let eye = Point3::new(0.9, 0.3, 1.3);
@@ -103,6 +193,21 @@ fn survey(t: f64) -> Isometry3<f64> {
     // outwards, turned 25° towards the direction of travel, 20° down
     let heading = a + 25f64.to_radians() + 0.1 * s(0.07, 1.0);
     let dir = Vector3::new(heading.cos(), heading.sin(), -(20f64.to_radians()).tan());
+    let base = look_at(&eye, &(eye + dir), &Vector3::z());
+    let sway = UnitQuaternion::from_scaled_axis(
+        Vector3::new(s(0.5, 0.3), s(0.4, 1.1), 0.5 * s(0.3, 2.0)) * 2f64.to_radians(),
+    );
+    Isometry3::from_parts(base.translation, base.rotation * sway)
+}
+
+/// The pose of [`Motion::Corridor`] at `t` seconds.
+fn corridor(t: f64) -> Isometry3<f64> {
+    let ring = CORRIDOR;
+    let s = |hz: f64, p: f64| (std::f64::consts::TAU * hz * t + p).sin();
+    let (middle, heading) = ring.along(ring.lap_length() * t / CORRIDOR_LAP);
+    let eye = Point3::new(middle.x, middle.y, 1.4 + 0.05 * s(0.17, 0.0));
+    let look = heading - std::f64::consts::FRAC_PI_4 + 0.12 * s(0.09, 1.0);
+    let dir = Vector3::new(look.cos(), look.sin(), -(15f64.to_radians()).tan());
     let base = look_at(&eye, &(eye + dir), &Vector3::z());
     let sway = UnitQuaternion::from_scaled_axis(
         Vector3::new(s(0.5, 0.3), s(0.4, 1.1), 0.5 * s(0.3, 2.0)) * 2f64.to_radians(),
@@ -191,10 +296,42 @@ mod tests {
             Motion::Shake,
             Motion::FastRotation,
             Motion::Survey,
+            Motion::Corridor,
         ] {
             let t = procedural(m, 10, 30.0);
             assert_eq!(t.len(), 10);
         }
+    }
+
+    /// The corridor walk stays on the corridor's middle line, moves at a steady speed through the
+    /// corners (no jump where a side meets a corner), and is back at its start after one lap.
+    #[test]
+    fn the_corridor_walk_is_a_smooth_closed_loop_inside_the_corridor() {
+        let ring = CORRIDOR;
+        let fps = 30.0;
+        let frames = (CORRIDOR_LAP * fps) as usize + 1;
+        let t = procedural(Motion::Corridor, frames, fps);
+        let speed = ring.lap_length() / CORRIDOR_LAP / fps;
+        for w in t.poses.windows(2) {
+            let step = (w[1].translation.vector - w[0].translation.vector)
+                .xy()
+                .norm();
+            assert!(
+                (step - speed).abs() < 0.05 * speed,
+                "{step} against {speed}"
+            );
+            assert!(w[1].rotation.angle_to(&w[0].rotation) < 3f64.to_radians());
+        }
+        for p in &t.poses {
+            let (x, y) = (p.translation.x.abs(), p.translation.y.abs());
+            // inside the outer walls, outside the block, by at least half a metre
+            assert!(x < ring.outer.0 - 0.5 && y < ring.outer.1 - 0.5, "{x} {y}");
+            assert!(x > ring.inner.0 + 0.5 || y > ring.inner.1 + 0.5, "{x} {y}");
+        }
+        let lap = t.poses[frames - 1].translation.vector - t.poses[0].translation.vector;
+        assert!(lap.xy().norm() < 1e-9, "{lap}");
+        // the camera looks outwards: on the side at +x, towards +x
+        assert!((t.poses[0].rotation * Vector3::z()).x > 0.5);
     }
 
     #[test]
