@@ -30,6 +30,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::mpsc;
 
+/// The most stages a graduated solve runs before the one at [`LoopParams::dcs_phi`].
+const MAX_STAGES: usize = 12;
+
 /// How loops are found and weighed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LoopParams {
@@ -595,12 +598,13 @@ impl KeyframeGraph {
     }
 
     /// DCS's Φ for each stage of a solve, [`LoopParams::graduated`] times
-    /// [`LoopParams::dcs_phi`] down by tenfold steps to Φ itself.
+    /// [`LoopParams::dcs_phi`] down by tenfold steps to Φ itself; at most [`MAX_STAGES`]
+    /// stages before the last (a schedule that is not finite is cut there).
     fn phi_schedule(&self) -> Vec<f64> {
         let phi = self.params.dcs_phi;
         let mut out = Vec::new();
         let mut p = phi * self.params.graduated.max(1.0);
-        while p > phi * 1.5 {
+        while p > phi * 1.5 && out.len() < MAX_STAGES {
             out.push(p);
             p /= 10.0;
         }
@@ -999,6 +1003,25 @@ mod tests {
     /// the tracked poses the first loop disagrees by 14 of its deviations. Solved at Φ = 1
     /// alone, DCS switches off each loop as it comes and keeps the drift; graduated, it closes
     /// them.
+    /// The stages fall tenfold from the start to Φ; a start that is not finite is cut short.
+    #[test]
+    fn the_graduated_schedule_ends_at_phi() {
+        let with = |graduated: f64| {
+            KeyframeGraph::new(LoopParams {
+                graduated,
+                ..LoopParams::default()
+            })
+            .phi_schedule()
+        };
+        assert_eq!(with(1000.0), vec![1000.0, 100.0, 10.0, 1.0]);
+        assert_eq!(with(1.0), vec![1.0]);
+        assert_eq!(with(0.1), vec![1.0]);
+        assert_eq!(with(f64::NAN), vec![1.0]);
+        let endless = with(f64::INFINITY);
+        assert_eq!(endless.len(), MAX_STAGES + 1);
+        assert_eq!(endless.last(), Some(&1.0));
+    }
+
     #[test]
     fn true_loops_after_a_long_drift_are_kept() {
         let lap = circle(40);
