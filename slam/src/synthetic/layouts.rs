@@ -226,8 +226,8 @@ fn twins(seed: u64) -> Scene {
 /// patterns of 0.2–1 m (posters and tiles; a wall textured like the room's, 0.4–3 m, seen from
 /// 1 m at 640×480 holds too little gradient to fix a slide along the wall and the floor, and
 /// such frames are refused as degenerate), with cabinets drawn from the seed along the outer
-/// walls (0.16–0.4 m deep, one every 0.7–2.8 m, from the corners on) and a few along the block,
-/// so that the geometry holds a motion along the corridor too.
+/// walls (0.16–0.4 m deep, 0.3–0.8 m wide, 0.4–1.2 m apart, from the corners on) and a few
+/// along the block, so that the geometry holds a motion along the corridor too.
 fn corridor(seed: u64) -> Scene {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xC0441D);
     let mut s = Scene::default();
