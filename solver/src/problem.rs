@@ -369,6 +369,22 @@ impl Problem {
         Ok(())
     }
 
+    /// Replaces block `r`'s robust kernel (or removes it with `None`): the weights change, the
+    /// sparsity does not, so a [`crate::Solver`] keeps its symbolic factorisation and buffers
+    /// for this problem (a graduated schedule of kernels solved one after another).
+    pub fn set_kernel(
+        &mut self,
+        r: ResidualId,
+        kernel: Option<Box<dyn RobustKernel>>,
+    ) -> Result<(), ProblemError> {
+        let block = self
+            .blocks
+            .get_mut(r.0)
+            .ok_or(ProblemError::UnknownResidual(r.0))?;
+        block.kernel = kernel;
+        Ok(())
+    }
+
     /// The variables of a residual block.
     pub fn residual_variables(&self, r: ResidualId) -> Vec<VarId> {
         self.blocks[r.0].vars.iter().map(|&v| VarId(v)).collect()

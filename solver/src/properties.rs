@@ -272,3 +272,33 @@ proptest! {
         }
     }
 }
+
+/// A kernel swapped in place ([`Problem::set_kernel`]) changes the cost as a problem built with
+/// that kernel has it, and leaves the structure (so a solver's symbolic factorisation) alone.
+#[test]
+fn a_kernel_swapped_in_place_changes_the_cost_not_the_structure() {
+    use crate::problem::ResidualId;
+    use crate::robust::NamedKernel;
+    let mut p = Problem::new();
+    let x = p.add_variable(&[0.5, -1.0], Euclidean::<2>).unwrap();
+    let affine = || Affine {
+        m: 2,
+        a: vec![vec![1.0, 0.0, 0.0, 1.0]],
+        b: vec![2.0, 1.0],
+    };
+    let r = p
+        .add_robust_residual(affine(), NamedKernel::Huber(0.1), &[x])
+        .unwrap();
+    let version = p.structure_version;
+    let huber = p.cost();
+    p.set_kernel(r, None).unwrap();
+    let plain = p.cost();
+    // r = (2.5, 0): ½‖r‖² = 3.125; Huber with c = 0.1: ½(2c‖r‖ − c²) = 0.245
+    assert!((plain - 3.125).abs() < 1e-12, "{plain}");
+    assert!((huber - 0.245).abs() < 1e-12, "{huber}");
+    p.set_kernel(r, Some(Box::new(NamedKernel::Huber(0.1))))
+        .unwrap();
+    assert_eq!(p.cost(), huber);
+    assert_eq!(p.structure_version, version);
+    assert!(p.set_kernel(ResidualId(1), None).is_err());
+}

@@ -3,7 +3,7 @@
 use super::factors::{sqrt_information, Between2, Between3};
 use dynamap_solver::lie::{se2, se3};
 use dynamap_solver::robust::NamedKernel;
-use dynamap_solver::{Problem, RobustKernel, SolveError, VarId, SE2, SE3};
+use dynamap_solver::{Problem, ResidualId, RobustKernel, SolveError, VarId, SE2, SE3};
 use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6};
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -130,6 +130,8 @@ pub struct PoseGraphProblem {
     pub ids: Vec<usize>,
     /// Variables, parallel to `ids`.
     pub vars: Vec<VarId>,
+    /// Each edge's residual block, parallel to the graph's edges.
+    pub residuals: Vec<ResidualId>,
     dimension: Dimension,
 }
 
@@ -293,6 +295,7 @@ impl PoseGraph {
                 problem.set_fixed(v, true).map_err(|e| e.to_string())?;
             }
         }
+        let mut residuals = Vec::with_capacity(self.edges.len());
         for e in &self.edges {
             let pair = [index[&e.from], index[&e.to]];
             let added = match &e.measurement {
@@ -317,12 +320,13 @@ impl PoseGraph {
                     problem.add_block(r, kernel_of(e).map(boxed), &pair)
                 }
             };
-            added.map_err(|err| format!("{}:{}: {err}", self.source, e.line))?;
+            residuals.push(added.map_err(|err| format!("{}:{}: {err}", self.source, e.line))?);
         }
         Ok(PoseGraphProblem {
             problem,
             ids,
             vars,
+            residuals,
             dimension: self.dimension,
         })
     }

@@ -65,7 +65,7 @@ impl<'a> Denoiser<'a> {
     /// count, the links are found for them).
     pub fn area(&self, points: &[Vector3<f64>]) -> f64 {
         if points.len() != self.links.rim.len() {
-            return Denoiser::new(points.len(), self.faces).area(points);
+            return denoised_area(points, self.faces);
         }
         let mut now = points.to_vec();
         let mut next = now.clone();

@@ -560,27 +560,34 @@ impl KeyframeGraph {
             .iter()
             .map(|&k| (self.graph.edges[k].from, self.graph.edges[k].to))
             .collect();
-        let mut poses = poses;
-        let mut iterations = 0;
-        let mut converged = false;
-        for phi in self.phi_schedule() {
-            let kernel = NamedKernel::Dcs(phi);
-            let mut pg = self
-                .graph
-                .build_problem_with(&poses, |e| {
-                    loops.contains(&(e.from, e.to)).then_some(kernel)
-                })
-                .map_err(LoopError::Build)?;
-            let mut solver = Solver::new(Options {
-                max_iterations: 100,
-                ..Options::default()
-            });
+        let schedule = self.phi_schedule();
+        let first = NamedKernel::Dcs(schedule[0]);
+        let mut pg = self
+            .graph
+            .build_problem_with(&poses, |e| loops.contains(&(e.from, e.to)).then_some(first))
+            .map_err(LoopError::Build)?;
+        // one problem and one solver for every stage: only the loops' Φ changes, so the
+        // symbolic factorisation is kept
+        let mut solver = Solver::new(Options {
+            max_iterations: 100,
+            ..Options::default()
+        });
+        let (mut iterations, mut converged) = (0, false);
+        for (stage, &phi) in schedule.iter().enumerate() {
+            if stage > 0 {
+                for &k in &self.loops {
+                    let kernel = Box::new(NamedKernel::Dcs(phi));
+                    pg.problem
+                        .set_kernel(pg.residuals[k], Some(kernel))
+                        .map_err(|e| LoopError::Build(e.to_string()))?;
+                }
+            }
             let summary = solver.solve(&mut pg.problem)?;
             iterations += summary.num_iterations();
             converged = summary.termination.converged();
-            poses = pg.poses();
         }
-        let solved: BTreeMap<usize, Isometry3<f64>> = poses
+        let solved: BTreeMap<usize, Isometry3<f64>> = pg
+            .poses()
             .into_iter()
             .filter_map(|(id, p)| match p {
                 Pose::Se3(x) => Some((id, x)),
