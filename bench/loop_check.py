@@ -5,8 +5,8 @@ point 4: "no false loop is accepted, or the robust kernel rejects it").
 usage: python3 bench/loop_check.py RUN.json SEQUENCE_DIR [--near 0.3]
 
 RUN.json holds rigid_slam's JSON line (`rigid_slam SEQ --submaps --quiet > RUN.json`); SEQUENCE_DIR
-is the generated sequence (associations.txt gives each frame's stamp, groundtruth.txt the true
-poses). A loop joins two keyframes; it is true when their true camera centres are within --near
+is the generated sequence (groundtruth.txt gives the true poses; each loop's keyframes are found
+by the stamps in the JSON line, or by line of associations.txt for a run that gave none). A loop joins two keyframes; it is true when their true camera centres are within --near
 metres (a loop measured between views of one place), false otherwise (two places that look
 alike, as in the twin room). A loop is kept when its DCS weight at the graph's solution is above
 0.5. Prints one line: loops, true ones kept, false ones kept, and the largest weight of a false
@@ -46,10 +46,11 @@ def classify(run, seq, near=0.3):
     frames = stamps(seq)
     t, p = ground_truth(seq)
 
-    def centre(frame):
-        # the ground truth's pose nearest in time (its stamps ascend)
-        # keyframes are named by the pipeline's frame number, counted from 1
-        s = frames[frame - 1]
+    def centre(frame, stamp):
+        # the ground truth's pose nearest in time (its stamps ascend); the loop's own stamp when
+        # the run gave one, else the frame number (counted from 1) as a line of associations.txt,
+        # which holds only when the reader kept every line
+        s = stamp if stamp is not None else frames[frame - 1]
         i = bisect.bisect_left(t, s)
         j = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - s))
         return p[j]
@@ -59,7 +60,7 @@ def classify(run, seq, near=0.3):
         if e["weight"] is None:
             # no weight: the graph was not solved, so no loop can be called switched off
             raise ValueError(f"loop {e['from']}-{e['to']} has no DCS weight (the keyframe graph was not solved)")
-        d = math.dist(centre(e["from"]), centre(e["to"]))
+        d = math.dist(centre(e["from"], e.get("from_stamp")), centre(e["to"], e.get("to_stamp")))
         (true if d <= near else false).append(e["weight"])
     return true, false
 

@@ -1,9 +1,9 @@
 //! Write a rendered RGB-D sequence with ground truth in the TUM layout.
 //!
 //! ```text
-//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep|survey|corridor]
+//! cargo run --release --example generate -- rigid OUT_DIR [--trajectory GT.txt | --motion orbit|shake|fast-rotation|sweep|survey|corridor|gallery]
 //!                                            [--sensor kinect|ideal] [--frames N] [--width W --height H]
-//!                                            [--layout room|bare|office|twins|corridor] [--seed K] [--no-noise] [--gain-drift A]
+//!                                            [--layout room|bare|office|twins|corridor|gallery] [--seed K] [--no-noise] [--gain-drift A]
 //! cargo run --release --example generate -- deforming OUT_DIR [--motion bend|twist|wave]
 //!                                            [--surface plane|cylinder|sphere] [--frames N] ...
 //! cargo run --release --example generate -- faulty OUT_DIR [--clean] [--width W --height H] ...
@@ -43,6 +43,7 @@ enum RigidMotion {
     Sweep,
     Survey,
     Corridor,
+    Gallery,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -99,8 +100,9 @@ enum Kind {
         #[arg(long, value_enum, default_value = "kinect")]
         sensor: SensorArg,
         /// The scene: `room` (furnished), `bare` (the same room with plain floor and walls),
-        /// `office` (drawn from the seed), `twins` (two identical halves) or `corridor` (a ring
-        /// corridor round a block, for `--motion corridor`).
+        /// `office` (drawn from the seed), `twins` (two identical halves), `corridor` (a ring
+        /// corridor round a block, for `--motion corridor`) or `gallery` (a ring hall with
+        /// pillars round its block, for `--motion gallery`).
         #[arg(long, default_value = "room")]
         layout: Layout,
     },
@@ -257,6 +259,7 @@ fn write_rigid(
                 RigidMotion::Sweep => Motion::Sweep,
                 RigidMotion::Survey => Motion::Survey,
                 RigidMotion::Corridor => Motion::Corridor,
+                RigidMotion::Gallery => Motion::Gallery,
             };
             (
                 motion::procedural(m, common.frames, common.fps),

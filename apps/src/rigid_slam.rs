@@ -10,8 +10,11 @@
 //! JSON line last: frames, seconds (the whole per-frame loop, image reading included), fps,
 //! failures (frames read but not tracked), skipped (frames whose files could not be read),
 //! relocalised, new_maps and unplaced_frames (maps started after the track was lost for good, and
-//! the tracked frames left out because no loop placed their map), and the ATE when the folder has
-//! a ground truth. The trajectory holds the tracked frames only.
+//! the tracked frames left out because no loop placed their map), unpaired_depth (TUM-layout
+//! depth frames without a colour frame within `--max-difference`, not read; a warning names
+//! them too), the loop_events (each loop's keyframes by frame number counted from 1 and by
+//! depth stamp, its inliers and DCS weight) and the ATE when the folder has a ground truth. The
+//! trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
@@ -401,9 +404,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "frames": tally.processed, "seconds": seconds, "fps": tally.processed as f64 / seconds,
             "failures": tally.failures, "skipped": tally.skipped, "tracked": tally.trajectory.len(),
             "relocalised": tally.relocalised, "new_maps": tally.new_maps,
-            "unplaced_frames": unplaced,
+            "unplaced_frames": unplaced, "unpaired_depth": seq.unpaired_depth(),
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
-            "loop_events": loop_events(graph, solved.as_ref()), "ate_tracked": ate_tracked,
+            "loop_events": loop_events(graph, solved.as_ref(), &tally.given), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),
             "interrupted": interrupted, "ate_rmse": ate_rmse, "sequence": dir.display().to_string(),
             "ms_per_frame": {"read": read, "preprocess": preprocess, "track": track,
@@ -442,6 +445,16 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         ..OpenOptions::default()
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
+    let unpaired = seq.unpaired_depth();
+    if unpaired > 0 {
+        tracing::warn!(
+            "{}: {unpaired} of {} depth frames have no colour frame within {} s and are not read \
+             (--max-difference sets the limit)",
+            dir.display(),
+            unpaired + seq.len(),
+            args.max_difference,
+        );
+    }
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
@@ -488,6 +501,9 @@ struct Tally {
     processed: usize,
     /// The last frame tracked.
     last_good: Option<usize>,
+    /// The depth stamp of each frame the pipeline counted, in order: its frame number `n`
+    /// (counted from 1, as keyframes are named) is `given[n - 1]`.
+    given: Vec<f64>,
 }
 
 impl Tally {
@@ -571,6 +587,9 @@ fn track_one(slam: &mut RigidSlam, tally: &mut Tally, i: usize, frame: &RgbdFram
         color: frame.color_timestamp,
     };
     let report = slam.process_timed(&frame.depth, frame.color.as_ref(), stamps);
+    if slam.frames_counted() > tally.given.len() {
+        tally.given.push(frame.timestamp);
+    }
     tally.totals.add(&report.times);
     if let Some(why) = report.failure() {
         tally.failures += 1;
@@ -783,8 +802,15 @@ fn correct(
 }
 
 /// The loops found, each with its keyframes (named, as in the log and the `--graph` file, by
-/// their frame number counted from 1), inliers and DCS weight at the solution, for the JSON line.
-fn loop_events(graph: &KeyframeGraph, solved: Option<&Optimised>) -> serde_json::Value {
+/// their frame number counted from 1, and with their frames' depth stamps from `given`), inliers
+/// and DCS weight at the solution, for the JSON line. The stamps name the frames even where the
+/// reader left some out of the sequence's list (a colour beyond the stamp limit).
+fn loop_events(
+    graph: &KeyframeGraph,
+    solved: Option<&Optimised>,
+    given: &[f64],
+) -> serde_json::Value {
+    let stamp = |frame: usize| frame.checked_sub(1).and_then(|i| given.get(i)).copied();
     let weight = |from, to| {
         solved
             .and_then(|o| o.loop_weights.iter().find(|w| (w.0, w.1) == (from, to)))
@@ -795,6 +821,7 @@ fn loop_events(graph: &KeyframeGraph, solved: Option<&Optimised>) -> serde_json:
         .iter()
         .map(|l| {
             serde_json::json!({"from": l.from, "to": l.to, "inliers": l.inliers,
+                               "from_stamp": stamp(l.from), "to_stamp": stamp(l.to),
                                "weight": weight(l.from, l.to)})
         })
         .collect()

@@ -168,15 +168,62 @@ fn blank_depth_frames_are_skipped_and_tracking_recovers() {
 
 /// A camera sliding along a wall: without texture the wall leaves three motions unobservable and
 /// the frame fails as degenerate (not fused); with texture the photometric term pins them and the
-/// slide is tracked.
+/// slide is tracked. The same at 320×240 and at 640×480: the texture is measured per radian of
+/// view, not per pixel (NOTES 109).
 #[test]
 fn a_plain_wall_is_degenerate_and_a_textured_one_is_tracked() {
+    for cam in [
+        Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240),
+        Camera::new(525.0, 525.0, 319.5, 239.5, 640, 480),
+    ] {
+        wall_slide(cam);
+    }
+}
+
+/// The texture that decides a degenerate frame is a property of the view, not of the
+/// resolution: one textured wall measures the same at 320×240 and at 640×480 (per pixel, the
+/// finer frame's coarsest level would read half).
+#[test]
+fn a_walls_texture_measures_the_same_at_any_resolution() {
+    use dynamap::slam::preprocess::{PreprocessParams, Preprocessor};
+    use dynamap::slam::rigid::FrameConstraint;
     use dynamap::slam::synthetic::motion::look_at;
     use dynamap::slam::synthetic::scene::Shape;
     use dynamap::slam::synthetic::texture::Texture;
     use nalgebra::{Isometry3, Point3, Vector3};
 
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    let mut scene = Scene::default();
+    scene.add(
+        Shape::Plane { hx: 3.0, hy: 3.0 },
+        Isometry3::translation(0.0, 0.0, 1.5),
+        Texture::random(4, 3.0, 12.0),
+    );
+    let pose = look_at(
+        &Point3::origin(),
+        &Point3::new(0.0, 0.0, 1.0),
+        &-Vector3::y(),
+    );
+    let measure = |cam: Camera| {
+        let r = render(&scene, &cam, &pose);
+        let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+        FrameConstraint::of(pre.process_metres(&r.depth, Some(&r.color))).texture
+    };
+    let coarse = measure(Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240));
+    let fine = measure(Camera::new(525.0, 525.0, 319.5, 239.5, 640, 480));
+    assert!(coarse > 0.0, "no texture measured");
+    assert!(
+        (fine / coarse - 1.0).abs() < 0.2,
+        "texture {coarse:.3} per radian at 320×240, {fine:.3} at 640×480"
+    );
+}
+
+/// [`a_plain_wall_is_degenerate_and_a_textured_one_is_tracked`] with one camera.
+fn wall_slide(cam: Camera) {
+    use dynamap::slam::synthetic::motion::look_at;
+    use dynamap::slam::synthetic::scene::Shape;
+    use dynamap::slam::synthetic::texture::Texture;
+    use nalgebra::{Isometry3, Point3, Vector3};
+
     let at = |x: f64| {
         look_at(
             &Point3::new(x, 0.0, 0.0),

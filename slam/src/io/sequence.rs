@@ -147,6 +147,16 @@ impl Sequence {
         }
     }
 
+    /// Depth frames the layout lists but that are not delivered: in the TUM layout those
+    /// without a colour frame within the stamp limit ([`OpenOptions::max_difference`]); 0 in
+    /// the others.
+    pub fn unpaired_depth(&self) -> usize {
+        match self {
+            Self::Tum(s) => s.unpaired_depth,
+            Self::IclNuim(..) | Self::Folder(_) => 0,
+        }
+    }
+
     /// The first frame's stamp, seconds (0 where the layout has no stamps).
     pub fn first_stamp(&self) -> f64 {
         match self {

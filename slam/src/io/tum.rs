@@ -58,6 +58,9 @@ pub struct TumSequence {
     pub groundtruth: Option<Trajectory>,
     /// The remap applied to every frame when `intrinsics.txt` gives lens distortion.
     pub undistorter: Option<Undistorter>,
+    /// Depth frames of `depth.txt` left out for want of a colour frame within the stamp limit
+    /// (as `associate.py` leaves them out).
+    pub unpaired_depth: usize,
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -290,6 +293,7 @@ impl TumSequence {
         Ok(Self {
             root,
             camera,
+            unpaired_depth: depth.len() - frames.len(),
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
@@ -477,7 +481,12 @@ mod tests {
             &ColorImage::filled(w, h, [90, 120, 200]),
         )
         .unwrap();
-        std::fs::write(dir.join("depth.txt"), "0.000 depth/0.png\n").unwrap();
+        // a second depth frame with no colour near it is left out, and counted
+        std::fs::write(
+            dir.join("depth.txt"),
+            "0.000 depth/0.png\n0.100 depth/0.png\n",
+        )
+        .unwrap();
         std::fs::write(dir.join("rgb.txt"), "0.004 rgb/0.png\n").unwrap();
         std::fs::write(
             dir.join("intrinsics.txt"),
@@ -485,6 +494,7 @@ mod tests {
         )
         .unwrap();
         let seq = TumSequence::open(&dir).unwrap();
+        assert_eq!((seq.len(), seq.unpaired_depth), (1, 1));
         let u = seq.undistorter.as_ref().expect("a remap");
         let frame = seq.load(0).unwrap();
         // every ideal pixel holds the recorded pixel nearest its source point

@@ -30,12 +30,12 @@ pub enum TrackFailure {
     },
     /// Geometry and texture leave motions that no start pose can fix (a plain wall).
     #[error(
-        "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.3} (a plain wall?)"
+        "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.2} per radian (a plain wall?)"
     )]
     Degenerate {
         /// λ_min / λ_max of the depth-scaled point-to-plane covariance.
         conditioning: f64,
-        /// RMS intensity gradient.
+        /// RMS intensity gradient, intensity per radian of view.
         texture: f64,
     },
     /// No live point found a model point (blank depth, or a view the model has not seen).

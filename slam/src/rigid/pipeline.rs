@@ -285,6 +285,12 @@ impl RigidSlam {
         &self.volume
     }
 
+    /// Frames counted so far: those given that had the configured size. Keyframes and the
+    /// log name a frame by this count (from 1).
+    pub fn frames_counted(&self) -> usize {
+        self.frames
+    }
+
     /// The keyframes' pose graph: odometry between consecutive keyframes and the loops found
     /// ([`super::loops`]); [`KeyframeGraph::optimise`] solves it.
     pub fn keyframe_graph(&self) -> &KeyframeGraph {

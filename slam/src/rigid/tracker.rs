@@ -63,9 +63,11 @@ pub struct TrackerParams {
     /// Gelfand et al., *Geometrically stable sampling for the ICP algorithm*, 3DIM 2003) — and its
     /// image has no texture for the photometric term to hold on to (see `min_texture`).
     pub min_conditioning: f64,
-    /// … the RMS intensity gradient of the coarsest level below this, intensity per pixel
-    /// (default 0.01; a plain wall under sensor noise gives about 0.001, the rendered room
-    /// 0.04–0.06).
+    /// … the RMS intensity gradient of the coarsest level below this, in intensity per radian
+    /// of view (the gradient per pixel times the level's focal length, so that one scene
+    /// measures the same at any resolution; NOTES 109). Default 0.65: 0.01 per pixel at the
+    /// coarsest level of a 320×240 frame. A plain wall under sensor noise gives 0.04 at
+    /// 320×240 and 0.08 at 640×480.
     pub min_texture: f64,
     /// Compensate exposure: before each level, fit the gain a that takes the live intensities
     /// to the model's over the associated pixels (the median ratio), and compare aI (default
@@ -113,7 +115,7 @@ impl Default for TrackerParams {
             max_translation: 0.3,
             max_rotation_deg: 30.0,
             min_conditioning: 1e-3,
-            min_texture: 0.01,
+            min_texture: 0.65,
             fit_gain: true,
             fit_vignetting: true,
             depth_weight_power: 2,
@@ -769,7 +771,7 @@ impl TrackOutcome {
 pub struct FrameConstraint {
     /// λ_min / λ_max of the depth-scaled point-to-plane covariance.
     pub conditioning: f64,
-    /// RMS intensity gradient (0 without colour).
+    /// RMS intensity gradient, intensity per radian of view (0 without colour).
     pub texture: f64,
 }
 
@@ -1125,11 +1127,14 @@ pub(super) fn mean_depth(level: &Level) -> f64 {
     }
 }
 
-/// RMS of the intensity gradient over a level's valid pixels (0 without colour).
-fn texture(level: &Level) -> f64 {
+/// RMS of the intensity gradient over a level's valid pixels, per radian of view: each pixel's
+/// (f_x ∂I/∂u, f_y ∂I/∂v) with the level's focal lengths, so a texture measures the same whatever
+/// the resolution (0 without colour).
+pub(super) fn texture(level: &Level) -> f64 {
     if level.gradient_x.data.len() != level.vertices.data.len() {
         return 0.0;
     }
+    let (fx, fy) = (level.camera.fx as f32, level.camera.fy as f32);
     let (mut sum, mut n) = (0.0, 0usize);
     for ((gx, gy), p) in level
         .gradient_x
@@ -1139,6 +1144,7 @@ fn texture(level: &Level) -> f64 {
         .zip(&level.vertices.data)
     {
         if valid(p) {
+            let (gx, gy) = (fx * gx, fy * gy);
             sum += (gx * gx + gy * gy) as f64;
             n += 1;
         }

@@ -31,6 +31,7 @@ pub mod motion;
 pub mod noise;
 pub mod plate;
 pub mod render;
+pub mod rings;
 pub mod scene;
 pub mod sequence;
 pub mod sheet;

@@ -27,6 +27,11 @@ pub enum Motion {
     /// whose start is seen again only after a lap, where drift builds up with nothing older to
     /// snap to.
     Corridor,
+    /// A walk round the gallery of `layouts::Layout::Gallery` ([`GALLERY`]) along the middle of
+    /// its 2.4-m hall, once every [`GALLERY_LAP`] seconds (0.5 m/s), looking 45° inwards from the
+    /// direction of travel (at the central block and its pillars) and 10° down: a 23-m loop, 1.5
+    /// laps in 2000 frames at 30 Hz.
+    Gallery,
 }
 
 /// A ring corridor: the space between an outer rectangle and a central block, both centred on
@@ -50,6 +55,16 @@ pub const CORRIDOR: Ring = Ring {
 
 /// Seconds per lap of [`Motion::Corridor`].
 pub const CORRIDOR_LAP: f64 = 40.0;
+
+/// The hall of [`Motion::Gallery`]: 2.4 m wide all round, 3.2 m high.
+pub const GALLERY: Ring = Ring {
+    outer: (4.8, 3.6),
+    inner: (2.4, 1.2),
+    height: 3.2,
+};
+
+/// Seconds per lap of [`Motion::Gallery`].
+pub const GALLERY_LAP: f64 = 45.0;
 
 impl Ring {
     /// Half-sizes of the corridor's middle line.
@@ -172,7 +187,8 @@ pub fn procedural(motion: Motion, frames: usize, fps: f64) -> Trajectory {
                 Isometry3::from_parts(base.translation, base.rotation * shake)
             }
             Motion::Survey => survey(f / fps),
-            Motion::Corridor => corridor(f / fps),
+            Motion::Corridor => ring_walk(&RingWalk::CORRIDOR, f / fps),
+            Motion::Gallery => ring_walk(&RingWalk::GALLERY, f / fps),
             Motion::FastRotation => {
                 let a = (3.0 * f).to_radians();
                 let eye = Point3::new(0.9, 0.3, 1.3);
@@ -200,14 +216,41 @@ fn survey(t: f64) -> Isometry3<f64> {
     Isometry3::from_parts(base.translation, base.rotation * sway)
 }
 
-/// The pose of [`Motion::Corridor`] at `t` seconds.
-fn corridor(t: f64) -> Isometry3<f64> {
-    let ring = CORRIDOR;
+/// A hand-held walk along a [`Ring`]'s middle line.
+struct RingWalk {
+    ring: Ring,
+    /// Seconds per lap.
+    lap: f64,
+    /// Where the camera looks, radians from the direction of travel (positive: to the left,
+    /// which is inwards on the anticlockwise walk).
+    turn: f64,
+    /// How far it looks down, radians.
+    down: f64,
+}
+
+impl RingWalk {
+    const CORRIDOR: RingWalk = RingWalk {
+        ring: CORRIDOR,
+        lap: CORRIDOR_LAP,
+        turn: -std::f64::consts::FRAC_PI_4,
+        down: 15.0 * std::f64::consts::PI / 180.0,
+    };
+    const GALLERY: RingWalk = RingWalk {
+        ring: GALLERY,
+        lap: GALLERY_LAP,
+        turn: std::f64::consts::FRAC_PI_4,
+        down: 10.0 * std::f64::consts::PI / 180.0,
+    };
+}
+
+/// The pose of a [`RingWalk`] at `t` seconds ([`Motion::Corridor`], [`Motion::Gallery`]).
+fn ring_walk(w: &RingWalk, t: f64) -> Isometry3<f64> {
+    let ring = w.ring;
     let s = |hz: f64, p: f64| (std::f64::consts::TAU * hz * t + p).sin();
-    let (middle, heading) = ring.along(ring.lap_length() * t / CORRIDOR_LAP);
+    let (middle, heading) = ring.along(ring.lap_length() * t / w.lap);
     let eye = Point3::new(middle.x, middle.y, 1.4 + 0.05 * s(0.17, 0.0));
-    let look = heading - std::f64::consts::FRAC_PI_4 + 0.12 * s(0.09, 1.0);
-    let dir = Vector3::new(look.cos(), look.sin(), -(15f64.to_radians()).tan());
+    let look = heading + w.turn + 0.12 * s(0.09, 1.0);
+    let dir = Vector3::new(look.cos(), look.sin(), -w.down.tan());
     let base = look_at(&eye, &(eye + dir), &Vector3::z());
     let sway = UnitQuaternion::from_scaled_axis(
         Vector3::new(s(0.5, 0.3), s(0.4, 1.1), 0.5 * s(0.3, 2.0)) * 2f64.to_radians(),
@@ -297,21 +340,28 @@ mod tests {
             Motion::FastRotation,
             Motion::Survey,
             Motion::Corridor,
+            Motion::Gallery,
         ] {
             let t = procedural(m, 10, 30.0);
             assert_eq!(t.len(), 10);
         }
     }
 
-    /// The corridor walk stays on the corridor's middle line, moves at a steady speed through the
-    /// corners (no jump where a side meets a corner), and is back at its start after one lap.
+    /// The corridor's and the gallery's walks stay on the ring's middle line, move at a steady
+    /// speed through the corners (no jump where a side meets a corner), and are back at their
+    /// start after one lap.
     #[test]
-    fn the_corridor_walk_is_a_smooth_closed_loop_inside_the_corridor() {
-        let ring = CORRIDOR;
+    fn the_ring_walks_are_smooth_closed_loops_inside_their_rings() {
+        ring_walk_is_a_smooth_closed_loop(Motion::Corridor, &RingWalk::CORRIDOR);
+        ring_walk_is_a_smooth_closed_loop(Motion::Gallery, &RingWalk::GALLERY);
+    }
+
+    fn ring_walk_is_a_smooth_closed_loop(m: Motion, w: &RingWalk) {
+        let ring = w.ring;
         let fps = 30.0;
-        let frames = (CORRIDOR_LAP * fps) as usize + 1;
-        let t = procedural(Motion::Corridor, frames, fps);
-        let speed = ring.lap_length() / CORRIDOR_LAP / fps;
+        let frames = (w.lap * fps) as usize + 1;
+        let t = procedural(m, frames, fps);
+        let speed = ring.lap_length() / w.lap / fps;
         for w in t.poses.windows(2) {
             let step = (w[1].translation.vector - w[0].translation.vector)
                 .xy()
@@ -330,8 +380,9 @@ mod tests {
         }
         let lap = t.poses[frames - 1].translation.vector - t.poses[0].translation.vector;
         assert!(lap.xy().norm() < 1e-9, "{lap}");
-        // the camera looks outwards: on the side at +x, towards +x
-        assert!((t.poses[0].rotation * Vector3::z()).x > 0.5);
+        // on the side at +x the corridor's camera looks outwards (+x), the gallery's inwards
+        let x = (t.poses[0].rotation * Vector3::z()).x;
+        assert!(x * -w.turn.signum() > 0.5, "{m:?} looks {x} along x");
     }
 
     #[test]
