@@ -6,9 +6,10 @@ usage: python3 bench/loop_check.py RUN.json SEQUENCE_DIR [--near 0.3]
 
 RUN.json holds rigid_slam's JSON line (`rigid_slam SEQ --submaps --quiet > RUN.json`); SEQUENCE_DIR
 is the generated sequence (groundtruth.txt gives the true poses; each loop's keyframes are found
-by the stamps in the JSON line, or by line of associations.txt for a run that gave none). A loop joins two keyframes; it is true when their true camera centres are within --near
-metres (a loop measured between views of one place), false otherwise (two places that look
-alike, as in the twin room). A loop is kept when its DCS weight at the graph's solution is above
+by the stamps in the JSON line, or by line of associations.txt for a run that gave none). A loop
+joins two keyframes; it is true when their true camera centres are within --near metres (a loop
+measured between views of one place), false otherwise (two places that look alike, as in the
+twin room). A loop is kept when its DCS weight at the graph's solution is above
 0.5. Prints one line: loops, true ones kept, false ones kept, and the largest weight of a false
 loop; exits 1 when a false loop was kept or a loop has no weight (the graph was not solved).
 """

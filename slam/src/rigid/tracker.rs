@@ -1130,7 +1130,7 @@ pub(super) fn mean_depth(level: &Level) -> f64 {
 /// RMS of the intensity gradient over a level's valid pixels, per radian of view: each pixel's
 /// (f_x ∂I/∂u, f_y ∂I/∂v) with the level's focal lengths, so a texture measures the same whatever
 /// the resolution (0 without colour).
-pub(super) fn texture(level: &Level) -> f64 {
+fn texture(level: &Level) -> f64 {
     if level.gradient_x.data.len() != level.vertices.data.len() {
         return 0.0;
     }

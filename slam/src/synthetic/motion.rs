@@ -233,13 +233,13 @@ impl RingWalk {
         ring: CORRIDOR,
         lap: CORRIDOR_LAP,
         turn: -std::f64::consts::FRAC_PI_4,
-        down: 15.0 * std::f64::consts::PI / 180.0,
+        down: 15.0 * (std::f64::consts::PI / 180.0),
     };
     const GALLERY: RingWalk = RingWalk {
         ring: GALLERY,
         lap: GALLERY_LAP,
         turn: std::f64::consts::FRAC_PI_4,
-        down: 10.0 * std::f64::consts::PI / 180.0,
+        down: 10.0 * (std::f64::consts::PI / 180.0),
     };
 }
 
