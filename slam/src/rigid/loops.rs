@@ -1003,13 +1003,6 @@ mod tests {
         );
     }
 
-    /// Two laps of the circle whose odometry drifted six times as fast as [`drifted`]'s (the
-    /// first lap ends 22 cm and 8° off; the worst keyframe of the second 43 cm),
-    /// each keyframe of the second lap looped to the same place on the first, the graph solved
-    /// after each loop from the last solution (as the pipeline's background solver does): from
-    /// the tracked poses the first loop disagrees by 14 of its deviations. Solved at Φ = 1
-    /// alone, DCS switches off each loop as it comes and keeps the drift; graduated, it closes
-    /// them.
     /// The stages fall tenfold from the start to Φ; a start that is not finite is cut short.
     #[test]
     fn the_graduated_schedule_ends_at_phi() {
@@ -1029,6 +1022,13 @@ mod tests {
         assert_eq!(endless.last(), Some(&1.0));
     }
 
+    /// Two laps of the circle whose odometry drifted six times as fast as [`drifted`]'s (the
+    /// first lap ends 22 cm and 8° off; the worst keyframe of the second 43 cm),
+    /// each keyframe of the second lap looped to the same place on the first, the graph solved
+    /// after each loop from the last solution (as the pipeline's background solver does): from
+    /// the tracked poses the first loop disagrees by 14 of its deviations. Solved at Φ = 1
+    /// alone, DCS switches off each loop as it comes and keeps the drift; graduated, it closes
+    /// them.
     #[test]
     fn true_loops_after_a_long_drift_are_kept() {
         let lap = circle(40);
