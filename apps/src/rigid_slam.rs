@@ -11,9 +11,10 @@
 //! failures (frames read but not tracked), skipped (frames whose files could not be read),
 //! relocalised, new_maps and unplaced_frames (maps started after the track was lost for good, and
 //! the tracked frames left out because no loop placed their map), unpaired_depth (TUM-layout
-//! depth frames without a colour frame within `--max-difference`, not read; a warning names
-//! them too), the loop_events (each loop's keyframes by frame number counted from 1 and by
-//! depth stamp, its inliers and DCS weight) and the ATE when the folder has a ground truth. The
+//! depth frames without a colour frame in `associations.txt`, or within `--max-difference`
+//! where the folder has none; not read, and a warning names them too), the loop_events (each
+//! loop's keyframes by frame number counted from 1 and by depth stamp, its inliers and DCS
+//! weight) and the ATE when the folder has a ground truth. The
 //! trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
@@ -33,7 +34,7 @@ use dynamap_slam::eval::{ate, Alignment, AteResult, MAX_STAMP_DIFFERENCE};
 use dynamap_slam::io::ply;
 use dynamap_slam::io::sequence::{OpenOptions, Sequence};
 use dynamap_slam::io::trajectory::Trajectory;
-use dynamap_slam::io::tum::RgbdFrame;
+use dynamap_slam::io::tum::{Pairing, RgbdFrame};
 use dynamap_slam::rigid::loops::{KeyframeGraph, Optimised};
 use dynamap_slam::rigid::submaps::SubmapParams;
 use dynamap_slam::rigid::{
@@ -181,9 +182,14 @@ struct Args {
     #[arg(long, value_name = "fr1|fr2|fr3")]
     calibration: Option<String>,
     /// TUM layout: pair a depth and a colour frame only when their stamps are less than this many
-    /// seconds apart (associate.py's --max_difference).
+    /// seconds apart (associate.py's --max_difference), where the frames are paired by stamps
+    /// (no associations.txt, or --no-associations).
     #[arg(long, default_value_t = dynamap_slam::io::tum::MAX_DIFFERENCE)]
     max_difference: f64,
+    /// TUM layout: pair the frames by their stamps even where the folder has an associations.txt
+    /// (which otherwise pairs them, as ORB-SLAM2 reads it).
+    #[arg(long)]
+    no_associations: bool,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -439,20 +445,41 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         })?),
         None => None,
     };
+    let pairing = if args.no_associations {
+        Pairing::Stamps
+    } else {
+        Pairing::Listed
+    };
+    let listed = pairing == Pairing::Listed && dir.join("associations.txt").exists();
     let options = OpenOptions {
         max_difference: args.max_difference,
+        pairing,
         calibration: sensor.map(TumSensor::calibration),
         ..OpenOptions::default()
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
+    let unlisted = seq.unlisted_associations();
+    if unlisted > 0 {
+        tracing::warn!(
+            "{}: {unlisted} lines of associations.txt name frames that rgb.txt or depth.txt do \
+             not list; they are left out",
+            dir.display(),
+        );
+    }
     let unpaired = seq.unpaired_depth();
     if unpaired > 0 {
+        let why = if listed {
+            "no colour frame in associations.txt".to_string()
+        } else {
+            format!(
+                "no colour frame within {} s (--max-difference sets the limit)",
+                args.max_difference
+            )
+        };
         tracing::warn!(
-            "{}: {unpaired} of {} depth frames have no colour frame within {} s and are not read \
-             (--max-difference sets the limit)",
+            "{}: {unpaired} of {} depth frames have {why} and are not read",
             dir.display(),
             unpaired + seq.len(),
-            args.max_difference,
         );
     }
     if !dir.join("intrinsics.txt").exists() {

@@ -439,19 +439,27 @@ fn tum_calibrations_by_name_and_the_association_limit() {
         2,
         &["--max-difference"],
     );
-    // pairs must be strictly closer than the limit (associate.py): 0 pairs nothing, and says so
-    assert_exit(
-        &run("rigid_slam", &[seq, "--max-difference", "0"]),
-        2,
-        &["depth.txt", "within 0 s"],
-    );
+    // the generator's associations.txt pairs each capture's frames, whatever the stamp limit
+    let listed = run("rigid_slam", &[seq, "--max-difference", "0", "-q"]);
+    assert!(listed.status.success(), "{}", text(&listed.stderr));
+    assert_eq!(result_json(&listed)["frames"], 3);
+    // paired by stamps, pairs must be strictly closer than the limit (associate.py): 0 pairs
+    // nothing, and says so
+    let by_stamps = |limit: &str, quiet: bool| {
+        let mut a = vec![seq, "--no-associations", "--max-difference", limit];
+        if quiet {
+            a.push("-q");
+        }
+        run("rigid_slam", &a)
+    };
+    assert_exit(&by_stamps("0", false), 2, &["depth.txt", "within 0 s"]);
     // the Kinect model's colour is taken 10-20 ms after the depth: 5 ms pairs nothing, 25 ms all
     assert_exit(
-        &run("rigid_slam", &[seq, "--max-difference", "0.005"]),
+        &by_stamps("0.005", false),
         2,
         &["depth.txt", "within 0.005 s"],
     );
-    let loose = run("rigid_slam", &[seq, "--max-difference", "0.025", "-q"]);
+    let loose = by_stamps("0.025", true);
     assert!(loose.status.success(), "{}", text(&loose.stderr));
     assert_eq!(result_json(&loose)["frames"], 3);
     // evo's name for the stamp limit

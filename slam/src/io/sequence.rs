@@ -7,7 +7,7 @@
 use super::folder::FolderSequence;
 use super::iclnuim::IclNuimSequence;
 use super::trajectory::Trajectory;
-use super::tum::{RgbdFrame, TumSequence, MAX_DIFFERENCE};
+use super::tum::{Pairing, RgbdFrame, TumSequence, MAX_DIFFERENCE};
 use super::IoError;
 use crate::camera::Camera;
 use crate::distortion::Distortion;
@@ -17,8 +17,11 @@ use std::path::{Path, PathBuf};
 #[derive(Clone, Debug, PartialEq)]
 pub struct OpenOptions {
     /// TUM: the largest stamp difference at which a depth and a colour frame are paired,
-    /// seconds (default 0.02, `associate.py`'s).
+    /// seconds (default 0.02, `associate.py`'s), where they are paired by their stamps.
     pub max_difference: f64,
+    /// TUM: whether a folder's `associations.txt` pairs its frames (the default) or their
+    /// stamps do.
+    pub pairing: Pairing,
     /// TUM: a calibration (intrinsics and lens distortion) replacing the folder's own.
     pub calibration: Option<(Camera, Distortion)>,
     /// Plain folder: depth units per metre when it has no `intrinsics.txt` (default: its own).
@@ -29,6 +32,7 @@ impl Default for OpenOptions {
     fn default() -> Self {
         Self {
             max_difference: MAX_DIFFERENCE,
+            pairing: Pairing::default(),
             calibration: None,
             depth_scale: None,
         }
@@ -52,7 +56,7 @@ impl Sequence {
     pub fn open(root: impl AsRef<Path>, options: &OpenOptions) -> Result<Self, IoError> {
         let root = root.as_ref();
         if root.join("rgb.txt").exists() || root.join("depth.txt").exists() {
-            let seq = TumSequence::open_with(root, options.max_difference)?;
+            let seq = TumSequence::open_with(root, options.max_difference, options.pairing)?;
             return Ok(Self::Tum(match &options.calibration {
                 Some((camera, distortion)) => seq.with_calibration(*camera, distortion)?,
                 None => seq,
@@ -147,9 +151,18 @@ impl Sequence {
         }
     }
 
+    /// Lines of a TUM folder's `associations.txt` left out because a file they name is in
+    /// neither `rgb.txt` nor `depth.txt`; 0 in the other layouts.
+    pub fn unlisted_associations(&self) -> usize {
+        match self {
+            Self::Tum(s) => s.unlisted_associations,
+            Self::IclNuim(..) | Self::Folder(_) => 0,
+        }
+    }
+
     /// Depth frames the layout lists but that are not delivered: in the TUM layout those
-    /// without a colour frame within the stamp limit ([`OpenOptions::max_difference`]); 0 in
-    /// the others.
+    /// without a colour frame (in `associations.txt`, or within the stamp limit
+    /// [`OpenOptions::max_difference`]); 0 in the others.
     pub fn unpaired_depth(&self) -> usize {
         match self {
             Self::Tum(s) => s.unpaired_depth,

@@ -1,6 +1,7 @@
 //! The TUM RGB-D layout (Sturm et al., IROS 2012): `rgb.txt` and `depth.txt` list
-//! `timestamp filename`, frames are paired by nearest timestamp as TUM's `associate.py` does (at most
-//! 0.02 s apart), depth PNGs are 16-bit with 5000 units per metre, `groundtruth.txt` is a TUM
+//! `timestamp filename`, frames are paired by the folder's `associations.txt` where it has one (as
+//! ORB-SLAM2 reads them), else by nearest timestamp as TUM's `associate.py` does (at most 0.02 s
+//! apart), depth PNGs are 16-bit with 5000 units per metre, `groundtruth.txt` is a TUM
 //! trajectory. An `intrinsics.txt` (`fx fy cx cy depth_scale`, as the project's generator writes)
 //! overrides the intrinsics known for freiburg1/2/3 sequences.
 
@@ -14,6 +15,17 @@ use std::path::{Path, PathBuf};
 
 /// TUM's default maximum timestamp difference for associating colour and depth.
 pub const MAX_DIFFERENCE: f64 = 0.02;
+
+/// How a TUM folder's depth and colour frames are paired.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Pairing {
+    /// As the folder's `associations.txt` lists them, where it has one (ORB-SLAM2 reads them so;
+    /// the project's generator writes each capture's own pair there), else by their stamps.
+    #[default]
+    Listed,
+    /// By their stamps alone ([`associate`]), whatever the folder has.
+    Stamps,
+}
 
 /// One RGB-D frame as loaded.
 #[derive(Clone, Debug)]
@@ -58,9 +70,11 @@ pub struct TumSequence {
     pub groundtruth: Option<Trajectory>,
     /// The remap applied to every frame when `intrinsics.txt` gives lens distortion.
     pub undistorter: Option<Undistorter>,
-    /// Depth frames of `depth.txt` left out for want of a colour frame within the stamp limit
-    /// (as `associate.py` leaves them out).
+    /// Depth frames of `depth.txt` left out for want of a colour frame (within the stamp limit,
+    /// as `associate.py` leaves them out, or in `associations.txt`).
     pub unpaired_depth: usize,
+    /// Lines of `associations.txt` left out because a file they name is in neither list.
+    pub unlisted_associations: usize,
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -119,6 +133,85 @@ pub fn associate(first: &[f64], second: &[f64], max_difference: f64) -> Vec<(usi
     }
     out.sort_by(|x, y| first[x.0].total_cmp(&first[y.0]));
     out
+}
+
+/// The pairs `associations.txt` gives.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Associations {
+    /// (depth, colour) indices into the lists, sorted by the depth stamp.
+    pub pairs: Vec<(usize, usize)>,
+    /// Lines left out because a file they name is in neither list.
+    pub unlisted: usize,
+}
+
+/// Parses `associations.txt` (`path` names it in errors) as `associate.py` writes it and ORB-SLAM2
+/// reads it: `timestamp file timestamp file` per line, one file a colour frame of `rgb` and the
+/// other a depth frame of `depth` (in either order; the lists' stamps are the frames'). A frame
+/// named on two lines keeps its partner nearest in time (the other line's frames stay unpaired),
+/// as in [`associate`]. A line naming a file that neither list has is left out and counted:
+/// the lists say which frames the sequence has (a frame taken out of them is gone, whatever
+/// `associations.txt` still says).
+pub fn parse_associations(
+    text: &str,
+    path: &Path,
+    rgb: &[(f64, String)],
+    depth: &[(f64, String)],
+) -> Result<Associations, IoError> {
+    let index = |list: &[(f64, String)]| -> std::collections::HashMap<String, usize> {
+        list.iter()
+            .enumerate()
+            .map(|(i, (_, f))| (f.clone(), i))
+            .collect()
+    };
+    let (by_rgb, by_depth) = (index(rgb), index(depth));
+    let (mut candidates, mut unlisted) = (Vec::new(), 0);
+    for (line, f) in data_lines(text) {
+        if f.len() != 4 {
+            return Err(IoError::line(
+                path,
+                line,
+                format!(
+                    "expected 'timestamp file timestamp file', found {} fields",
+                    f.len()
+                ),
+            ));
+        }
+        number(path, line, &f, 0, "timestamp")?;
+        number(path, line, &f, 2, "timestamp")?;
+        let (a, b) = (f[1], f[3]);
+        let listed = |f: &str| by_rgb.contains_key(f) || by_depth.contains_key(f);
+        match (
+            by_depth.get(a),
+            by_rgb.get(b),
+            by_rgb.get(a),
+            by_depth.get(b),
+        ) {
+            (Some(&d), Some(&r), _, _) | (_, _, Some(&r), Some(&d)) => candidates.push((d, r)),
+            _ if !listed(a) || !listed(b) => unlisted += 1,
+            _ => {
+                return Err(IoError::line(
+                    path,
+                    line,
+                    format!("'{a}' and '{b}' are not a frame of rgb.txt and one of depth.txt"),
+                ))
+            }
+        }
+    }
+    let gap = |&(d, r): &(usize, usize)| (depth[d].0 - rgb[r].0).abs();
+    candidates.sort_by(|x, y| gap(x).total_cmp(&gap(y)).then(x.cmp(y)));
+    let (mut used_d, mut used_r) = (vec![false; depth.len()], vec![false; rgb.len()]);
+    let mut out = Vec::new();
+    for (d, r) in candidates {
+        if !used_d[d] && !used_r[r] {
+            (used_d[d], used_r[r]) = (true, true);
+            out.push((d, r));
+        }
+    }
+    out.sort_by(|x, y| depth[x.0].0.total_cmp(&depth[y.0].0));
+    Ok(Associations {
+        pairs: out,
+        unlisted,
+    })
 }
 
 /// Reads `intrinsics.txt`: `fx fy cx cy depth_scale` on one line; the image size comes from `width`,
@@ -225,28 +318,48 @@ pub(crate) fn known_intrinsics(root: &Path) -> Camera {
 }
 
 impl TumSequence {
-    /// Opens a sequence folder: reads the lists, associates colour and depth, the ground truth and the
+    /// Opens a sequence folder: reads the lists, associates colour and depth (as
+    /// `associations.txt` lists them where the folder has one), the ground truth and the
     /// intrinsics (the size is taken from the first depth image).
     pub fn open(root: impl AsRef<Path>) -> Result<Self, IoError> {
-        Self::open_with(root, MAX_DIFFERENCE)
+        Self::open_with(root, MAX_DIFFERENCE, Pairing::Listed)
     }
 
-    /// As [`Self::open`], pairing a depth and a colour frame only when their stamps are less than
-    /// `max_difference` seconds apart (`associate.py --max_difference`).
-    pub(crate) fn open_with(root: impl AsRef<Path>, max_difference: f64) -> Result<Self, IoError> {
+    /// As [`Self::open`]: with [`Pairing::Listed`], frames are paired as the folder's
+    /// `associations.txt` lists them where it has one; otherwise (or without the file) a depth
+    /// and a colour frame are paired when their stamps are less than `max_difference` seconds
+    /// apart (`associate.py --max_difference`).
+    pub(crate) fn open_with(
+        root: impl AsRef<Path>,
+        max_difference: f64,
+        pairing: Pairing,
+    ) -> Result<Self, IoError> {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
-        let pairs = associate(
-            &depth.iter().map(|d| d.0).collect::<Vec<_>>(),
-            &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
-            max_difference,
-        );
+        let listed = root.join("associations.txt");
+        let Associations { pairs, unlisted } = if pairing == Pairing::Listed && listed.exists() {
+            parse_associations(&read_text(&listed)?, &listed, &rgb, &depth)?
+        } else {
+            Associations {
+                pairs: associate(
+                    &depth.iter().map(|d| d.0).collect::<Vec<_>>(),
+                    &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
+                    max_difference,
+                ),
+                unlisted: 0,
+            }
+        };
         if pairs.is_empty() {
-            return Err(IoError::file(
-                root.join("depth.txt"),
-                format!("no depth frame has a colour frame within {max_difference} s"),
-            ));
+            let why = if pairing == Pairing::Listed && listed.exists() {
+                (listed, "pairs no frames".to_string())
+            } else {
+                (
+                    root.join("depth.txt"),
+                    format!("no depth frame has a colour frame within {max_difference} s"),
+                )
+            };
+            return Err(IoError::file(why.0, why.1));
         }
         let frames: Vec<FrameFiles> = pairs
             .iter()
@@ -294,6 +407,7 @@ impl TumSequence {
             root,
             camera,
             unpaired_depth: depth.len() - frames.len(),
+            unlisted_associations: unlisted,
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
@@ -417,6 +531,70 @@ pub(crate) fn undistorted(mut frame: RgbdFrame, undistorter: Option<&Undistorter
 mod tests {
     use super::*;
 
+    fn list(entries: &[(f64, &str)]) -> Vec<(f64, String)> {
+        entries.iter().map(|&(t, f)| (t, f.to_string())).collect()
+    }
+
+    #[test]
+    fn listed_associations_pair_frames_the_stamps_would_not() {
+        let p = Path::new("associations.txt");
+        let rgb = list(&[
+            (0.025, "rgb/a.png"),
+            (0.058, "rgb/b.png"),
+            (0.091, "rgb/c.png"),
+        ]);
+        let depth = list(&[
+            (0.0, "depth/a.png"),
+            (0.033, "depth/b.png"),
+            (0.066, "depth/c.png"),
+        ]);
+        // colour 25 ms after its depth: associate.py's 0.02 s pairs none of them with its own
+        // capture (b's colour would go with c's depth), the listed pairs do, in either column
+        // order, comments and blank lines aside
+        let text = "# rgb depth\n0.025 rgb/a.png 0.0 depth/a.png\n\n\
+                    0.033 depth/b.png 0.058 rgb/b.png\n0.091 rgb/c.png 0.066 depth/c.png\n";
+        let pairs = parse_associations(text, p, &rgb, &depth).unwrap().pairs;
+        assert_eq!(pairs, [(0, 0), (1, 1), (2, 2)]);
+        let stamps = |l: &[(f64, String)]| l.iter().map(|e| e.0).collect::<Vec<_>>();
+        assert_ne!(
+            associate(&stamps(&depth), &stamps(&rgb), MAX_DIFFERENCE),
+            pairs
+        );
+        // a frame named twice keeps its nearest partner; the other line's frames stay unpaired
+        let twice = "0.025 rgb/a.png 0.0 depth/a.png\n0.058 rgb/b.png 0.0 depth/a.png\n";
+        assert_eq!(
+            parse_associations(twice, p, &rgb, &depth).unwrap().pairs,
+            [(0, 0)]
+        );
+        // a frame taken out of the lists is gone, though associations.txt still names it
+        let stale = "0.025 rgb/a.png 0.0 depth/a.png\n0.058 rgb/b.png 0.033 depth/gone.png\n";
+        let a = parse_associations(stale, p, &rgb, &depth).unwrap();
+        assert_eq!((a.pairs, a.unlisted), (vec![(0, 0)], 1));
+    }
+
+    #[test]
+    fn a_bad_associations_line_is_named() {
+        let p = Path::new("associations.txt");
+        let rgb = list(&[(0.0, "rgb/a.png")]);
+        let depth = list(&[(0.0, "depth/a.png")]);
+        for (text, line, says) in [
+            ("0.0 rgb/a.png 0.0\n", 1, "found 3 fields"),
+            ("# header\n0.0 rgb/a.png x depth/a.png\n", 2, "timestamp"),
+            (
+                "0.0 rgb/a.png 0.0 rgb/a.png\n",
+                1,
+                "not a frame of rgb.txt and one of depth.txt",
+            ),
+        ] {
+            let e = parse_associations(text, p, &rgb, &depth)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("associations.txt"), "{e}");
+            assert!(e.contains(&format!("associations.txt:{line}:")), "{e}");
+            assert!(e.contains(says), "{e}");
+        }
+    }
+
     #[test]
     fn association_matches_a_hand_checked_case() {
         // depth stamps vs rgb stamps; by hand: 1.000↔1.004 (0.004), 1.033↔1.030 (0.003),
@@ -512,8 +690,26 @@ mod tests {
         // barrel distortion pulls the corners in: the ideal corner has no recorded source
         assert!(u.source_of(0, 0).is_none() || u.source_of(0, 0) != Some((0.0, 0.0)));
         assert_eq!(frame.color.unwrap().at(31, 23), [90, 120, 200]);
+        // an associations.txt pairs what it lists, even beyond the stamps' limit, unless the
+        // stamps are asked for
+        std::fs::write(
+            dir.join("associations.txt"),
+            "0.004 rgb/0.png 0.100 depth/0.png\n",
+        )
+        .unwrap();
+        let listed = TumSequence::open(&dir).unwrap();
+        assert_eq!((listed.len(), listed.unpaired_depth), (1, 1));
+        assert_eq!(
+            (listed.frames[0].timestamp, listed.frames[0].color_timestamp),
+            (0.1, 0.004)
+        );
+        let by_stamps = TumSequence::open_with(&dir, MAX_DIFFERENCE, Pairing::Stamps).unwrap();
+        assert_eq!(by_stamps.frames[0].timestamp, 0.0);
+        std::fs::remove_file(dir.join("associations.txt")).unwrap();
         // a stricter association than the stamps allow finds no pair, and says so
-        let e = TumSequence::open_with(&dir, 0.001).unwrap_err().to_string();
+        let e = TumSequence::open_with(&dir, 0.001, Pairing::Stamps)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("within 0.001 s"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -10,6 +10,7 @@ use crate::camera::Camera;
 use crate::image::{ColorImage, Image};
 use nalgebra::Isometry3;
 use rayon::prelude::*;
+use wide::f32x8;
 
 /// Writes into `out` the colour registered to the depth's instant: for each pixel with depth
 /// (raw units at the camera's depth scale), the colour at π(S⁻¹ X), `step` = S.
@@ -30,20 +31,41 @@ pub(crate) fn register(
         .enumerate()
         .for_each_init(Vec::new, |filled, (v, row)| {
             fill_row(&depth_raw.data[v * w..(v + 1) * w], filled);
-            let ray = to_color.row(v as f32);
-            for (u, (px, &d)) in row.iter_mut().zip(filled.iter()).enumerate() {
-                *px = color.data[v * w + u];
-                if d == 0 {
-                    continue;
-                }
-                if let Some(c) = to_color
-                    .apply(&ray, u as f32, d as f32)
-                    .and_then(|(cu, cv)| bilinear(color, cu, cv))
-                {
-                    *px = c;
-                }
-            }
+            row.copy_from_slice(&color.data[v * w..(v + 1) * w]);
+            register_row(&to_color, color, v, filled, row);
         });
+}
+
+/// Row `v` of [`register`]: each pixel of `row` (the colour as recorded) with depth in `filled`
+/// (holes filled) takes the colour where the warp puts it, eight pixels' projections at a time.
+fn register_row(
+    to_color: &Warp,
+    color: &ColorImage,
+    v: usize,
+    filled: &[u16],
+    row: &mut [[u8; 3]],
+) {
+    const LANES: usize = 8;
+    let ray = to_color.row(v as f32);
+    let offsets = f32x8::from([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
+    let limit = [(color.width - 1) as f32, (color.height - 1) as f32];
+    for (chunk, (px, depths)) in row.chunks_mut(LANES).zip(filled.chunks(LANES)).enumerate() {
+        let mut d = [0.0f32; LANES];
+        for (d, &raw) in d.iter_mut().zip(depths) {
+            *d = raw as f32;
+        }
+        let u = f32x8::splat((chunk * LANES) as f32) + offsets;
+        let (x, y, inside) = to_color.apply8(&ray, u, f32x8::from(d), limit);
+        if inside.none() {
+            continue;
+        }
+        let (x, y, inside) = (x.to_array(), y.to_array(), inside.to_bitmask());
+        for (k, px) in px.iter_mut().enumerate() {
+            if inside & (1 << k) != 0 {
+                *px = bilinear_inside(color, x[k], y[k]);
+            }
+        }
+    }
 }
 
 /// Pixel (u, v) at raw depth d, back-projected, moved by a rigid motion and projected again
@@ -93,8 +115,8 @@ impl Warp {
     }
 
     /// The pixel where (u, v) at raw depth `d` lands, `row` being row v's rays; `None` behind
-    /// the camera.
-    #[inline]
+    /// the camera. (The pixel-by-pixel reference of [`Self::apply8`].)
+    #[cfg(test)]
     fn apply(&self, row: &RowRays, u: f32, d: f32) -> Option<(f32, f32)> {
         let z = d * self.scale;
         let p: [f32; 3] =
@@ -106,6 +128,29 @@ impl Warp {
                 self.f[1] * p[1] * inv + self.c[1],
             )
         })
+    }
+
+    /// [`Self::apply`] for eight pixels of a row at once (`u` their columns, `d` their raw
+    /// depths, 0 where missing), in the same arithmetic: their (x, y) in the colour image and
+    /// which of them land within `limit` = (width − 1, height − 1) with depth and in front.
+    #[inline]
+    fn apply8(&self, row: &RowRays, u: f32x8, d: f32x8, limit: [f32; 2]) -> (f32x8, f32x8, f32x8) {
+        let zero = f32x8::ZERO;
+        let z = d * f32x8::splat(self.scale);
+        let p: [f32x8; 3] = std::array::from_fn(|i| {
+            z * (f32x8::splat(row.base[i]) + u * f32x8::splat(row.step[i]))
+                + f32x8::splat(self.translation[i])
+        });
+        let inv = f32x8::ONE / p[2];
+        let x = f32x8::splat(self.f[0]) * p[0] * inv + f32x8::splat(self.c[0]);
+        let y = f32x8::splat(self.f[1]) * p[1] * inv + f32x8::splat(self.c[1]);
+        let inside = d.simd_gt(zero)
+            & p[2].simd_gt(zero)
+            & x.simd_ge(zero)
+            & y.simd_ge(zero)
+            & x.simd_le(f32x8::splat(limit[0]))
+            & y.simd_le(f32x8::splat(limit[1]));
+        (x, y, inside)
     }
 }
 
@@ -134,10 +179,16 @@ fn fill_row(row: &[u16], filled: &mut Vec<u16>) {
 
 /// The colour at (x, y) interpolated between the four pixels around it, in fixed point (the
 /// weights in 1/256ths of a pixel, a rounding of at most one level); `None` outside.
+#[cfg(test)]
 fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
-    if !(x >= 0.0 && y >= 0.0 && x <= (img.width - 1) as f32 && y <= (img.height - 1) as f32) {
-        return None;
-    }
+    let inside =
+        x >= 0.0 && y >= 0.0 && x <= (img.width - 1) as f32 && y <= (img.height - 1) as f32;
+    inside.then(|| bilinear_inside(img, x, y))
+}
+
+/// [`bilinear`] at a point known to lie within the image.
+#[inline]
+fn bilinear_inside(img: &ColorImage, x: f32, y: f32) -> [u8; 3] {
     let (x0, y0) = (x as usize, y as usize);
     let (x1, y1) = ((x0 + 1).min(img.width - 1), (y0 + 1).min(img.height - 1));
     let ax = ((x - x0 as f32) * 256.0) as u32;
@@ -150,15 +201,16 @@ fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
     ];
     let at = |x: usize, y: usize| img.data[y * img.width + x];
     let p = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
-    Some(std::array::from_fn(|c| {
+    std::array::from_fn(|c| {
         let sum: u32 = (0..4).map(|k| p[k][c] as u32 * w[k]).sum();
         ((sum + (1 << 15)) >> 16) as u8
-    }))
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
 
     #[test]
     fn holes_take_the_farther_of_their_nearest_measurements() {
@@ -167,6 +219,85 @@ mod tests {
         assert_eq!(filled, [5, 5, 5, 9, 9, 9, 9, 3, 3]);
         fill_row(&[0, 0, 0], &mut filled);
         assert_eq!(filled, [0, 0, 0]);
+    }
+
+    /// [`register`] pixel by pixel, as it was before its projections were computed eight at a
+    /// time.
+    fn register_one_by_one(
+        depth_raw: &Image<u16>,
+        color: &ColorImage,
+        camera: &Camera,
+        step: &Isometry3<f64>,
+    ) -> ColorImage {
+        let w = color.width;
+        let to_color = Warp::new(&step.inverse(), camera);
+        let mut out = color.clone();
+        let mut filled = Vec::new();
+        for (v, row) in out.data.chunks_mut(w).enumerate() {
+            fill_row(&depth_raw.data[v * w..(v + 1) * w], &mut filled);
+            let ray = to_color.row(v as f32);
+            for (u, (px, &d)) in row.iter_mut().zip(&filled).enumerate() {
+                let moved = (d > 0)
+                    .then(|| to_color.apply(&ray, u as f32, d as f32))
+                    .flatten()
+                    .and_then(|(x, y)| bilinear(color, x, y));
+                if let Some(c) = moved {
+                    *px = c;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn eight_at_a_time_registers_as_pixel_by_pixel() {
+        // a width that is no multiple of eight, holes, depths near and far, colour everywhere,
+        // and motions that move pixels out of the image and points behind the camera
+        let (w, h) = (61, 23);
+        let cam = Camera::new(40.0, 42.0, 30.2, 11.7, w, h);
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng
+        };
+        let depth = Image::from_vec(
+            w,
+            h,
+            (0..w * h)
+                .map(|_| match next() % 5 {
+                    0 => 0,
+                    _ => 500 + (next() % 30_000) as u16,
+                })
+                .collect(),
+        )
+        .unwrap();
+        let color: ColorImage = Image::from_vec(
+            w,
+            h,
+            (0..w * h)
+                .map(|_| next().to_le_bytes()[..3].try_into().unwrap())
+                .collect(),
+        )
+        .unwrap();
+        let motions = [
+            Isometry3::new(
+                Vector3::new(0.01, -0.004, 0.002),
+                Vector3::new(0.003, 0.02, -0.01),
+            ),
+            Isometry3::new(Vector3::new(-0.3, 0.2, 0.5), Vector3::new(0.2, -0.1, 0.05)),
+            Isometry3::new(Vector3::new(0.0, 0.0, 3.0), Vector3::new(0.0, 0.0, 0.4)),
+        ];
+        for step in motions {
+            let mut out = ColorImage::new(0, 0);
+            register(&depth, &color, &cam, &step, &mut out);
+            assert_eq!(
+                out,
+                register_one_by_one(&depth, &color, &cam, &step),
+                "{step}"
+            );
+        }
     }
 
     #[test]
