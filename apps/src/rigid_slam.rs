@@ -14,8 +14,8 @@
 //! depth frames without a colour frame in `associations.txt`, or within `--max-difference`
 //! where the folder has none; not read, and a warning names them too), the loop_events (each
 //! loop's keyframes by frame number counted from 1 and by depth stamp, its inliers and DCS
-//! weight) and the ATE when the folder has a ground truth. The
-//! trajectory holds the tracked frames only.
+//! weight) and the ATE when the folder has a ground truth. The trajectory holds the tracked
+//! frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.

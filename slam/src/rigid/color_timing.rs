@@ -177,8 +177,8 @@ fn fill_row(row: &[u16], filled: &mut Vec<u16>) {
     }
 }
 
-/// The colour at (x, y) interpolated between the four pixels around it, in fixed point (the
-/// weights in 1/256ths of a pixel, a rounding of at most one level); `None` outside.
+/// [`bilinear_inside`] where (x, y) lies within the image, `None` outside (the reference's
+/// test of the bounds, pixel by pixel).
 #[cfg(test)]
 fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
     let inside =
@@ -186,7 +186,9 @@ fn bilinear(img: &ColorImage, x: f32, y: f32) -> Option<[u8; 3]> {
     inside.then(|| bilinear_inside(img, x, y))
 }
 
-/// [`bilinear`] at a point known to lie within the image.
+/// The colour at (x, y), a point known to lie within the image, interpolated between the four
+/// pixels around it in fixed point (the weights in 1/256ths of a pixel, a rounding of at most
+/// one level).
 #[inline]
 fn bilinear_inside(img: &ColorImage, x: f32, y: f32) -> [u8; 3] {
     let (x0, y0) = (x as usize, y as usize);
@@ -221,8 +223,8 @@ mod tests {
         assert_eq!(filled, [0, 0, 0]);
     }
 
-    /// [`register`] pixel by pixel, as it was before its projections were computed eight at a
-    /// time.
+    /// [`register`] pixel by pixel through [`Warp::apply`] and [`bilinear`], as it was before
+    /// its projections were computed eight at a time (the blend itself is shared).
     fn register_one_by_one(
         depth_raw: &Image<u16>,
         color: &ColorImage,
