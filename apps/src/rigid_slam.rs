@@ -450,7 +450,6 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
     } else {
         Pairing::Listed
     };
-    let listed = pairing == Pairing::Listed && dir.join("associations.txt").exists();
     let options = OpenOptions {
         max_difference: args.max_difference,
         pairing,
@@ -468,7 +467,7 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
     }
     let unpaired = seq.unpaired_depth();
     if unpaired > 0 {
-        let why = if listed {
+        let why = if seq.paired_by_list() {
             "no colour frame in associations.txt".to_string()
         } else {
             format!(

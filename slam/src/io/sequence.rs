@@ -151,6 +151,12 @@ impl Sequence {
         }
     }
 
+    /// Whether a TUM folder's `associations.txt` paired its frames (false where their stamps
+    /// did, and in the other layouts).
+    pub fn paired_by_list(&self) -> bool {
+        matches!(self, Self::Tum(s) if s.paired_by_list)
+    }
+
     /// Lines of a TUM folder's `associations.txt` left out because a file they name is in
     /// neither `rgb.txt` nor `depth.txt`; 0 in the other layouts.
     pub fn unlisted_associations(&self) -> usize {

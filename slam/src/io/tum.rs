@@ -75,6 +75,8 @@ pub struct TumSequence {
     pub unpaired_depth: usize,
     /// Lines of `associations.txt` left out because a file they name is in neither list.
     pub unlisted_associations: usize,
+    /// Whether `associations.txt` paired the frames (else their stamps did).
+    pub paired_by_list: bool,
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -122,12 +124,25 @@ pub fn associate(first: &[f64], second: &[f64], max_difference: f64) -> Vec<(usi
             .then(x.1.total_cmp(&y.1))
             .then(x.2.total_cmp(&y.2))
     });
-    let (mut used_a, mut used_b) = (vec![false; first.len()], vec![false; second.len()]);
+    one_to_one(
+        candidates.into_iter().map(|c| (c.3, c.4)),
+        first,
+        second.len(),
+    )
+}
+
+/// Index pairs into `first` (stamps) and a second list of `second_len` entries, taken from
+/// `candidates` (best first) as long as neither side is used yet; sorted by the first stamp.
+fn one_to_one(
+    candidates: impl IntoIterator<Item = (usize, usize)>,
+    first: &[f64],
+    second_len: usize,
+) -> Vec<(usize, usize)> {
+    let (mut used_a, mut used_b) = (vec![false; first.len()], vec![false; second_len]);
     let mut out = Vec::new();
-    for (_, _, _, i, j) in candidates {
+    for (i, j) in candidates {
         if !used_a[i] && !used_b[j] {
-            used_a[i] = true;
-            used_b[j] = true;
+            (used_a[i], used_b[j]) = (true, true);
             out.push((i, j));
         }
     }
@@ -151,16 +166,16 @@ pub struct Associations {
 /// as in [`associate`]. A line naming a file that neither list has is left out and counted:
 /// the lists say which frames the sequence has (a frame taken out of them is gone, whatever
 /// `associations.txt` still says).
-pub fn parse_associations(
+pub fn parse_associations<'a>(
     text: &str,
     path: &Path,
-    rgb: &[(f64, String)],
-    depth: &[(f64, String)],
+    rgb: &'a [(f64, String)],
+    depth: &'a [(f64, String)],
 ) -> Result<Associations, IoError> {
-    let index = |list: &[(f64, String)]| -> std::collections::HashMap<String, usize> {
+    let index = |list: &'a [(f64, String)]| -> std::collections::HashMap<&'a str, usize> {
         list.iter()
             .enumerate()
-            .map(|(i, (_, f))| (f.clone(), i))
+            .map(|(i, (_, f))| (f.as_str(), i))
             .collect()
     };
     let (by_rgb, by_depth) = (index(rgb), index(depth));
@@ -199,17 +214,9 @@ pub fn parse_associations(
     }
     let gap = |&(d, r): &(usize, usize)| (depth[d].0 - rgb[r].0).abs();
     candidates.sort_by(|x, y| gap(x).total_cmp(&gap(y)).then(x.cmp(y)));
-    let (mut used_d, mut used_r) = (vec![false; depth.len()], vec![false; rgb.len()]);
-    let mut out = Vec::new();
-    for (d, r) in candidates {
-        if !used_d[d] && !used_r[r] {
-            (used_d[d], used_r[r]) = (true, true);
-            out.push((d, r));
-        }
-    }
-    out.sort_by(|x, y| depth[x.0].0.total_cmp(&depth[y.0].0));
+    let stamps: Vec<f64> = depth.iter().map(|d| d.0).collect();
     Ok(Associations {
-        pairs: out,
+        pairs: one_to_one(candidates, &stamps, rgb.len()),
         unlisted,
     })
 }
@@ -337,9 +344,10 @@ impl TumSequence {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
-        let listed = root.join("associations.txt");
-        let Associations { pairs, unlisted } = if pairing == Pairing::Listed && listed.exists() {
-            parse_associations(&read_text(&listed)?, &listed, &rgb, &depth)?
+        let listed = Some(root.join("associations.txt"))
+            .filter(|p| pairing == Pairing::Listed && p.exists());
+        let Associations { pairs, unlisted } = if let Some(listed) = &listed {
+            parse_associations(&read_text(listed)?, listed, &rgb, &depth)?
         } else {
             Associations {
                 pairs: associate(
@@ -351,7 +359,7 @@ impl TumSequence {
             }
         };
         if pairs.is_empty() {
-            let why = if pairing == Pairing::Listed && listed.exists() {
+            let why = if let Some(listed) = listed {
                 (listed, "pairs no frames".to_string())
             } else {
                 (
@@ -408,6 +416,7 @@ impl TumSequence {
             camera,
             unpaired_depth: depth.len() - frames.len(),
             unlisted_associations: unlisted,
+            paired_by_list: listed.is_some(),
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
@@ -697,12 +706,14 @@ mod tests {
         )
         .unwrap();
         let listed = TumSequence::open(&dir).unwrap();
+        assert!(listed.paired_by_list);
         assert_eq!((listed.len(), listed.unpaired_depth), (1, 1));
         assert_eq!(
             (listed.frames[0].timestamp, listed.frames[0].color_timestamp),
             (0.1, 0.004)
         );
         let by_stamps = TumSequence::open_with(&dir, MAX_DIFFERENCE, Pairing::Stamps).unwrap();
+        assert!(!by_stamps.paired_by_list);
         assert_eq!(by_stamps.frames[0].timestamp, 0.0);
         std::fs::remove_file(dir.join("associations.txt")).unwrap();
         // a stricter association than the stamps allow finds no pair, and says so
