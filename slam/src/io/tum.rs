@@ -324,6 +324,41 @@ pub(crate) fn known_intrinsics(root: &Path) -> Camera {
     Camera::new(fx, fy, cx, cy, 640, 480)
 }
 
+/// The frames of the lists paired as [`TumSequence::open_with`] pairs them, and whether
+/// `root`'s `associations.txt` did it; an error when nothing pairs.
+fn pair_frames(
+    root: &Path,
+    rgb: &[(f64, String)],
+    depth: &[(f64, String)],
+    max_difference: f64,
+    pairing: Pairing,
+) -> Result<(Associations, bool), IoError> {
+    let listed =
+        Some(root.join("associations.txt")).filter(|p| pairing == Pairing::Listed && p.exists());
+    let paired = if let Some(listed) = &listed {
+        parse_associations(&read_text(listed)?, listed, rgb, depth)?
+    } else {
+        Associations {
+            pairs: associate(
+                &depth.iter().map(|d| d.0).collect::<Vec<_>>(),
+                &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
+                max_difference,
+            ),
+            unlisted: 0,
+        }
+    };
+    if paired.pairs.is_empty() {
+        return Err(match listed {
+            Some(listed) => IoError::file(listed, "pairs no frames"),
+            None => IoError::file(
+                root.join("depth.txt"),
+                format!("no depth frame has a colour frame within {max_difference} s"),
+            ),
+        });
+    }
+    Ok((paired, listed.is_some()))
+}
+
 impl TumSequence {
     /// Opens a sequence folder: reads the lists, associates colour and depth (as
     /// `associations.txt` lists them where the folder has one), the ground truth and the
@@ -344,31 +379,8 @@ impl TumSequence {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
-        let listed = Some(root.join("associations.txt"))
-            .filter(|p| pairing == Pairing::Listed && p.exists());
-        let Associations { pairs, unlisted } = if let Some(listed) = &listed {
-            parse_associations(&read_text(listed)?, listed, &rgb, &depth)?
-        } else {
-            Associations {
-                pairs: associate(
-                    &depth.iter().map(|d| d.0).collect::<Vec<_>>(),
-                    &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
-                    max_difference,
-                ),
-                unlisted: 0,
-            }
-        };
-        if pairs.is_empty() {
-            let why = if let Some(listed) = listed {
-                (listed, "pairs no frames".to_string())
-            } else {
-                (
-                    root.join("depth.txt"),
-                    format!("no depth frame has a colour frame within {max_difference} s"),
-                )
-            };
-            return Err(IoError::file(why.0, why.1));
-        }
+        let (Associations { pairs, unlisted }, listed) =
+            pair_frames(&root, &rgb, &depth, max_difference, pairing)?;
         let frames: Vec<FrameFiles> = pairs
             .iter()
             .map(|&(d, r)| FrameFiles {
@@ -416,7 +428,7 @@ impl TumSequence {
             camera,
             unpaired_depth: depth.len() - frames.len(),
             unlisted_associations: unlisted,
-            paired_by_list: listed.is_some(),
+            paired_by_list: listed,
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
