@@ -457,30 +457,7 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         ..OpenOptions::default()
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
-    let unlisted = seq.unlisted_associations();
-    if unlisted > 0 {
-        tracing::warn!(
-            "{}: {unlisted} lines of associations.txt name frames that rgb.txt or depth.txt do \
-             not list; they are left out",
-            dir.display(),
-        );
-    }
-    let unpaired = seq.unpaired_depth();
-    if unpaired > 0 {
-        let why = if seq.paired_by_list() {
-            "no colour frame in associations.txt".to_string()
-        } else {
-            format!(
-                "no colour frame within {} s (--max-difference sets the limit)",
-                args.max_difference
-            )
-        };
-        tracing::warn!(
-            "{}: {unpaired} of {} depth frames have {why} and are not read",
-            dir.display(),
-            unpaired + seq.len(),
-        );
-    }
+    warn_of_unread_frames(dir, &seq, args.max_difference);
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
@@ -490,6 +467,42 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         c.depth_scale = args.depth_scale.unwrap_or(c.depth_scale);
     }
     Ok(seq)
+}
+
+/// Warns of the frames the lists name that will not be read, and why (the lines of
+/// `associations.txt` left out; depth frames without a colour frame).
+fn warn_of_unread_frames(dir: &Path, seq: &Sequence, max_difference: f64) {
+    let listed = seq.listed_pairing();
+    if let Some(left) = listed.filter(|l| l.unlisted > 0) {
+        tracing::warn!(
+            "{}: {} lines of associations.txt name frames that rgb.txt or depth.txt do not \
+             list; they are left out",
+            dir.display(),
+            left.unlisted,
+        );
+    }
+    if let Some(left) = listed.filter(|l| l.far_apart > 0) {
+        tracing::warn!(
+            "{}: {} lines of associations.txt pair frames more than {:.3} s apart (one frame \
+             interval): their colour would not show their depth's scene; they are left out",
+            dir.display(),
+            left.far_apart,
+            left.limit,
+        );
+    }
+    let unpaired = seq.unpaired_depth();
+    if unpaired > 0 {
+        let why = if listed.is_some() {
+            "no colour frame in associations.txt".to_string()
+        } else {
+            format!("no colour frame within {max_difference} s (--max-difference sets the limit)")
+        };
+        tracing::warn!(
+            "{}: {unpaired} of {} depth frames have {why} and are not read",
+            dir.display(),
+            unpaired + seq.len(),
+        );
+    }
 }
 
 /// The ground truth's pose at the first frame when there is one (for comparable ATE plots; ATE

@@ -443,6 +443,26 @@ fn tum_calibrations_by_name_and_the_association_limit() {
     let listed = run("rigid_slam", &[seq, "--max-difference", "0", "-q"]);
     assert!(listed.status.success(), "{}", text(&listed.stderr));
     assert_eq!(result_json(&listed)["frames"], 3);
+    // a listed pair further apart than a frame interval is left out, with a warning
+    let list = format!("{seq}/associations.txt");
+    let lines: Vec<String> = std::fs::read_to_string(&list)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(str::to_string)
+        .collect();
+    let (first, last) = (field_pair(&lines[0]), field_pair(&lines[2]));
+    let stale = format!("{}\n{}\n{} {}\n", lines[0], lines[1], first.0, last.1);
+    std::fs::write(&list, stale).unwrap();
+    let far = run("rigid_slam", &[seq]);
+    assert!(far.status.success(), "{}", text(&far.stderr));
+    assert_eq!(result_json(&far)["frames"], 2);
+    let says = text(&far.stderr);
+    assert!(
+        says.contains("1 lines of associations.txt pair frames more than"),
+        "{says}"
+    );
+    std::fs::write(&list, lines.join("\n")).unwrap();
     // paired by stamps, pairs must be strictly closer than the limit (associate.py): 0 pairs
     // nothing, and says so
     let by_stamps = |limit: &str, quiet: bool| {
@@ -472,6 +492,12 @@ fn tum_calibrations_by_name_and_the_association_limit() {
         &["--gain-drift"],
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An `associations.txt` line's two halves, `stamp file` each, in the line's order.
+fn field_pair(line: &str) -> (String, String) {
+    let f: Vec<&str> = line.split_whitespace().collect();
+    (format!("{} {}", f[0], f[1]), format!("{} {}", f[2], f[3]))
 }
 
 /// No carriage returns or bar glyphs: what a progress bar leaves in a log.

@@ -7,7 +7,7 @@
 use super::folder::FolderSequence;
 use super::iclnuim::IclNuimSequence;
 use super::trajectory::Trajectory;
-use super::tum::{Pairing, RgbdFrame, TumSequence, MAX_DIFFERENCE};
+use super::tum::{LeftOut, Pairing, RgbdFrame, TumSequence, MAX_DIFFERENCE};
 use super::IoError;
 use crate::camera::Camera;
 use crate::distortion::Distortion;
@@ -151,18 +151,12 @@ impl Sequence {
         }
     }
 
-    /// Whether a TUM folder's `associations.txt` paired its frames (false where their stamps
-    /// did, and in the other layouts).
-    pub fn paired_by_list(&self) -> bool {
-        matches!(self, Self::Tum(s) if s.paired_by_list)
-    }
-
-    /// Lines of a TUM folder's `associations.txt` left out because a file they name is in
-    /// neither `rgb.txt` nor `depth.txt`; 0 in the other layouts.
-    pub fn unlisted_associations(&self) -> usize {
+    /// Where a TUM folder's `associations.txt` paired its frames, the lines it left out;
+    /// `None` where their stamps paired them, and in the other layouts.
+    pub fn listed_pairing(&self) -> Option<LeftOut> {
         match self {
-            Self::Tum(s) => s.unlisted_associations,
-            Self::IclNuim(..) | Self::Folder(_) => 0,
+            Self::Tum(s) => s.listed,
+            Self::IclNuim(..) | Self::Folder(_) => None,
         }
     }
 

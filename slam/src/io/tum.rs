@@ -73,10 +73,9 @@ pub struct TumSequence {
     /// Depth frames of `depth.txt` left out for want of a colour frame (within the stamp limit,
     /// as `associate.py` leaves them out, or in `associations.txt`).
     pub unpaired_depth: usize,
-    /// Lines of `associations.txt` left out because a file they name is in neither list.
-    pub unlisted_associations: usize,
-    /// Whether `associations.txt` paired the frames (else their stamps did).
-    pub paired_by_list: bool,
+    /// Where `associations.txt` paired the frames, the lines it left out (`None` where the
+    /// stamps paired them).
+    pub listed: Option<LeftOut>,
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -151,12 +150,41 @@ fn one_to_one(
 }
 
 /// The pairs `associations.txt` gives.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Associations {
     /// (depth, colour) indices into the lists, sorted by the depth stamp.
     pub pairs: Vec<(usize, usize)>,
-    /// Lines left out because a file they name is in neither list.
+    /// The lines that pair no frames.
+    pub left_out: LeftOut,
+}
+
+/// Lines of `associations.txt` left out, by cause.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LeftOut {
+    /// Lines naming a file that neither `rgb.txt` nor `depth.txt` lists.
     pub unlisted: usize,
+    /// Lines whose two stamps are more than `limit` seconds apart.
+    pub far_apart: usize,
+    /// The largest gap between a listed pair's stamps: see [`listed_pair_limit`].
+    pub limit: f64,
+}
+
+/// The largest gap, in seconds, between the stamps of a pair that `associations.txt` lists:
+/// one frame interval of the depth stream (the median gap between its stamps), and at least
+/// `associate.py`'s default [`MAX_DIFFERENCE`]. A colour frame further from its depth frame than
+/// that is nearer another capture than its own: its colour would not show the depth's scene.
+pub fn listed_pair_limit(depth_stamps: &[f64]) -> f64 {
+    let mut gaps: Vec<f64> = depth_stamps
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|g| *g > 0.0)
+        .collect();
+    if gaps.is_empty() {
+        return MAX_DIFFERENCE;
+    }
+    let mid = gaps.len() / 2;
+    let (_, median, _) = gaps.select_nth_unstable_by(mid, f64::total_cmp);
+    median.max(MAX_DIFFERENCE)
 }
 
 /// Parses `associations.txt` (`path` names it in errors) as `associate.py` writes it and ORB-SLAM2
@@ -165,7 +193,8 @@ pub struct Associations {
 /// named on two lines keeps its partner nearest in time (the other line's frames stay unpaired),
 /// as in [`associate`]. A line naming a file that neither list has is left out and counted:
 /// the lists say which frames the sequence has (a frame taken out of them is gone, whatever
-/// `associations.txt` still says).
+/// `associations.txt` still says). So is a line whose stamps are further apart than
+/// [`listed_pair_limit`] of the depth stamps.
 pub fn parse_associations<'a>(
     text: &str,
     path: &Path,
@@ -212,12 +241,19 @@ pub fn parse_associations<'a>(
             }
         }
     }
-    let gap = |&(d, r): &(usize, usize)| (depth[d].0 - rgb[r].0).abs();
-    candidates.sort_by(|x, y| gap(x).total_cmp(&gap(y)).then(x.cmp(y)));
     let stamps: Vec<f64> = depth.iter().map(|d| d.0).collect();
+    let limit = listed_pair_limit(&stamps);
+    let gap = |&(d, r): &(usize, usize)| (depth[d].0 - rgb[r].0).abs();
+    let listed = candidates.len();
+    candidates.retain(|c| gap(c) <= limit);
+    candidates.sort_by(|x, y| gap(x).total_cmp(&gap(y)).then(x.cmp(y)));
     Ok(Associations {
+        left_out: LeftOut {
+            unlisted,
+            far_apart: listed - candidates.len(),
+            limit,
+        },
         pairs: one_to_one(candidates, &stamps, rgb.len()),
-        unlisted,
     })
 }
 
@@ -344,7 +380,7 @@ fn pair_frames(
                 &rgb.iter().map(|r| r.0).collect::<Vec<_>>(),
                 max_difference,
             ),
-            unlisted: 0,
+            left_out: LeftOut::default(),
         }
     };
     if paired.pairs.is_empty() {
@@ -379,7 +415,7 @@ impl TumSequence {
         let root = root.as_ref().to_path_buf();
         let rgb = read_list(&root.join("rgb.txt"))?;
         let depth = read_list(&root.join("depth.txt"))?;
-        let (Associations { pairs, unlisted }, listed) =
+        let (Associations { pairs, left_out }, listed) =
             pair_frames(&root, &rgb, &depth, max_difference, pairing)?;
         let frames: Vec<FrameFiles> = pairs
             .iter()
@@ -427,8 +463,7 @@ impl TumSequence {
             root,
             camera,
             unpaired_depth: depth.len() - frames.len(),
-            unlisted_associations: unlisted,
-            paired_by_list: listed,
+            listed: listed.then_some(left_out),
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
@@ -590,7 +625,13 @@ mod tests {
         // a frame taken out of the lists is gone, though associations.txt still names it
         let stale = "0.025 rgb/a.png 0.0 depth/a.png\n0.058 rgb/b.png 0.033 depth/gone.png\n";
         let a = parse_associations(stale, p, &rgb, &depth).unwrap();
-        assert_eq!((a.pairs, a.unlisted), (vec![(0, 0)], 1));
+        assert_eq!((a.pairs, a.left_out.unlisted), (vec![(0, 0)], 1));
+        // a colour frame more than a frame interval (33 ms) from its depth frame is nearer
+        // another capture: the line is left out and counted, not paired
+        let far = "0.025 rgb/a.png 0.0 depth/a.png\n0.091 rgb/c.png 0.033 depth/b.png\n";
+        let a = parse_associations(far, p, &rgb, &depth).unwrap();
+        assert_eq!((a.pairs, a.left_out.far_apart), (vec![(0, 0)], 1));
+        assert!((a.left_out.limit - 0.033).abs() < 1e-12);
     }
 
     #[test]
@@ -718,14 +759,14 @@ mod tests {
         )
         .unwrap();
         let listed = TumSequence::open(&dir).unwrap();
-        assert!(listed.paired_by_list);
+        assert!(listed.listed.is_some());
         assert_eq!((listed.len(), listed.unpaired_depth), (1, 1));
         assert_eq!(
             (listed.frames[0].timestamp, listed.frames[0].color_timestamp),
             (0.1, 0.004)
         );
         let by_stamps = TumSequence::open_with(&dir, MAX_DIFFERENCE, Pairing::Stamps).unwrap();
-        assert!(!by_stamps.paired_by_list);
+        assert!(by_stamps.listed.is_none());
         assert_eq!(by_stamps.frames[0].timestamp, 0.0);
         std::fs::remove_file(dir.join("associations.txt")).unwrap();
         // a stricter association than the stamps allow finds no pair, and says so
