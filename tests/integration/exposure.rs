@@ -8,10 +8,11 @@ use dynamap::slam::camera::Camera;
 use dynamap::slam::distortion::Distortion;
 use dynamap::slam::eval::{ate, Alignment};
 use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::rigid::{FrameStamps, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::kinect::KinectModel;
 use dynamap::slam::synthetic::layouts::{self, Layout};
 use dynamap::slam::synthetic::motion::{self, Motion};
+
+use crate::recorded::track_recorded;
 
 #[test]
 fn the_fitted_gain_follows_the_sensors_gain_through_vignetting() {
@@ -23,25 +24,12 @@ fn the_fitted_gain_follows_the_sensors_gain_through_vignetting() {
         distortion: Distortion::default(),
         ..KinectModel::default()
     };
-    let recorder = model.recorder(&cam);
     let scene = layouts::build(Layout::Office, 52);
     let gt = motion::procedural(Motion::Survey, 210, 30.0);
-    let mut slam = RigidSlam::new(cam, SlamParams::default(), gt.poses[0]);
     let mut first_gain = None;
     let (mut worst, mut est) = ((0, 0.0f64), Trajectory::default());
     let mut vignetting = Vec::new();
-    for k in 0..gt.len() {
-        let f = recorder.capture(&scene, &gt, k);
-        let stamps = FrameStamps {
-            depth: gt.stamps[k],
-            color: f.color_stamp,
-        };
-        let report = slam.process_timed(&f.depth, Some(&f.color), stamps);
-        assert!(
-            report.failure().is_none(),
-            "frame {k}: {:?}",
-            report.outcome
-        );
+    track_recorded(cam, &model, &scene, &gt, |k, f, report| {
         est.push(gt.stamps[k], report.pose);
         vignetting.push(report.vignetting);
         // the model keeps the first frame's exposure: live I·a is the model's intensity
@@ -53,7 +41,7 @@ fn the_fitted_gain_follows_the_sensors_gain_through_vignetting() {
                 worst = (k, off);
             }
         }
-    }
+    });
     let rmse = ate(&gt, &est, Alignment::Se3, 1e-3).unwrap().stats.rmse;
     eprintln!(
         "fitted gain off the truth by at most {:.1} % (frame {}); ATE {:.2} mm",

@@ -8,6 +8,7 @@
 mod bounds_covariance;
 mod bundle_adjustment;
 mod chi2_agreement;
+mod colour_timing;
 mod exposure;
 mod fragments;
 mod g2o_files;
@@ -15,6 +16,7 @@ mod kinect;
 mod large_pose_graphs;
 mod loops;
 mod nonrigid;
+mod recorded;
 mod relocalise;
 mod rigid;
 mod robust;

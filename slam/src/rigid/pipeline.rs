@@ -381,7 +381,10 @@ impl RigidSlam {
         };
         let delay = stamps.color - stamps.depth;
         let sized = |c: &ColorImage| (c.width, c.height) == (depth_raw.width, depth_raw.height);
-        let shift = step(delay).filter(|_| self.params.register_color && delay.abs() > 1e-6);
+        let shift = self
+            .motion
+            .colour_step(delay)
+            .filter(|_| self.params.register_color && delay.abs() > 1e-6);
         let mut registered = std::mem::replace(&mut self.registered_color, ColorImage::new(0, 0));
         let t_register = Instant::now();
         let color = match (color, shift) {
