@@ -25,6 +25,10 @@ pub(crate) const SPAN_PER_DELAY: f64 = 3.0;
 /// kept: [`SPAN_PER_DELAY`] times a colour delay of up to 80 ms.
 const HISTORY: f64 = 0.25;
 
+/// The most poses kept, whatever the stamps (a clock that stops or runs backwards keeps no
+/// pose [`HISTORY`] old): 0.25 s at 60 Hz.
+const MAX_RECENT: usize = 16;
+
 /// How far two stamps may differ and still count as the same (TUM's stamps give microseconds).
 const STAMP_PRECISION: f64 = 1e-6;
 
@@ -51,7 +55,9 @@ impl MotionModel {
         }
         self.recent.push_back((time, pose));
         // keep one pose at least the history before the last, and none older
-        while self.recent.len() > 2 && self.recent[1].0 <= time - HISTORY {
+        while self.recent.len() > MAX_RECENT
+            || (self.recent.len() > 2 && self.recent[1].0 <= time - HISTORY)
+        {
             self.recent.pop_front();
         }
     }
@@ -176,5 +182,12 @@ mod tests {
         assert!((a.translation.x - b.translation.x).abs() < 1e-15);
         // the fastest motion is between consecutive frames
         assert!((m.fastest().0 - (0.45 + 0.006 / dt)).abs() < 1e-9);
+        // a stopped clock keeps a bounded history and no velocity
+        let mut stuck = MotionModel::default();
+        for k in 0..100 {
+            stuck.push(1.0, at(k));
+        }
+        assert_eq!(stuck.recent.len(), MAX_RECENT);
+        assert!(stuck.step(tau).is_none() && stuck.colour_step(tau).is_none());
     }
 }
