@@ -475,19 +475,19 @@ fn warn_of_unread_frames(dir: &Path, seq: &Sequence, max_difference: f64) {
     let listed = seq.listed_pairing();
     if let Some(left) = listed.filter(|l| l.unlisted > 0) {
         tracing::warn!(
-            "{}: {} lines of associations.txt name frames that rgb.txt or depth.txt do not \
-             list; they are left out",
+            "{}: associations.txt lines that name frames rgb.txt or depth.txt do not list: {}; \
+             they are left out",
             dir.display(),
             left.unlisted,
         );
     }
     if let Some(left) = listed.filter(|l| l.far_apart > 0) {
         tracing::warn!(
-            "{}: {} lines of associations.txt pair frames more than {:.3} s apart (one frame \
-             interval): their colour would not show their depth's scene; they are left out",
+            "{}: associations.txt lines that pair frames more than {:.3} s apart (one frame \
+             interval): {}; their colour would not show their depth's scene, so they are left out",
             dir.display(),
-            left.far_apart,
             left.limit,
+            left.far_apart,
         );
     }
     let unpaired = seq.unpaired_depth();

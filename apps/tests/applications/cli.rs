@@ -459,7 +459,8 @@ fn tum_calibrations_by_name_and_the_association_limit() {
     assert_eq!(result_json(&far)["frames"], 2);
     let says = text(&far.stderr);
     assert!(
-        says.contains("1 lines of associations.txt pair frames more than"),
+        says.contains("associations.txt lines that pair frames more than")
+            && says.contains("): 1;"),
         "{says}"
     );
     std::fs::write(&list, lines.join("\n")).unwrap();
