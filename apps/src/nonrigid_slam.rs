@@ -119,6 +119,11 @@ struct Args {
     /// Tukey's c of the chromaticity term.
     #[arg(long, default_value_t = FusionParams::default().register.chroma_tukey)]
     chroma_tukey: f64,
+    /// A frame whose median chromaticity residual exceeds this many times its floor (the first
+    /// tracked frames', or one 8-bit level of the chromaticity where larger) has slid along the
+    /// surface and is not fused (0: never judged).
+    #[arg(long, default_value_t = FusionParams::default().colour_drift_ratio)]
+    colour_drift_ratio: f64,
     #[command(flatten)]
     common: cli::Common,
 }
@@ -137,6 +142,10 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.photometric_keyframe_every = args.photometric_keyframe_every;
     p.register.chroma_weight = args.chroma_weight;
     p.register.chroma_tukey = args.chroma_tukey;
+    p.colour_drift_ratio = args.colour_drift_ratio;
+    if !(p.colour_drift_ratio >= 0.0 && p.colour_drift_ratio.is_finite()) {
+        return Err(cli::bad_input("--colour-drift-ratio must be a number ≥ 0"));
+    }
     let r = &p.register;
     for (term, weight, tukey) in [
         ("photometric", r.photometric_weight, r.photometric_tukey),

@@ -149,39 +149,34 @@ fn nonrigid_fusion_reports_each_failure_and_keeps_its_field() {
     assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
 }
 
-/// Tracks `frames` frames of the generated plate under `field` (texture `seed`); see
-/// [`track_surface`].
+/// Tracks `frames` frames of the generated plate under `field` (texture `seed`) with these
+/// colour weights; see [`track_surface`]. Every frame must be fused.
 fn track_plate(
     field: dynamap::slam::synthetic::deform::Field,
     seed: u64,
     weights: ColourWeights,
     frames: usize,
-) -> (Vec<f64>, usize, usize) {
+) -> Tracked {
     use dynamap::slam::synthetic::deform::SurfaceKind;
-    track_surface(SurfaceKind::Plane, field, seed, weights, frames)
+    let tracked = track_surface(
+        SurfaceKind::Plane,
+        field,
+        seed,
+        tracking_params(weights),
+        frames,
+    );
+    tracked.assert_all_fused();
+    tracked
 }
 
-/// Tracks `frames` frames of a generated surface under `field` (texture `seed`), rendered with
-/// sensor noise at 320 × 240 with the data term at full resolution and, if given, these colour
-/// weights; every frame must be fused. Gives each frame's mean tracking error (m), and the node
-/// counts after the first frame and at the end.
-fn track_surface(
-    kind: dynamap::slam::synthetic::deform::SurfaceKind,
-    field: dynamap::slam::synthetic::deform::Field,
-    seed: u64,
+/// The tracking tests' settings: the data term at full resolution (the frames are 320 × 240)
+/// and, where given, these colour weights.
+fn tracking_params(
     (photometric_weight, chroma_weight): ColourWeights,
-    frames: usize,
-) -> (Vec<f64>, usize, usize) {
-    use dynamap::slam::camera::Camera;
-    use dynamap::slam::eval::Stats;
-    use dynamap::slam::nonrigid::{FusionParams, NonRigidFusion};
-    use dynamap::slam::synthetic::deform::{surface, DeformingScene};
-    use dynamap::slam::synthetic::noise::SensorNoise;
-
-    let scene = DeformingScene::new(surface(kind, 60), field, seed);
-    let mut params = FusionParams {
+) -> dynamap::slam::nonrigid::FusionParams {
+    let mut params = dynamap::slam::nonrigid::FusionParams {
         data_level: 0,
-        ..FusionParams::default()
+        ..Default::default()
     };
     if let Some(w) = photometric_weight {
         params.register.photometric_weight = w;
@@ -189,21 +184,81 @@ fn track_surface(
     if let Some(w) = chroma_weight {
         params.register.chroma_weight = w;
     }
+    params
+}
+
+/// What [`track_surface`] saw: each frame's mean tracking error (m) and failure, and the node
+/// counts after the first frame and at the end.
+struct Tracked {
+    errors: Vec<f64>,
+    failures: Vec<Option<dynamap::slam::nonrigid::FusionFailure>>,
+    first_nodes: usize,
+    nodes: usize,
+}
+
+impl Tracked {
+    fn assert_all_fused(&self) {
+        for (k, f) in self.failures.iter().enumerate() {
+            assert_eq!(f, &None, "frame {k}");
+        }
+    }
+}
+
+/// Tracks `frames` frames of a generated surface under `field` (texture `seed`), rendered with
+/// sensor noise at 320 × 240, with `params`.
+fn track_surface(
+    kind: dynamap::slam::synthetic::deform::SurfaceKind,
+    field: dynamap::slam::synthetic::deform::Field,
+    seed: u64,
+    params: dynamap::slam::nonrigid::FusionParams,
+    frames: usize,
+) -> Tracked {
+    use dynamap::slam::camera::Camera;
+    use dynamap::slam::nonrigid::NonRigidFusion;
+    use dynamap::slam::synthetic::deform::{surface, DeformingScene};
+    use dynamap::slam::synthetic::noise::SensorNoise;
+
+    let scene = DeformingScene::new(surface(kind, 60), field, seed);
     let camera = Camera::tum_default().level(1);
-    let mut slam = NonRigidFusion::new(camera, params);
     let noise = SensorNoise::default();
-    let (mut errors, mut first_nodes) = (Vec::new(), 0);
+    track_frames(&scene, NonRigidFusion::new(camera, params), frames, |k| {
+        scene.sensor_frame(&camera, &Isometry3::identity(), k, &noise)
+    })
+}
+
+/// Runs `slam` over the first `frames` frames of `scene`, frame k's depth and colour being
+/// `frame(k)`.
+fn track_frames(
+    scene: &dynamap::slam::synthetic::deform::DeformingScene,
+    mut slam: dynamap::slam::nonrigid::NonRigidFusion,
+    frames: usize,
+    frame: impl Fn(
+        usize,
+    ) -> (
+        dynamap::slam::image::Image<u16>,
+        dynamap::slam::image::ColorImage,
+    ),
+) -> Tracked {
+    use dynamap::slam::eval::Stats;
+    let mut tracked = Tracked {
+        errors: Vec::new(),
+        failures: Vec::new(),
+        first_nodes: 0,
+        nodes: 0,
+    };
     for k in 0..frames {
-        let (depth, color) = scene.sensor_frame(&camera, &Isometry3::identity(), k, &noise);
+        let (depth, color) = frame(k);
         let report = slam.process(&depth, Some(&color), None);
-        assert_eq!(report.failure, None, "frame {k}");
+        tracked.failures.push(report.failure);
         if k == 0 {
-            first_nodes = report.nodes;
+            tracked.first_nodes = report.nodes;
         }
         let points = slam.data_points();
-        errors.push(Stats::of(&scene.tracking_errors(points, &slam.warp_points(points), k)).mean);
+        let errors = scene.tracking_errors(points, &slam.warp_points(points), k);
+        tracked.errors.push(Stats::of(&errors).mean);
     }
-    (errors, first_nodes, slam.graph().unwrap().nodes.len())
+    tracked.nodes = slam.graph().unwrap().nodes.len();
+    tracked
 }
 
 /// DynamicFusion-style tracking of a plate bending to a 0.67 m radius and back over 30 frames:
@@ -213,7 +268,12 @@ fn track_surface(
 #[test]
 fn a_bending_plate_is_tracked_within_five_millimetres() {
     use dynamap::slam::synthetic::deform::Field;
-    let (errors, first_nodes, nodes) = track_plate(Field::Bend, 3, (None, None), 30);
+    let Tracked {
+        errors,
+        first_nodes,
+        nodes,
+        ..
+    } = track_plate(Field::Bend, 3, (None, None), 30);
     let worst = errors.iter().fold(0.0f64, |a, &e| a.max(e));
     assert!(worst < 5e-3, "worst frame's mean error {worst} m");
     assert!(
@@ -229,7 +289,7 @@ fn a_bending_plate_is_tracked_within_five_millimetres() {
 #[test]
 fn a_travelling_wave_is_held_by_the_photometric_term() {
     use dynamap::slam::synthetic::deform::Field;
-    let last = |w| *track_plate(Field::Wave, 5, w, 40).0.last().unwrap();
+    let last = |w| *track_plate(Field::Wave, 5, w, 40).errors.last().unwrap();
     let (held, ratio, slid) = (
         last((None, None)),
         last((None, Some(0.0))),
@@ -247,10 +307,17 @@ fn a_travelling_wave_is_held_by_the_photometric_term() {
 /// centimetres off, BENCHMARKS.)
 #[test]
 fn a_twisting_tube_is_held_by_the_chromaticity() {
+    use dynamap::slam::nonrigid::FusionParams;
     use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
     let mean = |w| {
-        let errors = track_surface(SurfaceKind::Cylinder, Field::Twist, 3, w, 15).0;
-        errors.iter().sum::<f64>() / errors.len() as f64
+        // the term's hold is measured with every frame fused: no colour drift judged
+        let params = FusionParams {
+            colour_drift_ratio: 0.0,
+            ..tracking_params(w)
+        };
+        let tracked = track_surface(SurfaceKind::Cylinder, Field::Twist, 3, params, 15);
+        tracked.assert_all_fused();
+        tracked.errors.iter().sum::<f64>() / tracked.errors.len() as f64
     };
     let (held, walked) = (mean((None, None)), mean((None, Some(0.0))));
     // over these 15 frames: 1.5 against 3.8 cm (2.1 against 3.9 at λ = 100; BENCHMARKS "The
@@ -259,6 +326,68 @@ fn a_twisting_tube_is_held_by_the_chromaticity() {
         held < 0.03 && held < 0.7 * walked,
         "with the chromaticity: {held} m, without: {walked} m"
     );
+}
+
+/// A tube twisting about its axis, recorded through the Kinect model at 640 × 480 as
+/// `nonrigid_slam --sensor kinect` records it: its material slides along the surface, which
+/// depth does not see and the warp does not follow all of (BENCHMARKS: centimetres off). The
+/// chromaticity residual against its floor says so (module `colour_drift`): frames are reported
+/// as drifted, each of them more than 5 mm off, while the bending plate recorded the same way
+/// has no such report. (Not every drifted frame is caught: BENCHMARKS.)
+#[test]
+fn a_tube_whose_material_slides_is_reported_as_not_fused() {
+    use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
+    let tube = track_recorded_surface(SurfaceKind::Cylinder, Field::Twist, 20);
+    let drifted: Vec<(usize, f64)> = (0..tube.errors.len())
+        .filter(|&k| tube.failures[k].is_some())
+        .map(|k| (k, tube.errors[k]))
+        .collect();
+    assert!(!drifted.is_empty(), "no frame reported as drifted");
+    for (k, e) in &drifted {
+        assert!(*e > 0.005, "frame {k} reported drifted at {e} m");
+    }
+    let plate = track_recorded_surface(SurfaceKind::Plane, Field::Bend, 20);
+    plate.assert_all_fused();
+    let worst = plate.errors.iter().fold(0.0f64, |a, &e| a.max(e));
+    assert!(worst < 0.005, "the plate's worst frame {worst} m");
+}
+
+/// Tracks `frames` frames of a generated surface under `field` (texture 7) as the Kinect model
+/// records them at 640 × 480, with the default settings; any failure but a colour drift fails.
+fn track_recorded_surface(
+    kind: dynamap::slam::synthetic::deform::SurfaceKind,
+    field: dynamap::slam::synthetic::deform::Field,
+    frames: usize,
+) -> Tracked {
+    use dynamap::slam::camera::Camera;
+    use dynamap::slam::distortion::Distortion;
+    use dynamap::slam::nonrigid::{FusionFailure, FusionParams, NonRigidFusion};
+    use dynamap::slam::synthetic::deform::{surface, DeformingScene};
+    use dynamap::slam::synthetic::kinect::KinectModel;
+    use dynamap::slam::synthetic::sequence::static_camera;
+
+    let scene = DeformingScene::new(surface(kind, 60), field, 7);
+    let camera = Camera::tum_default();
+    let model = KinectModel {
+        seed: 7,
+        distortion: Distortion::default(),
+        ..KinectModel::default()
+    };
+    let stamps = static_camera(frames, 30.0);
+    let slam = NonRigidFusion::new(camera, FusionParams::default());
+    let tracked = track_frames(&scene, slam, frames, |k| {
+        let f = model
+            .recorder(&camera)
+            .capture(&scene.scene_at(k), &stamps, k);
+        (f.depth, f.color)
+    });
+    for (k, failure) in tracked.failures.iter().enumerate() {
+        assert!(
+            matches!(failure, None | Some(FusionFailure::ColourDrift(_))),
+            "frame {k}: {failure:?}"
+        );
+    }
+    tracked
 }
 
 /// `source` onto `target` moved half a metre back: nothing lies within the gates, so the

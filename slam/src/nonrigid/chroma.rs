@@ -58,6 +58,10 @@ pub struct ChromaImage {
     pub gradient_x: GrayImage,
     /// ∂c/∂v.
     pub gradient_y: GrayImage,
+    /// One 8-bit level of the chromaticity at the frame's brightness: 1 / the mean channel sum
+    /// `R + G + B` of the pixels bright enough to have a chromaticity (0 when none are). A
+    /// residual below it is the colour's quantisation, not a slide.
+    pub step: f64,
     spare: GrayImage,
 }
 
@@ -76,6 +80,14 @@ impl ChromaImage {
                     *o = chromaticity(rgb).unwrap_or(0.0);
                 }
             });
+        let (sum, count) = color
+            .data
+            .par_iter()
+            .map(|&[r, g, b]| r as f64 + g as f64 + b as f64)
+            .filter(|&s| s >= DARK_SUM as f64)
+            .fold(|| (0.0, 0usize), |(s, n), v| (s + v, n + 1))
+            .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        self.step = if count > 0 { count as f64 / sum } else { 0.0 };
         for _ in 0..level {
             downsample_gray(&self.image, &mut self.spare);
             std::mem::swap(&mut self.image, &mut self.spare);
@@ -145,6 +157,24 @@ impl ChromaReferences {
 mod tests {
     use super::*;
     use crate::image::Image;
+
+    #[test]
+    fn the_quantisation_step_is_one_level_at_the_bright_pixels_mean_sum() {
+        // half the pixels (100, 100, 100), a quarter (200, 200, 200), a quarter too dark to count
+        let mut color = Image::filled(8, 4, [100u8, 100, 100]);
+        color.data[16..24].fill([200, 200, 200]);
+        color.data[24..].fill([1, 1, 1]);
+        let mut chroma = ChromaImage::default();
+        chroma.compute(&color, 0);
+        let mean_sum = (2.0 * 300.0 + 600.0) / 3.0;
+        assert!(
+            (chroma.step - 1.0 / mean_sum).abs() < 1e-12,
+            "{}",
+            chroma.step
+        );
+        chroma.compute(&Image::filled(8, 4, [0u8, 0, 0]), 0);
+        assert_eq!(chroma.step, 0.0, "no bright pixel, no step");
+    }
 
     #[test]
     fn a_shading_or_an_exposure_leaves_the_chromaticity_as_it_was() {

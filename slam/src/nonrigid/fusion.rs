@@ -19,6 +19,7 @@
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
 use super::chroma::{cell_key, ChromaImage, ChromaReferences};
+use super::colour_drift::{ColourDrift, ColourDrifted};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::photometric::{PhotometricTarget, RatioImage};
 use super::reference_frame::ReferenceFrame;
@@ -73,6 +74,10 @@ pub struct FusionParams {
     /// adds its tracking error to the references, so the error walks with every one taken,
     /// while shading drifts from the reference the longer it is kept.
     pub photometric_keyframe_every: usize,
+    /// A tracked frame whose median chromaticity residual exceeds this many times its floor
+    /// (that of the first tracked frames, or one 8-bit level of the chromaticity where that is
+    /// larger) has slid and is not fused (default 1.75; 0: never; module `colour_drift`).
+    pub colour_drift_ratio: f64,
 }
 
 impl Default for FusionParams {
@@ -115,6 +120,7 @@ impl Default for FusionParams {
             min_matched_fraction: 0.2,
             photometric_window: 4,
             photometric_keyframe_every: 5,
+            colour_drift_ratio: 1.75,
         }
     }
 }
@@ -162,6 +168,10 @@ pub enum FusionFailure {
     /// The field could not be optimised.
     #[error(transparent)]
     Register(#[from] RegisterError),
+    /// The frame's colour has drifted from the colour its points were first seen with: the
+    /// material slid along the surface, where depth cannot see it.
+    #[error(transparent)]
+    ColourDrift(#[from] ColourDrifted),
     /// Too few of the surface's points matched the live depth: tracking is lost.
     #[error("only {matched} of {points} surface points matched the live depth")]
     Lost {
@@ -184,7 +194,9 @@ pub const MIN_START_PIXELS: usize = 100;
 /// What happened to one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FusionReport {
-    /// Why the frame was not fused, if it was not (the field is then left as it was).
+    /// Why the frame was not fused, if it was not. The field is then left as it was, but after a
+    /// [`FusionFailure::ColourDrift`]: the depth was met, and the frame's field is the best start
+    /// for the next one.
     pub failure: Option<FusionFailure>,
     /// Nodes after the frame.
     pub nodes: usize,
@@ -230,6 +242,8 @@ pub struct NonRigidFusion {
     chroma_reference: Vec<f32>,
     /// The same, per canonical cube, kept across re-samplings.
     chroma_book: ChromaReferences,
+    /// The chromaticity residual's floor, and each frame's judgement against it.
+    drift: ColourDrift,
 }
 
 impl NonRigidFusion {
@@ -259,6 +273,7 @@ impl NonRigidFusion {
             has_chroma: false,
             chroma_reference: Vec::new(),
             chroma_book: ChromaReferences::default(),
+            drift: ColourDrift::default(),
         }
     }
 
@@ -404,6 +419,7 @@ impl NonRigidFusion {
         self.graph = Some(graph);
         self.voxel_bindings.clear();
         self.chroma_book.clear();
+        self.drift.reset();
         self.resample(&surface);
         self.learn_chroma(true);
         self.take_reference();
@@ -493,10 +509,19 @@ impl NonRigidFusion {
                     points: self.points.len(),
                 })
             }
-            Ok(_) => None,
+            Ok(s) => self
+                .drift
+                .judge(
+                    s.chroma.as_ref(),
+                    self.chroma.step,
+                    self.params.colour_drift_ratio,
+                )
+                .err()
+                .map(FusionFailure::from),
         };
         report.summary = outcome.ok();
         match failure {
+            Some(f @ FusionFailure::ColourDrift(_)) => Err(f),
             Some(f) => {
                 for (n, m) in graph.nodes.iter_mut().zip(&self.backup) {
                     n.motion = *m;

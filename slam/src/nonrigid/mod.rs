@@ -28,6 +28,7 @@
 pub mod boundary;
 pub mod chroma;
 pub mod colour_check;
+pub mod colour_drift;
 mod coverage;
 pub mod descriptors;
 mod extent;
@@ -54,6 +55,7 @@ mod voxel_bindings;
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
 pub use colour_check::ColourCheck;
+pub use colour_drift::{ColourDrift, ColourDrifted};
 pub use descriptors::{descriptor_matches, DescriptorError, DescriptorPair, MeshRef};
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frame_target::SeenThroughTarget;
