@@ -23,7 +23,7 @@
 //! drifted and is not fused; its field is kept to start the next frame from.
 //!
 //! It is a partial verdict (NOTES 112): on generated tubes, spheres and plates no frame within
-//! 5 mm was judged drifted, and those judged were 10–48 mm off, but about half the frames more
+//! 9 mm was judged drifted, and those judged were 9–54 mm off, but about half the frames more
 //! than 1 cm off stayed below the line. A grey surface has no chromaticity and no verdict.
 
 use super::photometric::PhotometricFit;
