@@ -67,25 +67,29 @@ pub struct ChromaImage {
 
 impl ChromaImage {
     /// Computes c from `color` at full resolution and halves it `level` times with the
-    /// pyramid's 5-tap filter (as the intensity pyramid is), then its gradients.
+    /// pyramid's 5-tap filter (as the intensity pyramid is), then its gradients, and
+    /// [`Self::step`] (whose channel sums are whole numbers, so their sum is exact in any order).
     pub fn compute(&mut self, color: &ColorImage, level: usize) {
         let w = color.width.max(1);
         self.image.resize(color.width, color.height, 0.0);
-        self.image
+        // the chromaticity and, in the same pass, the bright pixels' channel sums for `step`
+        let (sum, count) = self
+            .image
             .data
             .par_chunks_mut(w)
             .zip(color.data.par_chunks(w))
-            .for_each(|(out, line)| {
+            .map(|(out, line)| {
+                let (mut sum, mut count) = (0.0f64, 0usize);
                 for (o, &rgb) in out.iter_mut().zip(line) {
                     *o = chromaticity(rgb).unwrap_or(0.0);
+                    let s = rgb.iter().map(|&v| v as f32).sum::<f32>();
+                    if s >= DARK_SUM {
+                        sum += s as f64;
+                        count += 1;
+                    }
                 }
-            });
-        let (sum, count) = color
-            .data
-            .par_iter()
-            .map(|&[r, g, b]| r as f64 + g as f64 + b as f64)
-            .filter(|&s| s >= DARK_SUM as f64)
-            .fold(|| (0.0, 0usize), |(s, n), v| (s + v, n + 1))
+                (sum, count)
+            })
             .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         self.step = if count > 0 { count as f64 / sum } else { 0.0 };
         for _ in 0..level {
