@@ -94,9 +94,9 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
 }
 
 /// A 15 % auto-exposure drift (issue 23): with the exposure (gain) fit the ATE stays within
-/// 10 % of the same sequence at a fixed exposure, on two motions; without the fit it is worse on
-/// at least one (since residuals are weighed by depth noise, NOTES 54, the shake is held by its
-/// geometry and the drift no longer moves its ATE either way).
+/// 10 % (and 0.1 mm) of the same sequence at a fixed exposure, on two motions; without the fit
+/// it is worse on at least one (since residuals are weighed by depth noise, NOTES 54, the shake
+/// is held by its geometry and the drift no longer moves its ATE either way).
 #[test]
 fn an_exposure_drift_costs_no_accuracy() {
     let frames = 75; // the gain climbs to 1.15 at frame 37 and is back to 1 at 75
@@ -121,8 +121,10 @@ fn an_exposure_drift_costs_no_accuracy() {
         eprintln!(
             "{m:?}: ATE fixed exposure {fixed:.6} m, drifting {drifting:.6}, drifting without the fit {uncompensated:.6}"
         );
+        // 10 % and 0.1 mm: one 75-frame realisation's sub-millimetre ATE moves by a few
+        // hundredths of a millimetre with the raycast's sample positions alone (NOTES 113)
         assert!(
-            drifting <= 1.1 * fixed,
+            drifting <= 1.1 * fixed + 1e-4,
             "{m:?}: ATE {drifting} with the drift, {fixed} without"
         );
         fit_mattered |= uncompensated > 1.1 * drifting;

@@ -138,8 +138,8 @@ impl TsdfVolume {
                     }
                     None => Block::new(*c),
                 };
-                self.index.insert(*c, self.blocks.len() as u32);
                 self.blocks.push(block);
+                self.index_block(*c);
             }
         }
         self.active.clear();
@@ -180,12 +180,14 @@ impl TsdfVolume {
         }
         let blocks = std::mem::take(&mut self.blocks);
         self.index.clear();
+        self.regions.clear();
         for (b, g) in blocks.into_iter().zip(gone) {
             if g {
                 self.spare.push(b);
             } else {
-                self.index.insert(b.coord, self.blocks.len() as u32);
+                let coord = b.coord;
                 self.blocks.push(b);
+                self.index_block(coord);
             }
         }
         self.evicted += drop;
@@ -644,5 +646,44 @@ impl TsdfVolume {
             updated_blocks: updated.into_inner(),
             evicted_blocks,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{region_bit, REGION};
+    use super::*;
+    use crate::image::Image;
+
+    /// Every region's mask holds exactly the bits of its allocated blocks.
+    fn masks_match_blocks(vol: &TsdfVolume) {
+        let mut expected: rustc_hash::FxHashMap<[i32; 3], u64> = Default::default();
+        for b in vol.blocks() {
+            *expected
+                .entry(b.coord.map(|v| v.div_euclid(REGION)))
+                .or_insert(0) |= region_bit(b.coord);
+        }
+        assert_eq!(vol.regions, expected);
+    }
+
+    /// A wall fused from three places, under a budget that the third view's blocks overflow: the
+    /// region masks follow allocation and eviction.
+    #[test]
+    fn region_masks_follow_allocation_and_eviction() {
+        let cam = Camera::new(131.25, 131.25, 79.5, 59.5, 160, 120);
+        // a wall square to the camera 1 m ahead, its normals facing the camera
+        let depth: Image<f32> = Image::filled(160, 120, 1.0);
+        let n = Image::filled(160, 120, [0.0f32, 0.0, -1.0]);
+        let mut vol = TsdfVolume::new(TsdfParams::default());
+        let at = |x: f64| Isometry3::translation(x, 0.0, 0.0);
+        vol.integrate(&depth, &n, None, &cam, &at(0.0)).unwrap();
+        masks_match_blocks(&vol);
+        let one_view = vol.num_blocks();
+        vol.params.max_blocks = 2 * one_view;
+        vol.integrate(&depth, &n, None, &cam, &at(3.0)).unwrap();
+        masks_match_blocks(&vol);
+        vol.integrate(&depth, &n, None, &cam, &at(-3.0)).unwrap();
+        assert!(vol.evicted_blocks() > 0, "the third view evicts");
+        masks_match_blocks(&vol);
     }
 }

@@ -23,6 +23,9 @@ use thiserror::Error;
 pub(crate) const BLOCK: i32 = 8;
 /// Voxels in a block.
 pub(crate) const BLOCK_VOXELS: usize = 512;
+/// Blocks along a region edge: the volume counts its allocated blocks per region of 4³ blocks,
+/// so that a ray crosses a region without any in one step.
+pub(crate) const REGION: i32 = 4;
 
 /// Settings of the volume.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -198,6 +201,9 @@ pub struct TsdfVolume {
     pub params: TsdfParams,
     pub(crate) blocks: Vec<Block>,
     pub(crate) index: FxHashMap<[i32; 3], u32>,
+    /// Per region of [`REGION`]³ blocks, which of its blocks are allocated: bit
+    /// [`region_bit`] of a block (regions without any are absent).
+    pub(crate) regions: FxHashMap<[i32; 3], u64>,
     /// Scratch: blocks the current frame updates.
     pub(crate) active: Vec<bool>,
     /// Scratch: the current frame's per-pixel depth and fusion weight, and one empty sample past
@@ -247,6 +253,13 @@ pub(crate) fn block_of_key(key: u64) -> [i32; 3] {
     [part(42), part(21), part(0)]
 }
 
+/// The bit of a block (by block coordinate) in its region's mask of allocated blocks.
+#[inline(always)]
+pub(crate) fn region_bit(block: [i32; 3]) -> u64 {
+    let l = block.map(|v| v.rem_euclid(REGION));
+    1 << (l[0] + REGION * (l[1] + REGION * l[2]))
+}
+
 /// Splits a global voxel coordinate into (block coordinate, local coordinate).
 #[inline]
 pub fn split(g: [i32; 3]) -> ([i32; 3], [i32; 3]) {
@@ -266,6 +279,7 @@ impl TsdfVolume {
             params,
             blocks: Vec::new(),
             index: FxHashMap::default(),
+            regions: FxHashMap::default(),
             active: Vec::new(),
             samples: Vec::new(),
             sample_color: Vec::new(),
@@ -300,6 +314,20 @@ impl TsdfVolume {
     #[inline]
     pub fn block(&self, coord: &[i32; 3]) -> Option<&Block> {
         self.index.get(coord).map(|&i| &self.blocks[i as usize])
+    }
+
+    /// Which blocks of the region (of [`REGION`]³ blocks) at a region coordinate are allocated,
+    /// one bit each ([`region_bit`]).
+    #[inline]
+    pub(crate) fn region_blocks(&self, region: &[i32; 3]) -> u64 {
+        self.regions.get(region).copied().unwrap_or(0)
+    }
+
+    /// Files a block newly allocated at `coord` (after it is pushed to `blocks`).
+    pub(crate) fn index_block(&mut self, coord: [i32; 3]) {
+        self.index.insert(coord, self.blocks.len() as u32 - 1);
+        let region = coord.map(|v| v.div_euclid(REGION));
+        *self.regions.entry(region).or_insert(0) |= region_bit(coord);
     }
 
     /// (tsdf, weight) of a global voxel, `None` where unallocated.

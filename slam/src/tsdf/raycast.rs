@@ -5,7 +5,7 @@
 //! the crossing from there first. Normals are the normalised TSDF gradient (of the trilinear
 //! interpolant).
 
-use super::{round_i32, split, BlockCache, TsdfVolume, BLOCK};
+use super::{floor_i32, region_bit, round_i32, split, BlockCache, TsdfVolume, BLOCK, REGION};
 use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -60,6 +60,26 @@ fn ray_hit(
     Some((origin + dir * t, n, color, t))
 }
 
+/// Voxels along a region's edge.
+const REGION_VOXELS: f32 = (BLOCK * REGION) as f32;
+
+/// The distance along a ray from `q` to where it leaves the axis-aligned cell of edge `cell`
+/// holding `q` (the cell ⌊q / cell⌋ per axis), metres; `q` is in voxels, and the ray advances
+/// `per_metre` voxels per metre.
+#[inline]
+fn cell_exit(q: &Vector3<f32>, per_metre: &Vector3<f32>, cell: f32) -> f32 {
+    let mut exit = f32::INFINITY;
+    for i in 0..3 {
+        let d = per_metre[i];
+        if d != 0.0 {
+            let lower = floor_i32(q[i] / cell) as f32 * cell;
+            let face = if d > 0.0 { lower + cell } else { lower };
+            exit = exit.min((face - q[i]) / d);
+        }
+    }
+    exit.max(0.0)
+}
+
 impl TsdfVolume {
     /// The TSDF sample (units of μ) nearest to `p`, or `None` if unobserved (the `bool` says whether
     /// its block exists).
@@ -84,7 +104,11 @@ impl TsdfVolume {
         }
     }
 
-    /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`.
+    /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`. Free space
+    /// is crossed a cell at a time, to the exact face where the ray leaves it (Amanatides & Woo
+    /// 1987): a whole region of 4³ blocks where none is allocated, else the unallocated block. So
+    /// the ray enters every allocated block at its face and cannot step over a surface whose band
+    /// in front of it is thinner than the step (thin, one-sided surfaces).
     pub fn cast_ray(
         &self,
         origin: &Point3<f32>,
@@ -94,36 +118,34 @@ impl TsdfVolume {
     ) -> Option<RayHit> {
         let vs = self.params.voxel_size;
         let mu = self.params.truncation();
-        let block_len = vs * BLOCK as f32;
+        // voxel coordinates per metre along the ray, and how far past a face a step lands
+        let per_metre = dir / vs;
+        let nudge = 0.01 * vs;
         let mut t = t_min;
         let mut prev: Option<(f32, f32)> = None; // (t, tsdf) of the last observed sample
         let mut cache = BlockCache::new();
-        // Free space is crossed a block at a time; a long step that lands in an allocated block
-        // backs up to where it started and enters voxel by voxel, so it cannot land behind a
-        // surface whose band in front of it is thinner than the step (thin, one-sided surfaces).
-        let mut skipped_from: Option<f32> = None;
-        let mut creeping = false;
+        // the region the last sample lay in, and its allocated blocks
+        let mut region: ([i32; 3], u64) = ([i32::MIN; 3], 0);
         while t < t_max {
             let p = origin + dir * t;
-            let (value, allocated) = self.nearest(&p, &mut cache);
-            if !allocated {
+            let q = p.coords / vs + Vector3::repeat(0.5);
+            let b = (q / BLOCK as f32).map(floor_i32);
+            let b = [b.x, b.y, b.z];
+            let r = b.map(|v| v.div_euclid(REGION));
+            if r != region.0 {
+                region = (r, self.region_blocks(&r));
+            }
+            let cell = match region.1 {
+                0 => REGION_VOXELS,
+                mask if mask & region_bit(b) == 0 => BLOCK as f32,
+                _ => 0.0,
+            };
+            if cell > 0.0 {
                 prev = None;
-                if creeping {
-                    t += vs;
-                } else {
-                    skipped_from = Some(t);
-                    t += block_len * 0.9;
-                }
+                t += cell_exit(&q, &per_metre, cell) + nudge;
                 continue;
             }
-            if let Some(from) = skipped_from.take() {
-                if !creeping && t - from > vs {
-                    creeping = true;
-                    t = from + vs;
-                    continue;
-                }
-            }
-            creeping = false;
+            let (value, _) = self.nearest(&p, &mut cache);
             let Some(f) = value else {
                 prev = None;
                 t += vs;
@@ -287,5 +309,49 @@ impl TsdfVolume {
                     }
                 }
             });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// A step of `cell_exit` ends on a face of the cell holding the start (one coordinate on
+        /// the face, the others within the cell), and a nudge past it is in a cell ahead.
+        #[test]
+        fn a_cell_exit_lands_on_the_cells_face(
+            q in prop::array::uniform3(-100.0f32..100.0),
+            d in prop::array::uniform3(-1.0f32..1.0),
+            big in any::<bool>(),
+        ) {
+            let per_metre = Vector3::from(d) * 100.0;
+            prop_assume!(per_metre.norm() > 1.0);
+            let q = Vector3::from(q);
+            let cell = if big { REGION_VOXELS } else { BLOCK as f32 };
+            let of = |v: &Vector3<f32>| v.map(|x| floor_i32(x / cell));
+            let exit = cell_exit(&q, &per_metre, cell);
+            prop_assert!(exit.is_finite() && exit >= 0.0);
+            let at = q + per_metre * exit;
+            let lower = of(&q).map(|c| c as f32 * cell);
+            let tol = 1e-3 * cell;
+            let mut on_face = false;
+            for i in 0..3 {
+                prop_assert!(at[i] >= lower[i] - tol && at[i] <= lower[i] + cell + tol);
+                let face = if per_metre[i] > 0.0 { lower[i] + cell } else { lower[i] };
+                on_face |= per_metre[i] != 0.0 && (at[i] - face).abs() <= tol;
+            }
+            prop_assert!(on_face, "{at:?} is on no face of the cell at {lower:?}");
+            // a hundredth of a voxel further on: in the next cell along the ray (across two or
+            // three faces where the exit lies that near an edge or a corner)
+            let past = q + per_metre * (exit + 0.01 / per_metre.norm());
+            let moved = of(&past) - of(&q);
+            prop_assert!(moved.abs().sum() >= 1, "no face crossed");
+            for i in 0..3 {
+                let ahead = per_metre[i].signum() as i32;
+                prop_assert!(moved[i] == 0 || (per_metre[i] != 0.0 && moved[i] == ahead), "{moved:?}");
+            }
+        }
     }
 }
