@@ -448,3 +448,26 @@ fn fusion_averages_distance_and_colour_under_the_sensor_weights() {
     }
     assert!(checked >= 10, "{checked} voxels in the band");
 }
+
+/// A ray far from the origin, where a hundredth of a voxel is below the precision of its
+/// distance, still crosses free space and ends (each step moves it by at least a few units in
+/// the last place).
+#[test]
+fn a_ray_far_out_ends() {
+    // on its own thread, so that a march that never ends fails the test instead of hanging it
+    let (done, ended) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let vol = TsdfVolume::new(params());
+        for far in [2.0e4f32, 3.3e4, 1.0e5] {
+            for dir in [Vector3::x(), -Vector3::x(), Vector3::new(-0.6, -0.8, 0.0)] {
+                let origin = Point3::from(-dir * far);
+                let hit = vol.cast_ray(&origin, &dir, far - 2.0, far + 2.0);
+                done.send(hit.is_none()).unwrap();
+            }
+        }
+    });
+    for k in 0..9 {
+        let missed = ended.recv_timeout(std::time::Duration::from_secs(20));
+        assert_eq!(missed, Ok(true), "ray {k} of 9 through empty space");
+    }
+}

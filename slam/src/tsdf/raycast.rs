@@ -118,9 +118,10 @@ impl TsdfVolume {
     ) -> Option<RayHit> {
         let vs = self.params.voxel_size;
         let mu = self.params.truncation();
-        // voxel coordinates per metre along the ray, and how far past a face a step lands
+        // voxel coordinates per metre along the ray, and how far past a face a step lands (at
+        // least a few units in the last place of t, so that a step always moves it)
         let per_metre = dir / vs;
-        let nudge = 0.01 * vs;
+        let nudge = |t: f32| (0.01 * vs).max(4.0 * f32::EPSILON * t.abs());
         let mut t = t_min;
         let mut prev: Option<(f32, f32)> = None; // (t, tsdf) of the last observed sample
         let mut cache = BlockCache::new();
@@ -142,7 +143,7 @@ impl TsdfVolume {
             };
             if cell > 0.0 {
                 prev = None;
-                t += cell_exit(&q, &per_metre, cell) + nudge;
+                t += cell_exit(&q, &per_metre, cell) + nudge(t);
                 continue;
             }
             let (value, _) = self.nearest(&p, &mut cache);
