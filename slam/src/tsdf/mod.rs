@@ -23,8 +23,8 @@ use thiserror::Error;
 pub(crate) const BLOCK: i32 = 8;
 /// Voxels in a block.
 pub(crate) const BLOCK_VOXELS: usize = 512;
-/// Blocks along a region edge: the volume counts its allocated blocks per region of 4³ blocks,
-/// so that a ray crosses a region without any in one step.
+/// Blocks along a region edge: the volume keeps a mask of its allocated blocks per region of 4³
+/// blocks, so that a ray crosses a region without any in one step.
 pub(crate) const REGION: i32 = 4;
 
 /// Settings of the volume.
