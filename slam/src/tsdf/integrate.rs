@@ -651,7 +651,7 @@ impl TsdfVolume {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{region_bit, REGION};
+    use super::super::{region_bit, region_of};
     use super::*;
     use crate::image::Image;
 
@@ -659,9 +659,7 @@ mod tests {
     fn masks_match_blocks(vol: &TsdfVolume) {
         let mut expected: rustc_hash::FxHashMap<[i32; 3], u64> = Default::default();
         for b in vol.blocks() {
-            *expected
-                .entry(b.coord.map(|v| v.div_euclid(REGION)))
-                .or_insert(0) |= region_bit(b.coord);
+            *expected.entry(region_of(b.coord)).or_insert(0) |= region_bit(b.coord);
         }
         assert_eq!(vol.regions, expected);
     }

@@ -225,12 +225,6 @@ pub(crate) fn floor_i32(x: f32) -> i32 {
     t - ((x < t as f32) as i32)
 }
 
-/// The nearest integer (halves rounded up).
-#[inline(always)]
-pub(crate) fn round_i32(x: f32) -> i32 {
-    floor_i32(x + 0.5)
-}
-
 /// Block coordinates are limited to |c| < 2²⁰ on each axis (±84 km at 1 cm voxels), so that one
 /// fits a 64-bit sort key.
 pub const MAX_BLOCK_COORD: i32 = 1 << 20;
@@ -251,6 +245,12 @@ pub(crate) fn block_key(x: i32, y: i32, z: i32) -> Option<u64> {
 pub(crate) fn block_of_key(key: u64) -> [i32; 3] {
     let part = |shift: u32| ((key >> shift) & ((1 << 21) - 1)) as i32 - MAX_BLOCK_COORD;
     [part(42), part(21), part(0)]
+}
+
+/// The region (of [`REGION`]³ blocks) holding a block, by block coordinate.
+#[inline(always)]
+pub(crate) fn region_of(block: [i32; 3]) -> [i32; 3] {
+    block.map(|v| v.div_euclid(REGION))
 }
 
 /// The bit of a block (by block coordinate) in its region's mask of allocated blocks.
@@ -326,8 +326,7 @@ impl TsdfVolume {
     /// Files a block newly allocated at `coord` (after it is pushed to `blocks`).
     pub(crate) fn index_block(&mut self, coord: [i32; 3]) {
         self.index.insert(coord, self.blocks.len() as u32 - 1);
-        let region = coord.map(|v| v.div_euclid(REGION));
-        *self.regions.entry(region).or_insert(0) |= region_bit(coord);
+        *self.regions.entry(region_of(coord)).or_insert(0) |= region_bit(coord);
     }
 
     /// (tsdf, weight) of a global voxel, `None` where unallocated.

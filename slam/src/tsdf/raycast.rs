@@ -5,7 +5,7 @@
 //! the crossing from there first. Normals are the normalised TSDF gradient (of the trilinear
 //! interpolant).
 
-use super::{floor_i32, region_bit, round_i32, split, BlockCache, TsdfVolume, BLOCK, REGION};
+use super::{floor_i32, region_bit, region_of, BlockCache, TsdfVolume, BLOCK, REGION};
 use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, Image, NormalMap, VertexMap, INVALID};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -81,27 +81,20 @@ fn cell_exit(q: &Vector3<f32>, per_metre: &Vector3<f32>, cell: f32) -> f32 {
 }
 
 impl TsdfVolume {
-    /// The TSDF sample (units of μ) nearest to `p`, or `None` if unobserved (the `bool` says whether
-    /// its block exists).
+    /// The TSDF sample (units of μ) of the voxel holding `q` (voxel coordinates shifted by half
+    /// a voxel, so that voxel ⌊q⌋ is the one nearest), in block `b`; `None` if unobserved or
+    /// unallocated.
     #[inline]
-    fn nearest<'a>(&'a self, p: &Point3<f32>, cache: &mut BlockCache<'a>) -> (Option<f32>, bool) {
-        let s = p.coords / self.params.voxel_size;
-        let g = [round_i32(s.x), round_i32(s.y), round_i32(s.z)];
-        let (b, l) = split(g);
-        match cache.get(self, b) {
-            Some(blk) => {
-                let i = super::local_index(l[0], l[1], l[2]);
-                (
-                    if blk.voxels[i].weight > 0.0 {
-                        Some(blk.voxels[i].tsdf)
-                    } else {
-                        None
-                    },
-                    true,
-                )
-            }
-            None => (None, false),
-        }
+    fn sample<'a>(
+        &'a self,
+        q: &Vector3<f32>,
+        b: [i32; 3],
+        cache: &mut BlockCache<'a>,
+    ) -> Option<f32> {
+        let blk = cache.get(self, b)?;
+        let l = |k: usize| floor_i32(q[k]) - b[k] * BLOCK;
+        let vox = blk.voxels[super::local_index(l(0), l(1), l(2))];
+        (vox.weight > 0.0).then_some(vox.tsdf)
     }
 
     /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`. Free space
@@ -132,7 +125,7 @@ impl TsdfVolume {
             let q = p.coords / vs + Vector3::repeat(0.5);
             let b = (q / BLOCK as f32).map(floor_i32);
             let b = [b.x, b.y, b.z];
-            let r = b.map(|v| v.div_euclid(REGION));
+            let r = region_of(b);
             if r != region.0 {
                 region = (r, self.region_blocks(&r));
             }
@@ -146,8 +139,7 @@ impl TsdfVolume {
                 t += cell_exit(&q, &per_metre, cell) + nudge(t);
                 continue;
             }
-            let (value, _) = self.nearest(&p, &mut cache);
-            let Some(f) = value else {
+            let Some(f) = self.sample(&q, b, &mut cache) else {
                 prev = None;
                 t += vs;
                 continue;
