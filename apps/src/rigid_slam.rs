@@ -38,7 +38,7 @@ use dynamap_slam::io::tum::{Pairing, RgbdFrame};
 use dynamap_slam::rigid::loops::{KeyframeGraph, Optimised};
 use dynamap_slam::rigid::submaps::SubmapParams;
 use dynamap_slam::rigid::{
-    FrameOutcome, FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes,
+    FrameOutcome, FrameReport, FrameStamps, PhotometricWeight, RigidSlam, SlamParams, StageTimes,
 };
 use dynamap_slam::synthetic::{motion, scene::Scene, sequence};
 use dynamap_slam::tsdf::RaycastMaps;
@@ -98,9 +98,14 @@ struct Args {
     /// Block budget of the TSDF (blocks of 8³ voxels).
     #[arg(long, default_value_t = SlamParams::default().tsdf.max_blocks)]
     max_blocks: usize,
-    /// Photometric weight λ of E_geo + λ E_pho.
-    #[arg(long, default_value_t = SlamParams::default().tracker.lambda_photometric)]
-    lambda: f64,
+    /// A fixed photometric weight λ of E_geo + λ E_pho (0 leaves colour out of tracking);
+    /// without it, λ is balanced by the residuals' scales (`--photometric-balance`).
+    #[arg(long, conflicts_with = "photometric_balance")]
+    lambda: Option<f64>,
+    /// κ of the balanced photometric weight λ = κ (σ_geo / σ_pho)², measured per pyramid level
+    /// (default 0.5; 1 weighs each term by the inverse of its noise variance).
+    #[arg(long)]
+    photometric_balance: Option<f64>,
     /// Gauss-Newton iterations per pyramid level, finest first.
     #[arg(long, value_delimiter = ',', default_values_t = SlamParams::default().tracker.iterations)]
     iterations: Vec<usize>,
@@ -203,7 +208,12 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tsdf.truncation_voxels = args.truncation;
     p.tsdf.max_weight = args.max_weight;
     p.tsdf.max_blocks = args.max_blocks;
-    p.tracker.lambda_photometric = args.lambda;
+    if let Some(lambda) = args.lambda {
+        p.tracker.photometric_weight = PhotometricWeight::Fixed(lambda);
+    }
+    if let Some(kappa) = args.photometric_balance {
+        p.tracker.photometric_weight = PhotometricWeight::Balanced(kappa);
+    }
     p.tracker.iterations = args.iterations.clone();
     p.tracker.strides = args.strides.clone();
     p.tracker.fit_gain = !args.no_exposure_fit;

@@ -20,4 +20,6 @@ pub mod tracker;
 pub use outcome::{FrameOutcome, TrackFailure};
 pub use pipeline::{FrameReport, FrameStamps, RigidSlam, SlamParams, StageTimes};
 pub use relocalise::RelocaliseParams;
-pub use tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
+pub use tracker::{
+    FrameConstraint, ModelPyramid, PhotometricWeight, TrackOutcome, Tracker, TrackerParams,
+};

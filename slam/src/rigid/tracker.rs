@@ -23,6 +23,114 @@ use dynamap_solver::SE3;
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 
+/// How the photometric term is weighed against the point-to-plane term: E = E_geo + λ E_pho.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PhotometricWeight {
+    /// A fixed λ (0 leaves the term out). Residuals are metres against intensities of 1, so a
+    /// fixed λ is right for one sensor and scene only: λ = 0.1 (the thesis', after
+    /// ElasticFusion) cost the Kinect-model corridors up to 5× their ATE (NOTES 114, 115).
+    Fixed(f64),
+    /// λ = κ (σ_geo / σ_pho)² on each level, σ the robust scale (1.4826 × the median absolute
+    /// residual) of each term's residuals at the last tracked frame's result on that level:
+    /// with κ = 1 each term counts by the inverse of its own noise variance, as a
+    /// maximum-likelihood fit of both would (a residual scale per frame, as Kerl, Sturm &
+    /// Cremers, *Robust odometry estimation for RGB-D cameras*, ICRA 2013). The term weakens
+    /// where the colour is blurred, mis-registered or badly exposed and strengthens where the
+    /// geometry fits loosely. κ < 1 allows for photometric residuals that are not independent
+    /// (neighbours sample one smoothed, interpolated image); κ = 0.5 was chosen on two
+    /// Kinect-model sequences and a simpler sensor's, where 0.25 doubled the error, and
+    /// verified on others (NOTES 115). σ_pho is at least an 8-bit step's rounding noise,
+    /// 1 / (255 √12). Until a tracked frame has measured a level, λ there is
+    /// [`INITIAL_PHOTOMETRIC_WEIGHT`]: scales measured at a frame's start would count the
+    /// motion not yet found as noise, and make the term weakest where the image has moved
+    /// most.
+    Balanced(f64),
+}
+
+/// λ of a balanced photometric term on a level no tracked frame has measured yet: the thesis'
+/// fixed weight.
+pub const INITIAL_PHOTOMETRIC_WEIGHT: f64 = 0.1;
+
+impl PhotometricWeight {
+    /// Whether the term is used at all.
+    pub fn is_on(&self) -> bool {
+        match *self {
+            Self::Fixed(lambda) | Self::Balanced(lambda) => lambda > 0.0,
+        }
+    }
+
+    /// Whether λ is balanced by the residuals' scales.
+    fn is_balanced(&self) -> bool {
+        matches!(self, Self::Balanced(kappa) if *kappa > 0.0)
+    }
+
+    /// λ at one level, given the level's last measured scales (σ_geo, σ_pho).
+    fn at(&self, scales: Option<Scales>) -> f64 {
+        match (*self, scales) {
+            (Self::Fixed(lambda), _) => lambda,
+            (Self::Balanced(_), None) => INITIAL_PHOTOMETRIC_WEIGHT,
+            (Self::Balanced(kappa), Some((geo, pho))) => {
+                kappa * (geo / pho.max(MIN_PHOTOMETRIC_SCALE)).powi(2)
+            }
+        }
+    }
+}
+
+/// The robust scales (σ_geo, σ_pho) of a level's point-to-plane and photometric residuals
+/// ([`IcpTerms::residual_scales`]).
+type Scales = (f64, f64);
+
+/// Each level's residual scales at the last tracked frame's result, which the balanced weight
+/// reads ([`PhotometricWeight::Balanced`]), and the current frame's, which replace them when it
+/// is tracked.
+#[derive(Clone, Debug, Default)]
+struct LevelScales {
+    last: Vec<Option<Scales>>,
+    current: Vec<Option<Scales>>,
+}
+
+impl LevelScales {
+    /// The last tracked frame's scales at level `l`, if it measured them.
+    fn last(&self, l: usize) -> Option<Scales> {
+        self.last.get(l).copied().flatten()
+    }
+
+    /// λ of level `l`'s photometric term under `weight` (0 when the term is off).
+    fn weight(&self, weight: &PhotometricWeight, terms: &IcpTerms<'_>, l: usize) -> f64 {
+        if terms.photometric {
+            weight.at(self.last(l))
+        } else {
+            0.0
+        }
+    }
+
+    /// Measures and records level `l`'s scales at its result `x`, when `weight` reads them.
+    fn measure(&mut self, weight: &PhotometricWeight, terms: &IcpTerms<'_>, x: &[f64], l: usize) {
+        if terms.photometric && weight.is_balanced() {
+            self.record(l, terms.residual_scales(x));
+        }
+    }
+
+    /// Records the current frame's scales at level `l` (`None`: too few residuals to measure).
+    fn record(&mut self, l: usize, scales: Option<Scales>) {
+        if self.current.len() <= l {
+            self.current.resize(l + 1, None);
+        }
+        self.current[l] = scales;
+    }
+
+    /// Ends the frame: its scales become the last ones if it was `tracked`.
+    fn finish(&mut self, tracked: bool) {
+        if tracked {
+            std::mem::swap(&mut self.last, &mut self.current);
+        }
+        self.current.iter_mut().for_each(|s| *s = None);
+    }
+}
+
+/// The smallest photometric scale: the rounding noise of an 8-bit intensity, 1 / (255 √12).
+const MIN_PHOTOMETRIC_SCALE: f64 = 1.0 / (255.0 * 3.464_101_615_137_754_6);
+
 /// Tracking settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackerParams {
@@ -34,8 +142,9 @@ pub struct TrackerParams {
     pub max_distance: f64,
     /// Association rejected beyond this normal angle, degrees (default 20).
     pub max_normal_angle_deg: f64,
-    /// Weight λ of the photometric term (default 0.1; 0 disables it).
-    pub lambda_photometric: f64,
+    /// Weight λ of the photometric term against the point-to-plane one (default
+    /// [`PhotometricWeight::Balanced`] with κ = 0.5).
+    pub photometric_weight: PhotometricWeight,
     /// Per level, finest first: use every `strides[l]`-th pixel each way (default 3, 3, 2; a
     /// level not listed takes every pixel). The levels are smoothed copies of one frame, so a
     /// sparse grid on each gives the same pose for a fraction of the work: on the rendered
@@ -106,7 +215,7 @@ impl Default for TrackerParams {
             iterations: vec![2, 3, 8],
             max_distance: 0.1,
             max_normal_angle_deg: 20.0,
-            lambda_photometric: 0.1,
+            photometric_weight: PhotometricWeight::Balanced(0.5),
             strides: vec![3, 3, 2],
             min_grid_points: 4800,
             huber_geometric: 0.01,
@@ -349,7 +458,7 @@ impl<'a> IcpTerms<'a> {
             },
             max_distance: p.max_distance,
             min_cos: p.max_normal_angle_deg.to_radians().cos(),
-            photometric: has_color && p.lambda_photometric > 0.0,
+            photometric: has_color && p.photometric_weight.is_on(),
             exposure,
             radial: radial_of(&live.camera),
             grid,
@@ -498,6 +607,24 @@ const BRIGHTNESS_SAMPLES: usize = 2000;
 /// Live intensities below this (of 1) take no part in the exposure fit: their ratio to the
 /// model's is mostly noise (8-bit noise of about 1 level is 4 % of an intensity of 0.1).
 const MIN_RATIO_INTENSITY: f64 = 0.1;
+
+/// Grid points visited when the residuals' scales are measured ([`IcpTerms::residual_scales`]).
+const SCALE_SAMPLES: usize = 1000;
+
+/// Fewer residuals of a term and its scale is not measured.
+const MIN_SCALE_SAMPLES: usize = 50;
+
+/// 1.4826 × the median of `abs` (absolute residuals, reordered in place): the standard deviation
+/// of a normal distribution with that median absolute deviation, robust to the outliers the
+/// kernels are there for. `None` for fewer than [`MIN_SCALE_SAMPLES`] values.
+fn robust_scale(abs: &mut [f64]) -> Option<f64> {
+    if abs.len() < MIN_SCALE_SAMPLES {
+        return None;
+    }
+    let mid = abs.len() / 2;
+    let (_, median, _) = abs.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(1.4826 * *median)
+}
 
 /// A live point associated with a model point.
 struct Association {
@@ -667,6 +794,56 @@ impl IcpTerms<'_> {
         n
     }
 
+    /// Robust scales (1.4826 × the median absolute residual) of the point-to-plane and the
+    /// photometric residuals at `x`, over about [`SCALE_SAMPLES`] evenly spread grid points;
+    /// `None` when either term has fewer than [`MIN_SCALE_SAMPLES`] residuals.
+    fn residual_scales(&self, x: &[f64]) -> Option<Scales> {
+        let lin = self.prepare(x);
+        let (len, step) = (self.grid.len(), (self.grid.len() / SCALE_SAMPLES).max(1));
+        // at most 2 SCALE_SAMPLES grid points, half on each thread: each half fits its buffer
+        let mid = len.div_ceil(step) / 2 * step;
+        let mut geometric = [0.0f64; 2 * SCALE_SAMPLES];
+        let mut photometric = [0.0f64; 2 * SCALE_SAMPLES];
+        let (g0, g1) = geometric.split_at_mut(SCALE_SAMPLES);
+        let (p0, p1) = photometric.split_at_mut(SCALE_SAMPLES);
+        let ((ng0, np0), (ng1, np1)) = rayon::join(
+            || self.scale_samples(&lin, (0..mid).step_by(step), g0, p0),
+            || self.scale_samples(&lin, (mid..len).step_by(step), g1, p1),
+        );
+        geometric.copy_within(SCALE_SAMPLES..SCALE_SAMPLES + ng1, ng0);
+        photometric.copy_within(SCALE_SAMPLES..SCALE_SAMPLES + np1, np0);
+        Some((
+            robust_scale(&mut geometric[..ng0 + ng1])?,
+            robust_scale(&mut photometric[..np0 + np1])?,
+        ))
+    }
+
+    /// Writes the absolute point-to-plane and photometric residuals at grid points `points` into
+    /// `geometric` and `photometric` (as many as fit) and returns how many of each.
+    fn scale_samples(
+        &self,
+        lin: &Linearisation,
+        points: impl Iterator<Item = usize>,
+        geometric: &mut [f64],
+        photometric: &mut [f64],
+    ) -> (usize, usize) {
+        let (mut ng, mut np) = (0, 0);
+        for k in points {
+            self.evaluate(k, lin, &mut |r, _, group| match group {
+                0 if ng < geometric.len() => {
+                    geometric[ng] = r.abs();
+                    ng += 1;
+                }
+                1 if np < photometric.len() => {
+                    photometric[np] = r.abs();
+                    np += 1;
+                }
+                _ => {}
+            });
+        }
+        (ng, np)
+    }
+
     /// ρ² of a live pixel: its squared distance from the principal point over cx² + cy².
     #[inline]
     fn rho2(&self, pixel: usize) -> f64 {
@@ -741,6 +918,9 @@ pub struct TrackOutcome {
     /// such as a slide along a plain wall (`None` when not tracked or when the geometry alone
     /// leaves a motion free; see `geometric_covariance`).
     pub covariance: Option<Matrix6<f64>>,
+    /// The photometric weight λ used on the finest level that ran (0 without the term;
+    /// [`PhotometricWeight`]).
+    pub photometric_weight: f64,
 }
 
 impl TrackOutcome {
@@ -761,6 +941,7 @@ impl TrackOutcome {
             gain: 1.0,
             vignetting: 0.0,
             covariance: None,
+            photometric_weight: 0.0,
         }
     }
 }
@@ -808,6 +989,8 @@ pub struct Tracker {
     /// The running estimate of the live frames' vignetting against the model's, and the
     /// current frame's own fit at its finest level ([`TrackerParams::fit_vignetting`]).
     vignetting: (f64, Option<f64>),
+    /// The residuals' scales per level, for the balanced photometric weight.
+    scales: LevelScales,
 }
 
 /// Each tracked frame moves the running vignetting this fraction of the way to its own fit: a
@@ -824,6 +1007,7 @@ impl Tracker {
             ws: DenseWorkspace::default(),
             partials: Vec::new(),
             vignetting: (0.0, None),
+            scales: LevelScales::default(),
         }
     }
 
@@ -836,17 +1020,18 @@ impl Tracker {
     }
 
     /// [`Self::track`] for a candidate pose that is being tried, not the frame's track (a
-    /// relocalisation start, a loop): the running vignetting is left as it was, so that only a
-    /// frame's own track teaches it, once per frame (a relocalised frame does not).
+    /// relocalisation start, a loop): the running vignetting and the residuals' scales are left
+    /// as they were, so that only a frame's own track teaches them, once per frame (a
+    /// relocalised frame does not).
     pub fn probe(
         &mut self,
         live: &[Level],
         model: &ModelPyramid,
         start: &Isometry3<f64>,
     ) -> TrackOutcome {
-        let running = self.vignetting.0;
+        let (running, scales) = (self.vignetting.0, self.scales.last.clone());
         let outcome = self.track(live, model, start);
-        self.vignetting.0 = running;
+        (self.vignetting.0, self.scales.last) = (running, scales);
         outcome
     }
 
@@ -860,9 +1045,8 @@ impl Tracker {
         let p = &self.params;
         let mut x = [0.0; 7];
         se3::to_slice(start, &mut x);
-        let huber_g = Huber(p.huber_geometric);
-        let huber_p = Huber(p.huber_photometric);
-        let mut groups = term_groups(p, &huber_g, &huber_p);
+        let (huber_g, huber_p) = (Huber(p.huber_geometric), Huber(p.huber_photometric));
+        let mut groups = term_groups(&huber_g, &huber_p);
         let t_ref_inv = RigidMotion::new(&model.pose.inverse());
         let levels = live.len();
         // the finest level that runs, and its valid pixels on its (strided) grid, against which
@@ -884,11 +1068,8 @@ impl Tracker {
             let mut terms =
                 IcpTerms::new(p, &live[l], ml, t_ref_inv, grid, exposure, z_mean, prior);
             if prior.is_some() {
-                let points = if l == finest {
-                    valid_pixels
-                } else {
-                    terms.grid.valid_points(&live[l])
-                };
+                let points = (l == finest).then_some(valid_pixels);
+                let points = points.unwrap_or_else(|| terms.grid.valid_points(&live[l]));
                 groups[2].weight = p.motion_prior * points as f64;
             }
             // the exposure is the frame's, but each level's start pose is better than the last
@@ -897,8 +1078,10 @@ impl Tracker {
                 exposure = level_exposure(&mut self.vignetting, p, &terms, &x, l == finest);
                 terms.exposure = exposure;
             }
+            groups[1].weight = self.scales.weight(&p.photometric_weight, &terms, l);
             let options = solve_options(&groups, iterations);
             let summary = solve(&terms, &SE3, &mut x, &options, &mut self.ws);
+            self.scales.measure(&p.photometric_weight, &terms, &x, l);
             stop = summary.stop;
             // the prior's rows alone fix the pose at the start: no data, as without them
             let data_rows = summary.last.group_rows[0] + summary.last.group_rows[1];
@@ -924,6 +1107,7 @@ impl Tracker {
         let pose = se3::from_slice(&x);
         let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
         self.update_vignetting(failure.is_none());
+        self.scales.finish(failure.is_none());
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
             covariance: covariance.filter(|_| failure.is_none()),
@@ -934,6 +1118,7 @@ impl Tracker {
             correlation,
             gain: exposure.image_gain(),
             vignetting: exposure.vignetting,
+            photometric_weight: groups[1].weight,
         }
     }
 }
@@ -995,19 +1180,15 @@ fn solve_options<'a>(groups: &'a [Group<'a>], iterations: usize) -> DenseOptions
 }
 
 /// The three groups of residuals: point-to-plane and photometric, each under its Huber kernel,
-/// and the motion prior (its weight is set per level).
-fn term_groups<'k>(
-    p: &TrackerParams,
-    geometric: &'k Huber,
-    photometric: &'k Huber,
-) -> [Group<'k>; 3] {
+/// and the motion prior (the last two weights are set per level).
+fn term_groups<'k>(geometric: &'k Huber, photometric: &'k Huber) -> [Group<'k>; 3] {
     [
         Group {
             weight: 1.0,
             kernel: Some(geometric),
         },
         Group {
-            weight: p.lambda_photometric,
+            weight: 0.0,
             kernel: Some(photometric),
         },
         Group {
@@ -1150,6 +1331,86 @@ fn texture(level: &Level) -> f64 {
         }
     }
     (sum / n.max(1) as f64).sqrt()
+}
+
+#[cfg(test)]
+mod weight_tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// Absolute values of `n` draws of N(0, σ²), every `every`-th replaced by an outlier of
+    /// 100 σ.
+    fn draws(n: usize, sigma: f64, every: usize, seed: u64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let normal = Normal::new(0.0, sigma).expect("a valid deviation");
+        (0..n)
+            .map(|i| {
+                let r: f64 = normal.sample(&mut rng);
+                if every > 0 && i % every == 0 {
+                    100.0 * sigma
+                } else {
+                    r.abs()
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_robust_scale_is_the_deviation_of_normal_residuals_whatever_their_outliers() {
+        for (seed, sigma) in [(1, 0.002), (2, 0.03), (3, 7.0)] {
+            let clean = robust_scale(&mut draws(1000, sigma, 0, seed)).expect("enough");
+            assert!((clean / sigma - 1.0).abs() < 0.1, "{clean} for {sigma}");
+            // one in ten an outlier: the median moves by about a tenth of a deviation
+            let dirty = robust_scale(&mut draws(1000, sigma, 10, seed)).expect("enough");
+            assert!((dirty / sigma - 1.0).abs() < 0.25, "{dirty} for {sigma}");
+        }
+        assert_eq!(
+            robust_scale(&mut draws(MIN_SCALE_SAMPLES - 1, 1.0, 0, 4)),
+            None
+        );
+    }
+
+    #[test]
+    fn a_balanced_weight_is_the_ratio_of_the_variances_and_a_fixed_one_is_fixed() {
+        let balanced = PhotometricWeight::Balanced(0.25);
+        let lambda = balanced.at(Some((0.002, 0.02)));
+        assert!((lambda - 0.25 * 0.01).abs() < 1e-15, "{lambda}");
+        // twice the photometric noise, a quarter of the weight
+        let noisier = balanced.at(Some((0.002, 0.04)));
+        assert!((noisier / lambda - 0.25).abs() < 1e-12);
+        // not measured yet
+        assert_eq!(balanced.at(None), INITIAL_PHOTOMETRIC_WEIGHT);
+        // a noiseless image counts as 8-bit rounding noise, never as infinitely precise
+        let floor = balanced.at(Some((0.002, 0.0)));
+        assert!(floor.is_finite() && floor > lambda);
+        let fixed = PhotometricWeight::Fixed(0.1);
+        assert_eq!(fixed.at(Some((0.002, 0.02))), 0.1);
+        assert!(!PhotometricWeight::Fixed(0.0).is_on());
+        assert!(!PhotometricWeight::Balanced(0.0).is_on());
+        assert!(balanced.is_on());
+    }
+
+    /// A frame's scales replace the last ones only when it is tracked, level by level.
+    #[test]
+    fn the_scales_of_a_frame_not_tracked_are_dropped() {
+        let mut scales = LevelScales::default();
+        scales.record(2, Some((0.003, 0.02)));
+        scales.finish(true);
+        assert_eq!(scales.last(2), Some((0.003, 0.02)));
+        assert_eq!(scales.last(0), None);
+        scales.record(2, Some((0.01, 0.05)));
+        scales.finish(false);
+        assert_eq!(scales.last(2), Some((0.003, 0.02)));
+        scales.record(2, None);
+        scales.record(0, Some((0.001, 0.01)));
+        scales.finish(true);
+        assert_eq!(
+            (scales.last(0), scales.last(2)),
+            (Some((0.001, 0.01)), None)
+        );
+    }
 }
 
 #[cfg(test)]
@@ -1391,5 +1652,53 @@ mod degenerate_tests {
         assert!(c[(4, 4)] > 10.0 * c[(3, 3)], "{c}");
         assert!(c[(4, 4)] > 10.0 * c[(5, 5)], "{c}");
         assert!(c.iter().all(|v| v.is_finite()) && c[(4, 4)] > 0.0);
+    }
+
+    /// A textured, corrugated wall in front of a model of itself, its colour once clean and
+    /// once with uniform noise of ±20 grey levels: tracked twice by one tracker, each frame
+    /// where it stands. The first track has no scales to read and weighs the colour by
+    /// [`INITIAL_PHOTOMETRIC_WEIGHT`] (a probe before it teaches nothing); the second reads the
+    /// first's, and the noisy colour weighs a small part of the clean one.
+    #[test]
+    fn a_noisy_colour_weighs_less_than_a_clean_one() {
+        let (w, h) = (160, 120);
+        let cam = Camera::scaled_default(w, h);
+        let depth_at = corrugated(&cam);
+        let model = textured_model(&cam, depth_at, blobs);
+        let mut depth = DepthImage::filled(w, h, 1.0);
+        for v in 0..h {
+            for u in 0..w {
+                let noise = 2e-3 * ((u * 7919 + v * 104_729) % 17) as f64 / 17.0 - 1e-3;
+                depth.data[v * w + u] = (depth_at(u, v) + noise) as f32;
+            }
+        }
+        let start = Isometry3::identity();
+        let weight_with = |noise: f64| {
+            let mut color = ColorImage::filled(w, h, [0; 3]);
+            for v in 0..h {
+                for u in 0..w {
+                    let hash = ((u * 104_729 + v * 7919 + u * v * 31) % 101) as f64 / 100.0;
+                    let grey = blobs(u, v) as f64 + noise * (2.0 * hash - 1.0);
+                    color.data[v * w + u] = [grey.round().clamp(0.0, 255.0) as u8; 3];
+                }
+            }
+            let mut pre = Preprocessor::new(cam, PreprocessParams::default());
+            let live = pre.process_metres(&depth, Some(&color));
+            let mut tracker = Tracker::new(TrackerParams::default());
+            let probed = tracker.probe(live, &model, &start);
+            let first = tracker.track(live, &model, &start);
+            let second = tracker.track(live, &model, &start);
+            for out in [&probed, &first, &second] {
+                assert!(out.failure.is_none(), "noise {noise}: {:?}", out.failure);
+                let moved = out.pose.translation.vector.norm();
+                assert!(moved < 2e-3, "noise {noise}: moved {moved} m");
+            }
+            assert_eq!(first.photometric_weight, INITIAL_PHOTOMETRIC_WEIGHT);
+            second.photometric_weight
+        };
+        let clean = weight_with(0.0);
+        let noisy = weight_with(20.0);
+        assert!(clean > 0.0 && noisy > 0.0, "{clean} {noisy}");
+        assert!(noisy < 0.3 * clean, "clean {clean}, noisy {noisy}");
     }
 }
