@@ -12,6 +12,11 @@
 //!   not, whatever their fit. A loop that does not agree is still kept when nothing agrees (the
 //!   track may have drifted far, or the keyframe lies in another fragment); the pose graph's
 //!   robust kernel then judges it.
+//!
+//! A loop of the same fragment is also tracked a second time, from the new keyframe's tracked
+//! pose, and kept only if both tracks end in one place ([`settled_alike`]): a dense
+//! registration started up to half a scene depth away can stop short along a motion the view
+//! barely fixes, as along a corridor, and then measures the loop centimetres off.
 
 use super::keyframes::Keyframe;
 use super::loops::LoopParams;
@@ -70,6 +75,23 @@ pub(super) fn agrees_with_track(
         && d.rotation.angle() <= 3.0 * (params.odometry_deviation(radians) + loop_r)
 }
 
+/// Whether `first` and `second`, where two dense tracks of one loop ended (started from the
+/// old keyframe's pose and from the new keyframe's tracked pose), lie within one loop
+/// deviation ([`LoopParams::loop_deviations`] at `depth`) of each other. A registration that
+/// the model's shape and texture fix ends in one place from either start; one that ends
+/// elsewhere settled where its start left it along a motion they barely fix (a corridor the
+/// camera slides along), and its pose is off by about as much (NOTES 116).
+pub(super) fn settled_alike(
+    first: &Isometry3<f64>,
+    second: &Isometry3<f64>,
+    params: &LoopParams,
+    depth: f64,
+) -> bool {
+    let (sigma_r, sigma_t) = params.loop_deviations(depth);
+    let d = first.inverse() * second;
+    d.translation.vector.norm() <= sigma_t && d.rotation.angle() <= sigma_r
+}
+
 /// The path length and the rotation summed along the keyframes from `frames[k]` to `last`.
 fn travelled(frames: &[Keyframe], k: usize, last: &Isometry3<f64>) -> (f64, f64) {
     let poses = frames[k.min(frames.len())..].iter().map(|f| &f.pose);
@@ -116,6 +138,23 @@ mod tests {
         assert!(nearby(&frames, 10, 0, &turned, 2.0, 3).is_empty());
         // a shallow scene shrinks the radius: 0.2 m at 0.4 m depth
         assert_eq!(nearby(&frames, 10, 0, &pose, 0.4, 5), vec![2, 3]);
+    }
+
+    #[test]
+    fn two_starts_settle_alike_within_one_loop_deviation_of_the_scene_depth() {
+        let params = LoopParams::default();
+        let first = Isometry3::translation(1.0, 0.5, 0.0);
+        let moved = |dx: f64, angle: f64| {
+            first * Isometry3::new(Vector3::new(dx, 0.0, 0.0), Vector3::y() * angle)
+        };
+        // 1.5 m deep: 1.5 cm and 0.01 rad, in translation and in rotation alike
+        assert!(settled_alike(&first, &moved(0.014, 0.009), &params, 1.5));
+        assert!(!settled_alike(&first, &moved(0.016, 0.0), &params, 1.5));
+        assert!(!settled_alike(&first, &moved(0.0, 0.011), &params, 1.5));
+        // a deeper scene allows as much more: 3 cm at 3 m
+        assert!(settled_alike(&first, &moved(0.029, 0.0), &params, 3.0));
+        // the order of the two starts does not matter
+        assert!(!settled_alike(&moved(0.016, 0.0), &first, &params, 1.5));
     }
 
     #[test]

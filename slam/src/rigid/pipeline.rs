@@ -873,17 +873,7 @@ impl RigidSlam {
             // does not must also fit nearly as well as the recent frames
             let fits = fraction >= p.min_inlier_fraction
                 && (agrees || (fraction >= floor.fraction && o.agreement >= floor.agreement));
-            tracing::debug!(
-                from = frame,
-                to = self.frames,
-                fraction,
-                agreement = o.agreement,
-                correlation = o.correlation,
-                failed = o.failure.is_some(),
-                fits,
-                agrees,
-                "dense loop candidate"
-            );
+            log_loop_candidate((frame, self.frames), &o, fits, agrees);
             let rank = (agrees, fraction);
             if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= rank) {
                 continue;
@@ -895,6 +885,19 @@ impl RigidSlam {
             let textured = floor.telling() && o.correlation >= floor.correlation;
             if frame < since && !textured && !self.features_agree(&keys[k], newest, &o.pose) {
                 continue;
+            }
+            // the same fragment's track gives a second start: a registration that ends
+            // elsewhere from it depends on where it started (a slide along a corridor)
+            if frame >= since {
+                let again =
+                    self.relocaliser
+                        .verify(&mut self.tracker, &map.volume, &live, &self.pose);
+                let params = &self.loops.params;
+                let alike = loop_candidates::settled_alike(&o.pose, &again.pose, params, depth);
+                if again.failure.is_some() || !alike {
+                    tracing::debug!(from = frame, to = self.frames, "loop depends on its start");
+                    continue;
+                }
             }
             let found = LoopCandidate {
                 from: frame,
@@ -991,6 +994,22 @@ impl RigidSlam {
             "rigid frame"
         );
     }
+}
+
+/// Logs a dense loop candidate from keyframe `from` to frame `to` at debug level: its track's
+/// fit, whether it fits and whether it agrees with the track.
+fn log_loop_candidate((from, to): (usize, usize), o: &TrackOutcome, fits: bool, agrees: bool) {
+    tracing::debug!(
+        from,
+        to,
+        fraction = o.inlier_fraction(),
+        agreement = o.agreement,
+        correlation = o.correlation,
+        failed = o.failure.is_some(),
+        fits,
+        agrees,
+        "dense loop candidate"
+    );
 }
 
 /// Fuses a pyramid level's depth and normals (and the colour) seen from `camera` at `pose`.
