@@ -832,6 +832,9 @@ impl RigidSlam {
     /// fit decides between equals. A loop to another map fragment, which nothing else places,
     /// also needs the sparse features to agree with it ([`Self::features_agree`]) or, where
     /// the recent frames' correlation floor is telling, a correlation reaching it (NOTES 94).
+    /// A loop of the current fragment is tracked again from the live frame's tracked pose and
+    /// kept only if both tracks end in one place ([`loop_candidates::settled_alike`], NOTES
+    /// 116).
     fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
         let submaps = self.submaps.as_ref()?;
         let until = submaps.frozen_until()?;
