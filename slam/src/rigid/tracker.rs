@@ -991,6 +991,8 @@ pub struct Tracker {
     vignetting: (f64, Option<f64>),
     /// The residuals' scales per level, for the balanced photometric weight.
     scales: LevelScales,
+    /// Whether the track running is a probe ([`Self::probe`]), which teaches nothing.
+    probing: bool,
 }
 
 /// Each tracked frame moves the running vignetting this fraction of the way to its own fit: a
@@ -1008,15 +1010,26 @@ impl Tracker {
             partials: Vec::new(),
             vignetting: (0.0, None),
             scales: LevelScales::default(),
+            probing: false,
         }
     }
 
     /// Moves the running vignetting towards the frame's fit, if the frame was `tracked` and its
     /// finest level fitted one.
     fn update_vignetting(&mut self, tracked: bool) {
+        // the current fit is taken whether or not it teaches, so no later frame reads it
         if let (true, Some(v)) = (tracked, self.vignetting.1.take()) {
             self.vignetting.0 += VIGNETTING_RATE * (v - self.vignetting.0);
         }
+    }
+
+    /// Ends a track: a frame's own track that was `tracked` teaches the running vignetting and
+    /// the residuals' scales; a probe teaches nothing, and either way the frame's measurements
+    /// are dropped.
+    fn learn(&mut self, tracked: bool) {
+        let teaches = tracked && !self.probing;
+        self.update_vignetting(teaches);
+        self.scales.finish(teaches);
     }
 
     /// [`Self::track`] for a candidate pose that is being tried, not the frame's track (a
@@ -1029,9 +1042,9 @@ impl Tracker {
         model: &ModelPyramid,
         start: &Isometry3<f64>,
     ) -> TrackOutcome {
-        let (running, scales) = (self.vignetting.0, self.scales.last.clone());
+        self.probing = true;
         let outcome = self.track(live, model, start);
-        (self.vignetting.0, self.scales.last) = (running, scales);
+        self.probing = false;
         outcome
     }
 
@@ -1106,8 +1119,7 @@ impl Tracker {
         }
         let pose = se3::from_slice(&x);
         let failure = failure_of(p, stop, (inliers, valid_pixels), start, &pose, &x);
-        self.update_vignetting(failure.is_none());
-        self.scales.finish(failure.is_none());
+        self.learn(failure.is_none());
         TrackOutcome {
             pose: if failure.is_some() { *start } else { pose },
             covariance: covariance.filter(|_| failure.is_none()),
