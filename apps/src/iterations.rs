@@ -28,22 +28,31 @@ impl IterationLog {
     /// cost.
     pub fn observer(&self) -> impl FnMut(&IterationSummary) -> ControlFlow<()> + Send + 'static {
         let (bar, table, costs) = (self.bar.clone(), self.table, self.costs.clone());
+        // a solve that resumes an earlier one numbers its iterations on from that one's last, and
+        // its start point (the earlier end, changed by the caller) is not a row of its own
+        let mut base = 0;
         move |it: &IterationSummary| {
+            let mut costs = costs.lock().unwrap_or_else(|e| e.into_inner());
+            if it.iteration == 0 {
+                if let Some(&(last, _)) = costs.last() {
+                    base = last;
+                    return ControlFlow::Continue(());
+                }
+            }
+            let mut row = it.clone();
+            row.iteration += base;
             if table {
                 bar.suspend(|| {
-                    if it.iteration == 0 {
+                    if row.iteration == 0 {
                         println!("{}", IterationSummary::HEADER);
                     }
-                    println!("{it}");
+                    println!("{row}");
                 });
             }
             if it.iteration > 0 {
                 bar.inc(1);
             }
-            costs
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .push((it.iteration, it.cost));
+            costs.push((row.iteration, row.cost));
             ControlFlow::Continue(())
         }
     }

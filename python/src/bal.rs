@@ -169,8 +169,10 @@ impl BalProblem {
     /// damping, the points eliminated by the Schur complement), updating the cameras and points
     /// in place; returns the `Summary`. `kernel` ("huber:2") is put on every observation;
     /// `linear_solver` is auto, schur_dense, schur_sparse, schur_iterative or cholesky;
-    /// `options` replaces the tool's settings whole.
-    #[pyo3(signature = (kernel = None, linear_solver = "auto", max_iterations = 50, options = None))]
+    /// `options` replaces the tool's settings whole. With `retriangulate`, a solve that converges
+    /// before `max_iterations` re-triangulates the points and resumes while that lowers the cost
+    /// (the tool's default; `--no-retriangulate` there is `retriangulate=False` here).
+    #[pyo3(signature = (kernel = None, linear_solver = "auto", max_iterations = 50, options = None, retriangulate = true))]
     fn solve(
         &mut self,
         py: Python<'_>,
@@ -178,6 +180,7 @@ impl BalProblem {
         linear_solver: &str,
         max_iterations: usize,
         options: Option<Options>,
+        retriangulate: bool,
     ) -> PyResult<Summary> {
         let kernel = kernels::optional(kernel)?;
         let options = match options {
@@ -185,9 +188,23 @@ impl BalProblem {
             None => bal::options(linear_of(linear_solver)?, max_iterations),
         };
         let mut solve = self.core.build(kernel).map_err(errors::problem)?;
+        let mut solver = Solver::new(options);
+        let core = &mut self.core;
         let run = py
-            .detach(|| Solver::new(options).solve(&mut solve.problem))
-            .map_err(errors::solve)?;
+            .detach(|| {
+                if retriangulate {
+                    bal::solve_with_restarts(&mut solver, core, &mut solve, kernel, |_| {})
+                        .map(|(run, _)| run)
+                } else {
+                    solver
+                        .solve(&mut solve.problem)
+                        .map_err(bal::RestartError::Solve)
+                }
+            })
+            .map_err(|e| match e {
+                bal::RestartError::Solve(e) => errors::solve(e),
+                bal::RestartError::Problem(e) => errors::problem(e),
+            })?;
         self.core.update_from(&solve);
         Ok(Summary { run })
     }
@@ -219,6 +236,6 @@ pub fn solve_bal<'py>(
     Summary,
 )> {
     let mut p = BalProblem::read(py, path)?;
-    let summary = p.solve(py, kernel, linear_solver, max_iterations, None)?;
+    let summary = p.solve(py, kernel, linear_solver, max_iterations, None, true)?;
     Ok((p.cameras(py), p.points(py), summary))
 }

@@ -63,6 +63,10 @@ def test_a_problem_built_from_arrays_returns_to_its_exact_optimum():
     np.testing.assert_array_equal(got_ci, ci)
     np.testing.assert_array_equal(got_pi, pi)
     np.testing.assert_array_equal(got_uv, uv)
+    # the tool's --no-retriangulate: the same optimum from the same start
+    again = dynamap.BalProblem(start_cams, start_pts, ci, pi, uv)
+    plain = again.solve(max_iterations=100, retriangulate=False)
+    assert plain.converged and plain.final_cost < 1e-16
 
 
 def test_python_reaches_the_cost_of_the_bundle_adjustment_tool(tmp_path):

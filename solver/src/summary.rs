@@ -91,6 +91,17 @@ pub struct Timing {
     pub step: f64,
 }
 
+impl Timing {
+    /// Adds another solve's times to these.
+    pub fn add(&mut self, other: &Timing) {
+        self.setup += other.setup;
+        self.evaluate += other.evaluate;
+        self.assemble += other.assemble;
+        self.factorise += other.factorise;
+        self.step += other.step;
+    }
+}
+
 /// The outcome of a solve.
 #[derive(Clone, Debug)]
 pub struct Summary {
@@ -128,6 +139,27 @@ impl Summary {
     /// Number of iterations performed (excluding the start point).
     pub fn num_iterations(&self) -> usize {
         self.iterations.len().saturating_sub(1)
+    }
+
+    /// Appends a solve that resumed from this one's end (after the caller changed some values):
+    /// its iterations numbered on from this one's last (its start point left out) and timed from
+    /// this one's start, its times and counts added, its final cost and termination taken.
+    pub fn resume(&mut self, next: Summary) {
+        let (offset, before) = (self.num_iterations(), self.total_seconds);
+        self.iterations
+            .extend(next.iterations.into_iter().skip(1).map(|mut it| {
+                it.iteration += offset;
+                it.total_seconds += before;
+                it
+            }));
+        self.final_cost = next.final_cost;
+        self.termination = next.termination;
+        self.total_seconds += next.total_seconds;
+        self.timing.add(&next.timing);
+        self.linear_solver = next.linear_solver;
+        self.linear_iterations += next.linear_iterations;
+        self.non_finite_steps += next.non_finite_steps;
+        self.non_finite_block = next.non_finite_block;
     }
 
     /// A table with one line per iteration, for printing.

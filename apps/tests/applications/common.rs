@@ -55,6 +55,8 @@ pub fn result_json(out: &Output) -> serde_json::Value {
         "timing",
         "plain_seconds",
         "robust_seconds",
+        "retriangulation_seconds",
+        "seconds_at",
     ] {
         v.as_object_mut().expect("an object").remove(key);
     }

@@ -7,10 +7,14 @@
 //! ([`dynamap_solver::LinearSolverKind::SchurDense`] and friends), which eliminate the points.
 
 pub mod file;
+pub mod retriangulate;
 mod snavely;
 pub mod synthetic;
 
 pub use file::BalError;
+pub use retriangulate::{
+    retriangulate, solve_with_restarts, RestartError, Restarts, Retriangulation,
+};
 pub use snavely::{reprojection, rotate, SnavelyReprojection};
 
 use dynamap_solver::robust::NamedKernel;

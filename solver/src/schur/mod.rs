@@ -22,6 +22,7 @@ mod assembly;
 mod kernels;
 mod layout;
 mod pcg;
+mod reach;
 mod single;
 
 pub(crate) use kernels::invert_spd;
@@ -451,8 +452,10 @@ enum Choice {
 /// Cholesky up to `dense_threshold` unknowns; above, sparse Cholesky when its symbolic analysis
 /// finds a simplicial factor (a very sparse S); conjugate gradients for good when the
 /// factorisation would cost more than [`ITERATIVE_FLOPS_PER_HCE_SCALAR`] per scalar of H_ce;
-/// otherwise conjugate gradients until their iterations show a factorisation to be cheaper
-/// ([`PRODUCTS_PER_FLOP_PER_HCE_SCALAR`]).
+/// sparse Cholesky from the start when S's graph is so long ([`reach::diameter_bound`]) that a
+/// converged solve needs more conjugate-gradient iterations than a factorisation's worth
+/// ([`PRODUCTS_PER_FLOP_PER_HCE_SCALAR`]): a ring or a long corridor of cameras, not a city;
+/// otherwise conjugate gradients until their iterations show a factorisation to be cheaper.
 fn choose_reduced(
     s: &BlockSparse,
     dense_threshold: usize,
@@ -490,6 +493,18 @@ fn choose_reduced(
         return Ok(Choice::Factor(Box::new(chosen)));
     }
     let switch_at = PRODUCTS_PER_FLOP_PER_HCE_SCALAR * per_scalar;
+    let diameter = reach::diameter_bound(s);
+    tracing::debug!(
+        diameter,
+        switch_at,
+        "reduced camera system: iterations per solve at which a factorisation pays, and the \
+         fewest a converged solve takes"
+    );
+    if diameter as f64 > switch_at {
+        let chol = Cholesky::from_analysis(s, analysed, FactorPrecision::Double);
+        let chosen = (ReducedSolver::Factored(chol), LinearSolverKind::SchurSparse);
+        return Ok(Choice::Factor(Box::new(chosen)));
+    }
     Ok(Choice::Iterate {
         switch_at: Some(switch_at),
     })
