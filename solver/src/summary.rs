@@ -227,3 +227,68 @@ impl fmt::Display for IterationSummary {
 
 /// An observer sees every iteration and may stop the solve by returning `ControlFlow::Break`.
 pub type Observer = Box<dyn FnMut(&IterationSummary) -> ControlFlow<()> + Send>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn iteration(iteration: usize, cost: f64, total_seconds: f64) -> IterationSummary {
+        IterationSummary {
+            iteration,
+            cost,
+            cost_change: 0.0,
+            gradient_norm: 0.0,
+            step_norm: 0.0,
+            damping: 0.0,
+            accepted: true,
+            evaluate_seconds: 0.0,
+            solve_seconds: 0.0,
+            total_seconds,
+        }
+    }
+
+    fn summary(costs: &[f64], seconds: f64, termination: Termination) -> Summary {
+        let n = costs.len();
+        Summary {
+            initial_cost: costs[0],
+            final_cost: costs[n - 1],
+            iterations: (0..n)
+                .map(|i| iteration(i, costs[i], seconds * i as f64 / (n - 1) as f64))
+                .collect(),
+            termination,
+            total_seconds: seconds,
+            timing: Timing {
+                evaluate: seconds / 2.0,
+                ..Timing::default()
+            },
+            unknowns: 3,
+            linear_solver: "schur-iterative",
+            linear_iterations: 10,
+            non_finite_steps: 1,
+            non_finite_block: None,
+        }
+    }
+
+    #[test]
+    fn a_resumed_solve_numbers_and_times_its_iterations_on() {
+        let mut first = summary(&[10.0, 5.0, 4.0], 2.0, Termination::FunctionTolerance);
+        // the caller lowered the cost to 3 between the solves; the resumed start is left out
+        first.resume(summary(
+            &[3.0, 2.0, 1.5, 1.4],
+            3.0,
+            Termination::MaxIterations,
+        ));
+        let numbers: Vec<usize> = first.iterations.iter().map(|i| i.iteration).collect();
+        assert_eq!(numbers, [0, 1, 2, 3, 4, 5]);
+        let costs: Vec<f64> = first.iterations.iter().map(|i| i.cost).collect();
+        assert_eq!(costs, [10.0, 5.0, 4.0, 2.0, 1.5, 1.4]);
+        assert_eq!(first.iterations[3].total_seconds, 3.0);
+        assert_eq!(first.iterations[5].total_seconds, 5.0);
+        assert_eq!(first.num_iterations(), 5);
+        assert_eq!((first.initial_cost, first.final_cost), (10.0, 1.4));
+        assert_eq!(first.termination, Termination::MaxIterations);
+        assert_eq!(first.total_seconds, 5.0);
+        assert_eq!(first.timing.evaluate, 2.5);
+        assert_eq!((first.linear_iterations, first.non_finite_steps), (20, 2));
+    }
+}

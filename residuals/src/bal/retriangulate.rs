@@ -4,12 +4,12 @@
 //! point alone, so every point can be restarted on its own without touching the others. A point
 //! that a solve carried far out along its rays (where a robust kernel's gradient is small) stays
 //! there: the solve's steps near convergence are too short to bring it back. Each point is
-//! therefore started again from the point nearest its observations' rays (the midpoint method,
-//! Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., §12.5), refined by Levenberg-Marquardt
+//! therefore started again from the point nearest its observations' rays (the midpoint method;
+//! Hartley & Sturm, *Triangulation*, CVIU 1997), refined by Levenberg-Marquardt
 //! on its three coordinates with the kernel's weights ρ'(s) (iteratively re-weighted least
 //! squares), and moved only where that lowers its cost. The total cost therefore never rises.
 //! Re-triangulating after bundle adjustment is what incremental structure from motion does
-//! (Schönberger & Frahm, *Structure-from-Motion Revisited*, CVPR 2016, §4.5).
+//! (Schönberger & Frahm, *Structure-from-Motion Revisited*, CVPR 2016).
 
 use super::{reprojection, rotate, BalProblem, BalSolve};
 use dynamap_solver::robust::{NamedKernel, RobustKernel};
