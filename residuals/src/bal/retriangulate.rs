@@ -46,7 +46,7 @@ impl Retriangulation {
 /// lowers that point's cost under `kernel` (plain least squares without one); the cameras are
 /// held. See the module's documentation.
 pub fn retriangulate(problem: &mut BalProblem, kernel: Option<NamedKernel>) -> Retriangulation {
-    let by_point = observations_by_point(problem);
+    let (ptr, by_point) = observations_by_point(problem);
     let BalProblem {
         cameras,
         points,
@@ -56,15 +56,13 @@ pub fn retriangulate(problem: &mut BalProblem, kernel: Option<NamedKernel>) -> R
     let outcomes: Vec<(f64, f64, bool)> = points
         .par_iter_mut()
         .enumerate()
-        .map(|(i, point)| {
-            let seen: Vec<Sight> = by_point[i]
-                .iter()
-                .map(|&k| Sight {
-                    camera: &cameras[observations[k].camera],
-                    uv: observations[k].uv,
-                })
-                .collect();
-            restart(point, &seen, kernel)
+        .map_init(Vec::new, |seen, (i, point)| {
+            seen.clear();
+            seen.extend(by_point[ptr[i]..ptr[i + 1]].iter().map(|&k| Sight {
+                camera: &cameras[observations[k].camera],
+                uv: observations[k].uv,
+            }));
+            restart(point, seen, kernel)
         })
         .collect();
     Retriangulation {
@@ -142,13 +140,24 @@ pub fn solve_with_restarts(
     Ok((summary, restarts))
 }
 
-/// The indices of each point's observations.
-fn observations_by_point(problem: &BalProblem) -> Vec<Vec<usize>> {
-    let mut by_point = vec![Vec::new(); problem.points.len()];
-    for (k, o) in problem.observations.iter().enumerate() {
-        by_point[o.point].push(k);
+/// The indices of each point's observations in compressed rows: point i's are
+/// `indices[ptr[i]..ptr[i + 1]]`.
+fn observations_by_point(problem: &BalProblem) -> (Vec<usize>, Vec<usize>) {
+    let n = problem.points.len();
+    let mut ptr = vec![0usize; n + 1];
+    for o in &problem.observations {
+        ptr[o.point + 1] += 1;
     }
-    by_point
+    for i in 0..n {
+        ptr[i + 1] += ptr[i];
+    }
+    let mut fill = ptr.clone();
+    let mut indices = vec![0; problem.observations.len()];
+    for (k, o) in problem.observations.iter().enumerate() {
+        indices[fill[o.point]] = k;
+        fill[o.point] += 1;
+    }
+    (ptr, indices)
 }
 
 /// One observation of a point: the camera and the measured pixel.
