@@ -48,7 +48,7 @@ pub(crate) fn block_amd(a: &BlockSparse) -> Result<Permutation, SolveError> {
 pub(crate) fn block_nested_dissection(a: &BlockSparse) -> Result<Permutation, SolveError> {
     let nb = a.num_blocks();
     let too_large = || SolveError::LinearSolver("block graph too large for METIS".into());
-    let (xadj, adjncy) = symmetric_adjacency(a).ok_or_else(too_large)?;
+    let (xadj, adjncy) = symmetric_adjacency::<i32>(a).ok_or_else(too_large)?;
     let mut weights: Vec<i32> = (0..nb)
         .map(|b| (a.block_start[b + 1] - a.block_start[b]) as i32)
         .collect();
@@ -81,9 +81,11 @@ pub(crate) fn block_nested_dissection(a: &BlockSparse) -> Result<Permutation, So
     Ok(expand(a, &order))
 }
 
-/// The block graph of `a` as METIS takes it: each block's neighbours in both directions, no
-/// self-loops. `None` when it does not fit METIS's 32-bit indices.
-fn symmetric_adjacency(a: &BlockSparse) -> Option<(Vec<i32>, Vec<i32>)> {
+/// The block graph of `a` in compressed rows, each block's neighbours in both directions and no
+/// self-loops, with indices of type `I` (`i32` for METIS). `None` when they do not fit `I`.
+pub(crate) fn symmetric_adjacency<I: TryFrom<usize> + Copy + Default>(
+    a: &BlockSparse,
+) -> Option<(Vec<I>, Vec<I>)> {
     let nb = a.num_blocks();
     let mut degree = vec![0usize; nb + 1];
     let off_diagonal = |j: usize| {
@@ -101,18 +103,23 @@ fn symmetric_adjacency(a: &BlockSparse) -> Option<(Vec<i32>, Vec<i32>)> {
     for b in 0..nb {
         degree[b + 1] += degree[b];
     }
-    let total = i32::try_from(degree[nb]).ok()?;
+    let index = |v: usize| I::try_from(v).ok();
+    index(degree[nb])?;
+    index(nb)?;
     let mut next = degree.clone();
-    let mut adjncy = vec![0i32; total as usize];
+    let mut adjncy = vec![I::default(); degree[nb]];
     for j in 0..nb {
         for i in off_diagonal(j) {
-            adjncy[next[i]] = j as i32;
+            adjncy[next[i]] = index(j)?;
             next[i] += 1;
-            adjncy[next[j]] = i as i32;
+            adjncy[next[j]] = index(i)?;
             next[j] += 1;
         }
     }
-    let xadj = degree.iter().map(|&d| d as i32).collect();
+    let xadj = degree
+        .iter()
+        .map(|&d| index(d))
+        .collect::<Option<Vec<I>>>()?;
     Some((xadj, adjncy))
 }
 

@@ -1,7 +1,7 @@
 //! Bundle adjustment and the Schur-complement solvers on generated problems with known answers.
 
 use dynamap::residuals::bal::{
-    self, rotate,
+    self,
     synthetic::{self, SyntheticOptions},
     BalProblem, SnavelyReprojection,
 };
@@ -388,9 +388,7 @@ fn one_point_out_along_its_ray() -> (BalProblem, BalProblem) {
     .truth;
     let mut start = truth.clone();
     let o = start.observations[0];
-    let c = start.cameras[o.camera];
-    let w = -nalgebra::Vector3::new(c[0], c[1], c[2]);
-    let centre = -rotate(&w, &nalgebra::Vector3::new(c[3], c[4], c[5]));
+    let centre = bal::camera_centre(&start.cameras[o.camera]);
     let x = nalgebra::Vector3::from(start.points[o.point]);
     let far = centre + (x - centre) * 40.0;
     start.points[o.point] = [far.x, far.y, far.z];

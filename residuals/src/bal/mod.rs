@@ -21,6 +21,7 @@ use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{
     Algorithm, DampingKind, Euclidean, LinearSolverKind, Options, Problem, ProblemError, VarId,
 };
+use nalgebra::Vector3;
 
 /// Solver settings for bundle adjustment as Ceres runs it: Levenberg-Marquardt with μ diag(H)
 /// damping from μ₀ = 1e-4, tight tolerances, and no rank check (bundle adjustment's 7-dimensional
@@ -37,6 +38,12 @@ pub fn options(linear_solver: LinearSolverKind, max_iterations: usize) -> Option
         check_rank: false,
         ..Options::default()
     }
+}
+
+/// The centre C = −Rᵀt of a BAL camera `[ω, t, f, k₁, k₂]`, in world coordinates.
+pub fn camera_centre(camera: &[f64; 9]) -> Vector3<f64> {
+    let w = Vector3::new(-camera[0], -camera[1], -camera[2]);
+    -rotate(&w, &Vector3::new(camera[3], camera[4], camera[5]))
 }
 
 /// One observation: camera `camera` sees point `point` at pixel `uv`.

@@ -11,7 +11,7 @@
 //! Re-triangulating after bundle adjustment is what incremental structure from motion does
 //! (Schönberger & Frahm, *Structure-from-Motion Revisited*, CVPR 2016).
 
-use super::{reprojection, rotate, BalProblem, BalSolve};
+use super::{camera_centre, reprojection, rotate, BalProblem, BalSolve};
 use dynamap_solver::robust::{NamedKernel, RobustKernel};
 use dynamap_solver::{ProblemError, SolveError, Solver, Summary};
 use nalgebra::{Matrix3, Vector3};
@@ -232,9 +232,8 @@ fn ray(s: &Sight) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let c = s.camera;
     let [x, y] = undistort(c[6], c[7], c[8], s.uv)?;
     let w = -Vector3::new(c[0], c[1], c[2]);
-    let centre = -rotate(&w, &Vector3::new(c[3], c[4], c[5]));
     let direction = rotate(&w, &Vector3::new(x, y, -1.0)).normalize();
-    Some((centre, direction))
+    Some((camera_centre(c), direction))
 }
 
 /// The normalised image point p with f (1 + k₁‖p‖² + k₂‖p‖⁴) p = uv: the radius ρ solves
@@ -340,9 +339,7 @@ mod tests {
         let i = problem.observations[0].point;
         let cam = problem.observations[0].camera;
         // the centre of the camera that sees it, and the point moved 40× farther along that ray
-        let c = problem.cameras[cam];
-        let w = -Vector3::new(c[0], c[1], c[2]);
-        let centre = -rotate(&w, &Vector3::new(c[3], c[4], c[5]));
+        let centre = camera_centre(&problem.cameras[cam]);
         let x = Vector3::from(problem.points[i]);
         let far = centre + (x - centre) * 40.0;
         problem.points[i] = [far.x, far.y, far.z];

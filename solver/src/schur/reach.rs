@@ -12,12 +12,16 @@
 //! massive graphs*, 2009).
 
 use crate::block::BlockSparse;
+use crate::ordering::symmetric_adjacency;
 use std::collections::VecDeque;
 
 /// The double-sweep lower bound on the diameter of S's block graph (0 for a single block; the
 /// component of block 0 when the graph is not connected).
 pub(super) fn diameter_bound(s: &BlockSparse) -> usize {
-    let (ptr, adj) = adjacency(s);
+    // usize indices always fit
+    let Some((ptr, adj)) = symmetric_adjacency::<usize>(s) else {
+        return 0;
+    };
     let n = ptr.len() - 1;
     if n < 2 {
         return 0;
@@ -27,38 +31,6 @@ pub(super) fn diameter_bound(s: &BlockSparse) -> usize {
     let (far, _) = sweep(&ptr, &adj, 0, &mut dist, &mut queue);
     dist.fill(usize::MAX);
     sweep(&ptr, &adj, far, &mut dist, &mut queue).1
-}
-
-/// The symmetric adjacency of S's blocks in compressed rows, from its upper triangle.
-fn adjacency(s: &BlockSparse) -> (Vec<usize>, Vec<usize>) {
-    let n = s.entry_ptr.len() - 1;
-    let mut degree = vec![0usize; n + 1];
-    for j in 0..n {
-        for e in &s.entries[s.entry_ptr[j]..s.entry_ptr[j + 1]] {
-            if e.row_block != j {
-                degree[e.row_block + 1] += 1;
-                degree[j + 1] += 1;
-            }
-        }
-    }
-    for j in 0..n {
-        degree[j + 1] += degree[j];
-    }
-    let ptr = degree;
-    let mut fill = ptr.clone();
-    let mut adj = vec![0; ptr[n]];
-    for j in 0..n {
-        for e in &s.entries[s.entry_ptr[j]..s.entry_ptr[j + 1]] {
-            let i = e.row_block;
-            if i != j {
-                adj[fill[i]] = j;
-                fill[i] += 1;
-                adj[fill[j]] = i;
-                fill[j] += 1;
-            }
-        }
-    }
-    (ptr, adj)
 }
 
 /// Breadth-first search from `start`: the last node reached and its distance.

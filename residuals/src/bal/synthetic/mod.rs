@@ -14,7 +14,7 @@
 pub mod ring;
 pub mod streets;
 
-use super::{rotate, BalProblem, Observation};
+use super::{camera_centre, rotate, BalProblem, Observation};
 use dynamap_solver::lie::so3;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -110,12 +110,6 @@ pub(crate) fn look_camera(
     let w = so3::log(&UnitQuaternion::from_rotation_matrix(&r));
     let t = -(r * centre);
     [w.x, w.y, w.z, t.x, t.y, t.z, focal, -0.02, 0.001]
-}
-
-/// The centre `−Rᵀt` of a BAL camera.
-pub(crate) fn camera_centre(cam: &[f64; 9]) -> Vector3<f64> {
-    let w = Vector3::new(-cam[0], -cam[1], -cam[2]);
-    -rotate(&w, &Vector3::new(cam[3], cam[4], cam[5]))
 }
 
 /// A point in the frame of BAL camera `cam`.

@@ -19,7 +19,8 @@
 //! cameras, is drawn again (at most 50 draws per point wanted, so a camera looking at little
 //! yields fewer).
 
-use super::{camera_centre, in_camera, look_camera, Scene, SyntheticOptions};
+use super::{in_camera, look_camera, Scene, SyntheticOptions};
+use crate::bal::camera_centre;
 use nalgebra::{SVector, Vector2, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
