@@ -55,20 +55,21 @@ pub(super) fn nearby(
 }
 
 /// Whether `found`, the pose a dense loop gives the new keyframe, lies within three deviations
-/// of `tracked`, the pose the track gave it, when the track joins it to keyframe `frames[k]`:
-/// the odometry's deviation grows by [`LoopParams::odometry_drift`] per metre and per radian
-/// travelled between the keyframes (from `frames[k]` through every later keyframe to
-/// `tracked`), plus [`LoopParams::odometry_floor`], and the loop's own deviation
-/// ([`LoopParams::loop_deviation`] of `depth`) adds to it.
+/// of `tracked`, the pose the track gave it, when the track joins it to the keyframe of tracked
+/// pose `poses[k]` (`poses`: the keyframes' tracked poses, oldest first): the odometry's
+/// deviation grows by [`LoopParams::odometry_drift`] per metre and per radian travelled between
+/// the keyframes (from `poses[k]` through every later keyframe to `tracked`), plus
+/// [`LoopParams::odometry_floor`], and the loop's own deviation ([`LoopParams::loop_deviation`]
+/// of `depth`) adds to it.
 pub(super) fn agrees_with_track(
-    frames: &[Keyframe],
+    poses: &[Isometry3<f64>],
     k: usize,
     tracked: &Isometry3<f64>,
     found: &Isometry3<f64>,
     params: &LoopParams,
     depth: f64,
 ) -> bool {
-    let (metres, radians) = travelled(frames, k, tracked);
+    let (metres, radians) = travelled(poses, k, tracked);
     let (loop_r, loop_t) = params.loop_deviations(depth);
     let d = tracked.inverse() * found;
     d.translation.vector.norm() <= 3.0 * (params.odometry_deviation(metres) + loop_t)
@@ -92,9 +93,9 @@ pub(super) fn settled_alike(
     d.translation.vector.norm() <= sigma_t && d.rotation.angle() <= sigma_r
 }
 
-/// The path length and the rotation summed along the keyframes from `frames[k]` to `last`.
-fn travelled(frames: &[Keyframe], k: usize, last: &Isometry3<f64>) -> (f64, f64) {
-    let poses = frames[k.min(frames.len())..].iter().map(|f| &f.pose);
+/// The path length and the rotation summed along the keyframe poses from `poses[k]` to `last`.
+fn travelled(poses: &[Isometry3<f64>], k: usize, last: &Isometry3<f64>) -> (f64, f64) {
+    let poses = poses[k.min(poses.len())..].iter();
     let next = poses.clone().skip(1).chain(std::iter::once(last));
     poses.zip(next).fold((0.0, 0.0), |(t, r), (a, b)| {
         let d = a.inverse() * b;
@@ -159,7 +160,7 @@ mod tests {
 
     #[test]
     fn a_loop_agrees_with_the_track_within_the_drift_of_the_path_between() {
-        let frames = walk(10);
+        let frames: Vec<Isometry3<f64>> = walk(10).iter().map(|f| f.pose).collect();
         let params = LoopParams::default();
         let tracked = Isometry3::translation(2.0, 0.0, 0.0);
         // 2 m travelled from keyframe 0: 3 (0.02 · 2 + 0.002) + 3 · 0.01 · 2 = 0.186 m

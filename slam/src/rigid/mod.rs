@@ -8,6 +8,7 @@ pub mod exposure;
 mod health;
 pub mod keyframes;
 mod loop_candidates;
+mod loop_search;
 pub mod loops;
 mod motion_model;
 pub mod outcome;

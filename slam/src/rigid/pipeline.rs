@@ -9,10 +9,9 @@ use super::health::{Fit, Health};
 use super::keyframes::median_depth;
 use super::keyframes::{Candidate, Keyframe, Keyframes};
 use super::loop_candidates;
+use super::loop_search::{LoopQuery, LoopSearch, LoopTarget, MAX_PENDING};
 use super::loops::LoopCandidate;
-use super::loops::{
-    find_loop, median_z, BackgroundSolver, KeyframeGraph, LoopError, Optimised, Reach,
-};
+use super::loops::{find_loop, BackgroundSolver, KeyframeGraph, LoopError, Optimised, Reach};
 use super::motion_model::MotionModel;
 use super::outcome::{FrameOutcome, TrackFailure};
 use super::relocalise::{Floors, LiveFrame, RelocaliseParams, Relocaliser};
@@ -20,13 +19,13 @@ use super::spread::OdometrySpread;
 use super::submaps::{SubmapParams, Submaps};
 use super::tracker::{FrameConstraint, ModelPyramid, TrackOutcome, Tracker, TrackerParams};
 use crate::camera::Camera;
-use crate::features::fit_keypoints;
 use crate::image::{ColorImage, Image};
 use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{RaycastMaps, TsdfError, TsdfParams, TsdfVolume};
 use nalgebra::Isometry3;
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// How much faster than the fastest motion tracked the camera may have moved while lost.
@@ -188,6 +187,8 @@ pub struct RigidSlam {
     loops: KeyframeGraph,
     /// Solves the graph off the tracking thread whenever a loop is added.
     graph_solver: BackgroundSolver,
+    /// Searches the sub-maps for a new keyframe's loop off the tracking thread.
+    loop_search: LoopSearch,
     /// The recent frames' agreements with the model and stamps.
     health: Health,
     /// Frames given to [`Self::process`] and [`Self::process_timed`].
@@ -253,6 +254,7 @@ impl RigidSlam {
             lost: false,
             loops,
             graph_solver: BackgroundSolver::new(),
+            loop_search: LoopSearch::default(),
             relocaliser,
             health: Health::default(),
             calls: 0,
@@ -303,9 +305,11 @@ impl RigidSlam {
         self.graph_solver.poll()
     }
 
-    /// Waits for the background solver to finish the graphs handed to it and returns the
-    /// newest solution (`None` when no loop was found).
+    /// Waits for the loop searches under way to add their loops to the graph and for the
+    /// background solver to finish the graphs handed to it; the newest solution (`None` when
+    /// no loop was found).
     pub fn finish_graph(&mut self) -> Result<Option<&Optimised>, LoopError> {
+        self.take_loops(1);
         self.graph_solver.finish()
     }
 
@@ -486,6 +490,7 @@ impl RigidSlam {
             }
             Err(why) => report.outcome = FrameOutcome::NotTracked(why),
         }
+        self.take_loops(usize::MAX);
         report.pose = self.pose;
         report.anchor = self.anchor;
         report.placed = self.anchor.is_none_or(|a| self.loops.is_placed(a));
@@ -762,8 +767,8 @@ impl RigidSlam {
 
     /// The frame just became a keyframe: it joins the graph (as the first of a new map
     /// fragment when `new_map`), may anchor a sub-map, and is matched against the older
-    /// keyframes for a loop (densely against the older sub-maps when the map is split, by
-    /// features otherwise); a loop found sends the graph to the solver.
+    /// keyframes for a loop (densely against the older sub-maps off the tracking thread when
+    /// the map is split, by features otherwise); a loop found sends the graph to the solver.
     fn keyframe_added(&mut self, color: Option<&ColorImage>, new_map: bool) {
         let spread = self.spread.take(&self.pose);
         if new_map {
@@ -790,23 +795,24 @@ impl RigidSlam {
                 }
             }
         }
-        let found = if new_map {
-            None
-        } else if self.submaps.is_some() {
-            self.dense_loop(color)
-        } else {
-            let p = &self.params.relocalise;
-            find_loop(
-                self.relocaliser.keyframes(),
-                &self.loops.params,
-                &p.features,
-            )
-        };
-        if let Some(l) = found {
-            tracing::debug!(from = l.from, to = l.to, inliers = l.inliers, "loop");
-            if self.loops.add_loop(&l) {
-                self.graph_solver.submit(&self.loops);
+        if new_map {
+            return;
+        }
+        if self.submaps.is_some() {
+            // searched off the tracking thread; its loop reaches the graph in a later frame
+            if let Some(query) = self.loop_query(color) {
+                self.take_loops(MAX_PENDING);
+                self.loop_search.submit(query);
             }
+            return;
+        }
+        let p = &self.params.relocalise;
+        if let Some(l) = find_loop(
+            self.relocaliser.keyframes(),
+            &self.loops.params,
+            &p.features,
+        ) {
+            self.add_loop(&l);
         }
     }
 
@@ -821,97 +827,73 @@ impl RigidSlam {
         }
     }
 
-    /// A loop from the new keyframe (the current frame) to an older keyframe in a frozen
-    /// sub-map: older keyframes at least [`super::loops::LoopParams::min_frames_apart`] frames
-    /// back, the nearest by fern code and those of the current map fragment whose tracked poses
-    /// lie near the new one's ([`loop_candidates::nearby`]), are each tried as the start of a
-    /// dense track against their sub-map raycast from their pose. A track must pass the
-    /// tracker's tests and the relocaliser's floor on the inlier fraction; one that agrees with
-    /// the track ([`loop_candidates::agrees_with_track`]) needs nothing more and wins over one
-    /// that does not, which must also reach the floors on the recent frames' fit. The better
-    /// fit decides between equals. A loop to another map fragment, which nothing else places,
-    /// also needs the sparse features to agree with it ([`Self::features_agree`]) or, where
-    /// the recent frames' correlation floor is telling, a correlation reaching it (NOTES 94).
-    /// A loop of the current fragment is tracked again from the live frame's tracked pose and
-    /// kept only if both tracks end in one place ([`loop_candidates::settled_alike`], NOTES
-    /// 116).
-    fn dense_loop(&mut self, color: Option<&ColorImage>) -> Option<LoopCandidate> {
+    /// The dense loop search of the new keyframe (the current frame), for the worker
+    /// ([`super::loop_search`]): older keyframes in frozen sub-maps at least
+    /// [`super::loops::LoopParams::min_frames_apart`] frames back (keyframes of older map
+    /// fragments however recent, as no odometry joins them), the nearest by fern code and those
+    /// of the current map fragment whose tracked poses lie near the new one's
+    /// ([`loop_candidates::nearby`]). `None` when there is nothing to try or the recent frames
+    /// do not yet say what a good fit is.
+    fn loop_query(&mut self, color: Option<&ColorImage>) -> Option<Box<LoopQuery>> {
         let submaps = self.submaps.as_ref()?;
         let until = submaps.frozen_until()?;
         let p = &self.params.relocalise;
         let apart = self.loops.params.min_frames_apart.max(1);
-        // keyframes of older map fragments are candidates however recent (no odometry joins
-        // them), those of the current one only when old enough
         let since = self.relocaliser.fragment_start();
-        // no loop before the recent frames say what a good fit is
         let floor = self.health.expected()?.scaled(p.min_fit_ratio);
         let depth = median_depth(&self.pre.levels[0].depth, &mut self.samples);
-        let candidates = self.loop_candidates(since, until, apart, depth);
-        let live = LiveFrame {
-            levels: &self.pre.levels,
-            color,
-            camera: &self.camera,
-            model_template: &self.model,
-        };
-        let mut best: Option<((bool, f64), LoopCandidate)> = None;
-        for (k, frame, pose) in candidates {
-            let Some(map) = submaps.containing(frame) else {
-                continue;
-            };
-            let o = self
-                .relocaliser
-                .verify(&mut self.tracker, &map.volume, &live, &pose);
-            let fraction = o.inlier_fraction();
-            let keys = self.relocaliser.keyframes().frames();
-            let agrees = frame >= since
-                && loop_candidates::agrees_with_track(
-                    keys,
-                    k,
-                    &self.pose,
-                    &o.pose,
-                    &self.loops.params,
-                    depth,
-                );
-            // a loop the track corroborates needs only the relocaliser's own floor; one it
-            // does not must also fit nearly as well as the recent frames
-            let fits = fraction >= p.min_inlier_fraction
-                && (agrees || (fraction >= floor.fraction && o.agreement >= floor.agreement));
-            log_loop_candidate((frame, self.frames), &o, fits, agrees);
-            let rank = (agrees, fraction);
-            if o.failure.is_some() || !fits || best.as_ref().is_some_and(|b| b.0 >= rank) {
-                continue;
-            }
-            // nothing but this loop places another map fragment: the features must agree, or
-            // the texture must match as the recent frames' did where that floor can tell
-            // (NOTES 94)
-            let newest = keys.last()?;
-            let textured = floor.telling() && o.correlation >= floor.correlation;
-            if frame < since && !textured && !self.features_agree(&keys[k], newest, &o.pose) {
-                continue;
-            }
-            // the same fragment's track gives a second start: a registration that ends
-            // elsewhere from it depends on where it started (a slide along a corridor)
-            if frame >= since {
-                let again =
-                    self.relocaliser
-                        .verify(&mut self.tracker, &map.volume, &live, &self.pose);
-                let params = &self.loops.params;
-                let alike = loop_candidates::settled_alike(&o.pose, &again.pose, params, depth);
-                if again.failure.is_some() || !alike {
-                    tracing::debug!(from = frame, to = self.frames, "loop depends on its start");
-                    continue;
-                }
-            }
-            let found = LoopCandidate {
-                from: frame,
-                to: self.frames,
-                relative: pose.inverse() * o.pose,
-                inliers: o.inliers,
-                depth,
-            };
-            best = Some((rank, found));
+        let keys = self.relocaliser.keyframes().frames();
+        let targets: Vec<LoopTarget> = self
+            .loop_candidates(since, until, apart, depth)
+            .into_iter()
+            .filter_map(|(k, frame, pose)| {
+                let map = submaps.containing(frame)?;
+                Some(LoopTarget {
+                    index: k,
+                    frame,
+                    pose,
+                    map: Arc::clone(&map.volume),
+                    keyframe: (frame < since).then(|| keys[k].clone()),
+                })
+            })
+            .collect();
+        if targets.is_empty() {
+            return None;
         }
-        best.map(|(_, found)| found)
+        Some(Box::new(LoopQuery {
+            frame: self.frames,
+            pose: self.pose,
+            since,
+            depth,
+            floor,
+            targets,
+            poses: keys.iter().map(|k| k.pose).collect(),
+            newest: keys.last()?.clone(),
+            levels: self.pre.levels.clone(),
+            color: color.cloned(),
+            camera: self.camera,
+            model_template: self.model.clone(),
+            tracker: self.tracker.clone(),
+            params: p.clone(),
+        }))
+    }
+
+    /// Adds the loops the worker has found since the last call to the graph, in the order
+    /// their keyframes were taken, after waiting until fewer than `below` searches are
+    /// pending; a loop added sends the graph to the solver.
+    fn take_loops(&mut self, below: usize) {
+        for l in self.loop_search.finished(below) {
+            self.add_loop(&l);
+        }
+    }
+
+    /// Adds a verified loop to the keyframe graph and, if the graph keeps it, has the graph
+    /// solved.
+    fn add_loop(&mut self, l: &LoopCandidate) {
+        tracing::debug!(from = l.from, to = l.to, inliers = l.inliers, "loop");
+        if self.loops.add_loop(l) {
+            self.graph_solver.submit(&self.loops);
+        }
     }
 
     /// The keyframes a dense loop from the newest keyframe tries, as (index, frame, pose):
@@ -943,24 +925,6 @@ impl RigidSlam {
             .into_iter()
             .map(|k| (k, frames[k].frame, frames[k].pose))
             .collect()
-    }
-
-    /// Whether the sparse features of keyframes `old` and `new` match (RANSAC finds a motion
-    /// with [`crate::features::FeatureParams::min_inliers`]) on a motion that puts `new` within
-    /// three loop deviations ([`super::loops::LoopParams::loop_deviation`] of the matches'
-    /// depth) of `dense`, the pose the dense loop found for it in `old`'s frame. Two
-    /// independent measurements agreeing is what a loop from a look-alike place rarely has: on
-    /// the room's survey, none of nine false loops between fragments had a feature fit at all,
-    /// and the true ones agreed within 2.5 cm and 0.5° (with 12–27 inliers, fewer than a
-    /// feature loop needs).
-    fn features_agree(&self, old: &Keyframe, new: &Keyframe, dense: &Isometry3<f64>) -> bool {
-        let p = &self.params.relocalise;
-        let Some(m) = fit_keypoints(&new.keypoints, &old.keypoints, &p.features) else {
-            return false;
-        };
-        let (sigma_r, sigma_t) = p.loops.loop_deviations(median_z(&m.target));
-        let d = (old.pose * m.fit.motion).inverse() * dense;
-        d.translation.vector.norm() <= 3.0 * sigma_t && d.rotation.angle() <= 3.0 * sigma_r
     }
 
     /// Raycasts the model at the current pose for the next frame's tracking.
@@ -997,22 +961,6 @@ impl RigidSlam {
             "rigid frame"
         );
     }
-}
-
-/// Logs a dense loop candidate from keyframe `from` to frame `to` at debug level: its track's
-/// fit, whether it fits and whether it agrees with the track.
-fn log_loop_candidate((from, to): (usize, usize), o: &TrackOutcome, fits: bool, agrees: bool) {
-    tracing::debug!(
-        from,
-        to,
-        fraction = o.inlier_fraction(),
-        agreement = o.agreement,
-        correlation = o.correlation,
-        failed = o.failure.is_some(),
-        fits,
-        agrees,
-        "dense loop candidate"
-    );
 }
 
 /// Fuses a pyramid level's depth and normals (and the colour) seen from `camera` at `pose`.

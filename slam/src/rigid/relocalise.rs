@@ -119,6 +119,39 @@ pub(crate) struct Floors {
     pub keyframe_ratio: f64,
 }
 
+/// Buffers for tracking the live frame against a map raycast at a candidate pose: the
+/// raycast and a model pyramid of the pipeline's shape (copied from the first live frame's
+/// template).
+#[derive(Debug, Default)]
+pub(crate) struct Verifier {
+    maps: RaycastMaps,
+    model: Option<ModelPyramid>,
+}
+
+impl Verifier {
+    /// Tracks the live frame from `start` against `volume` raycast at `start`.
+    pub fn verify(
+        &mut self,
+        tracker: &mut Tracker,
+        volume: &TsdfVolume,
+        live: &LiveFrame<'_>,
+        start: &Isometry3<f64>,
+    ) -> TrackOutcome {
+        let model = self
+            .model
+            .get_or_insert_with(|| live.model_template.clone());
+        let r = model.offset;
+        volume.raycast_with_hint(
+            &live.camera.level(r),
+            start,
+            Some(&live.levels[r].depth),
+            &mut self.maps,
+        );
+        model.update(&self.maps, start);
+        tracker.probe(live.levels, model, start)
+    }
+}
+
 /// The relocaliser's memory: the last fused frame, the keyframes, and buffers for raycasting
 /// the model at a candidate pose.
 #[derive(Debug)]
@@ -126,8 +159,7 @@ pub(crate) struct Relocaliser {
     key_depth: DepthImage,
     key_color: ColorImage,
     keyframes: Keyframes,
-    maps: RaycastMaps,
-    model: Option<ModelPyramid>,
+    verifier: Verifier,
     /// The first frame of the current map fragment.
     since: usize,
 }
@@ -139,8 +171,7 @@ impl Relocaliser {
             key_depth: DepthImage::new(0, 0),
             key_color: ColorImage::new(0, 0),
             keyframes: Keyframes::new(params.keyframes.clone()),
-            maps: RaycastMaps::new(),
-            model: None,
+            verifier: Verifier::default(),
             since: 0,
         }
     }
@@ -264,7 +295,7 @@ impl Relocaliser {
         let blind = telling || conditioning >= tracker.params.min_conditioning;
         let (starts, from_features) = self.starts(params, live.camera, keypoints, last, blind);
         let (screened, k, pose) = screen(tracker, model, live.levels, &starts, floor.correlation)?;
-        let o = self.verify(tracker, volume, live, &pose);
+        let o = self.verifier.verify(tracker, volume, live, &pose);
         let fraction = o.inlier_fraction();
         let reachable = reach.admits(&last, &o.pose);
         tracing::debug!(
@@ -342,7 +373,7 @@ impl Relocaliser {
                 key.frame,
                 floors.keyframe_ratio * key.agreement.unwrap_or(0.0),
             );
-            let o = self.verify(tracker, volume, live, &start);
+            let o = self.verifier.verify(tracker, volume, live, &start);
             let (fraction, shift) = (o.inlier_fraction(), view_shift(last, &o.pose, scale));
             let reachable = reach.admits(last, &o.pose);
             tracing::debug!(
@@ -368,28 +399,6 @@ impl Relocaliser {
             }
         }
         best.map(|b| b.1)
-    }
-
-    /// Tracks the live frame from `start` against the model raycast at `start`.
-    pub(super) fn verify(
-        &mut self,
-        tracker: &mut Tracker,
-        volume: &TsdfVolume,
-        live: &LiveFrame<'_>,
-        start: &Isometry3<f64>,
-    ) -> TrackOutcome {
-        let model = self
-            .model
-            .get_or_insert_with(|| live.model_template.clone());
-        let r = model.offset;
-        volume.raycast_with_hint(
-            &live.camera.level(r),
-            start,
-            Some(&live.levels[r].depth),
-            &mut self.maps,
-        );
-        model.update(&self.maps, start);
-        tracker.probe(live.levels, model, start)
     }
 
     /// The start poses: the last pose first, the features' motion, then (if `blind`) the shifts

@@ -13,6 +13,7 @@
 use crate::mesh::Mesh;
 use crate::tsdf::{TsdfParams, TsdfVolume};
 use nalgebra::Isometry3;
+use std::sync::Arc;
 
 /// When sub-maps start and hand over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -38,8 +39,10 @@ impl Default for SubmapParams {
 /// fused.
 #[derive(Debug)]
 pub struct Submap {
-    /// The TSDF, in the frame the poses were tracked in.
-    pub volume: TsdfVolume,
+    /// The TSDF, in the frame the poses were tracked in. Nothing writes a frozen volume again;
+    /// it is shared with the loop search running off the tracking thread (the pipeline's
+    /// `loop_search` module).
+    pub volume: Arc<TsdfVolume>,
     /// The anchor keyframe's frame index.
     pub anchor: usize,
     /// The first and last frame fused.
@@ -63,7 +66,16 @@ pub struct Submaps {
     frozen: Vec<Submap>,
     active: Active,
     /// The sub-map being started, with the frames fused into it.
-    next: Option<(Submap, usize)>,
+    next: Option<(Starting, usize)>,
+}
+
+/// A sub-map being filled beside the active one: its volume, its anchor keyframe and the first
+/// and last frame fused.
+#[derive(Debug)]
+struct Starting {
+    volume: TsdfVolume,
+    anchor: usize,
+    frames: (usize, usize),
 }
 
 impl Submaps {
@@ -128,7 +140,7 @@ impl Submaps {
             self.active.anchor = Some(frame);
             return;
         }
-        let new = Submap {
+        let new = Starting {
             volume: TsdfVolume::new(tsdf),
             anchor: frame,
             frames: (frame, frame),
@@ -162,7 +174,7 @@ impl Submaps {
         std::mem::swap(&mut next.volume, active);
         // `next` now holds the old active volume
         let old = Submap {
-            volume: next.volume,
+            volume: Arc::new(next.volume),
             anchor: self.active.anchor.unwrap_or(self.active.first),
             frames: (self.active.first, frame),
         };
@@ -183,7 +195,7 @@ impl Submaps {
         let old = std::mem::replace(active, TsdfVolume::new(tsdf));
         if self.active.fused > 0 {
             self.frozen.push(Submap {
-                volume: old,
+                volume: Arc::new(old),
                 anchor: self.active.anchor.unwrap_or(self.active.first),
                 frames: (self.active.first, self.active.last),
             });
@@ -226,7 +238,7 @@ impl Submaps {
         let parts = self
             .frozen
             .iter()
-            .map(|s| (&s.volume, Some(s.anchor)))
+            .map(|s| (&*s.volume, Some(s.anchor)))
             .chain(std::iter::once((active, self.active.anchor)));
         for (volume, anchor) in parts {
             let Some(c) = anchor.map_or(Some(Isometry3::identity()), &correction) else {

@@ -979,7 +979,7 @@ impl FrameConstraint {
 }
 
 /// The frame-to-model tracker; keeps its buffers between frames.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct Tracker {
     /// Its settings.
     pub params: TrackerParams,
