@@ -625,6 +625,11 @@ fn track_frames(
             bar.inc(1);
         }
         drop(frames);
+        if rec.enabled() && logged.is_ok() {
+            // the loops of the searches still under way
+            slam.finish_loops();
+            logged = log_loops(rec, slam.keyframe_graph(), &mut logged_loops);
+        }
     });
     logged
 }

@@ -309,8 +309,14 @@ impl RigidSlam {
     /// background solver to finish the graphs handed to it; the newest solution (`None` when
     /// no loop was found).
     pub fn finish_graph(&mut self) -> Result<Option<&Optimised>, LoopError> {
-        self.take_loops(1);
+        self.finish_loops();
         self.graph_solver.finish()
+    }
+
+    /// Waits for the loop searches under way (with sub-maps they run off the tracking thread)
+    /// and adds their loops to the graph.
+    pub fn finish_loops(&mut self) {
+        self.take_loops(1);
     }
 
     /// The older sub-maps, when the map is split ([`SlamParams::submaps`]).
