@@ -185,6 +185,7 @@ fn log_candidate((from, to): (usize, usize), o: &TrackOutcome, fits: bool, agree
 }
 
 /// The worker that runs the searches, started with the first query.
+#[derive(Debug)]
 struct Worker {
     queries: mpsc::Sender<Box<LoopQuery>>,
     answers: mpsc::Receiver<Option<LoopCandidate>>,
@@ -224,20 +225,11 @@ impl Worker {
 
 /// Runs [`search`] on a thread of its own: [`Self::submit`] hands a query over,
 /// [`Self::finished`] takes the loops found, in the order the queries were submitted.
-#[derive(Default)]
+#[derive(Debug, Default)]
 pub(super) struct LoopSearch {
     worker: Option<Worker>,
     /// Queries submitted and not yet answered.
     pending: usize,
-}
-
-impl std::fmt::Debug for LoopSearch {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("LoopSearch")
-            .field("running", &self.worker.is_some())
-            .field("pending", &self.pending)
-            .finish()
-    }
 }
 
 impl LoopSearch {
