@@ -10,7 +10,8 @@
 //! ```
 //! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
 //! vertices (in their order) and normals warped. Lengths default to fractions of the source's
-//! bounding-box diagonal D: node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
+//! bounding-box diagonal D (of the vertices its faces use; a stray vertex no face uses does not
+//! count, `surface_diagonal`): node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
 //! are registered in a first pass by closest point and then in passes seeded by geodesic
 //! descriptors to the core and the extremities (`register_meshes`, NOTES 47, 48 and 102);
 //! `--seeded-passes 0` registers by closest point alone. In every round a target point farther
@@ -57,10 +58,10 @@ use dynamap_slam::io::images::{read_color, read_depth, read_mask, write_color};
 use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, frame_points, mask_near_nodes, median_distance,
-    mesh_points, register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
-    FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding, SurfaceMesh,
-    SurfaceRegistration, SurfaceVerdict, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
+    clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
+    register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
+    surface_diagonal, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
+    SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -158,7 +159,7 @@ struct MeshArgs {
     seeded_passes: Option<usize>,
     /// A ground-truth vertex map (line k: the index on TARGET of SOURCE's vertex k, as in the camel
     /// data's maps/i_to_j): adds the mean and 95th percentile of |warped − partner| before and after,
-    /// as fractions of TARGET's bounding-box diagonal, to the JSON. Entries pointing at a vertex that
+    /// as fractions of TARGET's bounding-box diagonal (of the vertices its faces use), to the JSON. Entries pointing at a vertex that
     /// over 1 % of the source points at are placeholders for "no partner" and are not scored.
     #[arg(long)]
     ground_truth: Option<PathBuf>,
@@ -648,7 +649,22 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let target = read_mesh(&args.target).bad_input()?;
     let (sp, sn) = mesh_points(&source);
     let (tp, tn) = mesh_points(&target);
-    let (mut graph, mut params) = clean_surface_settings(bounding_diagonal(&sp));
+    let size = |points: &[Vector3<f64>], mesh: &Mesh, path: &Path| {
+        let d = surface_diagonal(points, &mesh.faces);
+        if d.is_finite() && d > 0.0 {
+            Ok(d)
+        } else {
+            Err(cli::bad_input(format_args!(
+                "{}: the surface has no extent (its vertices lie at one point)",
+                path.display()
+            )))
+        }
+    };
+    let (source_size, target_size) = (
+        size(&sp, &source, &args.source)?,
+        size(&tp, &target, &args.target)?,
+    );
+    let (mut graph, mut params) = clean_surface_settings(source_size);
     args.warp.apply(&mut graph, &mut params).bad_input()?;
     let map = match &args.ground_truth {
         Some(p) => Some(VertexMap::read(p, sp.len(), tp.len()).bad_input()?),
@@ -692,7 +708,7 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         "tolerance": reg.fit.tolerance,
     });
     if let Some(map) = &map {
-        let d = bounding_diagonal(&tp);
+        let d = target_size;
         let (before, after) = (map.error(&sp, &tp, d), map.error(&reg.points, &tp, d));
         json["scored_vertices"] = map.scored_count().into();
         json["error_before"] = serde_json::json!({"mean": before.mean, "p95": before.p95});

@@ -6,7 +6,7 @@ use crate::errors;
 use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
-    bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud, Seeding,
+    clean_surface_settings, mesh_points, register_mesh_or_cloud, surface_diagonal, Seeding,
     SurfaceMesh, SurfaceVerdict,
 };
 use nalgebra::{Point3, Vector3};
@@ -241,7 +241,7 @@ pub fn register_meshes<'py>(
         .detach(|| {
             let (sp, sn) = mesh_points(&source);
             let (tp, tn) = mesh_points(&target);
-            let (graph, params) = clean_surface_settings(bounding_diagonal(&sp));
+            let (graph, params) = clean_surface_settings(surface_diagonal(&sp, &source.faces));
             let s = SurfaceMesh {
                 points: &sp,
                 normals: &sn,

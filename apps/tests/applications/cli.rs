@@ -287,6 +287,85 @@ fn nonrigid_register_takes_one_subcommand_per_input_with_its_own_flags() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Vertices that no face uses (legal in PLY and OFF files) do not make a mesh larger: its
+/// settings and its score scale with the surface itself, so a plate with two stray vertices
+/// far off registers as the plate does. A surface with no extent is refused by name.
+#[test]
+fn stray_vertices_leave_a_registration_as_it_was_and_a_point_sized_mesh_is_refused() {
+    use dynamap_slam::io::ply;
+    use dynamap_slam::synthetic::plate::{flat_grid, PlateDeformation};
+    let dir = scratch("stray");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
+    let source = flat_grid();
+    let bent = PlateDeformation::ALL[0].deformed(&source);
+    let mut stray = source.clone();
+    stray
+        .vertices
+        .push(nalgebra::Point3::new(100.0, 100.0, 100.0));
+    stray
+        .vertices
+        .push(nalgebra::Point3::new(-100.0, 0.0, 50.0));
+    stray.normals.clear();
+    let mut point = source.clone();
+    point
+        .vertices
+        .iter_mut()
+        .for_each(|p| *p = nalgebra::Point3::origin());
+    point.normals.clear();
+    for (name, mesh) in [
+        ("flat", &source),
+        ("bent", &bent),
+        ("stray", &stray),
+        ("point", &point),
+    ] {
+        ply::write(dir.join(format!("{name}.ply")), mesh).unwrap();
+    }
+    let map = |n: usize| (0..n).map(|k| format!("{k}\n")).collect::<String>();
+    std::fs::write(dir.join("map.txt"), map(source.vertices.len())).unwrap();
+    // the strays' own partners: vertex 0, scored like any other
+    std::fs::write(
+        dir.join("map_stray.txt"),
+        map(source.vertices.len()) + "0\n0\n",
+    )
+    .unwrap();
+    let register = |from: &str, gt: &str| {
+        let out = run(
+            "nonrigid_register",
+            &[
+                "meshes",
+                &path(from),
+                &path("bent.ply"),
+                "--ground-truth",
+                &path(gt),
+                "-q",
+            ],
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        result_json(&out)
+    };
+    let (plain, with_strays) = (
+        register("flat.ply", "map.txt"),
+        register("stray.ply", "map_stray.txt"),
+    );
+    let tolerance = |j: &serde_json::Value| j["fit"]["tolerance"].as_f64().unwrap();
+    let median = |j: &serde_json::Value| j["fit"]["median_distance"].as_f64().unwrap();
+    assert_eq!(
+        tolerance(&plain),
+        tolerance(&with_strays),
+        "{plain}\n{with_strays}"
+    );
+    assert!(
+        median(&with_strays) <= 1.5 * median(&plain),
+        "{plain}\n{with_strays}"
+    );
+    let refused = run(
+        "nonrigid_register",
+        &["meshes", &path("point.ply"), &path("bent.ply")],
+    );
+    assert_exit(&refused, 2, &["point.ply", "no extent"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn a_reader_that_stops_early_ends_the_run_without_a_panic() {
     use std::process::{Command, Stdio};

@@ -6,7 +6,7 @@
 
 use super::boundary::{rim_matches, RimMatches};
 use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
-pub use super::extent::bounding_diagonal;
+pub use super::extent::{bounding_diagonal, surface_diagonal};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
 use super::mesh_target::MeshTarget;
@@ -185,7 +185,7 @@ pub fn register_surfaces(
         graph,
         params,
         principal_axes,
-        false,
+        None,
     )?
     .run(None)
 }
@@ -193,8 +193,8 @@ pub fn register_surfaces(
 /// What every pass of a surface registration starts from: the source's graph at rest and its
 /// bindings, the rigid starting guesses and the target's KD-tree, built once for all passes.
 ///
-/// For [`register_meshes`] every length inside is in units of the source's bounding-box diagonal
-/// (`unit`), the points and the settings alike, and the result is scaled back: with settings
+/// For [`register_meshes`] every length inside is in units of the source's size (`unit`, the
+/// bounding-box diagonal of the vertices its faces use, [`surface_diagonal`]), the points and the settings alike, and the result is scaled back: with settings
 /// relative to the size (as [`clean_surface_settings`] makes them) a registration then does the
 /// same at 10 cm as at 2 m. The optimiser's damping and stopping tests mix rotations (radians)
 /// and translations (lengths), so in metres it did not: a saddle-shaped sheet registered to
@@ -222,13 +222,11 @@ impl Passes {
         mut graph: GraphParams,
         mut params: RegisterParams,
         principal_axes: bool,
-        in_units_of_size: bool,
+        size: Option<f64>,
     ) -> Result<Self, SurfaceError> {
-        let d = bounding_diagonal(source.0);
-        let unit = if in_units_of_size && d.is_finite() && d > 0.0 {
-            d
-        } else {
-            1.0
+        let unit = match size {
+            Some(d) if d.is_finite() && d > 0.0 => d,
+            _ => 1.0,
         };
         let scaled = |p: &[Vector3<f64>]| p.iter().map(|p| p / unit).collect::<Vec<_>>();
         let (sp, tp) = (scaled(source.0), scaled(target.points));
@@ -369,7 +367,7 @@ pub fn register_mesh_pair(
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let (sp, sn) = mesh_points(source);
     let (tp, tn) = mesh_points(target);
-    let (graph, params) = clean_surface_settings(bounding_diagonal(&sp));
+    let (graph, params) = clean_surface_settings(surface_diagonal(&sp, &source.faces));
     register_meshes(
         SurfaceMesh {
             points: &sp,
@@ -478,7 +476,7 @@ pub fn register_meshes(
         graph_params,
         params,
         principal_axes,
-        true,
+        Some(surface_diagonal(source.points, source.faces)),
     )?;
     let mut done = match rim {
         Some(found) => passes.run_by_rim(found, target.normals, seeding)?,
