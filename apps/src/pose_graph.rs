@@ -160,6 +160,14 @@ fn load_graph(args: &Args, quiet: bool) -> Result<Loaded> {
             for r in &repairs {
                 tracing::warn!("{}: {r}", path.display());
             }
+            let pieces = graph.components();
+            if pieces > 1 {
+                tracing::warn!(
+                    "{}: no edge joins the graph's {pieces} pieces; each is held by its lowest \
+                     vertex (\"components\" in the JSON)",
+                    path.display()
+                );
+            }
             Loaded {
                 graph,
                 truth: None,
@@ -398,6 +406,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "init_seconds": init_seconds,
             "termination": summary.termination.to_string(),
             "repaired_edges": repaired,
+            "components": graph.components(),
             "covariance": covariance,
         })
     );

@@ -164,7 +164,8 @@ impl PoseGraph {
         self.core.edges.len()
     }
 
-    /// The vertices held fixed (g2o's FIX lines, or the first vertex).
+    /// The vertices held fixed: g2o's FIX lines, and the lowest vertex of every connected piece
+    /// that has none (`PoseGraph::anchors`).
     #[getter]
     fn anchors(&self) -> Vec<usize> {
         self.core.anchors()

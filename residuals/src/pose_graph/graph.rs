@@ -190,12 +190,72 @@ impl PoseGraph {
         }
     }
 
-    /// The vertices that fix the gauge: the FIX ones, or else the lowest id.
+    /// The vertices that fix the gauge, sorted: the FIX ones, and the lowest id of every
+    /// connected piece of the graph (its vertices joined by edges) that holds no FIX vertex.
+    /// A graph in several pieces (a SLAM run's maps that no loop joined) is free to move each
+    /// piece on its own; each is held where the file puts its lowest vertex, as g2o holds the
+    /// first vertex of a graph in one piece. A graph whose only vertex no edge touches has that
+    /// vertex as its anchor; otherwise such a vertex is in no piece and the solve refuses it.
     pub fn anchors(&self) -> Vec<usize> {
-        if !self.fixed.is_empty() {
-            return self.fixed.iter().copied().collect();
+        let pieces = self.pieces();
+        let mut anchors = self.fixed.clone();
+        let held: BTreeSet<usize> = self.fixed.iter().filter_map(|v| pieces.of(*v)).collect();
+        anchors.extend(
+            pieces
+                .lowest
+                .iter()
+                .enumerate()
+                .filter(|(piece, _)| !held.contains(piece))
+                .map(|(_, &v)| v),
+        );
+        if anchors.is_empty() {
+            anchors.extend(self.all_ids().first());
         }
-        self.all_ids().into_iter().next().into_iter().collect()
+        anchors.into_iter().collect()
+    }
+
+    /// The number of connected pieces the edges join the vertices into (a vertex that no edge
+    /// touches is in none).
+    pub fn components(&self) -> usize {
+        self.pieces().lowest.len()
+    }
+
+    /// The connected pieces of the graph, by union-find over the edges.
+    fn pieces(&self) -> Pieces {
+        let ids = self.all_ids();
+        // ids numbered 0..n (as most files are) are their own slots, offset by the first
+        let first = ids.first().copied().unwrap_or(0);
+        let contiguous = ids.last().is_none_or(|&last| last - first + 1 == ids.len());
+        let slot = |v: usize| match contiguous {
+            true => v - first,
+            false => ids
+                .binary_search(&v)
+                .expect("every edge's ends are in all_ids"),
+        };
+        let mut parent: Vec<usize> = (0..ids.len()).collect();
+        let mut touched = vec![false; ids.len()];
+        for e in &self.edges {
+            let (a, b) = (slot(e.from), slot(e.to));
+            touched[a] = true;
+            touched[b] = true;
+            let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+            // the lower slot is the root, so each piece's root is its lowest id
+            parent[ra.max(rb)] = ra.min(rb);
+        }
+        let mut piece_of_root = vec![usize::MAX; ids.len()];
+        let mut lowest = Vec::new();
+        for k in 0..ids.len() {
+            if touched[k] && root(&mut parent, k) == k {
+                piece_of_root[k] = lowest.len();
+                lowest.push(ids[k]);
+            }
+        }
+        Pieces {
+            ids,
+            parent,
+            piece_of_root,
+            lowest,
+        }
     }
 
     /// Every vertex id named by a vertex or an edge, sorted.
@@ -330,6 +390,40 @@ impl PoseGraph {
             dimension: self.dimension,
         })
     }
+}
+
+/// The connected pieces of a graph ([`PoseGraph::pieces`]).
+struct Pieces {
+    /// Every vertex id, sorted (the union-find's slots).
+    ids: Vec<usize>,
+    /// Union-find parents by slot, each path ending at its piece's lowest slot.
+    parent: Vec<usize>,
+    /// The piece numbered by its root's slot (`usize::MAX` for a slot that is no root, or a
+    /// vertex no edge touches).
+    piece_of_root: Vec<usize>,
+    /// Each piece's lowest vertex id, in the order of those ids.
+    lowest: Vec<usize>,
+}
+
+impl Pieces {
+    /// The piece of vertex `v`, if an edge touches it.
+    fn of(&self, v: usize) -> Option<usize> {
+        let k = self.ids.binary_search(&v).ok()?;
+        let mut r = k;
+        while self.parent[r] != r {
+            r = self.parent[r];
+        }
+        Some(self.piece_of_root[r]).filter(|&p| p != usize::MAX)
+    }
+}
+
+/// The root of slot `k` in the union-find `parent`, halving the path on the way.
+fn root(parent: &mut [usize], mut k: usize) -> usize {
+    while parent[k] != k {
+        parent[k] = parent[parent[k]];
+        k = parent[k];
+    }
+    k
 }
 
 fn boxed(kernel: NamedKernel) -> Box<dyn RobustKernel> {

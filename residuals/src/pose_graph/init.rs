@@ -36,26 +36,30 @@ pub fn start(graph: &PoseGraph, from: Start) -> Result<Cow<'_, BTreeMap<usize, P
     })
 }
 
-/// Poses by composing edge measurements along a breadth-first spanning tree rooted at the first
-/// anchor (its pose from the file, or the identity). Every vertex is recomputed.
+/// Poses by composing edge measurements along breadth-first spanning trees rooted at the
+/// anchors ([`PoseGraph::anchors`]: one per connected piece, each at its pose from the file, or
+/// the identity). Every other vertex is recomputed.
 pub fn odometry(graph: &PoseGraph) -> Result<BTreeMap<usize, Pose>, String> {
     let ids = graph.all_ids();
-    let Some(&root) = graph.anchors().first() else {
+    let anchors = graph.anchors();
+    if anchors.is_empty() {
         return Err(format!("{}: the graph has no vertices", graph.source));
-    };
+    }
     let mut adjacency: BTreeMap<usize, Vec<(usize, usize)>> = BTreeMap::new();
     for (k, e) in graph.edges.iter().enumerate() {
         adjacency.entry(e.from).or_default().push((k, e.to));
         adjacency.entry(e.to).or_default().push((k, e.from));
     }
     let mut poses = BTreeMap::new();
-    let start = graph
-        .vertices
-        .get(&root)
-        .copied()
-        .unwrap_or_else(|| Pose::identity(graph.dimension));
-    poses.insert(root, start);
-    let mut queue = VecDeque::from([root]);
+    for &root in &anchors {
+        let start = graph
+            .vertices
+            .get(&root)
+            .copied()
+            .unwrap_or_else(|| Pose::identity(graph.dimension));
+        poses.insert(root, start);
+    }
+    let mut queue = VecDeque::from(anchors);
     while let Some(v) = queue.pop_front() {
         let here = poses[&v];
         for &(k, w) in adjacency.get(&v).map(Vec::as_slice).unwrap_or(&[]) {
@@ -75,7 +79,7 @@ pub fn odometry(graph: &PoseGraph) -> Result<BTreeMap<usize, Pose>, String> {
     }
     if let Some(v) = ids.iter().find(|v| !poses.contains_key(v)) {
         return Err(format!(
-            "{}: vertex {v} is not connected to the anchor vertex {root}",
+            "{}: vertex {v} is touched by no edge",
             graph.source
         ));
     }
