@@ -199,6 +199,15 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let kernel = args.kernel.or(args.huber.map(NamedKernel::Huber));
     cli::set_threads(args.threads)?;
     let (mut data, name) = load_problem(args.problem.as_deref())?;
+    let (idle_cameras, idle_points) = data.unobserved();
+    if !(idle_cameras.is_empty() && idle_points.is_empty()) {
+        tracing::warn!(
+            "{name}: {} cameras and {} points have no observation; they are held where the \
+             file puts them (\"unobserved_cameras\", \"unobserved_points\" in the JSON)",
+            idle_cameras.len(),
+            idle_points.len()
+        );
+    }
     let mut solve = data.build(kernel).bad_input()?;
     let options = solver_options(&args)?;
     let quiet = session.quiet;
@@ -252,6 +261,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "cameras": data.cameras.len(),
             "points": data.points.len(),
             "observations": data.observations.len(),
+            "unobserved_cameras": idle_cameras.len(),
+            "unobserved_points": idle_points.len(),
             "cost_initial": summary.initial_cost,
             "cost_final": summary.final_cost,
             "iterations": summary.num_iterations(),

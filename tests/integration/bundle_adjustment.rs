@@ -93,6 +93,35 @@ fn the_generated_problem_reaches_its_known_optimum() {
     assert!(summary.num_iterations() < 15, "{}", summary.table());
 }
 
+/// A camera and a point that no observation names (legal in a BAL file) are held where the file
+/// puts them: the rest reaches the optimum as without them, with every Schur solver, where the
+/// solve refused the variable no residual touches.
+#[test]
+fn unobserved_cameras_and_points_are_held_and_the_rest_is_solved() {
+    let s = synthetic::generate(&SyntheticOptions::default());
+    let mut start = s.start.clone();
+    start.cameras.push(s.start.cameras[0]);
+    start.points.push([0.5, -0.25, 3.0]);
+    let (cameras, points) = (start.cameras.len(), start.points.len());
+    assert_eq!(start.unobserved(), (vec![cameras - 1], vec![points - 1]));
+    assert_eq!(s.start.unobserved(), (vec![], vec![]));
+    for kind in [
+        LinearSolverKind::SchurDense,
+        LinearSolverKind::SchurSparse,
+        LinearSolverKind::SchurIterative,
+    ] {
+        let mut solve = start.build(None).unwrap();
+        let summary = Solver::new(options(kind))
+            .solve(&mut solve.problem)
+            .unwrap();
+        assert!(summary.final_cost < 1e-14, "{kind:?}: {}", summary.table());
+        let mut solved = start.clone();
+        solved.update_from(&solve);
+        assert_eq!(solved.cameras[cameras - 1], start.cameras[cameras - 1]);
+        assert_eq!(solved.points[points - 1], start.points[points - 1]);
+    }
+}
+
 #[test]
 fn truncated_conjugate_gradients_reach_the_optimum_of_a_street_walk_with_fewer_products() {
     // A walk through the streets (the benchmark family's layout) with pixel noise: the exact

@@ -101,8 +101,25 @@ impl BalProblem {
         self.cost_where(|_| true)
     }
 
+    /// The cameras and the points that no observation names, by index. Nothing measures them,
+    /// so a solve holds them where they are ([`Self::build`]); a variable that no residual
+    /// touches would leave the normal equations singular.
+    pub fn unobserved(&self) -> (Vec<usize>, Vec<usize>) {
+        let mut seen = (
+            vec![false; self.cameras.len()],
+            vec![false; self.points.len()],
+        );
+        for o in &self.observations {
+            seen.0[o.camera] = true;
+            seen.1[o.point] = true;
+        }
+        let missing = |seen: Vec<bool>| (0..seen.len()).filter(|&k| !seen[k]).collect();
+        (missing(seen.0), missing(seen.1))
+    }
+
     /// A solver problem with the cameras added first, then the points, then one
     /// [`SnavelyReprojection`] per observation, under `kernel` if given (Ceres' `loss_function`).
+    /// Cameras and points that no observation names ([`Self::unobserved`]) are held fixed.
     pub fn build(&self, kernel: Option<NamedKernel>) -> Result<BalSolve, ProblemError> {
         let mut problem = Problem::new();
         problem.reserve(
@@ -126,6 +143,13 @@ impl BalProblem {
                 Some(k) => problem.add_robust_residual(r, k, &vars)?,
                 None => problem.add_residual(r, &vars)?,
             };
+        }
+        let (idle_cameras, idle_points) = self.unobserved();
+        for c in idle_cameras {
+            problem.set_fixed(cameras[c], true)?;
+        }
+        for p in idle_points {
+            problem.set_fixed(points[p], true)?;
         }
         Ok(BalSolve {
             problem,
