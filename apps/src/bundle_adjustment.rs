@@ -188,6 +188,22 @@ fn solve_all(
         .with_context(|| format!("{name}: bundle adjustment failed"))
 }
 
+/// The numbers of cameras and points that no observation names (held fixed by
+/// [`BalProblem::build`]), warned of when there are any.
+fn warn_unobserved(data: &BalProblem, name: &str) -> (usize, usize) {
+    let (cameras, points) = data.unobserved();
+    let counts = (cameras.len(), points.len());
+    if counts != (0, 0) {
+        tracing::warn!(
+            "{name}: {} cameras and {} points have no observation; they are held where the \
+             file puts them (\"unobserved_cameras\", \"unobserved_points\" in the JSON)",
+            counts.0,
+            counts.1
+        );
+    }
+    counts
+}
+
 fn run(args: Args, session: &Session) -> Result<()> {
     if let Some(h) = args.huber {
         if !(h > 0.0 && h.is_finite()) {
@@ -199,15 +215,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     let kernel = args.kernel.or(args.huber.map(NamedKernel::Huber));
     cli::set_threads(args.threads)?;
     let (mut data, name) = load_problem(args.problem.as_deref())?;
-    let (idle_cameras, idle_points) = data.unobserved();
-    if !(idle_cameras.is_empty() && idle_points.is_empty()) {
-        tracing::warn!(
-            "{name}: {} cameras and {} points have no observation; they are held where the \
-             file puts them (\"unobserved_cameras\", \"unobserved_points\" in the JSON)",
-            idle_cameras.len(),
-            idle_points.len()
-        );
-    }
+    let (idle_cameras, idle_points) = warn_unobserved(&data, &name);
     let mut solve = data.build(kernel).bad_input()?;
     let options = solver_options(&args)?;
     let quiet = session.quiet;
@@ -261,8 +269,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "cameras": data.cameras.len(),
             "points": data.points.len(),
             "observations": data.observations.len(),
-            "unobserved_cameras": idle_cameras.len(),
-            "unobserved_points": idle_points.len(),
+            "unobserved_cameras": idle_cameras,
+            "unobserved_points": idle_points,
             "cost_initial": summary.initial_cost,
             "cost_final": summary.final_cost,
             "iterations": summary.num_iterations(),
