@@ -11,8 +11,8 @@
 //! `meshes`: SOURCE and TARGET are meshes (PLY, OFF or OBJ). WARPED is the source mesh with its
 //! vertices (in their order) and normals warped. Lengths default to fractions of the source's
 //! bounding-box diagonal D (of the vertices its faces use; a stray vertex no face uses does not
-//! count, `surface_diagonal`): node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D. Meshes
-//! are registered in a first pass by closest point and then in passes seeded by geodesic
+//! count, `surface_diagonal`): node spacing 0.03 D, association gate 0.1 D, Tukey's c 0.05 D.
+//! Meshes are registered in a first pass by closest point and then in passes seeded by geodesic
 //! descriptors to the core and the extremities (`register_meshes`, NOTES 47, 48 and 102);
 //! `--seeded-passes 0` registers by closest point alone. In every round a target point farther
 //! than `--cover` source point spacings from the warped source pulls the nearest warped point
@@ -159,8 +159,9 @@ struct MeshArgs {
     seeded_passes: Option<usize>,
     /// A ground-truth vertex map (line k: the index on TARGET of SOURCE's vertex k, as in the camel
     /// data's maps/i_to_j): adds the mean and 95th percentile of |warped − partner| before and after,
-    /// as fractions of TARGET's bounding-box diagonal (of the vertices its faces use), to the JSON. Entries pointing at a vertex that
-    /// over 1 % of the source points at are placeholders for "no partner" and are not scored.
+    /// as fractions of TARGET's bounding-box diagonal (of the vertices its faces use), to the JSON.
+    /// Entries pointing at a vertex that over 1 % of the source points at are placeholders for "no
+    /// partner" and are not scored.
     #[arg(long)]
     ground_truth: Option<PathBuf>,
 }

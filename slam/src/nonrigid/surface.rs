@@ -194,11 +194,12 @@ pub fn register_surfaces(
 /// bindings, the rigid starting guesses and the target's KD-tree, built once for all passes.
 ///
 /// For [`register_meshes`] every length inside is in units of the source's size (`unit`, the
-/// bounding-box diagonal of the vertices its faces use, [`surface_diagonal`]), the points and the settings alike, and the result is scaled back: with settings
-/// relative to the size (as [`clean_surface_settings`] makes them) a registration then does the
-/// same at 10 cm as at 2 m. The optimiser's damping and stopping tests mix rotations (radians)
-/// and translations (lengths), so in metres it did not: a saddle-shaped sheet registered to
-/// 0.85 % at 1 m and left rim vertices 16 % off at 2 m. [`register_surfaces`] keeps the caller's
+/// bounding-box diagonal of the vertices its faces use, [`surface_diagonal`]), the points and
+/// the settings alike, and the result is scaled back: with settings relative to the size (as
+/// [`clean_surface_settings`] makes them) a registration then does the same at 10 cm as at 2 m.
+/// The optimiser's damping and stopping tests mix rotations (radians) and translations
+/// (lengths), so in metres it did not: a saddle-shaped sheet registered to 0.85 % at 1 m and
+/// left rim vertices 16 % off at 2 m. [`register_surfaces`] keeps the caller's
 /// units (`unit` 1): the thesis' grid experiment is set in metres, and its wave lands 10× worse
 /// at one vertex in units of its diagonal (NOTES 66).
 struct Passes {
