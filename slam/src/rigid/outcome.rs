@@ -28,6 +28,16 @@ pub enum TrackFailure {
         /// The fusion range's far end, metres.
         max_depth: f32,
     },
+    /// The frame has almost no depth to track on: fewer points with a normal on the pyramid's
+    /// coarsest level than a pose has degrees of freedom (a blank frame, or a view beyond the
+    /// sensor's range).
+    #[error(
+        "no depth to track on: {points} points with a normal on the coarsest level (a blank frame, or a view beyond the sensor's range?)"
+    )]
+    NoDepth {
+        /// Points with a normal on the coarsest level.
+        points: usize,
+    },
     /// Geometry and texture leave motions that no start pose can fix (a plain wall).
     #[error(
         "degenerate: geometry conditioning {conditioning:.1e} and texture {texture:.2} per radian (a plain wall?)"
@@ -63,6 +73,15 @@ pub enum TrackFailure {
     /// The solve produced a non-finite pose.
     #[error("non-finite pose")]
     NonFinite,
+    /// The track's texture matches the model far worse than the recent frames' did: the pose
+    /// is likely wrong, though the geometry fits.
+    #[error("the texture does not match the model: correlation {correlation:.2} below {floor:.2}, half the recent frames'")]
+    TextureMismatch {
+        /// The correlation of the live intensities with the model's at the tracked pose.
+        correlation: f64,
+        /// The floor: half the recent frames' median correlation.
+        floor: f64,
+    },
     /// Tracking was lost and no start pose of the relocaliser passed its tests.
     #[error("lost, and no start pose relocalised the frame")]
     NotRelocalised,

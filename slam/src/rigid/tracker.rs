@@ -946,6 +946,9 @@ impl TrackOutcome {
     }
 }
 
+/// Fewer points with a normal than the six a pose has degrees of freedom measure nothing.
+const MIN_CONSTRAINT_POINTS: usize = 6;
+
 /// How well a live frame can fix its pose, whatever the pose: the geometry's conditioning and the
 /// image's texture, from its coarsest level (see [`TrackerParams::min_conditioning`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -954,21 +957,31 @@ pub struct FrameConstraint {
     pub conditioning: f64,
     /// RMS intensity gradient, intensity per radian of view (0 without colour).
     pub texture: f64,
+    /// Points with a normal on the coarsest level.
+    pub points: usize,
 }
 
 impl FrameConstraint {
     /// The constraint of a live pyramid.
     pub fn of(live: &[Level]) -> Self {
         let coarsest = &live[live.len() - 1];
+        let (conditioning, points) = geometric_conditioning(coarsest);
         Self {
-            conditioning: geometric_conditioning(coarsest),
+            conditioning,
             texture: texture(coarsest),
+            points,
         }
     }
 
-    /// Why the frame is degenerate under `p`, if it is: a plane without texture leaves motions
-    /// that no start pose can fix.
+    /// Why the frame cannot fix its pose under `p`, if it cannot: too few points to measure
+    /// anything (a blank frame, or a view beyond the sensor's range), or a plane without texture,
+    /// which leaves motions that no start pose can fix.
     pub fn degeneracy(&self, p: &TrackerParams) -> Option<TrackFailure> {
+        if self.points < MIN_CONSTRAINT_POINTS {
+            return Some(TrackFailure::NoDepth {
+                points: self.points,
+            });
+        }
         (self.conditioning < p.min_conditioning && self.texture < p.min_texture).then_some(
             TrackFailure::Degenerate {
                 conditioning: self.conditioning,
@@ -1274,7 +1287,7 @@ fn failure_of(
 
 /// λ_min / λ_max of Σ [p × n; n][p × n; n]ᵀ over a level's valid points, with the rotation part
 /// divided by the mean depth so both parts are in metres (0 when there are too few points).
-fn geometric_conditioning(level: &Level) -> f64 {
+fn geometric_conditioning(level: &Level) -> (f64, usize) {
     let mut c = nalgebra::Matrix6::<f64>::zeros();
     let (mut depth, mut n) = (0.0, 0usize);
     for (p, nn) in level.vertices.data.iter().zip(&level.normals.data) {
@@ -1288,8 +1301,8 @@ fn geometric_conditioning(level: &Level) -> f64 {
         depth += p.z;
         n += 1;
     }
-    if n < 6 {
-        return 0.0;
+    if n < MIN_CONSTRAINT_POINTS {
+        return (0.0, n);
     }
     let k = n as f64 / depth.max(1e-6);
     for i in 0..6 {
@@ -1298,11 +1311,12 @@ fn geometric_conditioning(level: &Level) -> f64 {
         }
     }
     let e = c.symmetric_eigenvalues();
-    if e.max() > 0.0 {
+    let conditioning = if e.max() > 0.0 {
         (e.min() / e.max()).max(0.0)
     } else {
         0.0
-    }
+    };
+    (conditioning, n)
 }
 
 /// The mean depth of a level's valid points (1 m when there are none).
