@@ -114,6 +114,14 @@ impl Preprocessor {
                 let (lower, upper) = self.levels.split_at_mut(l);
                 downsample_gray(&lower[l - 1].intensity, &mut upper[0].intensity);
             }
+        } else {
+            // a frame without colour has no intensity: the last frame's, left in the buffers,
+            // entered its tracking as if it were its own (NOTES 124); emptied, keeping their memory
+            for level in self.levels.iter_mut() {
+                level.intensity.reset(0, 0, 0.0);
+                level.gradient_x.reset(0, 0, 0.0);
+                level.gradient_y.reset(0, 0, 0.0);
+            }
         }
         for level in self.levels.iter_mut() {
             vertex_map(&level.depth, &level.camera, &mut level.vertices);

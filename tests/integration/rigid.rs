@@ -95,7 +95,8 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
 
 /// A frame whose depth is its own but whose colour is its mirror image (the geometry fits the
 /// model, the texture does not, as at a pose tracked wrongly on the same planes) is not tracked
-/// and says why (NOTES 124); the frames around it are tracked, and none is off.
+/// and says why (NOTES 124); the frames around it are tracked, and none is off, one given
+/// without colour among them (no texture to match is no mismatch, and no intensity is used).
 #[test]
 fn a_frame_whose_texture_does_not_match_the_model_is_not_tracked() {
     let v = views(Motion::Orbit, 24);
@@ -114,7 +115,10 @@ fn a_frame_whose_texture_does_not_match_the_model_is_not_tracked() {
                 row.reverse();
             }
         }
-        let report = slam.process(&raw, Some(&color));
+        let report = match k == mirrored + 3 {
+            true => slam.process(&raw, None),
+            false => slam.process(&raw, Some(&color)),
+        };
         if k == mirrored {
             let why = report.failure().expect("a mirrored texture was tracked");
             assert!(matches!(why, TrackFailure::TextureMismatch { .. }), "{why}");
@@ -125,6 +129,8 @@ fn a_frame_whose_texture_does_not_match_the_model_is_not_tracked() {
             "frame {k}: {:?}",
             report.outcome
         );
+        // the frame without colour too: its tracking took the last frame's intensity, left in
+        // the preprocessor's buffers, as its own, and ended 17 mm off (now 1.7 mm)
         let off = (v.gt.poses[k].inverse() * report.pose)
             .translation
             .vector

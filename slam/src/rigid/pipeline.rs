@@ -680,7 +680,11 @@ impl RigidSlam {
                 _ => (tracked, false),
             }
         };
-        let outcome = self.refused_on_texture(outcome);
+        let outcome = match color {
+            Some(_) => self.refused_on_texture(outcome),
+            // a frame without colour has no texture to match
+            None => outcome,
+        };
         self.lost = outcome.failure.is_some();
         self.pose = outcome.pose;
         if let Some(c) = &outcome.covariance {
