@@ -145,6 +145,8 @@ struct Loaded {
     graph: PoseGraph,
     truth: Option<BTreeMap<usize, Pose>>,
     repaired: usize,
+    /// The graph's connected pieces ([`PoseGraph::components`]).
+    components: usize,
 }
 
 /// The graph of `--graph` (each repaired information matrix warned of, and counted), or the
@@ -160,11 +162,11 @@ fn load_graph(args: &Args, quiet: bool) -> Result<Loaded> {
             for r in &repairs {
                 tracing::warn!("{}: {r}", path.display());
             }
-            let pieces = graph.components();
-            if pieces > 1 {
+            let components = graph.components();
+            if components > 1 {
                 tracing::warn!(
-                    "{}: no edge joins the graph's {pieces} pieces; each is held by its lowest \
-                     vertex (\"components\" in the JSON)",
+                    "{}: no edge joins the graph's {components} pieces; each is held by its \
+                     lowest vertex (\"components\" in the JSON)",
                     path.display()
                 );
             }
@@ -172,6 +174,7 @@ fn load_graph(args: &Args, quiet: bool) -> Result<Loaded> {
                 graph,
                 truth: None,
                 repaired: repairs.len(),
+                components,
             }
         }
         None => {
@@ -184,6 +187,7 @@ fn load_graph(args: &Args, quiet: bool) -> Result<Loaded> {
                 );
             }
             Loaded {
+                components: s.graph.components(),
                 graph: s.graph,
                 truth: Some(s.truth),
                 repaired: 0,
@@ -336,6 +340,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
         graph,
         truth,
         repaired,
+        components,
     } = load_graph(&args, quiet)?;
     let t_init = Instant::now();
     let start = initial_poses(&graph, args.init)?;
@@ -406,7 +411,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "init_seconds": init_seconds,
             "termination": summary.termination.to_string(),
             "repaired_edges": repaired,
-            "components": graph.components(),
+            "components": components,
             "covariance": covariance,
         })
     );

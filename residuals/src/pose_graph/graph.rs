@@ -209,7 +209,7 @@ impl PoseGraph {
                 .map(|(_, &v)| v),
         );
         if anchors.is_empty() {
-            anchors.extend(self.all_ids().first());
+            anchors.extend(pieces.ids.first());
         }
         anchors.into_iter().collect()
     }
