@@ -28,7 +28,7 @@ FR1 = os.path.join(SHARED, "data", "rgbd", "tum_trajectories", "freiburg1_xyz-gr
 VENV = os.environ.get("PEERS_VENV", os.path.expanduser("~/.cache/dynamap-peers"))
 PY = os.path.join(VENV, "bin", "python")
 GEN = os.path.join(ROOT, "target", "release", "generate")
-SLAM = os.path.join(ROOT, "target", "release", "rigid_slam")
+SLAM = os.environ.get("DYNAMAP_SLAM", os.path.join(ROOT, "target", "release", "rigid_slam"))
 
 SUITE = [
     ("slow", ["--trajectory", FR1, "--frames", "600", "--seed", "31"], 0.01),

@@ -19,6 +19,7 @@ use cli::Session;
 use dynamap_slam::camera::Camera;
 use dynamap_slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
 use dynamap_slam::io::trajectory::Trajectory;
+use dynamap_slam::rigid::keyframes::Keyframe;
 use dynamap_slam::rigid::{RigidSlam, SlamParams};
 use dynamap_slam::synthetic::motion::{look_at, TARGET};
 use dynamap_slam::synthetic::noise::SensorNoise;
@@ -90,13 +91,13 @@ fn pose(k: usize) -> Isometry3<f64> {
 }
 
 /// A memory sample: frame, resident MiB, blocks held, blocks evicted, trajectory MiB.
-type Sample = (usize, f64, usize, usize, f64);
+type Sample = (usize, f64, usize, usize, f64, f64);
 
 /// `--csv`: the samples as a table.
 fn write_csv(path: &Path, samples: &[Sample]) -> Result<()> {
-    let mut text = String::from("frame,resident_mib,blocks,evicted,trajectory_mib\n");
-    for (f, m, b, e, t) in samples {
-        let _ = writeln!(text, "{f},{m:.2},{b},{e},{t:.3}");
+    let mut text = String::from("frame,resident_mib,blocks,evicted,trajectory_mib,keyframe_mib\n");
+    for (f, m, b, e, t, k) in samples {
+        let _ = writeln!(text, "{f},{m:.2},{b},{e},{t:.3},{k:.3}");
     }
     dynamap_slam::io::write_atomic(path, text.as_bytes())?;
     Ok(())
@@ -134,22 +135,28 @@ fn ate_against_truth(frames: usize, estimate: &Trajectory) -> Option<f64> {
         .map(|a| a.stats.rmse)
 }
 
+/// What the relocaliser's keyframes hold (each bounded, [`Keyframe::bytes`]), MiB: the
+/// other thing that grows, up to [`dynamap_slam::rigid::keyframes::KeyframeParams::max_keyframes`].
+fn keyframe_mib(slam: &RigidSlam) -> f64 {
+    let bytes: usize = slam.keyframes().frames().iter().map(Keyframe::bytes).sum();
+    bytes as f64 / (1 << 20) as f64
+}
+
 /// Resident memory at the first sample at or after frame `warm_up`, its peak from there on, and
 /// at the end, MiB.
 fn memory_after(samples: &[Sample], warm_up: usize) -> (f64, f64, f64) {
-    let at = |frame: usize| {
-        samples
-            .iter()
-            .find(|s| s.0 >= frame)
-            .or(samples.last())
-            .map_or(0.0, |s| s.1)
-    };
     let peak = samples
         .iter()
         .filter(|s| s.0 >= warm_up)
         .map(|s| s.1)
         .fold(0.0, f64::max);
-    (at(warm_up), peak, samples.last().map_or(0.0, |s| s.1))
+    let (warm, end) = (at_warm_up(samples, warm_up), samples.last());
+    (warm.map_or(0.0, |s| s.1), peak, end.map_or(0.0, |s| s.1))
+}
+
+/// The first sample at or after the warm-up (the last if none is).
+fn at_warm_up(samples: &[Sample], warm_up: usize) -> Option<&Sample> {
+    samples.iter().find(|s| s.0 >= warm_up).or(samples.last())
 }
 
 pub fn main() -> ExitCode {
@@ -208,6 +215,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
                 blocks,
                 slam.volume().evicted_blocks(),
                 trajectory_mib(&estimate),
+                keyframe_mib(&slam),
             ));
         }
         bar.inc(1);
@@ -215,6 +223,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
     let (warm, peak_after_warm_up, end) = memory_after(&samples, args.warm_up);
+    let keyframes_at_warm_up = at_warm_up(&samples, args.warm_up).map_or(0.0, |s| s.5);
     if let Some(path) = &args.csv {
         write_csv(path, &samples)?;
     }
@@ -230,6 +239,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "budget": args.max_blocks, "evicted": slam.volume().evicted_blocks(),
             "resident_mib_after_warm_up": warm, "resident_mib_peak_after_warm_up": peak_after_warm_up,
             "resident_mib_end": end, "trajectory_mib": trajectory_mib(&estimate),
+            "keyframes": slam.keyframes().frames().len(), "loops": slam.keyframe_graph().loop_count(),
+            "keyframe_mib_after_warm_up": keyframes_at_warm_up, "keyframe_mib_end": keyframe_mib(&slam),
         })
     );
     Ok(())

@@ -1,8 +1,10 @@
 //! Sparse colour correspondences between two RGB-D frames, for motions too large for projective or
 //! closest-point association to bridge: FAST-9 corners (Rosten & Drummond, *Machine learning for
 //! high-speed corner detection*, ECCV 2006) with BRIEF descriptors (Calonder et al., ECCV 2010),
-//! both from `imageproc`; matched by Hamming distance under Lowe's ratio test (IJCV 2004) and a
-//! mutual-best check; lifted to 3D through the depth maps; and a rigid motion fitted to them by
+//! both from `imageproc`, optionally on each level of an image pyramid as ORB has them (Rublee et
+//! al., ICCV 2011), with the depth telling which levels can match (a patch's size in metres);
+//! matched by Hamming distance under Lowe's ratio test (IJCV 2004) and a mutual-best check;
+//! lifted to 3D through the depth maps; and a rigid motion fitted to them by
 //! RANSAC (Fischler & Bolles 1981) with the closed-form least-squares fit of Umeyama (1991).
 
 use crate::camera::Camera;
@@ -43,6 +45,13 @@ pub struct FeatureParams {
     pub min_inliers: usize,
     /// Seed of the descriptor pattern and of RANSAC, for repeatable runs (default 7).
     pub seed: u64,
+    /// Image pyramid levels corners are detected and described on, as ORB does (Rublee et al.,
+    /// ICCV 2011), so that a surface seen from nearer or further matches (default 1: the image
+    /// alone). With more than one, two keypoints match only where their depths agree with
+    /// their levels: a patch's size in metres is its level's scale times its depth.
+    pub levels: usize,
+    /// Scale between two pyramid levels (default 1.25; at most 1, only the image itself).
+    pub level_scale: f64,
 }
 
 impl Default for FeatureParams {
@@ -57,6 +66,8 @@ impl Default for FeatureParams {
             inlier_distance: 0.03,
             min_inliers: 12,
             seed: 7,
+            levels: 1,
+            level_scale: 1.25,
         }
     }
 }
@@ -75,14 +86,18 @@ pub struct FeatureFrame<'a> {
     pub mask: Option<&'a Image<bool>>,
 }
 
-/// Keypoints of one frame with valid depth: pixel, camera-frame point and descriptor.
+/// Keypoints of one frame with valid depth: pixel, camera-frame point, descriptor and the size
+/// of its patch.
 #[derive(Clone, Default)]
 pub struct Keypoints {
-    /// Pixel (x, y) of each keypoint.
+    /// Pixel (x, y) of each keypoint (on the full image, whatever level it was found on).
     pub pixels: Vec<(u32, u32)>,
     /// Its back-projected point, camera frame.
     pub points: Vec<Vector3<f64>>,
     descriptors: Vec<BriefDescriptor>,
+    /// ln(s^l z) of each: the log of its patch's size in metres up to a constant, for level l
+    /// of scale s at depth z ([`FeatureParams::levels`]).
+    sizes: Vec<f32>,
 }
 
 impl std::fmt::Debug for Keypoints {
@@ -110,6 +125,7 @@ impl Keypoints {
         self.pixels.shrink_to_fit();
         self.points.shrink_to_fit();
         self.descriptors.shrink_to_fit();
+        self.sizes.shrink_to_fit();
     }
 
     /// Bytes held: the three arrays as allocated plus each descriptor's bit block.
@@ -119,6 +135,7 @@ impl Keypoints {
         self.pixels.capacity() * size_of::<(u32, u32)>()
             + self.points.capacity() * size_of::<Vector3<f64>>()
             + self.descriptors.capacity() * size_of::<BriefDescriptor>()
+            + self.sizes.capacity() * size_of::<f32>()
             + bits * size_of::<u128>()
     }
 }
@@ -142,14 +159,12 @@ fn test_pairs(seed: u64) -> Vec<TestPair> {
 }
 
 /// Detects and describes the keypoints of a frame: FAST-9 corners, locally maximal, inside the
-/// mask and away from the border, with valid depth; the strongest `max_keypoints`.
+/// mask and away from the border, with valid depth, on each level of an image pyramid
+/// ([`FeatureParams::levels`]); the strongest of each level, the budget of `max_keypoints`
+/// shared between the levels by their areas (as ORB shares it).
 pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
     let (w, h) = (frame.color.width as u32, frame.color.height as u32);
-    let mut keypoints = Keypoints {
-        pixels: Vec::new(),
-        points: Vec::new(),
-        descriptors: Vec::new(),
-    };
+    let mut keypoints = Keypoints::default();
     if w <= 2 * BORDER || h <= 2 * BORDER || frame.depth.data.len() != frame.color.data.len() {
         return keypoints;
     }
@@ -158,47 +173,143 @@ pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
     let gray = image::GrayImage::from_fn(w, h, |x, y| {
         image::Luma([(luma.data[(y * w + x) as usize] * 255.0).round() as u8])
     });
-    let corners = imageproc::corners::corners_fast9(&gray, params.fast_threshold);
+    let pairs = test_pairs(params.seed);
+    // each level from the one before, as ORB's pyramid is built
+    let mut pyramid = vec![(gray, 1.0)];
+    let levels = if params.level_scale > 1.0 {
+        params.levels
+    } else {
+        1
+    };
+    for l in 1..levels {
+        let scale = params.level_scale.powi(l as i32);
+        let (lw, lh) = ((w as f64 / scale) as u32, (h as f64 / scale) as u32);
+        if lw <= 2 * BORDER || lh <= 2 * BORDER {
+            break;
+        }
+        let Some(level) = shrink(&pyramid[l - 1].0, lw, lh) else {
+            break;
+        };
+        pyramid.push((level, scale));
+    }
+    // the coarser levels' shares of the budget (by area) rounded down, the finest level's the rest
+    let area = |l: usize| params.level_scale.powi(-2 * l as i32);
+    let total: f64 = (0..pyramid.len()).map(area).sum();
+    let share = |l: usize| (params.max_keypoints as f64 * area(l) / total) as usize;
+    let coarse: usize = (1..pyramid.len()).map(share).sum();
+    use rayon::prelude::*;
+    let levels: Vec<Keypoints> = pyramid
+        .par_iter()
+        .enumerate()
+        .map(|(l, (image, scale))| {
+            let budget = if l == 0 {
+                params.max_keypoints - coarse
+            } else {
+                share(l)
+            };
+            describe_level(frame, params, (image, *scale, &pairs), budget)
+        })
+        .collect();
+    for level in levels {
+        keypoints.pixels.extend(level.pixels);
+        keypoints.points.extend(level.points);
+        keypoints.descriptors.extend(level.descriptors);
+        keypoints.sizes.extend(level.sizes);
+    }
+    keypoints
+}
+
+/// `image` shrunk to `w` × `h` by a bilinear filter widened to the scale (no aliasing), with
+/// `fast_image_resize`'s SIMD convolution; `None` if it refused (the sizes are consistent by
+/// construction, so it should not).
+fn shrink(image: &image::GrayImage, w: u32, h: u32) -> Option<image::GrayImage> {
+    use fast_image_resize::{images, FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer};
+    let (iw, ih) = image.dimensions();
+    let src = images::ImageRef::new(iw, ih, image.as_raw(), PixelType::U8).ok()?;
+    let mut out = images::Image::new(w, h, PixelType::U8);
+    let options = ResizeOptions::new().resize_alg(ResizeAlg::Convolution(FilterType::Bilinear));
+    thread_local! {
+        static RESIZER: std::cell::RefCell<Resizer> = std::cell::RefCell::new(Resizer::new());
+    }
+    RESIZER
+        .with_borrow_mut(|r| r.resize(&src, &mut out, &options))
+        .ok()?;
+    image::GrayImage::from_raw(w, h, out.into_vec())
+}
+
+/// The keypoints of one pyramid level (`image` at `scale` of the frame's), at most `budget`.
+fn describe_level(
+    frame: &FeatureFrame<'_>,
+    params: &FeatureParams,
+    (image, scale, pairs): (&image::GrayImage, f64, &Vec<TestPair>),
+    budget: usize,
+) -> Keypoints {
+    let mut out = Keypoints::default();
+    let (lw, lh) = image.dimensions();
+    let w = frame.color.width as u32;
+    // a level pixel's centre on the full image
+    let full = |v: u32, n: u32| (((v as f64 + 0.5) * scale - 0.5).round() as u32).min(n - 1);
+    let depth_at = |x: u32, y: u32| {
+        let i = (full(y, frame.color.height as u32) * w + full(x, w)) as usize;
+        (i, frame.depth.data[i])
+    };
+    let corners = imageproc::corners::corners_fast9(image, params.fast_threshold);
     let mut corners = imageproc::suppress::local_maxima(&corners, params.suppression_radius);
     corners.retain(|c| {
-        let i = (c.y * w + c.x) as usize;
+        let (i, z) = depth_at(c.x, c.y);
         c.x >= BORDER
             && c.y >= BORDER
-            && c.x + BORDER < w
-            && c.y + BORDER < h
-            && frame.depth.data[i] > 0.0
-            && frame.depth.data[i].is_finite()
+            && c.x + BORDER < lw
+            && c.y + BORDER < lh
+            && z > 0.0
+            && z.is_finite()
             && frame
                 .mask
                 .is_none_or(|m| m.data.get(i).copied().unwrap_or(false))
     });
     corners.sort_by(|a, b| b.score.total_cmp(&a.score));
-    corners.truncate(params.max_keypoints);
+    corners.truncate(budget);
     let at: Vec<Point<u32>> = corners.iter().map(|c| Point::new(c.x, c.y)).collect();
-    let Ok((descriptors, _)) = brief(&gray, &at, BITS, Some(&test_pairs(params.seed))) else {
+    let Ok((descriptors, _)) = brief(image, &at, BITS, Some(pairs)) else {
         // every keypoint is inside the border, so this cannot fail; no features if it did
-        return keypoints;
+        return out;
     };
     for (c, d) in corners.iter().zip(descriptors) {
-        let z = frame.depth.data[(c.y * w + c.x) as usize] as f64;
-        keypoints.pixels.push((c.x, c.y));
-        keypoints
-            .points
-            .push(frame.camera.back_project(c.x as f64, c.y as f64, z).coords);
-        keypoints.descriptors.push(d);
+        let (i, z) = depth_at(c.x, c.y);
+        let (x, y) = (i as u32 % w, i as u32 / w);
+        out.pixels.push((x, y));
+        out.points.push(
+            frame
+                .camera
+                .back_project(x as f64, y as f64, z as f64)
+                .coords,
+        );
+        out.descriptors.push(d);
+        out.sizes.push((scale * z as f64).ln() as f32);
     }
-    keypoints
+    out
 }
 
 /// For each descriptor of `a`, the index in `b` of its nearest one when it is within
-/// `max_hamming` and clearly nearer than the second nearest (Lowe's ratio).
+/// `max_hamming` and clearly nearer than the second nearest (Lowe's ratio). With pyramid levels,
+/// only keypoints whose patches have about the same size in metres are compared (within one and a
+/// half levels: half a level of rounding and a corner found on the next level too).
 fn nearest(a: &Keypoints, b: &Keypoints, params: &FeatureParams) -> Vec<Option<usize>> {
     use rayon::prelude::*;
+    let gate = if params.levels > 1 {
+        (1.5 * params.level_scale.ln()) as f32
+    } else {
+        f32::INFINITY
+    };
     a.descriptors
         .par_iter()
-        .map(|da| {
+        .zip(&a.sizes)
+        .map(|(da, sa)| {
             let (mut best, mut second, mut arg) = (u32::MAX, u32::MAX, 0);
-            for (j, db) in b.descriptors.iter().enumerate() {
+            for (j, (db, sb)) in b.descriptors.iter().zip(&b.sizes).enumerate() {
+                if (sa - sb).abs() > gate {
+                    continue;
+                }
                 let d = da.hamming_distance(db);
                 if d < best {
                     (second, best, arg) = (best, d, j);
@@ -409,6 +520,79 @@ mod tests {
         assert!(err.translation.vector.norm() < 1e-9 && err.rotation.angle() < 1e-9);
         assert!(fit.inliers[80..].iter().all(|&b| b));
         assert!(fit.inliers[..80].iter().filter(|&&b| b).count() < 5);
+    }
+
+    /// A floor textured with wave numbers `min_k..max_k` (rad/m) seen from 2 m straight above,
+    /// and from `forward` metres
+    /// nearer along the optical axis after a turn of `yaw` degrees about the camera's y axis:
+    /// the features' motion from the first view to the second, if any, and its error against
+    /// the truth (metres, degrees).
+    fn fit_across(
+        (min_k, max_k): (f64, f64),
+        (forward, yaw): (f64, f64),
+        params: &FeatureParams,
+    ) -> Option<(f64, f64)> {
+        use crate::synthetic::{render::render, scene::Scene, scene::Shape, texture::Texture};
+        let cam = Camera::new(525.0, 525.0, 319.5, 239.5, 640, 480);
+        let mut scene = Scene::default();
+        let floor = Shape::Plane { hx: 5.0, hy: 5.0 };
+        scene.add(
+            floor,
+            Isometry3::identity(),
+            Texture::random(3, min_k, max_k),
+        );
+        let above = Vector3::new(0.3, 0.2, 2.0);
+        let a = Isometry3::new(above, Vector3::x() * std::f64::consts::PI);
+        let step = Isometry3::new(
+            Vector3::new(0.0, 0.0, forward),
+            Vector3::new(0.0, yaw.to_radians(), 0.0),
+        );
+        let b = a * step;
+        let (ra, rb) = (render(&scene, &cam, &a), render(&scene, &cam, &b));
+        let keypoints = |r: &crate::synthetic::render::Rendering| {
+            let frame = FeatureFrame {
+                color: &r.color,
+                depth: &r.depth,
+                camera: &cam,
+                mask: None,
+            };
+            detect(&frame, params)
+        };
+        // the motion takes points of the first camera's frame into the second's
+        let truth = step.inverse();
+        fit_keypoints(&keypoints(&ra), &keypoints(&rb), params).map(|m| {
+            let e = m.fit.motion.inverse() * truth;
+            (e.translation.vector.norm(), e.rotation.angle().to_degrees())
+        })
+    }
+
+    #[test]
+    fn a_pyramid_matches_a_view_from_nearly_twice_as_near_and_a_blurred_texture() {
+        let one = FeatureParams::default();
+        let pyramid = FeatureParams {
+            levels: 6,
+            ..FeatureParams::default()
+        };
+        let sharp = (10.0, 150.0);
+        let close = |e: Option<(f64, f64)>| e.is_some_and(|(t, r)| t < 0.01 && r < 0.5);
+        // a small step: both match
+        for p in [&one, &pyramid] {
+            assert!(
+                close(fit_across(sharp, (0.1, 10.0), p)),
+                "{p:?}: a 5 % step"
+            );
+        }
+        // from 2 m down to 1.1 and 1.0 m: the texture looks 1.8 and 2 times larger
+        for step in [(0.9, 0.0), (1.0, 10.0)] {
+            let e = fit_across(sharp, step, &pyramid);
+            assert!(close(e), "{step:?}: the pyramid's motion is {e:?} off");
+            let e = fit_across(sharp, step, &one);
+            assert!(!close(e), "{step:?}: one level matched ({e:?} off)");
+        }
+        // a texture too smooth for a corner at full size has corners on the coarser levels
+        let smooth = (2.0, 30.0);
+        assert!(close(fit_across(smooth, (0.3, 10.0), &pyramid)));
+        assert!(fit_across(smooth, (0.0, 0.0), &one).is_none());
     }
 
     #[test]

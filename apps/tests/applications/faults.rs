@@ -206,20 +206,22 @@ fn ctrl_c_writes_the_trajectory_so_far_and_exits_130() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The long run's guard (BENCHMARKS.md has the 10 000-frame curve): 600 frames under a budget
+/// The long run's guard (BENCHMARKS.md has the 10 000-frame curve): 900 frames under a budget
 /// that the room exceeds many times over stay within it, keep tracking, and the resident memory
-/// after warm-up does not grow.
+/// after warm-up grows by no more than the keyframes hold (each bounded, and at most
+/// `max_keyframes` of them). The warm-up covers the first loops (about frame 470), whose
+/// verification buffers (a raycast and a model pyramid, about 1.7 MiB) are allocated once.
 #[test]
 fn a_long_run_stays_within_its_block_budget_with_flat_memory() {
     let out = run(
         "long_run",
         &[
             "--frames",
-            "600",
+            "900",
             "--max-blocks",
             "4000",
             "--warm-up",
-            "200",
+            "600",
             "--every",
             "50",
         ],
@@ -231,11 +233,12 @@ fn a_long_run_stays_within_its_block_budget_with_flat_memory() {
     assert!(s["max_blocks"].as_u64().unwrap() <= 4000, "{s}");
     assert!(s["evicted"].as_u64().unwrap() > 0, "{s}");
     assert!(s["ate_rmse"].as_f64().unwrap() < 0.01, "{s}");
-    let grow = s["resident_mib_peak_after_warm_up"].as_f64().unwrap()
-        - s["resident_mib_after_warm_up"].as_f64().unwrap();
+    let mib = |key: &str| s[key].as_f64().unwrap();
+    let keyframes = mib("keyframe_mib_end") - mib("keyframe_mib_after_warm_up");
+    let grow = mib("resident_mib_peak_after_warm_up") - mib("resident_mib_after_warm_up");
     assert!(
-        grow < 2.0,
-        "resident memory grew {grow:.2} MiB after warm-up: {s}"
+        grow - keyframes < 2.0,
+        "resident memory grew {grow:.2} MiB after warm-up, the keyframes {keyframes:.2}: {s}"
     );
 }
 

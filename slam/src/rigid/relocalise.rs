@@ -1,8 +1,9 @@
 //! Finding a lost track again, in two rounds:
 //! - local: start poses around the last good pose (shifted along each world axis, turned about
 //!   the camera's x and y) and the motion that sparse features matched against the last fused
-//!   frame give (FAST/BRIEF and RANSAC, [`crate::features`]) are each tracked on the coarsest
-//!   level against the model raycast at the last pose; the best is refined on all levels;
+//!   frame give (FAST/BRIEF on an image pyramid, and RANSAC: [`crate::features`]) are each
+//!   tracked on the coarsest level against the model raycast at the last pose; the best is
+//!   refined on all levels;
 //! - global (after a gap the camera may be anywhere it has been): the keyframes of the map
 //!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the
 //!   frame's ([`super::keyframes`]) are matched by features, a rigid motion fitted by RANSAC on
@@ -49,7 +50,10 @@ pub struct RelocaliseParams {
     /// pixels as inliers (default 0.25, stricter than tracking's, as a false relocalisation
     /// corrupts the map; when the last pose itself wins, tracking's own tests apply).
     pub min_inlier_fraction: f64,
-    /// Sparse features matched against the last fused frame give one more start pose.
+    /// Sparse features matched against the last fused frame give one more start pose; the
+    /// keyframes' and the loops' features are these too (default: six pyramid levels of scale
+    /// 1.25, from the full image to a third of it, so that a place seen from up to about three
+    /// times nearer or further matches, as after a gap on a walk; NOTES 125).
     pub features: FeatureParams,
     /// Keyframes for the global round.
     pub keyframes: KeyframeParams,
@@ -82,6 +86,7 @@ impl Default for RelocaliseParams {
             min_inlier_fraction: 0.25,
             features: FeatureParams {
                 ransac_iterations: 500,
+                levels: 6,
                 ..FeatureParams::default()
             },
             keyframes: KeyframeParams::default(),
