@@ -468,25 +468,51 @@ impl KeyframeGraph {
 
     /// Whether `placements` keep every fragment within its link's reach of the keyframe before
     /// it, beyond three of loop `c`'s deviations (links within one tree before and after are
-    /// not checked again: they were when that tree formed).
+    /// not checked again: they were when that tree formed). Where the keyframe before lies in
+    /// a fragment that `placements` leave outside the fragment's tree, the chain of links is
+    /// followed back to the nearest keyframe inside it, the reaches adding up with the tracked
+    /// motion across each fragment passed: a fragment started after another that no loop
+    /// placed is still held near where the camera last was in the tree (before, nothing held
+    /// it; NOTES 126).
     fn within_reach(&self, placements: &[Placement], c: &LoopCandidate) -> bool {
         let (sigma_r, sigma_t) = self.params.loop_deviations(c.depth);
-        self.fragment_starts
-            .iter()
-            .zip(&self.links)
-            .all(|(&start, &(prev, reach))| {
-                let (f, g) = (self.fragment_of(prev), self.fragment_of(start));
-                if self.placements[f].root == self.placements[g].root
-                    || placements[f].root != placements[g].root
-                {
-                    return true;
-                }
-                let from = placements[f].motion * self.tracked(prev);
-                let to = placements[g].motion * self.tracked(start);
-                let d = from.inverse() * to;
-                d.translation.vector.norm() <= reach.translation + 3.0 * sigma_t
-                    && d.rotation.angle() <= reach.rotation + 3.0 * sigma_r
-            })
+        (1..self.placements.len()).all(|g| {
+            let Some((f, prev, reach)) = self.anchor_in_tree(placements, g) else {
+                return true;
+            };
+            if self.placements[f].root == self.placements[g].root {
+                return true;
+            }
+            let from = placements[f].motion * self.tracked(prev);
+            let to = placements[g].motion * self.tracked(self.fragment_starts[g - 1]);
+            let d = from.inverse() * to;
+            d.translation.vector.norm() <= reach.translation + 3.0 * sigma_t
+                && d.rotation.angle() <= reach.rotation + 3.0 * sigma_r
+        })
+    }
+
+    /// For fragment `g` (not the first): the nearest keyframe before it, through the chain of
+    /// links, whose fragment `placements` put in `g`'s tree, as (its fragment, the keyframe, the
+    /// reach from it to `g`'s first keyframe); `None` when the chain leaves the tree for good.
+    fn anchor_in_tree(&self, placements: &[Placement], g: usize) -> Option<(usize, usize, Reach)> {
+        let (mut prev, mut reach) = self.links[g - 1];
+        loop {
+            let f = self.fragment_of(prev);
+            if placements[f].root == placements[g].root {
+                return Some((f, prev, reach));
+            }
+            if f == 0 {
+                return None;
+            }
+            // across fragment f, from its first keyframe to `prev`, as tracked
+            let across = self.tracked(self.fragment_starts[f - 1]).inverse() * self.tracked(prev);
+            let (before, link) = self.links[f - 1];
+            reach = reach.plus(link).plus(Reach {
+                translation: across.translation.vector.norm(),
+                rotation: across.rotation.angle(),
+            });
+            prev = before;
+        }
     }
 
     /// Adds a verified loop (both keyframes must be in the graph); whether it was added. A
@@ -1080,6 +1106,44 @@ mod tests {
             }
         }
         g
+    }
+
+    /// A fragment started after another that no loop placed is held through the chain of
+    /// links: its reach from the last keyframe of the main map is both links' reaches and the
+    /// tracked motion across the fragment between. Before, such a fragment had no bound at all.
+    #[test]
+    fn a_fragment_after_an_unplaced_one_is_held_by_the_chain_of_reaches() {
+        let truth = circle(40);
+        // keyframes 20..24 and 24.. each start a fragment, 1 m and 40° off and back
+        let offset = Isometry3::new(Vector3::new(0.6, -0.8, 0.1), Vector3::z() * 0.7);
+        let link = Reach {
+            translation: 0.3,
+            rotation: 0.3,
+        };
+        let chained = || {
+            let mut g = KeyframeGraph::new(LoopParams::default());
+            for (k, x) in drifted(&truth).into_iter().enumerate() {
+                match k {
+                    0..20 => g.add_keyframe(k, x),
+                    20 => g.start_fragment(k, offset * x, link),
+                    21..24 => g.add_keyframe(k, offset * x),
+                    24 => g.start_fragment(k, offset.inverse() * x, link),
+                    _ => g.add_keyframe(k, offset.inverse() * x),
+                }
+            }
+            g
+        };
+        // from keyframe 19 to 24 the camera went five steps (1.2 m, 45°); the chain admits
+        // 0.3 + 0.72 + 0.3 m and 0.3 + 0.47 + 0.3 rad
+        let mut g = chained();
+        assert!(g.add_loop(&true_loop(&truth, 3, 30)), "the true loop");
+        assert_eq!(g.unplaced(), (20..24).collect::<BTreeSet<_>>());
+        // the same loop measured in the other half of the circle (3 m and 180° away)
+        let mut twin = true_loop(&truth, 3, 30);
+        twin.relative *= Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+        let mut h = chained();
+        assert!(!h.add_loop(&twin), "a loop placing it half a circle off");
+        assert_eq!(h.unplaced().len(), 20);
     }
 
     #[test]
