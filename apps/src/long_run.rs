@@ -90,7 +90,8 @@ fn pose(k: usize) -> Isometry3<f64> {
     )
 }
 
-/// A memory sample: frame, resident MiB, blocks held, blocks evicted, trajectory MiB.
+/// A memory sample: frame, resident MiB, blocks held, blocks evicted, trajectory MiB, keyframe
+/// MiB.
 type Sample = (usize, f64, usize, usize, f64, f64);
 
 /// `--csv`: the samples as a table.

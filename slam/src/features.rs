@@ -176,12 +176,7 @@ pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
     let pairs = test_pairs(params.seed);
     // each level from the one before, as ORB's pyramid is built
     let mut pyramid = vec![(gray, 1.0)];
-    let levels = if params.level_scale > 1.0 {
-        params.levels
-    } else {
-        1
-    };
-    for l in 1..levels {
+    for l in 1..pyramid_levels(params) {
         let scale = params.level_scale.powi(l as i32);
         let (lw, lh) = ((w as f64 / scale) as u32, (h as f64 / scale) as u32);
         if lw <= 2 * BORDER || lh <= 2 * BORDER {
@@ -198,7 +193,7 @@ pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
     let share = |l: usize| (params.max_keypoints as f64 * area(l) / total) as usize;
     let coarse: usize = (1..pyramid.len()).map(share).sum();
     use rayon::prelude::*;
-    let levels: Vec<Keypoints> = pyramid
+    let described: Vec<Keypoints> = pyramid
         .par_iter()
         .enumerate()
         .map(|(l, (image, scale))| {
@@ -210,13 +205,23 @@ pub fn detect(frame: &FeatureFrame<'_>, params: &FeatureParams) -> Keypoints {
             describe_level(frame, params, (image, *scale, &pairs), budget)
         })
         .collect();
-    for level in levels {
+    for level in described {
         keypoints.pixels.extend(level.pixels);
         keypoints.points.extend(level.points);
         keypoints.descriptors.extend(level.descriptors);
         keypoints.sizes.extend(level.sizes);
     }
     keypoints
+}
+
+/// The pyramid levels `params` ask for: [`FeatureParams::levels`] (at least 1), or the image
+/// alone where the scale between levels does not shrink.
+fn pyramid_levels(params: &FeatureParams) -> usize {
+    if params.level_scale > 1.0 {
+        params.levels.max(1)
+    } else {
+        1
+    }
 }
 
 /// `image` shrunk to `w` × `h` by a bilinear filter widened to the scale (no aliasing), with
@@ -296,7 +301,7 @@ fn describe_level(
 /// half levels: half a level of rounding and a corner found on the next level too).
 fn nearest(a: &Keypoints, b: &Keypoints, params: &FeatureParams) -> Vec<Option<usize>> {
     use rayon::prelude::*;
-    let gate = if params.levels > 1 {
+    let gate = if pyramid_levels(params) > 1 {
         (1.5 * params.level_scale.ln()) as f32
     } else {
         f32::INFINITY
@@ -575,8 +580,13 @@ mod tests {
         };
         let sharp = (10.0, 150.0);
         let close = |e: Option<(f64, f64)>| e.is_some_and(|(t, r)| t < 0.01 && r < 0.5);
-        // a small step: both match
-        for p in [&one, &pyramid] {
+        // a small step: both match, and so do levels that a scale of 1 leaves at one
+        let flat = FeatureParams {
+            levels: 6,
+            level_scale: 1.0,
+            ..FeatureParams::default()
+        };
+        for p in [&one, &pyramid, &flat] {
             assert!(
                 close(fit_across(sharp, (0.1, 10.0), p)),
                 "{p:?}: a 5 % step"
