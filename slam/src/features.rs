@@ -528,8 +528,8 @@ mod tests {
     }
 
     /// A floor textured with wave numbers `min_k..max_k` (rad/m) seen from 2 m straight above,
-    /// and from `forward` metres
-    /// nearer along the optical axis after a turn of `yaw` degrees about the camera's y axis:
+    /// and from `forward` metres nearer along the optical axis after a turn of `yaw` degrees
+    /// about the camera's y axis:
     /// the features' motion from the first view to the second, if any, and its error against
     /// the truth (metres, degrees).
     fn fit_across(

@@ -163,6 +163,9 @@ impl Verifier {
 pub(crate) struct Relocaliser {
     key_depth: DepthImage,
     key_color: ColorImage,
+    /// The last fused frame's keypoints, detected at the first relocalisation that needs them
+    /// and kept while that frame stays the last (frames lost in a row match against it).
+    key_keypoints: Option<Keypoints>,
     keyframes: Keyframes,
     verifier: Verifier,
     /// The first frame of the current map fragment.
@@ -175,6 +178,7 @@ impl Relocaliser {
         Self {
             key_depth: DepthImage::new(0, 0),
             key_color: ColorImage::new(0, 0),
+            key_keypoints: None,
             keyframes: Keyframes::new(params.keyframes.clone()),
             verifier: Verifier::default(),
             since: 0,
@@ -208,6 +212,7 @@ impl Relocaliser {
         new_map: bool,
     ) -> bool {
         self.key_depth.clone_from(frame.depth);
+        self.key_keypoints = None;
         if let Some(c) = frame.color {
             self.key_color.clone_from(c);
         }
@@ -409,7 +414,7 @@ impl Relocaliser {
     /// The start poses: the last pose first, the features' motion, then (if `blind`) the shifts
     /// and turns; and the index of the features' start, if they gave one.
     fn starts(
-        &self,
+        &mut self,
         p: &RelocaliseParams,
         camera: &Camera,
         keypoints: Option<&Keypoints>,
@@ -419,14 +424,17 @@ impl Relocaliser {
         let mut starts = vec![last];
         let mut from_features = None;
         if let Some(now) = keypoints.filter(|_| !self.key_color.data.is_empty()) {
-            let key = FeatureFrame {
-                color: &self.key_color,
-                depth: &self.key_depth,
-                camera,
-                mask: None,
-            };
-            let key = detect(&key, &p.features);
-            if let Some(m) = fit_keypoints(now, &key, &p.features) {
+            let (color, depth) = (&self.key_color, &self.key_depth);
+            let key = self.key_keypoints.get_or_insert_with(|| {
+                let key = FeatureFrame {
+                    color,
+                    depth,
+                    camera,
+                    mask: None,
+                };
+                detect(&key, &p.features)
+            });
+            if let Some(m) = fit_keypoints(now, key, &p.features) {
                 // live points map into the key frame: T_live = T_key · M
                 from_features = Some(starts.len());
                 starts.push(last * m.fit.motion);
