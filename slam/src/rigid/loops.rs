@@ -19,13 +19,18 @@
 //! start the next solve moved by that motion (DCS would switch a loop off if it started metres
 //! off, since its cost falls again beyond Φ). Keyframes of fragments that no loop joined to the
 //! main one (the largest) are [`KeyframeGraph::unplaced`]: their frames have no pose in the map.
+//! Later loops between joined fragments vote on the join; a join they contradict often enough
+//! is undone and its fragments are kept apart (`rigid::joins`): in a scene with two places
+//! alike, the first loop may have come from the wrong one.
 
+use super::joins::{Hop, Joins};
 use super::keyframes::Keyframes;
 use crate::features::{fit_keypoints, FeatureParams};
 use dynamap_residuals::pose_graph::{g2o, Dimension, Edge, Measurement, Pose, PoseGraph};
 use dynamap_solver::robust::NamedKernel;
 use dynamap_solver::{Options, Solver};
 use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
+use std::borrow::Cow;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::mpsc;
@@ -136,8 +141,8 @@ pub enum LoopError {
 pub struct Optimised {
     /// Each keyframe's pose by frame index.
     pub poses: BTreeMap<usize, Isometry3<f64>>,
-    /// Each loop edge (from, to) with its DCS weight at the solution: near 1 kept, near 0
-    /// switched off.
+    /// Each loop edge solved (from, to) with its DCS weight at the solution: near 1 kept, near 0
+    /// switched off. Loops between fragments held apart are not solved and not listed.
     pub loop_weights: Vec<(usize, usize, f64)>,
     /// Whether the solver met a convergence test (not the iteration or time limit).
     pub converged: bool,
@@ -220,7 +225,9 @@ pub struct KeyframeGraph {
     links: Vec<(usize, Reach)>,
     /// Each fragment's placement, the first's first.
     placements: Vec<Placement>,
-    /// Counts the joins of fragments.
+    /// The loops that joined fragments, and the later loops' votes on them.
+    joins: Joins,
+    /// Counts the changes of placement (joins, and joins held apart).
     revision: usize,
 }
 
@@ -241,6 +248,7 @@ impl KeyframeGraph {
                 root: 0,
                 motion: Isometry3::identity(),
             }],
+            joins: Joins::default(),
             revision: 0,
         }
     }
@@ -440,10 +448,10 @@ impl KeyframeGraph {
     /// joined already): the younger root's fragments are moved into the older root's frame by
     /// the motion the loop measures, M = P_from X_from Z X_to⁻¹ P_to⁻¹ (P a fragment's
     /// placement, X a tracked pose).
-    fn joined(&self, c: &LoopCandidate) -> Option<Vec<Placement>> {
+    fn joined(&self, placements: &[Placement], c: &LoopCandidate) -> Option<Vec<Placement>> {
         let (a, b) = (
-            self.placements[self.fragment_of(c.from)],
-            self.placements[self.fragment_of(c.to)],
+            placements[self.fragment_of(c.from)],
+            placements[self.fragment_of(c.to)],
         );
         if a.root == b.root {
             return None;
@@ -458,7 +466,7 @@ impl KeyframeGraph {
         } else {
             (b.root, a.root, b_into_a.inverse())
         };
-        let mut out = self.placements.clone();
+        let mut out = placements.to_vec();
         for p in out.iter_mut().filter(|p| p.root == moved) {
             p.root = keep;
             p.motion = m * p.motion;
@@ -466,29 +474,67 @@ impl KeyframeGraph {
         Some(out)
     }
 
-    /// Whether `placements` keep every fragment within its link's reach of the keyframe before
-    /// it, beyond three of loop `c`'s deviations (links within one tree before and after are
-    /// not checked again: they were when that tree formed). Where the keyframe before lies in
-    /// a fragment that `placements` leave outside the fragment's tree, the chain of links is
-    /// followed back to the nearest keyframe inside it, the reaches adding up with the tracked
-    /// motion across each fragment passed: a fragment started after another that no loop
-    /// placed is still held near where the camera last was in the tree (before, nothing held
-    /// it; NOTES 126).
-    fn within_reach(&self, placements: &[Placement], c: &LoopCandidate) -> bool {
+    /// Whether `placements` (made from `before` by loop `c`) keep every fragment within its
+    /// link's reach of the keyframe before it, beyond three of loop `c`'s deviations (links
+    /// within one tree of `before` are not checked again: they were when that tree formed).
+    /// Where the keyframe before lies in a fragment that `placements` leave outside the
+    /// fragment's tree, the chain of links is followed back to the nearest keyframe inside it,
+    /// the reaches adding up with the tracked motion across each fragment passed: a fragment
+    /// started after another that no loop placed is still held near where the camera last was
+    /// in the tree (before, nothing held it; NOTES 126).
+    fn within_reach(
+        &self,
+        before: &[Placement],
+        placements: &[Placement],
+        c: &LoopCandidate,
+    ) -> bool {
+        let identity = Isometry3::identity();
+        let links = self.links_placed(before, placements, c);
+        links.iter().all(|(d, reach)| reach.admits(&identity, d))
+    }
+
+    /// Whether some link that `placements` (made from `before` by loop `c`) newly place
+    /// leaves the heading free: its reach admits any turn (the camera may have turned round
+    /// while the track was lost, or the chain of links runs through fragments no loop
+    /// placed, their tracked motion adding up).
+    fn heading_free(
+        &self,
+        before: &[Placement],
+        placements: &[Placement],
+        c: &LoopCandidate,
+    ) -> bool {
+        let links = self.links_placed(before, placements, c);
+        links
+            .iter()
+            .any(|(_, reach)| reach.rotation >= std::f64::consts::PI)
+    }
+
+    /// The links that `placements` (made from `before` by loop `c`) newly place, each as the
+    /// motion across it (from the keyframe its chain reaches in the tree to the fragment's
+    /// first keyframe) and its reach widened by three of loop `c`'s deviations. Links within
+    /// one tree of `before` are not listed: they were checked when that tree formed.
+    fn links_placed(
+        &self,
+        before: &[Placement],
+        placements: &[Placement],
+        c: &LoopCandidate,
+    ) -> Vec<(Isometry3<f64>, Reach)> {
         let (sigma_r, sigma_t) = self.params.loop_deviations(c.depth);
-        (1..self.placements.len()).all(|g| {
-            let Some((f, prev, reach)) = self.anchor_in_tree(placements, g) else {
-                return true;
-            };
-            if self.placements[f].root == self.placements[g].root {
-                return true;
-            }
-            let from = placements[f].motion * self.tracked(prev);
-            let to = placements[g].motion * self.tracked(self.fragment_starts[g - 1]);
-            let d = from.inverse() * to;
-            d.translation.vector.norm() <= reach.translation + 3.0 * sigma_t
-                && d.rotation.angle() <= reach.rotation + 3.0 * sigma_r
-        })
+        let margin = Reach {
+            translation: 3.0 * sigma_t,
+            rotation: 3.0 * sigma_r,
+        };
+        (1..before.len())
+            .filter_map(|g| {
+                let (f, prev, reach) = self.anchor_in_tree(placements, g)?;
+                if before[f].root == before[g].root {
+                    return None;
+                }
+                let from = placements[f].motion * self.tracked(prev);
+                let to = placements[g].motion * self.tracked(self.fragment_starts[g - 1]);
+                Some((from.inverse() * to, reach.plus(margin)))
+            })
+            .collect()
     }
 
     /// For fragment `g` (not the first): the nearest keyframe before it, through the chain of
@@ -518,7 +564,9 @@ impl KeyframeGraph {
     /// Adds a verified loop (both keyframes must be in the graph); whether it was added. A
     /// loop between two map fragments not yet joined joins them (see the module's
     /// documentation), unless that puts a fragment out of its reach
-    /// ([`Self::start_fragment`]): then it is not added.
+    /// ([`Self::start_fragment`]) or joins fragments the loops held apart
+    /// (`rigid::joins`): then it is not added. A loop between two fragments already joined
+    /// votes on the joins between them, and may hold one apart.
     pub fn add_loop(&mut self, c: &LoopCandidate) -> bool {
         let known = |id| self.graph.vertices.contains_key(&id);
         let odometry = self
@@ -529,25 +577,187 @@ impl KeyframeGraph {
         if !known(c.from) || !known(c.to) || c.from == c.to || odometry {
             return false;
         }
-        let joined = self.joined(c);
-        if joined.as_ref().is_some_and(|p| !self.within_reach(p, c)) {
-            tracing::debug!(
-                from = c.from,
-                to = c.to,
-                "a loop that would place a map fragment out of reach"
-            );
-            return false;
+        let joined = self.joined(&self.placements, c);
+        if let Some(p) = &joined {
+            if !self.within_reach(&self.placements, p, c) {
+                tracing::debug!(
+                    from = c.from,
+                    to = c.to,
+                    "a loop that would place a map fragment out of reach"
+                );
+                return false;
+            }
+            if self.joins_held_apart(c) {
+                tracing::debug!(
+                    from = c.from,
+                    to = c.to,
+                    "a loop joining fragments held apart"
+                );
+                return false;
+            }
+            if self.joins.held_apart() > 0 && self.heading_free(&self.placements, p, c) {
+                tracing::debug!(
+                    from = c.from,
+                    to = c.to,
+                    "a loop placing a map fragment whose heading nothing bounds, where places \
+                     alike were seen"
+                );
+                return false;
+            }
         }
         let (sigma_r, sigma_t) = self.params.loop_deviations(c.depth);
         let weights = deviations(sigma_r, sigma_t).map(|d| 1.0 / (d * d));
         self.push_edge(c.from, c.to, c.relative, Matrix6::from_diagonal(&weights));
         self.loops.push(self.graph.edges.len() - 1);
         self.found.push(c.clone());
-        if let Some(p) = joined {
-            self.placements = p;
-            self.revision += 1;
+        let ends = (self.fragment_of(c.from), self.fragment_of(c.to));
+        match joined {
+            Some(p) => {
+                self.joins.push(self.found.len() - 1, (c.from, c.to), ends);
+                self.placements = p;
+                self.revision += 1;
+            }
+            None if ends.0 != ends.1 => self.vote(c),
+            None => {}
         }
         true
+    }
+
+    /// Whether loop `c` would join two trees of fragments that a join held apart straddles.
+    fn joins_held_apart(&self, c: &LoopCandidate) -> bool {
+        let tree = |id: usize| {
+            let root = self.root_of(id);
+            let all = 0..self.placements.len();
+            all.filter(|&g| self.placements[g].root == root)
+                .collect::<Vec<_>>()
+        };
+        self.joins.keeps_apart(&tree(c.from), &tree(c.to))
+    }
+
+    /// Loop `c`, between two fragments of one tree, votes on the joins between them
+    /// (`rigid::joins`); those it leaves contested are held apart and the fragments placed
+    /// again without them.
+    fn vote(&mut self, c: &LoopCandidate) {
+        let (fa, fb) = (self.fragment_of(c.from), self.fragment_of(c.to));
+        let Some(hops) = self.joins.path((fa, c.from), fb) else {
+            return;
+        };
+        let agrees = self.agrees(c, &hops);
+        if !agrees && !self.could_join(c, &hops) {
+            tracing::debug!(
+                from = c.from,
+                to = c.to,
+                "a loop against a join that would place a map fragment out of reach: no vote"
+            );
+            return;
+        }
+        let contested = self.joins.vote(&hops, agrees);
+        tracing::debug!(
+            from = c.from,
+            to = c.to,
+            agrees,
+            joins = ?self.joins.tally(&hops),
+            "a loop's vote on the joins it crosses"
+        );
+        if contested.is_empty() {
+            return;
+        }
+        for &k in &contested {
+            self.joins.hold_apart(k);
+        }
+        tracing::warn!(
+            from = c.from,
+            to = c.to,
+            held_apart = contested.len(),
+            "loops disagree on where map fragments lie: their join is undone, and they are kept \
+             apart"
+        );
+        let (placements, dropped) = self.replayed(&[]);
+        for k in dropped {
+            self.joins.hold_apart(k);
+        }
+        self.placements = placements;
+        self.revision += 1;
+    }
+
+    /// Whether loop `c` could have joined its fragments itself, had the joins `hops` on the
+    /// path between them not been made: the placement it measures keeps every fragment within
+    /// reach ([`Self::within_reach`]). A loop against a join that could not is no evidence
+    /// against it: of two places alike, it is the other place's.
+    fn could_join(&self, c: &LoopCandidate, hops: &[Hop]) -> bool {
+        let without: Vec<usize> = hops.iter().map(|h| h.join).collect();
+        let (before, _) = self.replayed(&without);
+        self.joined(&before, c)
+            .is_some_and(|after| self.within_reach(&before, &after, c))
+    }
+
+    /// Whether loop `c` agrees with where the joins `hops` placed its keyframes: its
+    /// measured motion against the placed poses' (P_a X_from)⁻¹ (P_b X_to), within three
+    /// deviations of the loop, of each joining loop crossed and of the odometry's drift over
+    /// the tracked travel along the path (within each fragment, from keyframe to keyframe).
+    fn agrees(&self, c: &LoopCandidate, hops: &[Hop]) -> bool {
+        let placed = |id: usize| self.placements[self.fragment_of(id)].motion * self.tracked(id);
+        let e = c.relative.inverse() * placed(c.from).inverse() * placed(c.to);
+        let (mut var_r, mut var_t) = (0.0, 0.0);
+        let mut add = |depth: f64| {
+            let (r, t) = self.params.loop_deviations(depth);
+            var_r += r * r;
+            var_t += t * t;
+        };
+        add(c.depth);
+        let (mut metres, mut radians, mut at) = (0.0, 0.0, c.from);
+        for h in hops {
+            add(self.found[self.joins.loop_of(h.join)].depth);
+            let (m, r) = self.travel(at, h.leave);
+            metres += m;
+            radians += r;
+            at = h.arrive;
+        }
+        let (m, r) = self.travel(at, c.to);
+        let p = &self.params;
+        let (drift_t, drift_r) = (
+            p.odometry_deviation(metres + m),
+            p.odometry_deviation(radians + r),
+        );
+        e.translation.vector.norm() <= 3.0 * (var_t + drift_t * drift_t).sqrt()
+            && e.rotation.angle() <= 3.0 * (var_r + drift_r * drift_r).sqrt()
+    }
+
+    /// The tracked travel between keyframes `a` and `b` of one fragment: metres and radians
+    /// summed over the keyframes between.
+    fn travel(&self, a: usize, b: usize) -> (f64, f64) {
+        let range = self.graph.vertices.range(a.min(b)..=a.max(b));
+        let poses: Vec<Isometry3<f64>> = range.map(|(&id, _)| self.tracked(id)).collect();
+        poses.windows(2).fold((0.0, 0.0), |(m, r), w| {
+            let d = w[0].inverse() * w[1];
+            (m + d.translation.vector.norm(), r + d.rotation.angle())
+        })
+    }
+
+    /// Every fragment placed from the live joins but those `without`, in the order they were
+    /// made, and the joins that no longer keep their fragments within reach that way (left
+    /// out).
+    fn replayed(&self, without: &[usize]) -> (Vec<Placement>, Vec<usize>) {
+        let mut placements: Vec<Placement> = (0..self.placements.len())
+            .map(|root| Placement {
+                root,
+                motion: Isometry3::identity(),
+            })
+            .collect();
+        let mut dropped = Vec::new();
+        for (k, j) in self.joins.live().filter(|(k, _)| !without.contains(k)) {
+            let c = &self.found[j.loop_index];
+            match self.joined(&placements, c) {
+                Some(p) if self.within_reach(&placements, &p, c) => placements = p,
+                _ => dropped.push(k),
+            }
+        }
+        (placements, dropped)
+    }
+
+    /// How many joins of map fragments the loops held apart (`rigid::joins`).
+    pub fn held_apart(&self) -> usize {
+        self.joins.held_apart()
     }
 
     fn push_edge(&mut self, from: usize, to: usize, z: Isometry3<f64>, information: Matrix6<f64>) {
@@ -580,16 +790,15 @@ impl KeyframeGraph {
                 (None, p) => (id, *p),
             })
             .collect();
+        let (graph, loop_edges) = self.solvable();
         // a loop never joins consecutive keyframes, so its ends tell it from the odometry
-        let loops: BTreeSet<(usize, usize)> = self
-            .loops
+        let loops: BTreeSet<(usize, usize)> = loop_edges
             .iter()
-            .map(|&k| (self.graph.edges[k].from, self.graph.edges[k].to))
+            .map(|&k| (graph.edges[k].from, graph.edges[k].to))
             .collect();
         let schedule = self.phi_schedule();
         let first = NamedKernel::Dcs(schedule[0]);
-        let mut pg = self
-            .graph
+        let mut pg = graph
             .build_problem_with(&poses, |e| loops.contains(&(e.from, e.to)).then_some(first))
             .map_err(LoopError::Build)?;
         // one problem and one solver for every stage: only the loops' Φ changes, so the
@@ -601,7 +810,7 @@ impl KeyframeGraph {
         let (mut iterations, mut converged) = (0, false);
         for (stage, &phi) in schedule.iter().enumerate() {
             if stage > 0 {
-                for &k in &self.loops {
+                for &k in &loop_edges {
                     let kernel = Box::new(NamedKernel::Dcs(phi));
                     pg.problem
                         .set_kernel(pg.residuals[k], Some(kernel))
@@ -620,7 +829,7 @@ impl KeyframeGraph {
                 Pose::Se2(_) => None,
             })
             .collect();
-        let loop_weights = self.loop_weights(&solved);
+        let loop_weights = loop_weights(&graph, &loop_edges, self.params.dcs_phi, &solved);
         Ok(Optimised {
             poses: solved,
             loop_weights,
@@ -645,35 +854,68 @@ impl KeyframeGraph {
         out
     }
 
-    /// DCS's weight min(1, 2Φ/(Φ + χ²)) of each loop edge at `poses`.
-    fn loop_weights(&self, poses: &BTreeMap<usize, Isometry3<f64>>) -> Vec<(usize, usize, f64)> {
-        let phi = self.params.dcs_phi;
-        self.loops
-            .iter()
-            .map(|&k| {
-                let e = &self.graph.edges[k];
-                let Measurement::Se3 { z, information } = &e.measurement else {
-                    unreachable!("a keyframe graph holds SE(3) edges only")
-                };
-                let r = dynamap_solver::lie::se3::log(
-                    &(z.inverse() * poses[&e.from].inverse() * poses[&e.to]),
-                );
-                let chi2 = (r.transpose() * information * r)[0];
-                (e.from, e.to, (2.0 * phi / (phi + chi2)).min(1.0))
-            })
-            .collect()
+    /// The graph to solve and its loop edges' indices: loops between keyframes of two trees
+    /// of fragments (there after a join was held apart, `rigid::joins`) are left out, as
+    /// they measure a placement the loops disagreed on.
+    fn solvable(&self) -> (Cow<'_, PoseGraph>, Vec<usize>) {
+        let across = |k: &usize| {
+            let e = &self.graph.edges[*k];
+            self.root_of(e.from) != self.root_of(e.to)
+        };
+        if !self.loops.iter().any(across) {
+            return (Cow::Borrowed(&self.graph), self.loops.clone());
+        }
+        let mut graph = self.graph.clone();
+        graph.edges.clear();
+        let mut loop_edges = Vec::new();
+        let mut next_loop = self.loops.iter().peekable();
+        for (k, e) in self.graph.edges.iter().enumerate() {
+            let is_loop = next_loop.next_if(|&&l| l == k).is_some();
+            if is_loop && across(&k) {
+                continue;
+            }
+            if is_loop {
+                loop_edges.push(graph.edges.len());
+            }
+            graph.edges.push(e.clone());
+        }
+        (Cow::Owned(graph), loop_edges)
     }
 
-    /// Writes the graph as g2o text (VERTEX_SE3:QUAT at `poses`, EDGE_SE3:QUAT), through a
-    /// temporary file renamed into place.
+    /// Writes the graph as solved (loops between fragments held apart left out) as g2o text
+    /// (VERTEX_SE3:QUAT at `poses`, EDGE_SE3:QUAT), through a temporary file renamed into
+    /// place.
     pub fn write_g2o(
         &self,
         path: impl AsRef<Path>,
         poses: &BTreeMap<usize, Isometry3<f64>>,
     ) -> Result<(), g2o::G2oError> {
         let poses = poses.iter().map(|(&id, x)| (id, Pose::Se3(*x))).collect();
-        g2o::write(path, &self.graph, &poses)
+        g2o::write(path, &self.solvable().0, &poses)
     }
+}
+
+/// DCS's weight min(1, 2Φ/(Φ + χ²)) of each loop edge `loop_edges` of `graph` at `poses`.
+fn loop_weights(
+    graph: &PoseGraph,
+    loop_edges: &[usize],
+    phi: f64,
+    poses: &BTreeMap<usize, Isometry3<f64>>,
+) -> Vec<(usize, usize, f64)> {
+    loop_edges
+        .iter()
+        .map(|&k| {
+            let e = &graph.edges[k];
+            let Measurement::Se3 { z, information } = &e.measurement else {
+                unreachable!("a keyframe graph holds SE(3) edges only")
+            };
+            let r = dynamap_solver::lie::se3::log(
+                &(z.inverse() * poses[&e.from].inverse() * poses[&e.to]),
+            );
+            let chi2 = (r.transpose() * information * r)[0];
+            (e.from, e.to, (2.0 * phi / (phi + chi2)).min(1.0))
+        })
+        .collect()
 }
 
 /// The deviations of an SE(3) edge in the tangent's order `[ω; v]`.
@@ -1089,6 +1331,38 @@ mod tests {
         assert!(before > 0.1 && after < 0.2 * before, "{before} → {after}");
     }
 
+    /// The frame of the tests' second map fragment: 1 m and 40° away from the first's.
+    fn offset() -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(0.6, -0.8, 0.1), Vector3::z() * 0.7)
+    }
+
+    /// A link's reach that bounds nothing on the circle (and admits any turn).
+    const ANYWHERE: Reach = Reach {
+        translation: 10.0,
+        rotation: 4.0,
+    };
+
+    /// The circle's drifted keyframes in map fragments: each of `starts`, (keyframe, frame,
+    /// reach), begins one whose frame is that far from the first's, within that reach of the
+    /// keyframe before.
+    fn split_at(
+        truth: &[Isometry3<f64>],
+        starts: &[(usize, Isometry3<f64>, Reach)],
+    ) -> KeyframeGraph {
+        let mut g = KeyframeGraph::new(LoopParams::default());
+        let mut frame = Isometry3::identity();
+        for (k, x) in drifted(truth).into_iter().enumerate() {
+            match starts.iter().find(|s| s.0 == k) {
+                Some(&(_, f, reach)) => {
+                    frame = f;
+                    g.start_fragment(k, frame * x, reach);
+                }
+                None => g.add_keyframe(k, frame * x),
+            }
+        }
+        g
+    }
+
     /// The circle's drifted keyframes, those from `split` on in a second map fragment whose
     /// frame is `offset` away from the first's, within `reach` of the keyframe before.
     fn fragmented(
@@ -1097,15 +1371,7 @@ mod tests {
         offset: Isometry3<f64>,
         reach: Reach,
     ) -> KeyframeGraph {
-        let mut g = KeyframeGraph::new(LoopParams::default());
-        for (k, x) in drifted(truth).into_iter().enumerate() {
-            match k.cmp(&split) {
-                std::cmp::Ordering::Less => g.add_keyframe(k, x),
-                std::cmp::Ordering::Equal => g.start_fragment(k, offset * x, reach),
-                std::cmp::Ordering::Greater => g.add_keyframe(k, offset * x),
-            }
-        }
-        g
+        split_at(truth, &[(split, offset, reach)])
     }
 
     /// A fragment started after another that no loop placed is held through the chain of
@@ -1115,24 +1381,12 @@ mod tests {
     fn a_fragment_after_an_unplaced_one_is_held_by_the_chain_of_reaches() {
         let truth = circle(40);
         // keyframes 20..24 and 24.. each start a fragment, 1 m and 40° off and back
-        let offset = Isometry3::new(Vector3::new(0.6, -0.8, 0.1), Vector3::z() * 0.7);
+        let offset = offset();
         let link = Reach {
             translation: 0.3,
             rotation: 0.3,
         };
-        let chained = || {
-            let mut g = KeyframeGraph::new(LoopParams::default());
-            for (k, x) in drifted(&truth).into_iter().enumerate() {
-                match k {
-                    0..20 => g.add_keyframe(k, x),
-                    20 => g.start_fragment(k, offset * x, link),
-                    21..24 => g.add_keyframe(k, offset * x),
-                    24 => g.start_fragment(k, offset.inverse() * x, link),
-                    _ => g.add_keyframe(k, offset.inverse() * x),
-                }
-            }
-            g
-        };
+        let chained = || split_at(&truth, &[(20, offset, link), (24, offset.inverse(), link)]);
         // from keyframe 19 to 24 the camera went five steps (1.2 m, 45°); the chain admits
         // 0.3 + 0.72 + 0.3 m and 0.3 + 0.47 + 0.3 rad
         let mut g = chained();
@@ -1146,11 +1400,129 @@ mod tests {
         assert_eq!(h.unplaced().len(), 20);
     }
 
+    /// Keyframe `to` seen from keyframe `from` in the look-alike place half a circle away
+    /// (the circle turned by π about its centre, where keyframe k lands on k + n/2): the
+    /// motion the loop measures if `to` stood there.
+    fn twin_loop(truth: &[Isometry3<f64>], from: usize, to: usize) -> LoopCandidate {
+        let half_turn = Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+        LoopCandidate {
+            relative: truth[from].inverse() * half_turn * truth[to],
+            ..true_loop(truth, from, to)
+        }
+    }
+
+    /// Twin places: three loops from the look-alike place join a new fragment half a circle
+    /// off (the camera may have gone anywhere), then the true loops disagree. Once two
+    /// contradict the three, the join is held apart: the fragment is unplaced again (its
+    /// frames are no longer reported in the map), its loops are not solved, and a later loop
+    /// between the two is refused. Before, DCS switched the true loops off and the fragment's
+    /// frames were reported 3 m and 180° off.
+    #[test]
+    fn loops_that_disagree_on_a_join_hold_its_fragments_apart() {
+        let truth = circle(40);
+        let offset = offset();
+        let mut g = fragmented(&truth, 20, offset, ANYWHERE);
+        for (from, to) in [(2, 22), (4, 25), (6, 27)] {
+            assert!(g.add_loop(&twin_loop(&truth, from, to)));
+        }
+        assert!(g.unplaced().is_empty(), "joined by the look-alike place");
+        assert!(g.add_loop(&true_loop(&truth, 0, 39)));
+        assert!(g.unplaced().is_empty(), "one loop against three");
+        assert_eq!(g.held_apart(), 0);
+        assert!(g.add_loop(&true_loop(&truth, 1, 38)));
+        assert_eq!(g.held_apart(), 1);
+        // 20 keyframes each: the first fragment is the main map
+        assert_eq!(g.unplaced(), (20..40).collect::<BTreeSet<_>>());
+        assert!(
+            !g.add_loop(&twin_loop(&truth, 8, 29)),
+            "a loop across the held join"
+        );
+        let solved = g.optimise(None).unwrap();
+        assert!(solved.loop_weights.is_empty(), "{:?}", solved.loop_weights);
+        let first: Vec<Isometry3<f64>> = truth[..20].to_vec();
+        let main: BTreeMap<usize, Isometry3<f64>> =
+            solved.poses.range(..20).map(|(&k, x)| (k, *x)).collect();
+        assert!(worst(&main, &first) < 0.1, "the first fragment bent");
+    }
+
+    /// The converse: one false loop after the join's own loop and two that agree with it is
+    /// a quarter of the votes, switched off by DCS, and the join stands.
+    #[test]
+    fn one_false_loop_against_a_join_leaves_it_standing() {
+        let truth = circle(40);
+        let offset = offset();
+        let mut g = fragmented(&truth, 20, offset, ANYWHERE);
+        for (from, to) in [(0, 39), (1, 38), (2, 37)] {
+            assert!(g.add_loop(&true_loop(&truth, from, to)));
+        }
+        assert!(g.add_loop(&twin_loop(&truth, 6, 27)));
+        assert_eq!(g.held_apart(), 0);
+        assert!(g.unplaced().is_empty());
+        let solved = g.optimise(None).unwrap();
+        let weights: Vec<f64> = solved.loop_weights.iter().map(|w| w.2).collect();
+        assert!(
+            weights[..3].iter().all(|&w| w > 0.5) && weights[3] < 0.01,
+            "{weights:?}"
+        );
+        assert!(worst(&solved.poses, &truth) < 0.05);
+    }
+
+    /// Loops from the look-alike place against a true join count only where they could have
+    /// joined the fragment themselves: with a link whose reach (half a metre and half a
+    /// radian; a step is 24 cm and 9°) rules out the half turn they measure, three of them
+    /// against one true loop leave the join standing; where the fragment may lie anywhere,
+    /// two of them hold it apart.
+    #[test]
+    fn loops_against_a_join_count_only_within_the_fragments_reach() {
+        let truth = circle(40);
+        let offset = offset();
+        let run = |translation, rotation| {
+            let reach = Reach {
+                translation,
+                rotation,
+            };
+            let mut g = fragmented(&truth, 20, offset, reach);
+            assert!(g.add_loop(&true_loop(&truth, 0, 39)), "the join");
+            for (from, to) in [(6, 27), (8, 29), (10, 31)] {
+                g.add_loop(&twin_loop(&truth, from, to));
+            }
+            g
+        };
+        let near = run(0.5, 0.5);
+        assert_eq!(near.held_apart(), 0);
+        assert!(near.unplaced().is_empty());
+        let anywhere = run(10.0, 4.0);
+        assert_eq!(anywhere.held_apart(), 1);
+        assert_eq!(anywhere.unplaced(), (20..40).collect::<BTreeSet<_>>());
+    }
+
+    /// Once loops have shown two places alike (a join held apart), a fragment whose heading
+    /// nothing bounds (its link's reach admits any turn) is not placed by a loop: it could as
+    /// well be the other place. Before that, it is.
+    #[test]
+    fn where_places_alike_were_seen_a_fragment_free_to_turn_is_not_placed() {
+        let truth = circle(40);
+        let offset = offset();
+        // keyframes 14..28 and 28.. each start a fragment that may lie anywhere
+        let three = || split_at(&truth, &[(14, offset, ANYWHERE), (28, offset, ANYWHERE)]);
+        let mut plain = three();
+        assert!(plain.add_loop(&true_loop(&truth, 3, 35)));
+        let mut twins = three();
+        for (from, to) in [(2, 16), (4, 18), (6, 20)] {
+            assert!(twins.add_loop(&twin_loop(&truth, from, to)));
+        }
+        assert!(twins.add_loop(&true_loop(&truth, 0, 27)));
+        assert!(twins.add_loop(&true_loop(&truth, 1, 26)));
+        assert_eq!(twins.held_apart(), 1);
+        assert!(!twins.add_loop(&true_loop(&truth, 3, 35)));
+        assert_eq!(twins.unplaced().len(), 26);
+    }
+
     #[test]
     fn a_loop_places_a_new_map_fragment_that_started_far_off() {
         let truth = circle(40);
         // the second fragment's frame: 1 m and 40° away from the first's
-        let offset = Isometry3::new(Vector3::new(0.6, -0.8, 0.1), Vector3::z() * 0.7);
+        let offset = offset();
         // a step of the circle is 24 cm and 9°
         let reach = |translation, rotation| Reach {
             translation,

@@ -6,6 +6,7 @@
 mod color_timing;
 pub mod exposure;
 mod health;
+mod joins;
 pub mod keyframes;
 mod loop_candidates;
 mod loop_search;

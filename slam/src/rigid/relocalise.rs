@@ -201,8 +201,8 @@ impl Relocaliser {
         self.keyframes.params.recent_frames = frames;
     }
 
-    /// Keeps a fused frame (filtered depth, colour) as the one the features match against, and
-    /// offers it as a keyframe; whether it became one. The first frame of a new map fragment
+    /// Keeps a fused frame (filtered depth, colour) as the one the features match against (none
+    /// when it has no colour), and offers it as a keyframe; whether it became one. The first frame of a new map fragment
     /// (`new_map`) is kept as a keyframe wherever it lies.
     pub(crate) fn remember(
         &mut self,
@@ -213,8 +213,10 @@ impl Relocaliser {
     ) -> bool {
         self.key_depth.clone_from(frame.depth);
         self.key_keypoints = None;
-        if let Some(c) = frame.color {
-            self.key_color.clone_from(c);
+        match frame.color {
+            Some(c) => self.key_color.clone_from(c),
+            // no colour to match against: an older frame's would pair with this depth
+            None => self.key_color.reset(0, 0, [0; 3]),
         }
         if !new_map {
             return self.keyframes.offer(frame, &params.features, max_depth);
@@ -566,5 +568,43 @@ mod tests {
         assert!(shift > view_shift(&last, &step, 1.0));
         // a too small depth is taken as 0.1 m
         assert!((view_shift(&last, &step, 0.0) - 5.0).abs() < 1e-12);
+    }
+
+    /// After a fused frame without colour, the local round has no features to match: before,
+    /// it matched the older frame's colour, paired with the newer frame's depth.
+    #[test]
+    fn a_frame_without_colour_leaves_the_local_round_no_features() {
+        let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+        let mut color = ColorImage::new(320, 240);
+        for (i, c) in color.data.iter_mut().enumerate() {
+            let (u, v) = (i % 320, i / 320);
+            let on = ((u / 7) ^ (v / 5) ^ (u * v / 97)) & 1 == 1;
+            *c = if on { [230, 200, 40] } else { [20, 30, 90] };
+        }
+        let depth = DepthImage::filled(320, 240, 1.5);
+        let p = RelocaliseParams::default();
+        let mut r = Relocaliser::new(&p);
+        let fused = |frame, color| Candidate {
+            frame,
+            pose: Isometry3::identity(),
+            agreement: None,
+            color,
+            depth: &depth,
+            camera: &cam,
+        };
+        let live = FeatureFrame {
+            color: &color,
+            depth: &depth,
+            camera: &cam,
+            mask: None,
+        };
+        let now = detect(&live, &p.features);
+        let last = Isometry3::identity();
+        r.remember(&fused(1, Some(&color)), &p, 5.0, false);
+        let (_, from_features) = r.starts(&p, &cam, Some(&now), last, false);
+        assert_eq!(from_features, Some(1), "the same view matches itself");
+        r.remember(&fused(2, None), &p, 5.0, false);
+        let (starts, from_features) = r.starts(&p, &cam, Some(&now), last, false);
+        assert_eq!((starts.len(), from_features), (1, None));
     }
 }
