@@ -11,12 +11,12 @@
 //! failures (frames read but not tracked), skipped (frames whose files could not be read),
 //! relocalised, new_maps and unplaced_frames (maps started after the track was lost for good, and
 //! the tracked frames left out because no loop placed their map), held_apart (joins of maps that
-//! later loops contradicted, undone), unpaired_depth (TUM-layout
-//! depth frames without a colour frame in `associations.txt`, or within `--max-difference`
-//! where the folder has none; not read, and a warning names them too), the loop_events (each
-//! loop's keyframes by frame number counted from 1 and by depth stamp, its inliers and DCS
-//! weight, null for a loop between maps held apart, which is not solved) and the ATE when the folder has a ground truth. The trajectory holds the tracked
-//! frames only.
+//! later loops contradicted, undone), unpaired_depth (TUM-layout depth frames without a colour
+//! frame in `associations.txt`, or within `--max-difference` where the folder has none; not
+//! read, and a warning names them too), the loop_events (each loop's keyframes by frame number
+//! counted from 1 and by depth stamp, its inliers and DCS weight, null for a loop between maps
+//! held apart, which is not solved) and the ATE when the folder has a ground truth. The
+//! trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
@@ -421,7 +421,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "frames": tally.processed, "seconds": seconds, "fps": tally.processed as f64 / seconds,
             "failures": tally.failures, "skipped": tally.skipped, "tracked": tally.trajectory.len(),
             "relocalised": tally.relocalised, "new_maps": tally.new_maps,
-            "unplaced_frames": unplaced, "held_apart": graph.held_apart(), "unpaired_depth": seq.unpaired_depth(),
+            "unplaced_frames": unplaced, "held_apart": graph.held_apart(),
+            "unpaired_depth": seq.unpaired_depth(),
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
             "loop_events": loop_events(graph, solved.as_ref(), &tally.given), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),

@@ -202,8 +202,8 @@ impl Relocaliser {
     }
 
     /// Keeps a fused frame (filtered depth, colour) as the one the features match against (none
-    /// when it has no colour), and offers it as a keyframe; whether it became one. The first frame of a new map fragment
-    /// (`new_map`) is kept as a keyframe wherever it lies.
+    /// when it has no colour), and offers it as a keyframe; whether it became one. The first
+    /// frame of a new map fragment (`new_map`) is kept as a keyframe wherever it lies.
     pub(crate) fn remember(
         &mut self,
         frame: &Candidate<'_>,
