@@ -420,9 +420,8 @@ fn run(args: Args, session: &Session) -> Result<()> {
         serde_json::json!({
             "frames": tally.processed, "seconds": seconds, "fps": tally.processed as f64 / seconds,
             "failures": tally.failures, "skipped": tally.skipped, "tracked": tally.trajectory.len(),
-            "relocalised": tally.relocalised, "new_maps": tally.new_maps,
-            "unplaced_frames": unplaced, "held_apart": graph.held_apart(),
-            "unpaired_depth": seq.unpaired_depth(),
+            "relocalised": tally.relocalised, "new_maps": tally.new_maps, "held_apart": graph.held_apart(),
+            "unplaced_frames": unplaced, "unpaired_depth": seq.unpaired_depth(),
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
             "loop_events": loop_events(graph, solved.as_ref(), &tally.given), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),
