@@ -13,7 +13,7 @@
 //! lookup and an interpolation per pixel, with no equation solved per pixel.
 
 use crate::camera::Camera;
-use crate::image::{ColorImage, Image};
+use crate::image::{blend4, ColorImage, Image};
 use rayon::prelude::*;
 
 /// Brown–Conrady coefficients, in OpenCV's order (k1, k2, p1, p2, k3).
@@ -216,10 +216,7 @@ impl Undistorter {
                 (256 - ax) * ay,
                 ax * ay,
             ];
-            Some(std::array::from_fn(|c| {
-                let sum: u32 = (0..4).map(|k| u32::from(p[k][c]) * w[k]).sum();
-                ((sum + (1 << 15)) >> 16) as u8
-            }))
+            Some(blend4(p, w))
         });
     }
 

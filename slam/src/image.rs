@@ -6,6 +6,25 @@
 use crate::camera::Camera;
 use rayon::prelude::*;
 
+/// The blend of four colours with integer weights `w` summing to 2¹⁶ (bilinear interpolation in
+/// fixed point, the weights in 1/256ths of a pixel along each axis), rounded to the nearest level:
+/// Σₖ wₖ pₖ / 2¹⁶ per channel. Red and blue share one 64-bit product, one in each half: every
+/// product and sum stays below 2²⁴, so the halves never carry into each other.
+#[inline]
+pub fn blend4(p: [[u8; 3]; 4], w: [u32; 4]) -> [u8; 3] {
+    let (mut rb, mut g) = (0u64, 0u32);
+    for ([r, gr, b], w) in p.into_iter().zip(w) {
+        rb += (u64::from(r) | u64::from(b) << 32) * u64::from(w);
+        g += u32::from(gr) * w;
+    }
+    let round = |sum: u64| ((sum + (1 << 15)) >> 16) as u8;
+    [
+        round(rb & 0xffff_ffff),
+        round(u64::from(g)),
+        round(rb >> 32),
+    ]
+}
+
 /// A row-major image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image<T> {
@@ -562,9 +581,41 @@ pub fn gradients(gray: &GrayImage, gx: &mut GrayImage, gy: &mut GrayImage) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::SeedableRng;
+    use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn a_blend_of_four_colours_is_each_channels_rounded_weighted_mean() {
+        // every channel alone: Σ wₖ pₖ / 2¹⁶ rounded, at the extremes and at random
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let one_channel = |p: &[[u8; 3]; 4], w: &[u32; 4], c: usize| {
+            let sum: u64 = (0..4).map(|k| u64::from(p[k][c]) * u64::from(w[k])).sum();
+            ((sum + (1 << 15)) >> 16) as u8
+        };
+        let mut cases = vec![
+            ([[255; 3]; 4], [65536, 0, 0, 0]),
+            ([[255; 3]; 4], [16384; 4]),
+            (
+                [[255, 0, 255], [0, 255, 0], [255, 255, 255], [0, 0, 0]],
+                [0, 256, 65024, 256],
+            ),
+        ];
+        for _ in 0..10_000 {
+            let (ax, ay) = (rng.random_range(0..=256u32), rng.random_range(0..=256u32));
+            let w = [
+                (256 - ax) * (256 - ay),
+                ax * (256 - ay),
+                (256 - ax) * ay,
+                ax * ay,
+            ];
+            cases.push((std::array::from_fn(|_| rng.random()), w));
+        }
+        for (p, w) in cases {
+            let expected: [u8; 3] = std::array::from_fn(|c| one_channel(&p, &w, c));
+            assert_eq!(blend4(p, w), expected, "{p:?} {w:?}");
+        }
+    }
 
     fn std_dev(v: &[f32]) -> f32 {
         let m = v.iter().sum::<f32>() / v.len() as f32;
