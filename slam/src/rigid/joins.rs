@@ -108,12 +108,20 @@ impl Joins {
     /// The live joins crossed on the way from keyframe `from` in fragment `start` to
     /// fragment `end` (breadth first over the joins; the live joins form a forest, so the path
     /// is the only one); `None` when no live join connects them.
-    pub fn path(&self, (start, from): (usize, usize), end: usize) -> Option<Vec<Hop>> {
-        let mut reached: Vec<(usize, Vec<Hop>, usize)> = vec![(start, Vec::new(), from)];
+    pub fn path(&self, (start, _from): (usize, usize), end: usize) -> Option<Vec<Hop>> {
+        // each fragment reached, with the entry it was reached from and the hop that did it
+        let mut reached: Vec<(usize, Option<(usize, Hop)>)> = vec![(start, None)];
         let mut k = 0;
         while k < reached.len() {
-            let (at, hops, _) = reached[k].clone();
+            let at = reached[k].0;
             if at == end {
+                let mut hops = Vec::new();
+                let mut entry = k;
+                while let Some((parent, hop)) = reached[entry].1 {
+                    hops.push(hop);
+                    entry = parent;
+                }
+                hops.reverse();
                 return Some(hops);
             }
             for (index, j) in self.live() {
@@ -127,13 +135,12 @@ impl Joins {
                 if reached.iter().any(|r| r.0 == next) {
                     continue;
                 }
-                let mut longer = hops.clone();
-                longer.push(Hop {
+                let hop = Hop {
                     join: index,
                     leave,
                     arrive,
-                });
-                reached.push((next, longer, arrive));
+                };
+                reached.push((next, Some((k, hop))));
             }
             k += 1;
         }

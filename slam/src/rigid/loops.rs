@@ -488,25 +488,7 @@ impl KeyframeGraph {
         placements: &[Placement],
         c: &LoopCandidate,
     ) -> bool {
-        let identity = Isometry3::identity();
-        let links = self.links_placed(before, placements, c);
-        links.iter().all(|(d, reach)| reach.admits(&identity, d))
-    }
-
-    /// Whether some link that `placements` (made from `before` by loop `c`) newly place
-    /// leaves the heading free: its reach admits any turn (the camera may have turned round
-    /// while the track was lost, or the chain of links runs through fragments no loop
-    /// placed, their tracked motion adding up).
-    fn heading_free(
-        &self,
-        before: &[Placement],
-        placements: &[Placement],
-        c: &LoopCandidate,
-    ) -> bool {
-        let links = self.links_placed(before, placements, c);
-        links
-            .iter()
-            .any(|(_, reach)| reach.rotation >= std::f64::consts::PI)
+        links_within_reach(&self.links_placed(before, placements, c))
     }
 
     /// The links that `placements` (made from `before` by loop `c`) newly place, each as the
@@ -579,7 +561,8 @@ impl KeyframeGraph {
         }
         let joined = self.joined(&self.placements, c);
         if let Some(p) = &joined {
-            if !self.within_reach(&self.placements, p, c) {
+            let links = self.links_placed(&self.placements, p, c);
+            if !links_within_reach(&links) {
                 tracing::debug!(
                     from = c.from,
                     to = c.to,
@@ -595,7 +578,7 @@ impl KeyframeGraph {
                 );
                 return false;
             }
-            if self.joins.held_apart() > 0 && self.heading_free(&self.placements, p, c) {
+            if self.joins.held_apart() > 0 && heading_free(&links) {
                 tracing::debug!(
                     from = c.from,
                     to = c.to,
@@ -726,12 +709,16 @@ impl KeyframeGraph {
     /// The tracked travel between keyframes `a` and `b` of one fragment: metres and radians
     /// summed over the keyframes between.
     fn travel(&self, a: usize, b: usize) -> (f64, f64) {
-        let range = self.graph.vertices.range(a.min(b)..=a.max(b));
-        let poses: Vec<Isometry3<f64>> = range.map(|(&id, _)| self.tracked(id)).collect();
-        poses.windows(2).fold((0.0, 0.0), |(m, r), w| {
-            let d = w[0].inverse() * w[1];
-            (m + d.translation.vector.norm(), r + d.rotation.angle())
-        })
+        let mut poses =
+            (self.graph.vertices.range(a.min(b)..=a.max(b))).map(|(&id, _)| self.tracked(id));
+        let Some(first) = poses.next() else {
+            return (0.0, 0.0);
+        };
+        let (_, metres, radians) = poses.fold((first, 0.0, 0.0), |(prev, m, r), x| {
+            let d = prev.inverse() * x;
+            (x, m + d.translation.vector.norm(), r + d.rotation.angle())
+        });
+        (metres, radians)
     }
 
     /// Every fragment placed from the live joins but those `without`, in the order they were
@@ -1092,6 +1079,22 @@ pub(super) fn median_z(points: &[Vector3<f64>]) -> f64 {
     }
     let mid = z.len() / 2;
     *z.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// Whether every placed link (the motion across it, and its reach: [`KeyframeGraph`]'s
+/// `links_placed`) lies within its reach.
+fn links_within_reach(links: &[(Isometry3<f64>, Reach)]) -> bool {
+    let identity = Isometry3::identity();
+    links.iter().all(|(d, reach)| reach.admits(&identity, d))
+}
+
+/// Whether some placed link leaves the heading free: its reach admits any turn (the camera may
+/// have turned round while the track was lost, or the chain of links runs through fragments no
+/// loop placed, their tracked motion adding up).
+fn heading_free(links: &[(Isometry3<f64>, Reach)]) -> bool {
+    links
+        .iter()
+        .any(|(_, reach)| reach.rotation >= std::f64::consts::PI)
 }
 
 #[cfg(test)]
