@@ -622,7 +622,7 @@ impl KeyframeGraph {
     /// again without them.
     fn vote(&mut self, c: &LoopCandidate) {
         let (fa, fb) = (self.fragment_of(c.from), self.fragment_of(c.to));
-        let Some(hops) = self.joins.path((fa, c.from), fb) else {
+        let Some(hops) = self.joins.path(fa, fb) else {
             return;
         };
         let agrees = self.agrees(c, &hops);
@@ -709,8 +709,11 @@ impl KeyframeGraph {
     /// The tracked travel between keyframes `a` and `b` of one fragment: metres and radians
     /// summed over the keyframes between.
     fn travel(&self, a: usize, b: usize) -> (f64, f64) {
-        let mut poses =
-            (self.graph.vertices.range(a.min(b)..=a.max(b))).map(|(&id, _)| self.tracked(id));
+        let mut poses = self
+            .graph
+            .vertices
+            .range(a.min(b)..=a.max(b))
+            .map(|(&id, _)| self.tracked(id));
         let Some(first) = poses.next() else {
             return (0.0, 0.0);
         };
