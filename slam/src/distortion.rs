@@ -13,7 +13,7 @@
 //! lookup and an interpolation per pixel, with no equation solved per pixel.
 
 use crate::camera::Camera;
-use crate::image::{blend4, ColorImage, Image};
+use crate::image::{bilinear_weights, blend4, ColorImage, Image};
 use rayon::prelude::*;
 
 /// Brown–Conrady coefficients, in OpenCV's order (k1, k2, p1, p2, k3).
@@ -209,14 +209,10 @@ impl Undistorter {
                 src.data[i + dy],
                 src.data[i + dx + dy],
             ];
-            let (ax, ay) = (u32::from(t.right), u32::from(t.down));
-            let w = [
-                (256 - ax) * (256 - ay),
-                ax * (256 - ay),
-                (256 - ax) * ay,
-                ax * ay,
-            ];
-            Some(blend4(p, w))
+            Some(blend4(
+                p,
+                bilinear_weights(u32::from(t.right), u32::from(t.down)),
+            ))
         });
     }
 

@@ -25,6 +25,14 @@ pub fn blend4(p: [[u8; 3]; 4], w: [u32; 4]) -> [u8; 3] {
     ]
 }
 
+/// The weights [`blend4`] takes for a point `right` and `down` 256ths of a pixel past the upper
+/// left of its four pixels (each in 0..=256): upper left, upper right, lower left, lower right.
+#[inline]
+pub fn bilinear_weights(right: u32, down: u32) -> [u32; 4] {
+    let (left, up) = (256 - right, 256 - down);
+    [left * up, right * up, left * down, right * down]
+}
+
 /// A row-major image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image<T> {
@@ -603,13 +611,10 @@ mod tests {
         ];
         for _ in 0..10_000 {
             let (ax, ay) = (rng.random_range(0..=256u32), rng.random_range(0..=256u32));
-            let w = [
-                (256 - ax) * (256 - ay),
-                ax * (256 - ay),
-                (256 - ax) * ay,
-                ax * ay,
-            ];
-            cases.push((std::array::from_fn(|_| rng.random()), w));
+            cases.push((
+                std::array::from_fn(|_| rng.random()),
+                bilinear_weights(ax, ay),
+            ));
         }
         for (p, w) in cases {
             let expected: [u8; 3] = std::array::from_fn(|c| one_channel(&p, &w, c));

@@ -224,12 +224,7 @@ fn bilinear_inside(img: &ColorImage, x: f32, y: f32) -> [u8; 3] {
     let (x1, y1) = ((x0 + 1).min(img.width - 1), (y0 + 1).min(img.height - 1));
     let ax = ((x - x0 as f32) * 256.0) as u32;
     let ay = ((y - y0 as f32) * 256.0) as u32;
-    let w = [
-        (256 - ax) * (256 - ay),
-        ax * (256 - ay),
-        (256 - ax) * ay,
-        ax * ay,
-    ];
+    let w = crate::image::bilinear_weights(ax, ay);
     let at = |x: usize, y: usize| img.data[y * img.width + x];
     let p = [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)];
     std::array::from_fn(|c| {
