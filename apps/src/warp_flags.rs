@@ -1,7 +1,7 @@
 //! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each application sets
 //! its own defaults first; a flag given overrides them).
 
-use dynamap_slam::nonrigid::{GraphParams, RegisterParams};
+use dynamap_slam::nonrigid::{GraphParams, LinearSteps, RegisterParams};
 
 /// Settings of the deformation graph and the warp-field optimiser.
 #[derive(clap::Args, Debug)]
@@ -39,10 +39,12 @@ pub struct WarpFlags {
     /// Levenberg-Marquardt's initial damping, as a fraction of H's largest diagonal element.
     #[arg(long)]
     pub damping: Option<f64>,
-    /// Conjugate-gradient iterations a step may take on the last factorisation before the
-    /// system is factorised anew (0: every step factorises).
+    /// How each step solves its linear system: `factorise` (a sparse Cholesky factorisation
+    /// each step), `refine:N` (up to N conjugate-gradient iterations on the last factorisation
+    /// before factorising anew) or `jacobi:N` (up to N conjugate-gradient iterations
+    /// preconditioned by H's diagonal blocks, never factorising).
     #[arg(long)]
-    pub refine_iterations: Option<usize>,
+    pub linear: Option<LinearSteps>,
     /// Coverage matches onto a whole-shape target (a mesh or a cloud, not a depth frame): a
     /// target point farther than this many of the source's point spacings from every warped
     /// point pulls the nearest one (0: none).
@@ -66,7 +68,7 @@ impl WarpFlags {
             ("point_weight", register.point_weight.to_string()),
             ("stay_weight", register.stay_weight.to_string()),
             ("damping", register.damping.to_string()),
-            ("refine_iterations", register.refine_iterations.to_string()),
+            ("linear", register.linear.to_string()),
             ("cover", register.cover.to_string()),
         ]
     }
@@ -130,7 +132,7 @@ impl WarpFlags {
         set(&self.point_weight, &mut register.point_weight);
         set(&self.stay_weight, &mut register.stay_weight);
         set(&self.damping, &mut register.damping);
-        set(&self.refine_iterations, &mut register.refine_iterations);
+        set(&self.linear, &mut register.linear);
         set(&self.cover, &mut register.cover);
         if !(register.cover >= 0.0 && register.cover.is_finite()) {
             anyhow::bail!("--cover must be 0 or a positive number of point spacings");

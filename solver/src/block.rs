@@ -9,6 +9,9 @@
 
 use crate::damping::{damping_scale, Damping};
 
+/// Stored elements from which [`BlockSparse::multiply_split`] uses two threads.
+const PARALLEL_PRODUCT: usize = 1 << 16;
+
 /// One block (i, j), i ≤ j, of the upper triangle.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Entry {
@@ -166,15 +169,74 @@ impl BlockSparse {
     /// y = A x with A symmetric, stored as its upper triangle.
     pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
-        self.for_each_run(|start, row, rows, c| {
-            let values = &self.values[start..start + rows];
-            for (r, &v) in (row..row + rows).zip(values) {
-                y[r] += v * x[c];
-                if r != c {
-                    y[c] += v * x[r];
+        self.add_product(0..self.num_blocks(), x, y);
+    }
+
+    /// [`Self::multiply`] on two threads when A is large: the block columns are split where
+    /// half the stored elements lie, the second half's product summed into `scratch` (resized
+    /// to y's length) and added.
+    pub fn multiply_split(&self, x: &[f64], y: &mut [f64], scratch: &mut Vec<f64>) {
+        if self.values.len() < PARALLEL_PRODUCT {
+            return self.multiply(x, y);
+        }
+        let half = self.values.len() / 2;
+        let split = self
+            .block_start
+            .partition_point(|&s| self.col_ptr[s] < half)
+            .min(self.num_blocks());
+        scratch.resize(y.len(), 0.0);
+        y.fill(0.0);
+        scratch.fill(0.0);
+        let nb = self.num_blocks();
+        rayon::join(
+            || self.add_product(0..split, x, y),
+            || self.add_product(split..nb, x, scratch),
+        );
+        for (y, s) in y.iter_mut().zip(scratch.iter()) {
+            *y += s;
+        }
+    }
+
+    /// y += A_J x for the block columns J of the upper triangle and their mirror images: each
+    /// stored a_rc (r < c) adds a_rc x_c to y_r and a_rc x_r to y_c, the second summed over the
+    /// column in a register and added once.
+    fn add_product(&self, columns: std::ops::Range<usize>, x: &[f64], y: &mut [f64]) {
+        for j in columns {
+            let entries = &self.entries[self.entry_ptr[j]..self.entry_ptr[j + 1]];
+            // the diagonal block is the column's last entry
+            let above = &entries[..entries.len() - 1];
+            let first = self.block_start[j];
+            for dc in 0..self.block_dim(j) {
+                let c = first + dc;
+                let column = &self.values[self.col_ptr[c]..self.col_ptr[c + 1]];
+                let xc = x[c];
+                let mut sum = 0.0;
+                for e in above {
+                    let row = self.block_start[e.row_block];
+                    let d = self.block_dim(e.row_block);
+                    sum += match d {
+                        6 => column_rows::<6>(&column[e.pos..], xc, &mut y[row..], &x[row..]),
+                        3 => column_rows::<3>(&column[e.pos..], xc, &mut y[row..], &x[row..]),
+                        _ => {
+                            let values = &column[e.pos..e.pos + d];
+                            let rows = values.iter().zip(&mut y[row..row + d]).zip(&x[row..]);
+                            rows.map(|((v, yr), xr)| {
+                                *yr += v * xc;
+                                v * xr
+                            })
+                            .sum()
+                        }
+                    };
                 }
+                // the diagonal block's rows 0..=dc end the column
+                let (strict, diagonal) = column[column.len() - dc - 1..].split_at(dc);
+                for ((v, yr), xr) in strict.iter().zip(&mut y[first..c]).zip(&x[first..]) {
+                    *yr += v * xc;
+                    sum += v * xr;
+                }
+                y[c] += sum + diagonal[0] * xc;
             }
-        });
+        }
     }
 
     /// Calls `f(r, c, v)` for every stored element (r ≤ c) of A + damping.
@@ -226,6 +288,19 @@ impl BlockSparse {
     pub fn diagonal(&self) -> impl Iterator<Item = f64> + '_ {
         self.diag_pos().map(|p| self.values[p])
     }
+}
+
+/// The `D` rows of one block in one column of [`BlockSparse::add_product`]: y_r += v_r x_c for
+/// each, and Σ v_r x_r returned (a size known at compile time, so the loop unrolls).
+#[inline(always)]
+fn column_rows<const D: usize>(values: &[f64], xc: f64, y: &mut [f64], x: &[f64]) -> f64 {
+    let (values, y, x) = (&values[..D], &mut y[..D], &x[..D]);
+    let mut sum = 0.0;
+    for r in 0..D {
+        y[r] += values[r] * xc;
+        sum += values[r] * x[r];
+    }
+    sum
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ use super::frame_matches::{
 };
 use super::frame_target::SeenThroughTarget;
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
+use super::linear_steps::LinearSteps;
 use super::photometric::PhotometricTarget;
 use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
 use crate::camera::Camera;
@@ -88,7 +89,7 @@ impl Default for FrameSettings {
                 point_weight: 0.1,
                 stay_weight: 0.01,
                 damping: 1e-4,
-                refine_iterations: 0,
+                linear: LinearSteps::Factorise,
                 chroma_weight: 0.3,
                 ..RegisterParams::default()
             },

@@ -21,6 +21,7 @@
 use super::chroma::{cell_key, ChromaImage, ChromaReferences};
 use super::colour_drift::{ColourDrift, ColourDrifted};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
+use super::linear_steps::LinearSteps;
 use super::photometric::{PhotometricTarget, RatioImage};
 use super::reference_frame::ReferenceFrame;
 use super::register::{
@@ -107,7 +108,7 @@ impl Default for FusionParams {
                 point_weight: 0.1,
                 stay_weight: 0.01,
                 damping: 1e-6,
-                refine_iterations: 4,
+                linear: LinearSteps::BlockJacobi(50),
                 photometric_weight: 0.3,
                 photometric_tukey: 0.1,
                 chroma_weight: 0.3,

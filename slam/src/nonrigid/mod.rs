@@ -39,6 +39,7 @@ pub mod frame_target;
 pub mod frames;
 pub mod fusion;
 pub mod graph;
+pub mod linear_steps;
 pub mod mesh_point;
 pub mod mesh_target;
 pub mod photometric;
@@ -65,6 +66,7 @@ pub use frames::{
 };
 pub use fusion::{FusionFailure, FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
+pub use linear_steps::{LinearSteps, LinearStepsError};
 pub use mesh_point::MeshPoint;
 pub use mesh_target::MeshTarget;
 pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};

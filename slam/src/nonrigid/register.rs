@@ -17,6 +17,7 @@
 
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
 use super::graph::{Binding, DeformationGraph};
+use super::linear_steps::LinearSteps;
 use super::photometric::{PhotometricFit, PhotometricTarget};
 use super::system::{match_terms, Minimised, Photometric, Steps, WarpSystem, WarpTerms};
 use crate::camera::Camera;
@@ -228,11 +229,10 @@ pub struct RegisterParams {
     /// 1e-4, the solver's). Tracking from the last frame's field starts near the optimum, where a
     /// small τ lets the first steps go most of the way.
     pub damping: f64,
-    /// Conjugate-gradient iterations a step may take, preconditioned by the last factorisation of
-    /// the system (an earlier iteration's or frame's), before the system is factorised anew
-    /// (default 0: every step factorises). Tracking, where H changes little from one step or
-    /// frame to the next, uses it.
-    pub refine_iterations: usize,
+    /// How each step solves its linear system (default [`LinearSteps::Factorise`]). Tracking,
+    /// where each frame starts at the last one's field, takes truncated conjugate-gradient
+    /// steps instead.
+    pub linear: LinearSteps,
     /// Weight λ of the photometric term `λ ρ(I(π(W(v))) − I_ref)` beside the depth terms, for a
     /// target that has intensities ([`Target::photometric`]; default 0: none). Intensities are
     /// in [0, 1] and the depth residuals in metres, so λ is the ratio of their noise variances.
@@ -266,7 +266,7 @@ impl Default for RegisterParams {
             point_weight: 0.1,
             stay_weight: 0.0,
             damping: 1e-4,
-            refine_iterations: 0,
+            linear: LinearSteps::Factorise,
             photometric_weight: 0.0,
             photometric_tukey: 0.1,
             chroma_weight: 0.0,
@@ -545,7 +545,7 @@ impl WarpOptimiser {
                 s.iterations.max(self.params.iterations)
             }),
             damping: self.params.damping,
-            refine_iterations: self.params.refine_iterations,
+            linear: self.params.linear,
         };
         Ok(self.system.minimise(&terms, steps, evaluate)?)
     }
@@ -558,9 +558,9 @@ impl WarpOptimiser {
         bindings: &[Binding],
     ) -> Result<(), RegisterError> {
         // steps that iterate on a factorisation take it in single precision
-        let precision = match self.params.refine_iterations {
-            0 => FactorPrecision::Double,
-            _ => FactorPrecision::Single,
+        let precision = match self.params.linear {
+            LinearSteps::Refine(_) => FactorPrecision::Single,
+            _ => FactorPrecision::Double,
         };
         self.system.prepare(graph, bindings, precision)?;
         self.system

@@ -29,6 +29,7 @@
 //! pairs fit in it; when new pairs appear it is rebuilt as the union of old and new.
 
 use super::graph::{Binding, DeformationGraph};
+use super::linear_steps::LinearSteps;
 use super::photometric::PhotometricTarget;
 use dynamap_residuals::deform::{
     as_rigid_as_possible, blend, right_perturbation, transform_point, transform_point_jacobian,
@@ -169,8 +170,8 @@ pub(crate) struct Steps {
     pub iterations: usize,
     /// Initial damping τ, a fraction of H's largest diagonal element.
     pub damping: f64,
-    /// Conjugate-gradient iterations a step may take on an earlier factorisation (0: none).
-    pub refine_iterations: usize,
+    /// How each step is solved.
+    pub linear: LinearSteps,
 }
 
 /// What one call of [`WarpSystem::minimise`] did.
@@ -336,7 +337,7 @@ impl WarpSystem {
         while done < steps.iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
-            let solved = self.solve_step(lm.mu(), steps.refine_iterations, &mut step);
+            let solved = self.solve_step(lm.mu(), steps.linear, &mut step);
             let clock = Instant::now();
             // a failed factorisation is a rejected step
             let trial = match solved {
@@ -377,36 +378,44 @@ impl WarpSystem {
     }
 
     /// Writes the step solving `(H + μI)δ = −g` into `step` and returns the decrease the
-    /// quadratic model predicts for it. With `refine_iterations` > 0: by conjugate gradients
-    /// preconditioned with the last factorisation if they reach [`REFINE_TOLERANCE`] within them,
-    /// else with a new one (an error if even then they do not); otherwise by a new factorisation.
+    /// quadratic model predicts for it, as `linear` says ([`LinearSteps`]). A refined step is
+    /// taken when conjugate gradients on the last factorisation reach [`REFINE_TOLERANCE`],
+    /// else the system is factorised anew (an error if even then they do not); a block-Jacobi
+    /// step is the last iterate, converged or not.
     fn solve_step(
         &mut self,
         mu: f64,
-        refine_iterations: usize,
+        linear: LinearSteps,
         step: &mut [f64],
     ) -> Result<f64, SolveError> {
         let system = self.system.as_mut().expect("prepared");
         let damping = Damping::Identity(mu);
-        if refine_iterations == 0 {
-            system.solve(damping, step)?;
-            // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
-            return Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()));
-        }
+        let iterations = match linear {
+            LinearSteps::Factorise => {
+                system.solve(damping, step)?;
+                // for the exact solution: L(0) − L(δ) = ½ δᵀ(μδ − g)
+                return Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()));
+            }
+            LinearSteps::BlockJacobi(n) => {
+                system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n)?;
+                return Ok(system.model_decrease(step));
+            }
+            LinearSteps::Refine(n) => n,
+        };
         if system.has_factorisation() {
-            let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, refine_iterations);
+            let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, iterations);
             if refined.converged {
                 return Ok(system.model_decrease(step));
             }
         }
         system.factorise(damping)?;
-        let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, refine_iterations);
+        let refined = system.solve_refined(damping, step, REFINE_TOLERANCE, iterations);
         if refined.converged {
             return Ok(system.model_decrease(step));
         }
         Err(SolveError::LinearSolver(format!(
             "conjugate gradients did not reach {REFINE_TOLERANCE} on a new factorisation in \
-             {refine_iterations} iterations"
+             {iterations} iterations"
         )))
     }
 
@@ -1145,7 +1154,7 @@ mod tests {
         Steps {
             iterations,
             damping: 1e-4,
-            refine_iterations: 0,
+            linear: LinearSteps::Factorise,
         }
     }
 

@@ -19,7 +19,7 @@
 //! and the block-Jacobi preconditioner diag(S)⁻¹ (Agarwal et al. 2010, sec. 4.3).
 
 mod assembly;
-mod kernels;
+pub(crate) mod kernels;
 mod layout;
 mod pcg;
 mod reach;
