@@ -37,8 +37,9 @@ pub struct BlockSystem {
     /// the product's second half.
     cg: [Vec<f64>; 5],
     /// The inverses of the damped diagonal blocks (d² numbers per block, column-major), for
-    /// [`Self::solve_block_jacobi`].
+    /// [`Self::solve_block_jacobi`], and one block's worth of scratch.
     jacobi: Vec<f64>,
+    jacobi_scratch: Vec<f64>,
 }
 
 /// Relative residual to which [`BlockSystem::solve`] iterates on a single-precision factor.
@@ -118,6 +119,7 @@ impl BlockSystem {
             factored: false,
             cg: Default::default(),
             jacobi: Vec::new(),
+            jacobi_scratch: Vec::new(),
         })
     }
 
@@ -325,16 +327,15 @@ impl BlockSystem {
     ) -> Result<Refined, SolveError> {
         assert_eq!(step.len(), self.dim(), "step length");
         self.invert_diagonal_blocks(damping)?;
-        let (h, jacobi) = (&self.h, &self.jacobi);
+        let (h, jacobi, scratch) = (&self.h, &self.jacobi, &mut self.jacobi_scratch);
         let cg = CgSystem {
             h,
             damping,
             gradient: &self.gradient,
         };
-        let mut scratch = Vec::new();
         Ok(
             cg.solve(&mut self.cg, step, tolerance, max_iterations, |z| {
-                apply_block_inverses(h, jacobi, z, &mut scratch)
+                apply_block_inverses(h, jacobi, z, scratch)
             }),
         )
     }

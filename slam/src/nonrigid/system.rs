@@ -397,7 +397,10 @@ impl WarpSystem {
                 return Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()));
             }
             LinearSteps::BlockJacobi(n) => {
-                system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n)?;
+                let solved = system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n)?;
+                if !solved.converged {
+                    tracing::debug!(iterations = n, "block-Jacobi step truncated before 1e-3");
+                }
                 return Ok(system.model_decrease(step));
             }
             LinearSteps::Refine(n) => n,
