@@ -212,28 +212,26 @@ impl BlockSparse {
                 let xc = x[c];
                 let mut sum = 0.0;
                 for e in above {
-                    let row = self.block_start[e.row_block];
-                    let d = self.block_dim(e.row_block);
-                    sum += match d {
-                        6 => column_rows::<6>(&column[e.pos..], xc, &mut y[row..], &x[row..]),
-                        3 => column_rows::<3>(&column[e.pos..], xc, &mut y[row..], &x[row..]),
-                        _ => {
-                            let values = &column[e.pos..e.pos + d];
-                            let rows = values.iter().zip(&mut y[row..row + d]).zip(&x[row..]);
-                            rows.map(|((v, yr), xr)| {
-                                *yr += v * xc;
-                                v * xr
-                            })
-                            .sum()
-                        }
+                    let (row, pos) = (self.block_start[e.row_block], e.pos);
+                    sum += match self.block_dim(e.row_block) {
+                        // a pose's or a node's six rows, a length the inlined loop unrolls for
+                        6 => column_rows(
+                            &column[pos..pos + 6],
+                            xc,
+                            &mut y[row..row + 6],
+                            &x[row..row + 6],
+                        ),
+                        d => column_rows(
+                            &column[pos..pos + d],
+                            xc,
+                            &mut y[row..row + d],
+                            &x[row..row + d],
+                        ),
                     };
                 }
                 // the diagonal block's rows 0..=dc end the column
                 let (strict, diagonal) = column[column.len() - dc - 1..].split_at(dc);
-                for ((v, yr), xr) in strict.iter().zip(&mut y[first..c]).zip(&x[first..]) {
-                    *yr += v * xc;
-                    sum += v * xr;
-                }
+                sum += column_rows(strict, xc, &mut y[first..c], &x[first..c]);
                 y[c] += sum + diagonal[0] * xc;
             }
         }
@@ -290,15 +288,14 @@ impl BlockSparse {
     }
 }
 
-/// The `D` rows of one block in one column of [`BlockSparse::add_product`]: y_r += v_r x_c for
-/// each, and Σ v_r x_r returned (a size known at compile time, so the loop unrolls).
+/// One run of stored rows of a column in [`BlockSparse::add_product`] (`values`, `y` and `x`
+/// of equal length): y_r += v_r x_c for each, and Σ v_r x_r returned, summed in row order.
 #[inline(always)]
-fn column_rows<const D: usize>(values: &[f64], xc: f64, y: &mut [f64], x: &[f64]) -> f64 {
-    let (values, y, x) = (&values[..D], &mut y[..D], &x[..D]);
+fn column_rows(values: &[f64], xc: f64, y: &mut [f64], x: &[f64]) -> f64 {
     let mut sum = 0.0;
-    for r in 0..D {
-        y[r] += values[r] * xc;
-        sum += values[r] * x[r];
+    for ((v, yr), xr) in values.iter().zip(y.iter_mut()).zip(x) {
+        *yr += v * xc;
+        sum += v * xr;
     }
     sum
 }

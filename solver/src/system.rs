@@ -50,7 +50,8 @@ const SINGLE_PRECISION_ITERATIONS: usize = 50;
 /// What [`BlockSystem::solve_refined`] did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Refined {
-    /// Conjugate-gradient iterations (each one product with H and one solve with the factor).
+    /// Conjugate-gradient iterations (each one product with H and one application of the
+    /// preconditioner: a solve with the factor, or the diagonal blocks' inverses).
     pub iterations: usize,
     /// Whether ‖(H + μD) δ + g‖ ≤ tolerance · ‖g‖ was reached.
     pub converged: bool,

@@ -159,8 +159,9 @@ impl Photometric<'_> {
 /// that gained less, or a rejected one whose model promised less.
 const FUNCTION_TOLERANCE: f64 = 1e-10;
 
-/// Relative residual `‖(H + μI)δ + g‖ / ‖g‖` at which a step solved by conjugate gradients
-/// (preconditioned by an earlier factorisation) is taken instead of factorising anew.
+/// Relative residual `‖(H + μI)δ + g‖ / ‖g‖` at which conjugate gradients stop: a refined step
+/// (on an earlier factorisation) is then taken instead of factorising anew, and a block-Jacobi
+/// step ends there if it does not reach its iteration cap first.
 const REFINE_TOLERANCE: f64 = 1e-3;
 
 /// How [`WarpSystem::minimise`] steps.
@@ -399,7 +400,11 @@ impl WarpSystem {
             LinearSteps::BlockJacobi(n) => {
                 let solved = system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n)?;
                 if !solved.converged {
-                    tracing::debug!(iterations = n, "block-Jacobi step truncated before 1e-3");
+                    tracing::debug!(
+                        iterations = n,
+                        tolerance = REFINE_TOLERANCE,
+                        "block-Jacobi step truncated at its cap"
+                    );
                 }
                 return Ok(system.model_decrease(step));
             }
