@@ -88,6 +88,42 @@ fn the_graph_grows_only_over_new_surface() {
     assert!((w - (t * Point3::from(p)).coords).norm() < 1e-9);
 }
 
+/// Growing a graph takes, in order, each point farther than the spacing from every node and
+/// every point taken before it: the same nodes as a greedy pass over all of them, on a mesh's
+/// points in their order (neighbours in a row) and scattered, with a point that is not finite.
+#[test]
+fn growing_a_graph_takes_the_points_a_greedy_pass_would() {
+    let (points, _) = mesh_points(&flat_grid());
+    let params = GraphParams {
+        spacing: 0.07,
+        ..GraphParams::default()
+    };
+    let left: Vec<Vector3<f64>> = points.iter().filter(|p| p.x < -0.1).copied().collect();
+    // every 97th point round the list (97 is prime, and no factor of 273): neighbours apart
+    let n = points.len();
+    assert_ne!(n % 97, 0);
+    let mut shuffled: Vec<Vector3<f64>> = (0..n).map(|i| points[i * 97 % n]).collect();
+    shuffled.insert(17, Vector3::new(f64::NAN, 0.0, 0.0));
+    for order in [points.clone(), shuffled] {
+        let mut graph = DeformationGraph::sample(&left, params).unwrap();
+        let mut greedy: Vec<Vector3<f64>> = graph.nodes.iter().map(|n| n.position).collect();
+        let before = greedy.len();
+        for p in order.iter().filter(|p| p.iter().all(|v| v.is_finite())) {
+            if greedy
+                .iter()
+                .all(|g| (g - p).norm_squared() >= params.spacing * params.spacing)
+            {
+                greedy.push(*p);
+            }
+        }
+        let added = graph.extend(&order);
+        assert!(added >= 5, "{added}");
+        assert_eq!(added, greedy.len() - before);
+        let grown: Vec<Vector3<f64>> = graph.nodes[before..].iter().map(|n| n.position).collect();
+        assert_eq!(grown, greedy[before..]);
+    }
+}
+
 /// The colour terms' weights of a tracking test: the photometric and the chromaticity weight,
 /// each the default where `None`.
 type ColourWeights = (Option<f64>, Option<f64>);

@@ -11,13 +11,15 @@
 //!    surface is carried into the live frame by the blend of its K nearest nodes (kept across
 //!    frames, `voxel_bindings`), projected, and its projective signed distance fused
 //!    ([`TsdfVolume::integrate_warped`]); the blocks to update are found by carrying the live
-//!    surface back into the canonical frame by the inverse of its blended node motion;
+//!    surface back into the canonical frame by the inverse of its blended node motion (module
+//!    `band`: samples about two voxels apart, each with a margin for the surface between them);
 //! 4. extract the canonical surface, extend the graph where it has grown beyond the nodes' reach,
 //!    and re-sample the data points when the graph changed (or every few frames).
 //!
 //! The canonical frame is the first camera frame. The warp carries canonical points into the live
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
+use super::band::{carry_back, BandSampling};
 use super::chroma::{cell_key, ChromaImage, ChromaReferences};
 use super::colour_drift::{ColourDrift, ColourDrifted};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
@@ -31,13 +33,12 @@ use super::register::{
 use super::surface::mesh_points;
 use super::voxel_bindings::{BlockGeometry, CachedWarp, VoxelBindings};
 use crate::camera::Camera;
-use crate::image::{valid, ColorImage, Image};
+use crate::image::{ColorImage, Image};
 use crate::mesh::Mesh;
 use crate::preprocess::{PreprocessParams, Preprocessor};
 use crate::tsdf::{TsdfError, TsdfParams, TsdfVolume, BLOCK};
-use dynamap_residuals::deform::{rigid_motion, transform_point};
-use kiddo::ImmutableKdTree;
-use nalgebra::{DualQuaternion, Isometry3, Point3, Vector3};
+use dynamap_residuals::deform::transform_point;
+use nalgebra::{DualQuaternion, Isometry3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 use std::time::Instant;
@@ -223,7 +224,7 @@ pub struct NonRigidFusion {
     bindings: Vec<Binding>,
     since_refresh: usize,
     masked: Image<u16>,
-    band: Vec<Vector3<f64>>,
+    band: Vec<(Vector3<f64>, f64)>,
     backup: Vec<DualQuaternion<f64>>,
     voxel_bindings: VoxelBindings,
     /// Each data point's intensity (over its local mean) in the reference frame (NaN: not seen
@@ -542,12 +543,11 @@ impl NonRigidFusion {
         let graph = self.graph.as_ref().expect("started");
         let t = Instant::now();
         let level = &self.pre.levels[0];
-        let stride = band_stride(&level.depth, &self.camera, self.params.tsdf.voxel_size);
-        inverse_warp(
+        let sampling = BandSampling::of(&level.depth, &self.camera, self.params.tsdf.voxel_size);
+        carry_back(
             graph,
-            &level.vertices.data,
-            stride,
-            level.vertices.width,
+            (&level.vertices, &level.normals),
+            &sampling,
             &mut self.band,
         );
         let touched = self.volume.blocks_near(&self.band);
@@ -642,63 +642,4 @@ impl NonRigidFusion {
         self.since_refresh = 0;
         self.reference_stale = true;
     }
-}
-
-/// The pixel stride at which the live surface, carried back, samples the canonical band about as
-/// densely as the voxels: a voxel edge over the footprint of one pixel at the median depth
-/// (every 7th pixel of each 7th row). The blocks within the truncation distance of these samples
-/// then miss at most half a voxel of the surface's band.
-fn band_stride(depth: &Image<f32>, camera: &Camera, voxel: f32) -> usize {
-    let mut z: Vec<f32> = depth
-        .data
-        .iter()
-        .step_by(7)
-        .copied()
-        .filter(|d| *d > 0.0 && d.is_finite())
-        .collect();
-    if z.is_empty() {
-        return 1;
-    }
-    let mid = z.len() / 2;
-    let median = *z.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
-    let footprint = median / camera.fx.abs().max(camera.fy.abs()).max(1e-9);
-    ((voxel as f64 / footprint).floor() as usize).max(1)
-}
-
-/// Carries every `stride`-th live vertex (camera frame) back into the canonical frame: bound to
-/// its K nearest warped nodes, by the inverse of their blended motion (DynamicFusion's way of
-/// finding where new surface lies in the canonical volume).
-fn inverse_warp(
-    graph: &DeformationGraph,
-    vertices: &[[f32; 3]],
-    stride: usize,
-    width: usize,
-    out: &mut Vec<Vector3<f64>>,
-) {
-    let warped: Vec<[f64; 3]> = graph
-        .nodes
-        .iter()
-        .map(|n| transform_point(&n.motion, &n.position).into())
-        .collect();
-    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&warped);
-    let rows = vertices.len() / width.max(1);
-    out.clear();
-    out.par_extend(
-        (0..rows)
-            .into_par_iter()
-            .step_by(stride)
-            .flat_map_iter(|y| {
-                let tree = &tree;
-                (0..width).step_by(stride).filter_map(move |x| {
-                    let v = vertices[y * width + x];
-                    if !valid(&v) {
-                        return None;
-                    }
-                    let q = Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
-                    let b = graph.bind_in(tree, &q);
-                    let motion = rigid_motion(&graph.blend(&b));
-                    Some(motion.inverse_transform_point(&Point3::from(q)).coords)
-                })
-            }),
-    );
 }

@@ -11,6 +11,9 @@ use nalgebra::{DualQuaternion, Isometry3, Vector3};
 use rayon::prelude::*;
 use std::num::NonZero;
 
+/// Points per task when the graph looks for surface beyond its nodes.
+const NEW_POSITION_CHUNK: usize = 1024;
+
 /// Graph settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GraphParams {
@@ -128,35 +131,49 @@ impl DeformationGraph {
     /// in order, that lie at least the spacing from every node and every point taken before them.
     fn new_positions(&self, points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         let r2 = self.params.spacing * self.params.spacing;
-        let mut tree: KdTree<f64, 3> = KdTree::with_capacity(self.nodes.len() + 64);
-        for (k, n) in self.nodes.iter().enumerate() {
-            tree.add(&n.position.into(), k as u64);
-        }
         // points within the spacing of an existing node are never taken: dropped in parallel
         let candidates: Vec<&Vector3<f64>> = points
-            .par_iter()
-            .filter(|p| p.iter().all(|v| v.is_finite()))
-            .filter(|p| {
-                self.nodes.is_empty()
-                    || self
-                        .tree
-                        .nearest_one::<SquaredEuclidean>(&(**p).into())
-                        .distance
-                        >= r2
-            })
+            .par_chunks(NEW_POSITION_CHUNK)
+            .flat_map_iter(|chunk| self.beyond_every_node(chunk, r2))
             .collect();
+        // the candidates are beyond every existing node, so only those taken are checked again
+        let mut taken: KdTree<f64, 3> = KdTree::with_capacity(64);
         let mut added = Vec::new();
         for p in candidates {
             let q: [f64; 3] = (*p).into();
-            if self.nodes.len() + added.len() > 0
-                && tree.nearest_one::<SquaredEuclidean>(&q).distance < r2
-            {
+            if !added.is_empty() && taken.nearest_one::<SquaredEuclidean>(&q).distance < r2 {
                 continue;
             }
-            tree.add(&q, (self.nodes.len() + added.len()) as u64);
+            taken.add(&q, added.len() as u64);
             added.push(*p);
         }
         added
+    }
+
+    /// The finite `points` farther than `√r2` from every node, in order. Neighbouring points
+    /// (a mesh's, block by block) mostly share a node within reach, so the node that held the
+    /// last point is tried before the tree is searched.
+    fn beyond_every_node<'a>(
+        &'a self,
+        points: &'a [Vector3<f64>],
+        r2: f64,
+    ) -> impl Iterator<Item = &'a Vector3<f64>> + 'a {
+        let mut last: Option<usize> = None;
+        points
+            .iter()
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .filter(move |p| {
+                if self.nodes.is_empty() {
+                    return true;
+                }
+                if last.is_some_and(|k| (self.nodes[k].position - **p).norm_squared() < r2) {
+                    return false;
+                }
+                let nearest = self.tree.nearest_one::<SquaredEuclidean>(&(**p).into());
+                let within = nearest.distance < r2;
+                last = within.then_some(nearest.item as usize);
+                !within
+            })
     }
 
     /// Appends nodes at `positions` with `motions` and the configured radius.

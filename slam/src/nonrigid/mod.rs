@@ -25,6 +25,7 @@
 //!   graph's nodes, and the median distance from a registered source to the target's surface;
 //!   [`colour_check`]: whether the colour agrees with a frame registration, patch by patch.
 
+mod band;
 pub mod boundary;
 pub mod chroma;
 pub mod colour_check;

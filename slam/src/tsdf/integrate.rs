@@ -9,6 +9,7 @@ use crate::camera::Camera;
 use crate::image::{ColorImage, DepthImage, NormalMap};
 use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
+use rustc_hash::FxHashSet;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use wide::{f32x8, i32x8};
 
@@ -551,25 +552,43 @@ pub trait VoxelWarp: Sync {
         -> Option<Vector3<f64>>;
 }
 
+/// Points per task of [`TsdfVolume::blocks_near`].
+const NEAR_CHUNK: usize = 2048;
+
 impl TsdfVolume {
-    /// The blocks within μ of any of `points` (volume frame), sorted and deduplicated: the blocks
-    /// [`Self::integrate_warped`] updates for a live surface carried back into the volume's frame.
-    pub fn blocks_near(&self, points: &[Vector3<f64>]) -> Vec<[i32; 3]> {
-        let mu = self.params.truncation() as f64;
+    /// The blocks within μ + m of any point p of `points` (pairs (p, m): volume frame, metres;
+    /// per axis), sorted and deduplicated: the blocks [`Self::integrate_warped`] updates for a
+    /// live surface carried back into the volume's frame. The margin m covers the surface
+    /// between the points where they sample it sparsely.
+    pub fn blocks_near(&self, points: &[(Vector3<f64>, f64)]) -> Vec<[i32; 3]> {
+        let truncation = self.params.truncation() as f64;
         let block_size = (self.params.voxel_size * BLOCK as f32) as f64;
-        let mut coords: Vec<[i32; 3]> = points
-            .par_iter()
-            .filter(|p| p.iter().all(|v| v.is_finite()))
-            .flat_map_iter(|p| {
-                let lo = p.map(|v| ((v - mu) / block_size).floor() as i32);
-                let hi = p.map(|v| ((v + mu) / block_size).floor() as i32);
-                (lo.z..=hi.z).flat_map(move |z| {
-                    (lo.y..=hi.y).flat_map(move |y| (lo.x..=hi.x).map(move |x| [x, y, z]))
-                })
+        // neighbouring points share their blocks: each chunk collects its own set, so the
+        // candidates are deduplicated as they are found instead of sorted all together
+        let found = points
+            .par_chunks(NEAR_CHUNK)
+            .fold(FxHashSet::default, |mut set, chunk| {
+                for (p, margin) in chunk
+                    .iter()
+                    .filter(|(p, m)| p.iter().all(|v| v.is_finite()) && m.is_finite())
+                {
+                    let mu = truncation + margin.max(0.0);
+                    let lo = p.map(|v| ((v - mu) / block_size).floor() as i32);
+                    let hi = p.map(|v| ((v + mu) / block_size).floor() as i32);
+                    for z in lo.z..=hi.z {
+                        for y in lo.y..=hi.y {
+                            set.extend((lo.x..=hi.x).map(|x| [x, y, z]));
+                        }
+                    }
+                }
+                set
             })
-            .collect();
-        coords.par_sort_unstable();
-        coords.dedup();
+            .reduce(FxHashSet::default, |mut a, b| {
+                a.extend(b);
+                a
+            });
+        let mut coords: Vec<[i32; 3]> = found.into_iter().collect();
+        coords.sort_unstable();
         coords
     }
 
@@ -654,6 +673,52 @@ mod tests {
     use super::super::{region_bit, region_of};
     use super::*;
     use crate::image::Image;
+
+    /// The blocks near points with margins are those whose extent meets a point's box of half
+    /// side μ + margin, found by testing every block of the span; points that are not finite, or
+    /// whose margin is not, find none.
+    #[test]
+    fn blocks_near_are_the_blocks_each_points_box_meets() {
+        use rand::{RngExt, SeedableRng};
+        let vol = TsdfVolume::new(TsdfParams::default());
+        let (mu, size) = (
+            vol.params.truncation() as f64,
+            (vol.params.voxel_size * BLOCK as f32) as f64,
+        );
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut points: Vec<(Vector3<f64>, f64)> = (0..3000)
+            .map(|_| {
+                let p = Vector3::new(
+                    rng.random_range(-0.5..0.5),
+                    rng.random_range(-0.3..0.3),
+                    rng.random_range(0.5..0.9),
+                );
+                (p, rng.random_range(-0.01..0.05))
+            })
+            .collect();
+        points.push((Vector3::new(f64::NAN, 0.0, 0.0), 0.0));
+        points.push((Vector3::new(9.0, 9.0, 9.0), f64::INFINITY));
+        let found = vol.blocks_near(&points);
+        let mut expected = Vec::new();
+        for z in -2..14 {
+            for y in -7..7 {
+                for x in -10..10 {
+                    let meets = points[..3000].iter().any(|(p, m)| {
+                        let r = mu + m.max(0.0);
+                        (0..3).all(|k| {
+                            let lo = [x, y, z][k] as f64 * size;
+                            lo <= p[k] + r && lo + size > p[k] - r
+                        })
+                    });
+                    if meets {
+                        expected.push([x, y, z]);
+                    }
+                }
+            }
+        }
+        expected.sort_unstable();
+        assert_eq!(found, expected);
+    }
 
     /// Every region's mask holds exactly the bits of its allocated blocks.
     fn masks_match_blocks(vol: &TsdfVolume) {

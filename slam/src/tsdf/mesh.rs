@@ -72,6 +72,32 @@ impl<'a> Neighbourhood<'a> {
             color: [blk.color[i][0], blk.color[i][1], blk.color[i][2]],
         })
     }
+
+    /// The distances at every corner the block's cubes read (NaN where unobserved), and whether
+    /// they change sign: a block whose observed corners all lie on one side has no surface.
+    fn distances(&self, out: &mut [f32; SIDE * SIDE * SIDE]) -> bool {
+        let (mut below, mut above) = (false, false);
+        for (i, d) in out.iter_mut().enumerate() {
+            let l = [
+                (i % SIDE) as i32,
+                ((i / SIDE) % SIDE) as i32,
+                (i / (SIDE * SIDE)) as i32,
+            ];
+            *d = self.corner(l).map_or(f32::NAN, |c| c.tsdf);
+            below |= *d < 0.0;
+            above |= *d >= 0.0;
+        }
+        below && above
+    }
+}
+
+/// Corners along a block's edge, the next block's first included.
+const SIDE: usize = BLOCK as usize + 1;
+
+/// Index of corner `l` in [`Neighbourhood::distances`]' array.
+#[inline]
+fn side_index(l: [i32; 3]) -> usize {
+    l[0] as usize + SIDE * (l[1] as usize + SIDE * l[2] as usize)
 }
 
 impl TsdfVolume {
@@ -84,23 +110,29 @@ impl TsdfVolume {
         let parts: Vec<BlockMesh> = self
             .blocks
             .par_iter()
-            .map(|blk| {
-                let mut part = BlockMesh::default();
-                let hood = Neighbourhood::of(self, blk.coord);
-                let base = [
-                    blk.coord[0] * BLOCK,
-                    blk.coord[1] * BLOCK,
-                    blk.coord[2] * BLOCK,
-                ];
-                for z in 0..BLOCK {
-                    for y in 0..BLOCK {
-                        for x in 0..BLOCK {
-                            self.march_cube(&hood, base, [x, y, z], &mut part);
+            .map_init(
+                || Box::new([0.0f32; SIDE * SIDE * SIDE]),
+                |dist, blk| {
+                    let mut part = BlockMesh::default();
+                    let hood = Neighbourhood::of(self, blk.coord);
+                    if !hood.distances(dist) {
+                        return part;
+                    }
+                    let base = [
+                        blk.coord[0] * BLOCK,
+                        blk.coord[1] * BLOCK,
+                        blk.coord[2] * BLOCK,
+                    ];
+                    for z in 0..BLOCK {
+                        for y in 0..BLOCK {
+                            for x in 0..BLOCK {
+                                self.march_cube((&hood, dist), base, [x, y, z], &mut part);
+                            }
                         }
                     }
-                }
-                part
-            })
+                    part
+                },
+            )
             .collect();
         weld(&parts)
     }
@@ -111,22 +143,23 @@ impl TsdfVolume {
     /// corners at the truncation limit.
     fn march_cube(
         &self,
-        hood: &Neighbourhood<'_>,
+        (hood, dist): (&Neighbourhood<'_>, &[f32; SIDE * SIDE * SIDE]),
         base: [i32; 3],
         l: [i32; 3],
         part: &mut BlockMesh,
     ) {
         let g = [base[0] + l[0], base[1] + l[1], base[2] + l[2]];
-        let mut c: [Option<Corner>; 8] = Default::default();
+        let mut c = [0.0f32; 8];
         let mut index = 0usize;
         for (k, off) in CORNERS.iter().enumerate() {
-            let Some(corner) = hood.corner([l[0] + off[0], l[1] + off[1], l[2] + off[2]]) else {
+            let d = dist[side_index([l[0] + off[0], l[1] + off[1], l[2] + off[2]])];
+            if d.is_nan() {
                 return;
-            };
-            if corner.tsdf < 0.0 {
+            }
+            if d < 0.0 {
                 index |= 1 << k;
             }
-            c[k] = Some(corner);
+            c[k] = d;
         }
         let mask = EDGE_TABLE[index] as u16;
         if mask == 0 {
@@ -137,11 +170,16 @@ impl TsdfVolume {
             if mask & (1 << e) == 0 {
                 continue;
             }
-            let (ca, cb) = (c[*a].as_ref().unwrap(), c[*b].as_ref().unwrap());
-            if ca.tsdf.abs() >= 1.0 && cb.tsdf.abs() >= 1.0 {
+            if c[*a].abs() >= 1.0 && c[*b].abs() >= 1.0 {
                 return;
             }
-            let vertex = self.edge_vertex(g, (CORNERS[*a], ca), (CORNERS[*b], cb));
+            let corner = |k: usize| {
+                let off = CORNERS[k];
+                hood.corner([l[0] + off[0], l[1] + off[1], l[2] + off[2]])
+                    .expect("observed: its distance was read")
+            };
+            let (ca, cb) = (corner(*a), corner(*b));
+            let vertex = self.edge_vertex(g, (CORNERS[*a], &ca), (CORNERS[*b], &cb));
             keys[e] = vertex.0;
             part.verts.push(vertex);
         }
