@@ -20,6 +20,7 @@
 //! camera frame, so a moving camera is absorbed by the field (the optimiser's rigid pre-alignment).
 
 use super::band::{carry_back, BandSampling};
+use super::cell_nearest::bind_in_cells;
 use super::chroma::{cell_key, ChromaImage, ChromaReferences};
 use super::colour_drift::{ColourDrift, ColourDrifted};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
@@ -42,6 +43,10 @@ use nalgebra::{DualQuaternion, Isometry3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 use std::time::Instant;
+
+/// The edge of the cubes the data points are bound in, in node spacings: a cube's points share
+/// one tree search (module `cell_nearest`), and its candidates stay a few dozen nodes.
+const BINDING_CELL_SPACINGS: f64 = 2.0;
 
 /// Settings of the non-rigid pipeline.
 #[derive(Clone, Debug, PartialEq)]
@@ -638,7 +643,8 @@ impl NonRigidFusion {
         self.chroma_book
             .assign(&self.points, cell, &mut self.chroma_reference);
         let graph = self.graph.as_ref().expect("started");
-        self.bindings = graph.bind_all(&self.points);
+        let cell = BINDING_CELL_SPACINGS * graph.params.spacing;
+        self.bindings = bind_in_cells(graph, &self.points, cell);
         self.since_refresh = 0;
         self.reference_stale = true;
     }

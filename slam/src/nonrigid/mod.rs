@@ -27,6 +27,7 @@
 
 mod band;
 pub mod boundary;
+mod cell_nearest;
 pub mod chroma;
 pub mod colour_check;
 pub mod colour_drift;

@@ -11,14 +11,13 @@
 //! enter any voxel's binding. Blocks the band leaves are dropped, so memory follows the band
 //! (16 bytes of node indices and 16 of weights per voxel: 16 KiB per 8³ block).
 
+use super::cell_nearest::{candidates, nearest_among};
 use super::graph::{Binding, DeformationGraph};
 use crate::tsdf::VoxelWarp;
 use dynamap_residuals::deform::{transform_point, MAX_NEIGHBOURS};
-use kiddo::SquaredEuclidean;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
-use std::num::NonZero;
 
 /// No node.
 const NONE: u32 = u32::MAX;
@@ -177,32 +176,20 @@ fn bind_block(
         radius: f64::INFINITY,
         voxels: Vec::new(),
     };
-    let Some(nk) = NonZero::new(k) else {
+    let Some(candidates) = candidates(graph, &centre, geo.half_diagonal()) else {
         return out;
     };
-    let h = geo.half_diagonal();
-    let q: [f64; 3] = centre.into();
-    let nearest = graph.tree.nearest_n::<SquaredEuclidean>(&q, nk);
-    let (Some(first), Some(last)) = (nearest.first(), nearest.last()) else {
-        return out;
-    };
-    out.radius = last.distance.sqrt() + 2.0 * h;
-    if first.distance.sqrt() > reach + h {
+    out.radius = candidates.radius;
+    if candidates.nearest > reach + geo.half_diagonal() {
         return out;
     }
-    let candidates: Vec<u32> = graph
-        .tree
-        .within_unsorted::<SquaredEuclidean>(&q, out.radius * out.radius)
-        .iter()
-        .map(|n| n.item as u32)
-        .collect();
     let origin = geo.origin(coord);
     out.voxels = (0..geo.voxels())
         .map(|i| {
             let b = geo.block as usize;
             let (x, y, z) = (i % b, (i / b) % b, i / (b * b));
             let p = origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
-            bind_voxel(graph, &candidates, &p, k, reach)
+            bind_voxel(graph, &candidates.nodes, &p, k, reach)
         })
         .collect();
     out
@@ -217,18 +204,7 @@ fn bind_voxel(
     k: usize,
     reach: f64,
 ) -> VoxelBinding {
-    let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
-    for &c in candidates {
-        let d2 = (graph.nodes[c as usize].position - p).norm_squared();
-        if d2 < best[k - 1].1 {
-            let mut i = k - 1;
-            while i > 0 && best[i - 1].1 > d2 {
-                best[i] = best[i - 1];
-                i -= 1;
-            }
-            best[i] = (c, d2);
-        }
-    }
+    let best = nearest_among(graph, candidates, p, k);
     if best[0].1.sqrt() > reach {
         return UNBOUND;
     }
