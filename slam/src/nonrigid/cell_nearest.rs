@@ -72,6 +72,9 @@ pub(crate) fn nearest_among(
     best
 }
 
+/// A point's cube (none for a point that is not finite) and its index.
+type Keyed = (Option<[i64; 3]>, u32);
+
 /// [`DeformationGraph::bind`] of every point, found cube by cube (cubes of edge `cell`, in
 /// parallel). The same bindings up to the order of equidistant nodes; a point that is not finite
 /// is bound as `bind` binds it.
@@ -82,38 +85,38 @@ pub(crate) fn bind_in_cells(
 ) -> Vec<Binding> {
     let k = graph.neighbours();
     let cell = cell.max(1e-9);
-    let key = |p: &Vector3<f64>| p.map(|v| (v / cell).floor() as i64);
-    let mut order: Vec<u32> = (0..points.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&i| {
-        let p = &points[i as usize];
-        let k = key(p);
-        (!p.iter().all(|v| v.is_finite()), k.x, k.y, k.z)
-    });
-    let mut out = vec![graph.binding(&[]); points.len()];
-    let runs: Vec<&[u32]> = order
-        .chunk_by(|&a, &b| {
-            let (p, q) = (&points[a as usize], &points[b as usize]);
-            p.iter().all(|v| v.is_finite()) && q.iter().all(|v| v.is_finite()) && key(p) == key(q)
+    // each point's cube, once (none for a point that is not finite), sorted so cubes run together
+    let mut keyed: Vec<Keyed> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let cube = p
+                .iter()
+                .all(|v| v.is_finite())
+                .then(|| p.map(|v| (v / cell).floor() as i64).into());
+            (cube, i as u32)
         })
         .collect();
+    keyed.par_sort_unstable_by_key(|&(cube, i)| (cube.is_none(), cube, i));
+    let runs: Vec<&[Keyed]> = keyed.chunk_by(|a, b| a.0.is_some() && a.0 == b.0).collect();
     let bound: Vec<(u32, Binding)> = runs
         .par_iter()
         .flat_map_iter(|run| {
-            let first = &points[run[0] as usize];
-            let cube = first.iter().all(|v| v.is_finite()).then(|| {
-                let centre = (key(first).cast::<f64>() + Vector3::repeat(0.5)) * cell;
+            let nodes = run[0].0.and_then(|c| {
+                let centre = (Vector3::from(c).cast::<f64>() + Vector3::repeat(0.5)) * cell;
                 candidates(graph, &centre, 0.5 * cell * 3f64.sqrt())
             });
-            run.iter().map(move |&i| {
+            run.iter().map(move |&(_, i)| {
                 let p = &points[i as usize];
-                let b = match &cube {
-                    Some(Some(c)) => graph.binding(&nearest_among(graph, &c.nodes, p, k)[..k]),
-                    _ => graph.bind(p),
+                let b = match &nodes {
+                    Some(c) => graph.binding(&nearest_among(graph, &c.nodes, p, k)[..k]),
+                    None => graph.bind(p),
                 };
                 (i, b)
             })
         })
         .collect();
+    let mut out = vec![graph.binding(&[]); points.len()];
     for (i, b) in bound {
         out[i as usize] = b;
     }

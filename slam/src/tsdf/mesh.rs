@@ -61,13 +61,19 @@ impl<'a> Neighbourhood<'a> {
         }
     }
 
-    /// The voxel at `l` (0..=BLOCK on each axis) from the block's first voxel, if observed.
+    /// The block holding the voxel at `l` (0..=BLOCK on each axis) from the block's first
+    /// voxel, and its index there, if the voxel is observed.
     #[inline]
-    fn corner(&self, l: [i32; 3]) -> Option<Corner> {
+    fn voxel(&self, l: [i32; 3]) -> Option<(&'a Block, usize)> {
         let (bx, by, bz) = (l[0] / BLOCK, l[1] / BLOCK, l[2] / BLOCK);
         let blk = self.blocks[(bx + 2 * by + 4 * bz) as usize]?;
         let i = local_index(l[0] - bx * BLOCK, l[1] - by * BLOCK, l[2] - bz * BLOCK);
-        (blk.voxels[i].weight > 0.0).then(|| Corner {
+        (blk.voxels[i].weight > 0.0).then_some((blk, i))
+    }
+
+    /// The voxel at `l`'s distance and colour, if observed.
+    fn corner(&self, l: [i32; 3]) -> Option<Corner> {
+        self.voxel(l).map(|(blk, i)| Corner {
             tsdf: blk.voxels[i].tsdf,
             color: [blk.color[i][0], blk.color[i][1], blk.color[i][2]],
         })
@@ -83,7 +89,9 @@ impl<'a> Neighbourhood<'a> {
                 ((i / SIDE) % SIDE) as i32,
                 (i / (SIDE * SIDE)) as i32,
             ];
-            *d = self.corner(l).map_or(f32::NAN, |c| c.tsdf);
+            *d = self
+                .voxel(l)
+                .map_or(f32::NAN, |(blk, i)| blk.voxels[i].tsdf);
             below |= *d < 0.0;
             above |= *d >= 0.0;
         }
