@@ -97,6 +97,7 @@
 
 mod autodiff;
 mod block;
+mod block_rows;
 mod bounds;
 mod cholesky;
 mod coupling;

@@ -13,9 +13,12 @@ use rayon::prelude::*;
 use std::num::NonZero;
 
 /// The nodes that can be among the K nearest of a point within `h` of a cube's centre.
+#[derive(Default)]
 pub(crate) struct Candidates {
     /// Node indices.
     pub nodes: Vec<u32>,
+    /// Their positions, side by side for the scans.
+    positions: Vec<Vector3<f64>>,
     /// `d_K + 2h`: a node added farther than this from the centre changes no point's binding.
     pub radius: f64,
     /// The centre's nearest node's distance.
@@ -34,42 +37,63 @@ pub(crate) fn candidates(
     let nearest = graph.tree.nearest_n::<SquaredEuclidean>(&q, k);
     let (first, last) = (nearest.first()?, nearest.last()?);
     let radius = last.distance.sqrt() + 2.0 * h;
-    let nodes = graph
+    let nodes: Vec<u32> = graph
         .tree
         .within_unsorted::<SquaredEuclidean>(&q, radius * radius)
         .iter()
         .map(|n| n.item as u32)
         .collect();
+    let positions = nodes
+        .iter()
+        .map(|&n| graph.nodes[n as usize].position)
+        .collect();
     Some(Candidates {
         nodes,
+        positions,
         radius,
         nearest: first.distance.sqrt(),
     })
 }
 
-/// The `k` nearest of `candidates` to `p`, nearest first, as (node, squared distance) pairs
-/// (the first `k` used): an insertion into a short sorted list. Of equidistant nodes the one
-/// listed first comes first.
-pub(crate) fn nearest_among(
-    graph: &DeformationGraph,
-    candidates: &[u32],
-    p: &Vector3<f64>,
-    k: usize,
-) -> [(u32, f64); MAX_NEIGHBOURS] {
-    let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
-    let k = k.clamp(1, MAX_NEIGHBOURS);
-    for &c in candidates {
-        let d2 = (graph.nodes[c as usize].position - p).norm_squared();
-        if d2 < best[k - 1].1 {
-            let mut i = k - 1;
-            while i > 0 && best[i - 1].1 > d2 {
-                best[i] = best[i - 1];
-                i -= 1;
+impl Candidates {
+    /// The `k` nearest candidates to `p`, nearest first, as (node, squared distance) pairs (the
+    /// first `k` used): an insertion into a short sorted list. Of equidistant nodes the one
+    /// listed first comes first.
+    pub fn nearest(&self, p: &Vector3<f64>, k: usize) -> [(u32, f64); MAX_NEIGHBOURS] {
+        let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
+        let k = k.clamp(1, MAX_NEIGHBOURS);
+        for (&c, position) in self.nodes.iter().zip(&self.positions) {
+            let d2 = (position - p).norm_squared();
+            if d2 < best[k - 1].1 {
+                let mut i = k - 1;
+                while i > 0 && best[i - 1].1 > d2 {
+                    best[i] = best[i - 1];
+                    i -= 1;
+                }
+                best[i] = (c, d2);
             }
-            best[i] = (c, d2);
+        }
+        best
+    }
+
+    /// Into `out`, the candidates of a smaller cube (centre `centre`, half-diagonal `h`) that lies
+    /// inside this one's: those within `d_K + 2h` of its centre, in this list's order, so that
+    /// every point of the smaller cube finds the same K nearest, ties included, among fewer.
+    pub fn narrow(&self, centre: &Vector3<f64>, h: f64, k: usize, out: &mut Candidates) {
+        let best = self.nearest(centre, k);
+        let k = k.clamp(1, MAX_NEIGHBOURS);
+        out.radius = best[k - 1].1.sqrt() + 2.0 * h;
+        out.nearest = best[0].1.sqrt();
+        let r2 = out.radius * out.radius;
+        out.nodes.clear();
+        out.positions.clear();
+        for (&c, position) in self.nodes.iter().zip(&self.positions) {
+            if (position - centre).norm_squared() <= r2 {
+                out.nodes.push(c);
+                out.positions.push(*position);
+            }
         }
     }
-    best
 }
 
 /// A point's cube (none for a point that is not finite) and its index.
@@ -109,7 +133,7 @@ pub(crate) fn bind_in_cells(
             run.iter().map(move |&(_, i)| {
                 let p = &points[i as usize];
                 let b = match &nodes {
-                    Some(c) => graph.binding(&nearest_among(graph, &c.nodes, p, k)[..k]),
+                    Some(c) => graph.binding(&c.nearest(p, k)[..k]),
                     None => graph.bind(p),
                 };
                 (i, b)

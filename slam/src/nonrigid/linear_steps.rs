@@ -14,7 +14,8 @@ pub enum LinearSteps {
     Refine(usize),
     /// Conjugate gradients preconditioned by the inverses of H's 6 × 6 diagonal blocks, up to
     /// this many iterations (fewer once the relative residual reaches 10⁻³); nothing is ever
-    /// factorised, so a graph that grew costs no new symbolic analysis. Tracking, which starts
+    /// factorised, so a graph that grew costs no new symbolic analysis. The products with H are
+    /// taken on a single-precision copy of it (half the memory read). Tracking, which starts
     /// each frame at the last one's field, uses it, as real-time non-rigid systems do
     /// (DynamicFusion, VolumeDeform).
     BlockJacobi(usize),

@@ -210,8 +210,10 @@ pub(crate) struct WarpSystem {
     slots: Vec<[u32; PAIRS]>,
     /// CHUNKS accumulators, each `entries × 36` pair sums then `nodes × 8` gradient sums.
     acc: Vec<f64>,
-    /// Projected 6 × 6 blocks, one per entry.
-    blocks: Vec<[f64; 36]>,
+    /// The regularisers' blocks of each entry: `prior_slots[prior_ptr[e]..prior_ptr[e + 1]]`,
+    /// each `3 x + s` for block s of prior x, in the priors' order.
+    prior_ptr: Vec<u32>,
+    prior_slots: Vec<u32>,
     /// `P_k` of every node at the current motions.
     perturb: Vec<SMatrix<f64, 8, 6>>,
     /// Node motions and their dual quaternions: current and trial.
@@ -249,9 +251,8 @@ impl WarpSystem {
             .is_some_and(|s| s.num_blocks() == nodes)
             && self.edge_pairs == edge_pairs
             && self.precision == precision;
-        if !same_graph {
-            self.system = None;
-        }
+        // a system replaced lends its buffers to the next
+        let retired = if same_graph { None } else { self.system.take() };
         self.slots.resize(bindings.len(), [NONE; PAIRS]);
         let fits = self.system.as_ref().is_some_and(|s| {
             self.slots
@@ -274,7 +275,10 @@ impl WarpSystem {
                     }
                 }
             }
-            let system = BlockSystem::with_precision(&vec![6; nodes], pairs, precision)?;
+            let mut system = BlockSystem::with_precision(&vec![6; nodes], pairs, precision)?;
+            if let Some(old) = self.system.take().or(retired) {
+                system.reuse_buffers(old);
+            }
             for (slots, b) in self.slots.iter_mut().zip(bindings) {
                 let ok = fill_slots(&system, b, slots);
                 debug_assert!(ok, "every binding pair was given");
@@ -286,7 +290,6 @@ impl WarpSystem {
         let stride = self.stride();
         let s = self.system.as_ref().expect("built above");
         self.acc.resize(CHUNKS * stride, 0.0);
-        self.blocks.resize(s.num_entries(), [0.0; 36]);
         self.step.resize(s.dim(), 0.0);
         Ok(())
     }
@@ -503,40 +506,33 @@ impl WarpSystem {
                 }
             }
         });
-        // project every pair: H_e = P_iᵀ A_e P_j
         self.perturb.clear();
         self.perturb.extend(dqs.iter().map(right_perturbation));
-        let perturb = &self.perturb;
-        let (pairs, grads) = first.split_at(entries * PACKED);
-        let sys = &*system;
-        self.blocks
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(64)
-            .for_each(|(e, out)| {
-                let (i, j) = sys.entry_blocks(e);
-                let a = unpack(&pairs[e * PACKED..(e + 1) * PACKED]);
-                let h = perturb[i].transpose() * a * perturb[j];
-                out.copy_from_slice(h.as_slice());
-            });
         // the regularisers' blocks, each prior in parallel, added in their order
-        prior_terms(terms, &self.motions, sys, &mut self.priors);
+        prior_terms(terms, &self.motions, system, &mut self.priors);
+        index_priors(
+            &self.priors,
+            entries,
+            &mut self.prior_ptr,
+            &mut self.prior_slots,
+        );
         // summed as `regulariser_cost` sums them, so that the two costs agree to the bit
         let priors: f64 = self.priors.iter().fold(0.0, |c, p| c + p.cost);
         let cost = costs.iter().sum::<f64>() + priors;
-        for p in &self.priors {
-            for (&e, b) in p.entries.iter().zip(&p.blocks) {
-                if e != NONE {
-                    for (o, v) in self.blocks[e as usize].iter_mut().zip(b) {
-                        *o += v;
-                    }
+        // every entry: the pair projected, H_e = P_iᵀ A_e P_j, then the priors' blocks
+        let (pairs, grads) = first.split_at(entries * PACKED);
+        let (perturb, index) = (&self.perturb, (&self.prior_ptr, &self.prior_slots));
+        let prior = &self.priors;
+        system.set_entries(|e, i, j, out| {
+            let a = unpack(&pairs[e * PACKED..(e + 1) * PACKED]);
+            out.copy_from_slice((perturb[i].transpose() * a * perturb[j]).as_slice());
+            for &x in &index.1[index.0[e] as usize..index.0[e + 1] as usize] {
+                let b = prior[x as usize / 3].block(x as usize % 3);
+                for (o, v) in out.iter_mut().zip(b.as_slice()) {
+                    *o += v;
                 }
             }
-        }
-        system.clear();
-        for (e, b) in self.blocks.iter().enumerate() {
-            system.add_to_entry(e, b);
-        }
+        });
         let gradient = system.gradient_mut();
         for (k, p) in perturb.iter().enumerate() {
             let g8 = SMatrix::<f64, 8, 1>::from_column_slice(&grads[k * 8..k * 8 + 8]);
@@ -711,14 +707,38 @@ fn regulariser_cost(terms: &WarpTerms<'_>, motions: &[Isometry3<f64>]) -> f64 {
 }
 
 /// One regulariser's share of H and g: an edge's blocks (i, i), (j, j) and (min, max) and its
-/// two gradients, or a stay prior's diagonal block and gradient (unused slots [`NONE`]).
+/// two gradients, or a stay prior's diagonal block and gradient (unused slots [`NONE`]). The
+/// blocks are kept as the Jacobians they are products of ([`Self::block`]), a third of the
+/// memory.
 #[derive(Clone, Copy)]
 struct PriorTerms {
     cost: f64,
     entries: [u32; 3],
-    blocks: [[f64; 36]; 3],
+    jacobians: PriorJacobians,
     nodes: [u32; 2],
     grads: [[f64; 6]; 2],
+}
+
+/// The weighted Jacobians of one regulariser.
+#[derive(Clone, Copy)]
+enum PriorJacobians {
+    /// An edge i → j: `√w ∂r/∂δ_i`, `√w ∂r/∂δ_j`, and whether i < j.
+    Edge(SMatrix<f64, 3, 6>, SMatrix<f64, 3, 6>, bool),
+    /// A stay prior: `J_r⁻¹(e)` and its weight.
+    Stay(nalgebra::Matrix6<f64>, f64),
+}
+
+impl PriorTerms {
+    /// Block `slot` of the regulariser's share of H (6 × 6, column-major).
+    fn block(&self, slot: usize) -> nalgebra::Matrix6<f64> {
+        match (self.jacobians, slot) {
+            (PriorJacobians::Edge(ji, _, _), 0) => ji.transpose() * ji,
+            (PriorJacobians::Edge(_, jj, _), 1) => jj.transpose() * jj,
+            (PriorJacobians::Edge(ji, jj, true), _) => ji.transpose() * jj,
+            (PriorJacobians::Edge(ji, jj, false), _) => jj.transpose() * ji,
+            (PriorJacobians::Stay(jac, w), _) => jac.transpose() * jac * w,
+        }
+    }
 }
 
 impl Default for PriorTerms {
@@ -726,11 +746,38 @@ impl Default for PriorTerms {
         Self {
             cost: 0.0,
             entries: [NONE; 3],
-            blocks: [[0.0; 36]; 3],
+            jacobians: PriorJacobians::Stay(nalgebra::Matrix6::zeros(), 0.0),
             nodes: [NONE; 2],
             grads: [[0.0; 6]; 2],
         }
     }
+}
+
+/// Lists each entry's regulariser blocks, in the priors' order (a counting sort): block s of
+/// prior x as `3 x + s` in `slots[ptr[e]..ptr[e + 1]]`.
+fn index_priors(priors: &[PriorTerms], entries: usize, ptr: &mut Vec<u32>, slots: &mut Vec<u32>) {
+    ptr.clear();
+    ptr.resize(entries + 1, 0);
+    for p in priors {
+        for &e in p.entries.iter().filter(|&&e| e != NONE) {
+            ptr[e as usize + 1] += 1;
+        }
+    }
+    for e in 0..entries {
+        ptr[e + 1] += ptr[e];
+    }
+    slots.resize(ptr[entries] as usize, 0);
+    // each entry's cursor runs from its start; afterwards it stands at the next one's
+    for (x, p) in priors.iter().enumerate() {
+        for (s, &e) in p.entries.iter().enumerate().filter(|(_, &e)| e != NONE) {
+            slots[ptr[e as usize] as usize] = (3 * x + s) as u32;
+            ptr[e as usize] += 1;
+        }
+    }
+    for e in (1..=entries).rev() {
+        ptr[e] = ptr[e - 1];
+    }
+    ptr[0] = 0;
 }
 
 /// Fills `out` with the terms of every as-rigid-as-possible edge (eq. 4.5-4.7), then of every
@@ -760,18 +807,8 @@ fn prior_terms(
                 let (r, ji, jj) = as_rigid_as_possible(&motions[i], &motions[j], &gj);
                 p.cost = 0.5 * weight * r.norm_squared();
                 let (ji, jj, r) = (ji * weight.sqrt(), jj * weight.sqrt(), r * weight.sqrt());
-                let off = match i < j {
-                    true => ji.transpose() * jj,
-                    false => jj.transpose() * ji,
-                };
                 p.entries = [entry(i, i), entry(j, j), entry(i.min(j), i.max(j))];
-                for (o, h) in
-                    p.blocks
-                        .iter_mut()
-                        .zip([ji.transpose() * ji, jj.transpose() * jj, off])
-                {
-                    o.copy_from_slice(h.as_slice());
-                }
+                p.jacobians = PriorJacobians::Edge(ji, jj, i < j);
                 p.nodes = [i as u32, j as u32];
                 p.grads[0].copy_from_slice((ji.transpose() * r).as_slice());
                 p.grads[1].copy_from_slice((jj.transpose() * r).as_slice());
@@ -782,7 +819,7 @@ fn prior_terms(
                 p.cost = 0.5 * w * e.norm_squared();
                 let jac = se3::right_jacobian_inv(&e);
                 p.entries = [entry(k, k), NONE, NONE];
-                p.blocks[0].copy_from_slice((jac.transpose() * jac * w).as_slice());
+                p.jacobians = PriorJacobians::Stay(jac, w);
                 p.nodes = [k as u32, NONE];
                 p.grads[0].copy_from_slice((jac.transpose() * e * w).as_slice());
             }

@@ -11,7 +11,7 @@
 //! enter any voxel's binding. Blocks the band leaves are dropped, so memory follows the band
 //! (16 bytes of node indices and 16 of weights per voxel: 16 KiB per 8³ block).
 
-use super::cell_nearest::{candidates, nearest_among};
+use super::cell_nearest::{candidates, Candidates};
 use super::graph::{Binding, DeformationGraph};
 use crate::tsdf::VoxelWarp;
 use dynamap_residuals::deform::{transform_point, MAX_NEIGHBOURS};
@@ -160,7 +160,8 @@ fn still_valid(b: &BlockBindings, graph: &DeformationGraph) -> bool {
 }
 
 /// Computes the bindings of block `coord`: the candidates are the nodes within `d_K + 2h` of its
-/// centre, and each voxel takes its K nearest among them.
+/// centre, narrowed for each of its sub-blocks ([`SPLIT`] along an edge) to those within
+/// `d_K + 2h` of the sub-block's centre, and each voxel takes its K nearest among its sub-block's.
 fn bind_block(
     graph: &DeformationGraph,
     geo: BlockGeometry,
@@ -183,28 +184,46 @@ fn bind_block(
     if candidates.nearest > reach + geo.half_diagonal() {
         return out;
     }
-    let origin = geo.origin(coord);
-    out.voxels = (0..geo.voxels())
-        .map(|i| {
-            let b = geo.block as usize;
-            let (x, y, z) = (i % b, (i / b) % b, i / (b * b));
-            let p = origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
-            bind_voxel(graph, &candidates.nodes, &p, k, reach)
-        })
-        .collect();
+    let (origin, b) = (geo.origin(coord), geo.block as usize);
+    let s = match b % SPLIT {
+        0 => b / SPLIT,
+        _ => b,
+    };
+    // a sub-block's voxel centres lie within half its diagonal less half a voxel's of its centre
+    let h = 0.5 * geo.voxel * s.saturating_sub(1) as f64 * 3f64.sqrt();
+    let mut sub = Candidates::default();
+    out.voxels = vec![UNBOUND; geo.voxels()];
+    let at = |x: usize, y: usize, z: usize| {
+        origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel
+    };
+    for (sx, sy, sz) in cube(b / s).map(|(x, y, z)| (x * s, y * s, z * s)) {
+        let sub_centre = at(sx, sy, sz) + Vector3::repeat(0.5 * geo.voxel * (s - 1) as f64);
+        candidates.narrow(&sub_centre, h, k, &mut sub);
+        for (x, y, z) in cube(s).map(|(x, y, z)| (sx + x, sy + y, sz + z)) {
+            out.voxels[x + b * (y + b * z)] = bind_voxel(graph, &sub, &at(x, y, z), k, reach);
+        }
+    }
     out
+}
+
+/// Sub-blocks along a block's edge (when it divides the edge), each with its own candidates.
+const SPLIT: usize = 2;
+
+/// The points (x, y, z) of an n × n × n grid, x fastest.
+fn cube(n: usize) -> impl Iterator<Item = (usize, usize, usize)> {
+    (0..n * n * n).map(move |i| (i % n, (i / n) % n, i / (n * n)))
 }
 
 /// The K nearest of `candidates` to `p`, by insertion into a short sorted list, as a binding;
 /// [`UNBOUND`] when the nearest is beyond `reach`.
 fn bind_voxel(
     graph: &DeformationGraph,
-    candidates: &[u32],
+    candidates: &Candidates,
     p: &Vector3<f64>,
     k: usize,
     reach: f64,
 ) -> VoxelBinding {
-    let best = nearest_among(graph, candidates, p, k);
+    let best = candidates.nearest(p, k);
     if best[0].1.sqrt() > reach {
         return UNBOUND;
     }

@@ -50,6 +50,7 @@ pub enum FactorPrecision {
     /// f32: about 0.6 times the time of f64 on a 2.2 M-entry factor (faer's SIMD kernels hold
     /// twice the lanes) and half the memory; a solve with it is a preconditioner, not the
     /// solution, and callers iterate on it (`BlockSystem::solve_refined`). Dense factors stay f64.
+    /// `BlockSystem::solve_block_jacobi` then takes its products in f32 as well.
     Single,
 }
 
