@@ -375,8 +375,8 @@ impl BlockSystem {
     /// one product with `H + μD`. In a system of [`FactorPrecision::Single`] the product is
     /// taken on a single-precision copy of `H + μD` by full block rows (module `block_rows`:
     /// the product is bound by reading the matrix, and the copy reads half as much), so the
-    /// step solves the copy's system, within about 10⁻⁷ of H's relative to its condition; in
-    /// one of [`FactorPrecision::Double`] on H itself. Stops at `‖r‖ ≤ tolerance ‖g‖` or after
+    /// step solves the copy's system, whose entries are H's rounded to 24 bits (6·10⁻⁸
+    /// relative); in one of [`FactorPrecision::Double`] on H itself. Stops at `‖r‖ ≤ tolerance ‖g‖` or after
     /// `max_iterations`; each iterate lowers the quadratic model it solves from δ = 0, so
     /// `−gᵀδ > 0` and a truncated solve is still a descent direction ([`Self::model_decrease`]
     /// gives its decrease on H). Fails when a damped diagonal block is not positive definite.

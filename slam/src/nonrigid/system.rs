@@ -708,7 +708,7 @@ fn regulariser_cost(terms: &WarpTerms<'_>, motions: &[Isometry3<f64>]) -> f64 {
 
 /// One regulariser's share of H and g: an edge's blocks (i, i), (j, j) and (min, max) and its
 /// two gradients, or a stay prior's diagonal block and gradient (unused slots [`NONE`]). The
-/// blocks are kept as the Jacobians they are products of ([`Self::block`]), a third of the
+/// blocks are kept as the Jacobians they are products of ([`Self::block`]), under half the
 /// memory.
 #[derive(Clone, Copy)]
 struct PriorTerms {
