@@ -14,6 +14,7 @@
 
 use crate::block::BlockSparse;
 use crate::damping::Damping;
+use crate::parallel::for_parts;
 use std::ops::Range;
 
 /// Stored blocks below which a range of rows is filled or multiplied on one thread.
@@ -171,8 +172,8 @@ impl BlockRows {
     }
 
     /// Runs `f(part of rows, its share of out)` over `rows`, halved by stored blocks (in
-    /// parallel) until a part is small enough for one thread; row i's share of `out` starts at
-    /// `start(i)`, and the shares of consecutive rows are contiguous.
+    /// parallel, [`for_parts`]) until a part is small enough for one thread; row i's share of
+    /// `out` starts at `start(i)`, and the shares of consecutive rows are contiguous.
     fn for_row_parts<T: Send>(
         &self,
         rows: Range<usize>,
@@ -180,20 +181,8 @@ impl BlockRows {
         start: &(impl Fn(usize) -> usize + Sync),
         f: &(impl Fn(Range<usize>, &mut [T]) + Sync),
     ) {
-        let (first, last) = (self.row_ptr[rows.start], self.row_ptr[rows.end]);
-        if last - first <= SERIAL_BLOCKS || rows.len() < 2 {
-            return f(rows, out);
-        }
-        let half = first + (last - first) / 2;
-        let mid = self.row_ptr[rows.clone()]
-            .partition_point(|&p| p < half)
-            .clamp(1, rows.len() - 1)
-            + rows.start;
-        let (a, b) = out.split_at_mut(start(mid) - start(rows.start));
-        rayon::join(
-            || self.for_row_parts(rows.start..mid, a, start, f),
-            || self.for_row_parts(mid..rows.end, b, start, f),
-        );
+        let weight = |i: usize| self.row_ptr[i];
+        for_parts(rows, out, (start, &weight), SERIAL_BLOCKS, f);
     }
 
     /// Row i of the product: `y_i = Σ_j A_ij x_j`.

@@ -15,10 +15,9 @@ use crate::block_rows::BlockRows;
 use crate::cholesky::{Cholesky, FactorPrecision};
 use crate::damping::Damping;
 use crate::error::SolveError;
-use crate::parallel::dot;
+use crate::parallel::{dot, for_parts};
 use crate::schur::kernels::invert_spd;
 use crate::Options;
-use rayon::prelude::*;
 
 /// H (upper triangle, block-sparse), g, and a factorisation prepared for H's structure.
 pub struct BlockSystem {
@@ -46,6 +45,12 @@ pub struct BlockSystem {
     /// [`Self::solve_block_jacobi`] in a system of [`FactorPrecision::Single`].
     rows: BlockRows,
 }
+
+/// Stored numbers of H below which [`BlockSystem::set_entries`] sets a run of block columns on
+/// one thread.
+const SET_SERIAL: usize = 1 << 15;
+/// Numbers of a block [`BlockSystem::set_entries`] hands out from the stack (9 × 9: a camera's).
+const SMALL_BLOCK: usize = 81;
 
 /// Relative residual to which [`BlockSystem::solve`] iterates on a single-precision factor.
 const SINGLE_PRECISION_TOLERANCE: f64 = 1e-12;
@@ -185,37 +190,42 @@ impl BlockSystem {
     /// several threads; the result does not depend on their number. g is left as it is.
     pub fn set_entries(&mut self, block: impl Fn(usize, usize, usize, &mut [f64]) + Sync) {
         // the values leave H while its structure is read beside them
-        let mut all = std::mem::take(&mut self.h.values);
+        let mut values = std::mem::take(&mut self.h.values);
         let h = &self.h;
-        let mut columns = Vec::with_capacity(h.num_blocks());
-        let mut rest = all.as_mut_slice();
-        for j in 0..h.num_blocks() {
-            let len = h.col_ptr[h.block_start[j + 1]] - h.col_ptr[h.block_start[j]];
-            let (column, tail) = std::mem::take(&mut rest).split_at_mut(len);
-            columns.push(column);
-            rest = tail;
-        }
-        columns
-            .into_par_iter()
-            .enumerate()
-            .with_min_len(16)
-            .for_each_init(Vec::new, |out, (j, values)| {
-                let base = h.col_ptr[h.block_start[j]];
-                let dj = h.block_dim(j);
-                for e in h.entry_ptr[j]..h.entry_ptr[j + 1] {
-                    let i = h.entries[e].row_block;
-                    let di = h.block_dim(i);
-                    out.clear();
-                    out.resize(di * dj, 0.0);
-                    block(e, i, j, out);
-                    for c in 0..dj {
-                        let rows = if i == j { c + 1 } else { di };
-                        let start = h.column_start(j, e, c) - base;
-                        values[start..start + rows].copy_from_slice(&out[c * di..c * di + rows]);
+        let start = |j: usize| h.col_ptr[h.block_start[j]];
+        for_parts(
+            0..h.num_blocks(),
+            &mut values,
+            (&start, &start),
+            SET_SERIAL,
+            &|cols, part| {
+                let base = start(cols.start);
+                // one block's numbers: on the stack when small, as a pose's or a node's are
+                let (mut small, mut large) = ([0.0; SMALL_BLOCK], Vec::new());
+                for j in cols {
+                    let dj = h.block_dim(j);
+                    for e in h.entry_ptr[j]..h.entry_ptr[j + 1] {
+                        let i = h.entries[e].row_block;
+                        let di = h.block_dim(i);
+                        let out = match di * dj <= SMALL_BLOCK {
+                            true => &mut small[..di * dj],
+                            false => {
+                                large.resize(di * dj, 0.0);
+                                &mut large[..]
+                            }
+                        };
+                        out.fill(0.0);
+                        block(e, i, j, out);
+                        for c in 0..dj {
+                            let rows = if i == j { c + 1 } else { di };
+                            let at = h.column_start(j, e, c) - base;
+                            part[at..at + rows].copy_from_slice(&out[c * di..c * di + rows]);
+                        }
                     }
                 }
-            });
-        self.h.values = all;
+            },
+        );
+        self.h.values = values;
     }
 
     /// Adds `block` (dᵢ × dⱼ, column-major) to entry `e` = (i, j), i ≤ j. Of a diagonal block only
@@ -752,41 +762,40 @@ mod tests {
     }
 
     /// Entries set in parallel hold what entries added one by one hold, to the bit, over values
-    /// left from before; blocks of mixed sizes included.
+    /// left from before: on a chain large enough to be split over threads, and with blocks of
+    /// mixed sizes (a diagonal block's lower triangle is not read).
     #[test]
     fn entries_set_in_parallel_are_the_entries_added() {
-        let (dense, g) = chain_matrix(300, 5);
-        let added = chain_system(None, &dense, &g);
-        let mut set = chain_system(None, &dense.map(|v| v * 3.0 + 1.0), &g);
-        let blocks: Vec<(usize, usize)> = (0..set.num_entries())
-            .map(|e| set.entry_blocks(e))
-            .collect();
-        set.set_entries(|e, i, j, out| {
-            assert_eq!(blocks[e], (i, j));
-            for c in 0..6 {
-                for r in 0..6 {
-                    out[r + 6 * c] = dense[(i * 6 + r, j * 6 + c)];
-                }
-            }
-        });
-        assert_eq!(set.h.values, added.h.values);
-        // sizes 2, 1, 3: a diagonal block's lower triangle is not read
-        let mut mixed = BlockSystem::new(&[2, 1, 3], [(0, 2), (1, 2)]).unwrap();
-        mixed.set_entries(|_, i, j, out| {
-            for (k, o) in out.iter_mut().enumerate() {
-                *o = (10 * i + j) as f64 + k as f64 / 8.0;
-            }
-        });
-        let mut expected = BlockSystem::new(&[2, 1, 3], [(0, 2), (1, 2)]).unwrap();
-        for e in 0..expected.num_entries() {
-            let (i, j) = expected.entry_blocks(e);
-            let len = expected.h.block_dim(i) * expected.h.block_dim(j);
-            let block: Vec<f64> = (0..len)
-                .map(|k| (10 * i + j) as f64 + k as f64 / 8.0)
+        let value = |e: usize, k: usize| ((e * 31 + k * 7) % 113) as f64 / 9.0 - 6.0;
+        let check = |sizes: &[usize], pairs: &[(usize, usize)]| {
+            let mut added = BlockSystem::new(sizes, pairs.iter().copied()).unwrap();
+            let mut set = BlockSystem::new(sizes, pairs.iter().copied()).unwrap();
+            set.h.values.fill(7.0);
+            let blocks: Vec<(usize, usize)> = (0..set.num_entries())
+                .map(|e| set.entry_blocks(e))
                 .collect();
-            expected.add_to_entry(e, &block);
-        }
-        assert_eq!(mixed.h.values, expected.h.values);
+            set.set_entries(|e, i, j, out| {
+                assert_eq!(blocks[e], (i, j));
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = value(e, k);
+                }
+            });
+            for (e, &(i, j)) in blocks.iter().enumerate() {
+                let len = added.h.block_dim(i) * added.h.block_dim(j);
+                let block: Vec<f64> = (0..len).map(|k| value(e, k)).collect();
+                added.add_to_entry(e, &block);
+            }
+            assert_eq!(set.h.values, added.h.values);
+            set.h.values.len()
+        };
+        let chain: Vec<(usize, usize)> = (1..1000usize)
+            .flat_map(|j| [(j - 1, j), (j.saturating_sub(2), j)])
+            .collect();
+        assert!(
+            check(&[6; 1000], &chain) > 2 * SET_SERIAL,
+            "split over threads"
+        );
+        check(&[2, 1, 3, 12], &[(0, 2), (1, 2), (0, 3), (2, 3)]);
     }
 
     /// In a single-precision system, block-Jacobi steps take their products on an f32 copy:

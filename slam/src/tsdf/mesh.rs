@@ -91,7 +91,7 @@ impl<'a> Neighbourhood<'a> {
             ];
             *d = self
                 .voxel(l)
-                .map_or(f32::NAN, |(blk, i)| blk.voxels[i].tsdf);
+                .map_or(f32::NAN, |(blk, v)| blk.voxels[v].tsdf);
             below |= *d < 0.0;
             above |= *d >= 0.0;
         }
