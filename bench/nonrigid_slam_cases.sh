@@ -1,6 +1,8 @@
 #!/bin/bash
 # Runs `nonrigid_slam` on generated deforming sequences, one line per set of flags, each case's
-# mean / worst-frame tracking error in millimetres (the JSON line's error_mean, error_max_frame).
+# mean / worst-frame tracking error in millimetres over every sample (the JSON line's error_mean,
+# error_max_frame), then over the samples the camera sees (error_seen_mean, error_seen_max_frame)
+# and the worst seen error of a frame reported tracked (error_seen_max_fused).
 #
 #   bench/nonrigid_slam_cases.sh "plane:bend:3 cylinder:twist:7" "--chroma-weight 0" "--chroma-weight 0.3"
 #
@@ -17,8 +19,8 @@ for flags in "$@"; do
     # shellcheck disable=SC2086
     r=$("$BIN" --surface "$surface" --field "$field" --seed "$seed" --sensor "${SENSOR:-kinect}" \
         --max-frames "${FRAMES:-100}" --quiet $flags \
-      | grep -o '"error_mean": [0-9.]*, "error_max_frame": [0-9.]*' \
-      | awk '{printf "%.1f/%.1f", $2 * 1000, $4 * 1000}')
+      | grep -o '"error_mean": [0-9.]*, "error_max_frame": [0-9.]*, "error_seen_mean": [0-9.]*, "error_seen_max_frame": [0-9.]*, "error_seen_max_fused": [0-9.]*' \
+      | awk '{printf "%.1f/%.1f(seen %.1f/%.1f,fused %.1f)", $2 * 1000, $4 * 1000, $6 * 1000, $8 * 1000, $10 * 1000}')
     line="$line $surface-$field-$seed=${r:-failed}"
   done
   echo "$line"

@@ -13,7 +13,9 @@
 //! field (`warp.txt`: one node per line, position, radius and unit dual quaternion
 //! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures (frames not
 //! fused), skipped (frames that could not be read), nodes, per-stage
-//! seconds per frame and, for the generated sequence, the tracking error.
+//! seconds per frame and, for the generated sequence, the tracking error: over every canonical
+//! sample, over the samples the camera sees, and the worst seen error of a frame reported tracked
+//! (NOTES 132).
 
 use crate::cli;
 use crate::preview;
@@ -292,10 +294,49 @@ fn warp_text(slam: &NonRigidFusion) -> String {
     out
 }
 
-/// Mean distance between the warped canonical samples and where their material points truly are.
-fn tracking_error(slam: &NonRigidFusion, scene: &DeformingScene, frame: usize) -> f64 {
+/// A frame's tracking error on a generated sequence.
+#[derive(Clone, Copy, Debug)]
+struct FrameError {
+    frame: usize,
+    /// Mean distance between the warped canonical samples and where their material points truly
+    /// are.
+    all: f64,
+    /// The same over the samples whose material points the camera sees in the frame (NaN if it
+    /// sees none): what the frame's data can hold. The rest are carried by the field's
+    /// regulariser alone, out of view or behind the surface.
+    seen: f64,
+    /// Whether the frame was fused (reported tracked).
+    fused: bool,
+}
+
+/// Frame `frame`'s tracking error; the camera sees points within three voxels of the surface
+/// its ray meets (the canonical samples lie within the fusion's error of the true surface).
+fn tracking_error(
+    slam: &NonRigidFusion,
+    scene: &DeformingScene,
+    camera: &Camera,
+    frame: usize,
+) -> (f64, f64) {
     let points = slam.data_points();
-    Stats::of(&scene.tracking_errors(points, &slam.warp_points(points), frame)).mean
+    let errors = scene.tracking_errors(points, &slam.warp_points(points), frame);
+    let truth: Vec<_> = points
+        .iter()
+        .map(|p| scene.follow(&(*p).into(), frame as f64))
+        .collect();
+    let tolerance = 3.0 * f64::from(slam.params.tsdf.voxel_size);
+    let seen = scene.visible(camera, &Isometry3::identity(), frame, &truth, tolerance);
+    let seen: Vec<f64> = errors
+        .iter()
+        .zip(&seen)
+        .filter(|s| *s.1)
+        .map(|s| *s.0)
+        .collect();
+    let mean_seen = if seen.is_empty() {
+        f64::NAN
+    } else {
+        Stats::of(&seen).mean
+    };
+    (Stats::of(&errors).mean, mean_seen)
 }
 
 /// Logs one frame: the camera and its images, the deformation graph warped into the live frame
@@ -461,8 +502,8 @@ struct Tally {
     processed: usize,
     /// Time in `process`, seconds.
     processing: f64,
-    /// (frame, tracking error) on a generated sequence.
-    errors: Vec<(usize, f64)>,
+    /// Each frame's tracking error on a generated sequence.
+    errors: Vec<FrameError>,
 }
 
 /// Processes frame `i`, counts it, logs its figures; gives its stage times.
@@ -487,15 +528,20 @@ fn process_frame(
         tracing::warn!("frame {i}: not fused: {why}");
     }
     let error = match source {
-        Source::Generated { scene, .. } if slam.graph().is_some() => {
-            Some(tracking_error(slam, scene, i))
+        Source::Generated { scene, camera, .. } if slam.graph().is_some() => {
+            Some(tracking_error(slam, scene, camera, i))
         }
         _ => None,
     };
-    tally.errors.extend(error.map(|e| (i, e)));
+    tally.errors.extend(error.map(|(all, seen)| FrameError {
+        frame: i,
+        all,
+        seen,
+        fused: report.failure.is_none(),
+    }));
     let s = report.summary.as_ref();
     tracing::debug!(
-        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, chromaticity residual {:.4} of {:.4}, error {:.2} mm, optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, chromaticity residual {:.4} of {:.4}, error {:.2} mm ({:.2} mm seen), optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
         report.nodes,
         report.added_nodes,
         s.map_or(0, |s| s.matched),
@@ -505,7 +551,8 @@ fn process_frame(
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.texture),
         s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.residual),
         s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.texture),
-        error.unwrap_or(f64::NAN) * 1e3,
+        error.map_or(f64::NAN, |e| e.0) * 1e3,
+        error.map_or(f64::NAN, |e| e.1) * 1e3,
         report.times.optimise * 1e3,
         report.times.fuse * 1e3,
         report.times.surface * 1e3
@@ -518,34 +565,55 @@ fn write_preview(
     dir: &Path,
     slam: &NonRigidFusion,
     camera: &Camera,
-    errors: &[(usize, f64)],
+    errors: &[FrameError],
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let views = canonical_views(slam);
     preview::model_views(dir, slam.volume(), camera, 1.0, &views)?;
     if !errors.is_empty() {
-        let mm = errors.iter().map(|&(i, e)| (i as f64, 1e3 * e)).collect();
+        let mm = |f: fn(&FrameError) -> f64| {
+            let points = errors.iter().map(|e| (e.frame as f64, 1e3 * f(e)));
+            points.filter(|p| p.1.is_finite()).collect()
+        };
         preview::line_plot(
             &dir.join("error.png"),
             "mean distance of the warped samples from their true positions",
             ("frame", "error (mm)"),
-            &[("tracking error", mm)],
+            &[
+                ("every sample", mm(|e| e.all)),
+                ("samples the camera sees", mm(|e| e.seen)),
+            ],
         )?;
     }
     Ok(())
 }
 
+/// The JSON line's error fields: over every sample (`error_mean`, `error_max_frame`: the mean of
+/// the frames' means and the worst frame's), over the samples seen (`error_seen_mean`,
+/// `error_seen_max_frame`), and the worst seen error of a frame reported tracked
+/// (`error_seen_max_fused`: one over a centimetre is a wrong frame reported as right).
+fn error_fields(errors: &[FrameError]) -> String {
+    let stats = |f: &dyn Fn(&FrameError) -> Option<f64>| {
+        let v: Vec<f64> = errors
+            .iter()
+            .filter_map(f)
+            .filter(|e| e.is_finite())
+            .collect();
+        Stats::of(&v)
+    };
+    let all = stats(&|e| Some(e.all));
+    let seen = stats(&|e| Some(e.seen));
+    let fused = stats(&|e| e.fused.then_some(e.seen));
+    format!(
+        ", \"error_mean\": {:.6}, \"error_max_frame\": {:.6}, \"error_seen_mean\": {:.6}, \"error_seen_max_frame\": {:.6}, \"error_seen_max_fused\": {:.6}",
+        all.mean, all.max, seen.mean, seen.max, fused.max
+    )
+}
+
 /// The JSON line printed last.
 fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> String {
-    let errors: Vec<f64> = tally.errors.iter().map(|e| e.1).collect();
     let per_frame = |s: f64| s / tally.processed.max(1) as f64;
-    let error = (!errors.is_empty()).then(|| {
-        let s = Stats::of(&errors);
-        format!(
-            ", \"error_mean\": {:.6}, \"error_max_frame\": {:.6}",
-            s.mean, s.max
-        )
-    });
+    let error = (!tally.errors.is_empty()).then(|| error_fields(&tally.errors));
     let ms = |s: f64| 1e3 * s / tally.optimised.max(1) as f64;
     let st = &tally.stages;
     let stages = format!(

@@ -924,6 +924,13 @@ fn nonrigid_slam_tracks_a_wave_seen_by_the_kinect_model() {
     assert_eq!(v["failures"], 0, "{v}");
     let worst = v["error_max_frame"].as_f64().expect("an error");
     assert!(worst < 0.01, "worst frame {worst} m");
+    // the camera sees the whole plate, so the error over the samples it sees is the error over
+    // all of them, and no fused frame is off by a centimetre
+    let field = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("no {k} in {v}"));
+    let (mean, seen) = (field("error_mean"), field("error_seen_mean"));
+    assert!(seen > 0.0 && (seen - mean).abs() <= 0.1 * mean, "{v}");
+    assert!(field("error_seen_max_frame") <= worst + 1e-6, "{v}");
+    assert!(field("error_seen_max_fused") < 0.01, "{v}");
     assert_exit(
         &run("nonrigid_slam", &["--sensor", "tof", "--quiet"]),
         2,

@@ -83,7 +83,8 @@ pub struct FusionParams {
     pub photometric_keyframe_every: usize,
     /// A tracked frame whose median chromaticity residual exceeds this many times its floor
     /// (that of the first tracked frames, or one 8-bit level of the chromaticity where that is
-    /// larger) has slid and is not fused (default 1.75; 0: never; module `colour_drift`).
+    /// larger) has slid and is not fused (default 1.3, NOTES 132; 0: never; module
+    /// `colour_drift`).
     pub colour_drift_ratio: f64,
 }
 
@@ -127,7 +128,7 @@ impl Default for FusionParams {
             min_matched_fraction: 0.2,
             photometric_window: 4,
             photometric_keyframe_every: 5,
-            colour_drift_ratio: 1.75,
+            colour_drift_ratio: 1.3,
         }
     }
 }

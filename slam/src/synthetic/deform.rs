@@ -14,6 +14,7 @@ use crate::camera::Camera;
 use crate::image::Image;
 use crate::mesh::Mesh;
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// A smooth deformation field.
@@ -198,6 +199,37 @@ impl DeformingScene {
             .collect()
     }
 
+    /// Which of the world points `points` (where material points truly are at `frame`) a camera
+    /// at `pose` sees: in the image, at a valid depth, and with nothing of the scene (the
+    /// deformed surface included) on the ray to it closer than `tolerance` short of it. The
+    /// tolerance absorbs a point's own distance from the surface (a tracker's canonical points
+    /// lie within its fusion's error of it).
+    pub fn visible(
+        &self,
+        camera: &Camera,
+        pose: &Isometry3<f64>,
+        frame: usize,
+        points: &[Point3<f64>],
+        tolerance: f64,
+    ) -> Vec<bool> {
+        let scene = self.scene_at(frame);
+        let prepared = scene.prepare();
+        let origin = Point3::from(pose.translation.vector);
+        points
+            .par_iter()
+            .map(|x| {
+                let local = pose.inverse_transform_point(x);
+                if camera.project_to_pixel(&local).is_none() || !camera.valid_depth(local.z) {
+                    return false;
+                }
+                let ray = x - origin;
+                let distance = ray.norm();
+                distance > tolerance
+                    && !prepared.blocked(&origin, &(ray / distance), distance - tolerance)
+            })
+            .collect()
+    }
+
     /// What a depth sensor at `pose` delivers at `frame`: raw depth at the camera's depth scale and
     /// colour, through `noise` (seeded by the frame).
     pub fn sensor_frame(
@@ -328,6 +360,43 @@ mod tests {
             (twist.deform(&a, 15.0) - a).norm() > 0.01,
             "the twist moves points"
         );
+    }
+
+    #[test]
+    fn a_tube_shows_its_front_and_hides_its_back() {
+        let s = DeformingScene::new(surface(SurfaceKind::Cylinder, 40), Field::Bend, 1);
+        let cam = Camera::new(200.0, 200.0, 79.5, 59.5, 160, 120);
+        let world = s.mesh_at(0);
+        let (mut front, mut back): (Vec<Point3<f64>>, Vec<Point3<f64>>) = (vec![], vec![]);
+        // faces' centres: a ray through a vertex or along an edge may pass between triangles
+        let centres = world.faces.iter().map(|f| {
+            let sum: Vector3<f64> = f
+                .iter()
+                .map(|&i| world.vertices[i as usize].coords.cast())
+                .sum();
+            Point3::from(sum / 3.0)
+        });
+        for v in centres {
+            // the axis is at z = 1.5; keep away from the rim seen edge-on and the cut ends
+            if v.y.abs() < 0.3 && (v.z - 1.5).abs() > 0.15 {
+                if v.z < 1.5 { &mut front } else { &mut back }.push(v);
+            }
+        }
+        assert!(front.len() > 50 && back.len() > 50);
+        let id = Isometry3::identity();
+        let seen = |points: &[Point3<f64>], tolerance| s.visible(&cam, &id, 0, points, tolerance);
+        assert!(seen(&front, 0.005).iter().all(|&v| v), "the front is seen");
+        assert!(seen(&back, 0.005).iter().all(|&v| !v), "the back is hidden");
+        // a point 2 cm inside the tube behind its front: hidden at 1 cm, seen at 3 cm
+        let inside: Vec<_> = front
+            .iter()
+            .map(|p| p + p.coords.normalize() * 0.02)
+            .collect();
+        assert!(seen(&inside, 0.01).iter().all(|&v| !v));
+        assert!(seen(&inside, 0.03).iter().all(|&v| v));
+        // out of the image, or behind the camera
+        let out = [Point3::new(3.0, 0.0, 1.0), Point3::new(0.0, 0.0, -1.0)];
+        assert_eq!(seen(&out, 0.005), [false, false]);
     }
 
     #[test]
