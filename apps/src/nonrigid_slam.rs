@@ -36,7 +36,7 @@ use dynamap_slam::io::trajectory::Trajectory;
 use dynamap_slam::io::{ply, write_atomic};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
-use dynamap_slam::synthetic::deform::{surface, DeformingScene};
+use dynamap_slam::synthetic::deform::{distances, surface, DeformingScene};
 use dynamap_slam::synthetic::kinect::KinectModel;
 use dynamap_slam::synthetic::noise::SensorNoise;
 use dynamap_slam::synthetic::sequence::static_camera;
@@ -318,11 +318,8 @@ fn tracking_error(
     frame: usize,
 ) -> (f64, f64) {
     let points = slam.data_points();
-    let errors = scene.tracking_errors(points, &slam.warp_points(points), frame);
-    let truth: Vec<_> = points
-        .iter()
-        .map(|p| scene.follow(&(*p).into(), frame as f64))
-        .collect();
+    let truth = scene.follow_all(points, frame);
+    let errors = distances(&truth, &slam.warp_points(points));
     let tolerance = 3.0 * f64::from(slam.params.tsdf.voxel_size);
     let seen = scene.visible(camera, &Isometry3::identity(), frame, &truth, tolerance);
     let seen: Vec<f64> = errors

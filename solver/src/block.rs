@@ -13,7 +13,18 @@ use crate::damping::{damping_scale, Damping};
 const PARALLEL_PRODUCT: usize = 1 << 16;
 
 /// The size of a pose's or a deformation node's block, which products unroll for.
-const SIX: usize = 6;
+pub(crate) const SIX: usize = 6;
+
+/// The scalar offset of each block of sizes `sizes`, with the total at the end (the layout's
+/// `block_start`).
+pub(crate) fn block_starts(sizes: &[usize]) -> Vec<usize> {
+    let mut start = Vec::with_capacity(sizes.len() + 1);
+    start.push(0);
+    for s in sizes {
+        start.push(start.last().unwrap() + s);
+    }
+    start
+}
 
 /// One block (i, j), i ≤ j, of the upper triangle.
 #[derive(Clone, Copy, Debug)]
@@ -434,11 +445,7 @@ mod tests {
             vec![2, 4, 5],
             vec![1, 3, 4, 5, 6],
         ];
-        let mut block_start = vec![0];
-        for s in sizes {
-            block_start.push(block_start.last().unwrap() + s);
-        }
-        let mut m = BlockSparse::new(block_start, &columns);
+        let mut m = BlockSparse::new(block_starts(&sizes), &columns);
         for (k, v) in m.values.iter_mut().enumerate() {
             *v = ((k * 7919) % 1009) as f64 / 97.0 - 5.0;
         }

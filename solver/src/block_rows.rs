@@ -12,16 +12,13 @@
 //! compressed sparse row format; Saad, *Iterative Methods for Sparse Linear Systems*, 2003,
 //! sec. 3.4).
 
-use crate::block::BlockSparse;
+use crate::block::{BlockSparse, SIX};
 use crate::damping::Damping;
 use crate::parallel::for_parts;
 use std::ops::Range;
 
 /// Stored blocks below which a range of rows is filled or multiplied on one thread.
 const SERIAL_BLOCKS: usize = 1024;
-
-/// The size of a pose's or a deformation node's block, which products unroll for.
-const SIX: usize = 6;
 
 /// `H + μD` by full block rows, in single precision: the product is limited by reading the
 /// matrix, and conjugate gradients stopped at a relative residual of 10⁻³ do not see the
@@ -237,6 +234,7 @@ impl BlockRows {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::block::block_starts;
 
     /// Blocks of sizes 6, 3, 6, 1, 6, 6 coupled irregularly, filled with distinct values: the
     /// full rows' product must equal the upper triangle's product plus the damping, for each
@@ -252,11 +250,7 @@ mod tests {
             vec![3, 4],
             vec![0, 1, 4, 5],
         ];
-        let mut block_start = vec![0];
-        for s in sizes {
-            block_start.push(block_start.last().unwrap() + s);
-        }
-        let mut h = BlockSparse::new(block_start, &columns);
+        let mut h = BlockSparse::new(block_starts(&sizes), &columns);
         for (k, v) in h.values.iter_mut().enumerate() {
             // sixteenths: exact in single precision, so the copy's rounding does not enter
             *v = ((k * 37) % 101) as f64 / 16.0 - 2.0;

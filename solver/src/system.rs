@@ -10,7 +10,7 @@
 //! The caller keeps its own Levenberg-Marquardt loop; the [`Problem`](crate::Problem) API stays the
 //! way for everything else.
 
-use crate::block::BlockSparse;
+use crate::block::{block_starts, BlockSparse, SIX};
 use crate::block_rows::BlockRows;
 use crate::cholesky::{Cholesky, FactorPrecision};
 use crate::damping::Damping;
@@ -112,12 +112,7 @@ impl BlockSystem {
             c.sort_unstable();
             c.dedup();
         }
-        let mut block_start = Vec::with_capacity(n + 1);
-        block_start.push(0);
-        for s in sizes {
-            block_start.push(block_start.last().unwrap() + s);
-        }
-        let h = BlockSparse::new(block_start, &columns);
+        let h = BlockSparse::new(block_starts(sizes), &columns);
         let entry_col = (0..n)
             .flat_map(|j| std::iter::repeat_n(j, h.entry_ptr[j + 1] - h.entry_ptr[j]))
             .collect();
@@ -386,10 +381,11 @@ impl BlockSystem {
     /// taken on a single-precision copy of `H + μD` by full block rows (module `block_rows`:
     /// the product is bound by reading the matrix, and the copy reads half as much), so the
     /// step solves the copy's system, whose entries are H's rounded to 24 bits (6·10⁻⁸
-    /// relative); in one of [`FactorPrecision::Double`] on H itself. Stops at `‖r‖ ≤ tolerance ‖g‖` or after
-    /// `max_iterations`; each iterate lowers the quadratic model it solves from δ = 0, so
-    /// `−gᵀδ > 0` and a truncated solve is still a descent direction ([`Self::model_decrease`]
-    /// gives its decrease on H). Fails when a damped diagonal block is not positive definite.
+    /// relative); in one of [`FactorPrecision::Double`] on H itself. Stops at
+    /// `‖r‖ ≤ tolerance ‖g‖` or after `max_iterations`; each iterate lowers the quadratic model it
+    /// solves from δ = 0, so `−gᵀδ > 0` and a truncated solve is still a descent direction
+    /// ([`Self::model_decrease`] gives its decrease on H). Fails when a damped diagonal block is
+    /// not positive definite.
     pub fn solve_block_jacobi(
         &mut self,
         damping: Damping,
@@ -535,11 +531,11 @@ fn apply_block_inverses(h: &BlockSparse, inverses: &[f64], z: &mut [f64], x: &mu
     for b in 0..h.num_blocks() {
         let (start, d) = (h.block_start[b], h.block_dim(b));
         let inverse = &inverses[at..at + d * d];
-        if let Ok(z) = <&mut [f64; 6]>::try_from(&mut z[start..start + d]) {
+        if let Ok(z) = <&mut [f64; SIX]>::try_from(&mut z[start..start + d]) {
             // a pose's or a node's block: its columns scaled and added, unrolled
             let r = *z;
-            *z = [0.0; 6];
-            for (column, &rc) in inverse.chunks_exact(6).zip(&r) {
+            *z = [0.0; SIX];
+            for (column, &rc) in inverse.chunks_exact(SIX).zip(&r) {
                 for (o, &v) in z.iter_mut().zip(column) {
                     *o = v.mul_add(rc, *o);
                 }
@@ -657,15 +653,20 @@ mod tests {
         (j.transpose() * &j + nalgebra::DMatrix::identity(n, n), g)
     }
 
-    /// The chain's system (each block coupled to the two before it) holding `dense` and `g`.
+    /// The structure of a chain of `nb` blocks of 6, each coupled to the two before it.
+    fn chain_structure(nb: usize, precision: FactorPrecision) -> BlockSystem {
+        let pairs = (0..nb).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
+        BlockSystem::with_precision(&vec![6; nb], pairs, precision).unwrap()
+    }
+
+    /// The chain's system (`s`, or a new one of f64) holding `dense` and `g`.
     fn chain_system(
         s: Option<BlockSystem>,
         dense: &nalgebra::DMatrix<f64>,
         g: &nalgebra::DVector<f64>,
     ) -> BlockSystem {
         let nb = dense.nrows() / 6;
-        let pairs = (0..nb).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
-        let mut s = s.unwrap_or_else(|| BlockSystem::new(&vec![6; nb], pairs).unwrap());
+        let mut s = s.unwrap_or_else(|| chain_structure(nb, FactorPrecision::Double));
         s.clear();
         for e in 0..s.num_entries() {
             let (bi, bj) = s.entry_blocks(e);
@@ -747,10 +748,8 @@ mod tests {
     #[test]
     fn a_single_precision_factor_solves_to_double_precision() {
         let (dense, g) = chain_matrix(60, 9);
-        let nb = dense.nrows() / 6;
-        let pairs = (0..nb).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
-        let single = BlockSystem::with_precision(&vec![6; nb], pairs, FactorPrecision::Single);
-        let mut s = chain_system(Some(single.unwrap()), &dense, &g);
+        let single = chain_structure(dense.nrows() / 6, FactorPrecision::Single);
+        let mut s = chain_system(Some(single), &dense, &g);
         let mut step = vec![0.0; dense.nrows()];
         s.solve(Damping::Identity(0.25), &mut step).unwrap();
         let expect = dense_step(&dense, &g, 0.25);
@@ -805,10 +804,8 @@ mod tests {
     #[test]
     fn single_precision_block_jacobi_steps_solve_to_single_precision_and_descend() {
         let (dense, g) = chain_matrix(60, 11);
-        let nb = dense.nrows() / 6;
-        let pairs = (0..nb).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
-        let single = BlockSystem::with_precision(&vec![6; nb], pairs, FactorPrecision::Single);
-        let mut s = chain_system(Some(single.unwrap()), &dense, &g);
+        let single = chain_structure(dense.nrows() / 6, FactorPrecision::Single);
+        let mut s = chain_system(Some(single), &dense, &g);
         let mut step = vec![0.0; dense.nrows()];
         let solved = s
             .solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-9, 1000)
@@ -828,10 +825,7 @@ mod tests {
         }
         // a smaller chain (another structure) on the first one's buffers
         let (dense2, g2) = chain_matrix(20, 3);
-        let nb2 = dense2.nrows() / 6;
-        let pairs2 = (0..nb2).flat_map(|b| (b.saturating_sub(2)..b).map(move |a| (a, b)));
-        let mut other =
-            BlockSystem::with_precision(&vec![6; nb2], pairs2, FactorPrecision::Single).unwrap();
+        let mut other = chain_structure(dense2.nrows() / 6, FactorPrecision::Single);
         other.reuse_buffers(s);
         let mut other = chain_system(Some(other), &dense2, &g2);
         let mut step2 = vec![0.0; dense2.nrows()];

@@ -17,6 +17,15 @@ use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
 
+/// The distance of each tracked point `warped` from the truth `truth` (the same order).
+pub fn distances(truth: &[Point3<f64>], warped: &[Vector3<f64>]) -> Vec<f64> {
+    truth
+        .iter()
+        .zip(warped)
+        .map(|(t, w)| (t.coords - w).norm())
+        .collect()
+}
+
 /// A smooth deformation field.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Field {
@@ -184,6 +193,15 @@ impl DeformingScene {
         self.pose * self.deform(&self.pose.inverse_transform_point(x), frame)
     }
 
+    /// [`Self::follow`] of every canonical point (world positions at frame 0) to `frame`.
+    pub fn follow_all(&self, canonical: &[Vector3<f64>], frame: usize) -> Vec<Point3<f64>> {
+        let frame = frame as f64;
+        canonical
+            .iter()
+            .map(|p| self.follow(&Point3::from(*p), frame))
+            .collect()
+    }
+
     /// Distances between canonical points (world positions at frame 0) carried to `frame` by a
     /// tracker (`warped`) and where their material points truly are then.
     pub fn tracking_errors(
@@ -192,11 +210,7 @@ impl DeformingScene {
         warped: &[Vector3<f64>],
         frame: usize,
     ) -> Vec<f64> {
-        canonical
-            .iter()
-            .zip(warped)
-            .map(|(p, w)| (self.follow(&Point3::from(*p), frame as f64).coords - w).norm())
-            .collect()
+        distances(&self.follow_all(canonical, frame), warped)
     }
 
     /// Which of the world points `points` (where material points truly are at `frame`) a camera
