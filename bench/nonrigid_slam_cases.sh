@@ -19,8 +19,10 @@ for flags in "$@"; do
     # shellcheck disable=SC2086
     r=$("$BIN" --surface "$surface" --field "$field" --seed "$seed" --sensor "${SENSOR:-kinect}" \
         --max-frames "${FRAMES:-100}" --quiet $flags \
-      | grep -o '"error_mean": [0-9.]*, "error_max_frame": [0-9.]*, "error_seen_mean": [0-9.]*, "error_seen_max_frame": [0-9.]*, "error_seen_max_fused": [0-9.]*' \
-      | awk '{printf "%.1f/%.1f(seen %.1f/%.1f,fused %.1f)", $2 * 1000, $4 * 1000, $6 * 1000, $8 * 1000, $10 * 1000}')
+      | grep -o '"error_mean": [0-9.nul]*, "error_max_frame": [0-9.nul]*, "error_seen_mean": [0-9.nul]*, "error_seen_max_frame": [0-9.nul]*, "error_seen_max_fused": [0-9.nul]*' \
+      | tr -d ',' \
+      | awk 'function mm(x) { return x == "null" ? "null" : sprintf("%.1f", x * 1000) }
+             {printf "%s/%s(seen %s/%s,fused %s)", mm($2), mm($4), mm($6), mm($8), mm($10)}')
     line="$line $surface-$field-$seed=${r:-failed}"
   done
   echo "$line"

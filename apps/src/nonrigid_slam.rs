@@ -588,22 +588,28 @@ fn write_preview(
 /// The JSON line's error fields: over every sample (`error_mean`, `error_max_frame`: the mean of
 /// the frames' means and the worst frame's), over the samples seen (`error_seen_mean`,
 /// `error_seen_max_frame`), and the worst seen error of a frame reported tracked
-/// (`error_seen_max_fused`: one over a centimetre is a wrong frame reported as right).
+/// (`error_seen_max_fused`: one over a centimetre is a wrong frame reported as right); null where
+/// no frame counts (no sample seen, no frame fused).
 fn error_fields(errors: &[FrameError]) -> String {
+    // a statistic over no frame is null, not a zero that would read as no error
     let stats = |f: &dyn Fn(&FrameError) -> Option<f64>| {
         let v: Vec<f64> = errors
             .iter()
             .filter_map(f)
             .filter(|e| e.is_finite())
             .collect();
-        Stats::of(&v)
+        let s = Stats::of(&v);
+        let json = |x: f64| format!("{x:.6}");
+        match v.is_empty() {
+            true => ["null".to_string(), "null".to_string()],
+            false => [json(s.mean), json(s.max)],
+        }
     };
-    let all = stats(&|e| Some(e.all));
-    let seen = stats(&|e| Some(e.seen));
-    let fused = stats(&|e| e.fused.then_some(e.seen));
+    let [mean, max] = stats(&|e| Some(e.all));
+    let [seen_mean, seen_max] = stats(&|e| Some(e.seen));
+    let [_, fused_max] = stats(&|e| e.fused.then_some(e.seen));
     format!(
-        ", \"error_mean\": {:.6}, \"error_max_frame\": {:.6}, \"error_seen_mean\": {:.6}, \"error_seen_max_frame\": {:.6}, \"error_seen_max_fused\": {:.6}",
-        all.mean, all.max, seen.mean, seen.max, fused.max
+        ", \"error_mean\": {mean}, \"error_max_frame\": {max}, \"error_seen_mean\": {seen_mean}, \"error_seen_max_frame\": {seen_max}, \"error_seen_max_fused\": {fused_max}"
     )
 }
 
@@ -638,4 +644,41 @@ fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> 
         per_frame(totals.surface),
         error.unwrap_or_default()
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Frames the camera saw nothing of, or none fused: those statistics are null, never a zero
+    /// that would read as no error; the others are over the frames that count.
+    #[test]
+    fn error_fields_are_null_where_no_frame_counts() {
+        let frame = |frame, all, seen, fused| FrameError {
+            frame,
+            all,
+            seen,
+            fused,
+        };
+        let unseen = [
+            frame(0, 0.002, f64::NAN, false),
+            frame(1, 0.004, f64::NAN, false),
+        ];
+        let line = format!("{{\"x\": 0{}}}", error_fields(&unseen));
+        let v: serde_json::Value = serde_json::from_str(&line).expect(&line);
+        assert_eq!(v["error_mean"].as_f64(), Some(0.003), "{line}");
+        assert_eq!(v["error_max_frame"].as_f64(), Some(0.004), "{line}");
+        for key in [
+            "error_seen_mean",
+            "error_seen_max_frame",
+            "error_seen_max_fused",
+        ] {
+            assert!(v[key].is_null(), "{key}: {line}");
+        }
+        let seen = [frame(0, 0.002, 0.001, true), frame(1, 0.03, 0.02, false)];
+        let v: serde_json::Value =
+            serde_json::from_str(&format!("{{\"x\": 0{}}}", error_fields(&seen))).unwrap();
+        assert_eq!(v["error_seen_max_frame"].as_f64(), Some(0.02));
+        assert_eq!(v["error_seen_max_fused"].as_f64(), Some(0.001));
+    }
 }
