@@ -58,9 +58,12 @@ pub struct FusionParams {
     /// The deformation graph (default spacing 5 cm).
     pub graph: GraphParams,
     /// The per-frame optimisation (default: a 3-iteration rigid start, then λ = 30 for one round
-    /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 2 cm, point weight
+    /// of two iterations from damping τ = 1e-6, 5 cm / 30° gates, Tukey c = 5 cm, point weight
     /// 0.1, stay weight 0.01, photometric weight 0.3 under Tukey c = 0.1, chromaticity weight
-    /// 0.3 under Tukey c = 0.1).
+    /// 0.3 under Tukey c = 0.1). Tukey's c is the distance gate: a kernel narrower than the gate
+    /// gives no weight to matches the gate admits, so a part that falls behind by more than c in
+    /// one frame (a plate's corners as it twists) is left to the regulariser and never catches
+    /// up (NOTES 133).
     pub register: RegisterParams,
     /// The pyramid level whose depth the data term associates with (default 1: 320 × 240 from
     /// 640 × 480).
@@ -90,6 +93,8 @@ pub struct FusionParams {
 
 impl Default for FusionParams {
     fn default() -> Self {
+        // How far a match may lie from its warped point, metres; Tukey's c is the same distance.
+        let gate = 0.05;
         Self {
             preprocess: PreprocessParams {
                 levels: 2,
@@ -109,9 +114,9 @@ impl Default for FusionParams {
                 schedule: vec![30.0],
                 rounds: 1,
                 iterations: 2,
-                max_distance: 0.05,
+                max_distance: gate,
                 max_normal_angle_deg: 30.0,
-                tukey: 0.02,
+                tukey: gate,
                 point_weight: 0.1,
                 stay_weight: 0.01,
                 damping: 1e-6,
