@@ -538,7 +538,7 @@ fn process_frame(
     }));
     let s = report.summary.as_ref();
     tracing::debug!(
-        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, chromaticity residual {:.4} of {:.4}, error {:.2} mm ({:.2} mm seen), optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
+        "frame {i}: nodes {} (+{}), matched {}, data cost per match {:.3e}, iterations {}, photometric residual {:.4} of texture {:.4}, chromaticity residual {:.4} of {:.4} (step {:.4}), error {:.2} mm ({:.2} mm seen), optimise {:.1} ms, fuse {:.1} ms, surface {:.1} ms",
         report.nodes,
         report.added_nodes,
         s.map_or(0, |s| s.matched),
@@ -548,6 +548,7 @@ fn process_frame(
         s.and_then(|s| s.photometric).map_or(f64::NAN, |p| p.texture),
         s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.residual),
         s.and_then(|s| s.chroma).map_or(f64::NAN, |p| p.texture),
+        slam.colour_step(),
         error.map_or(f64::NAN, |e| e.0) * 1e3,
         error.map_or(f64::NAN, |e| e.1) * 1e3,
         report.times.optimise * 1e3,

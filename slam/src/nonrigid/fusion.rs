@@ -300,6 +300,12 @@ impl NonRigidFusion {
         self.graph.as_ref()
     }
 
+    /// One 8-bit level of the chromaticity at the last frame's brightness, the least floor of the
+    /// colour verdict ([`ChromaImage::step`]; 0 before a frame with colour).
+    pub fn colour_step(&self) -> f64 {
+        self.chroma.step
+    }
+
     /// The canonical surface samples the data term uses.
     pub fn data_points(&self) -> &[Vector3<f64>] {
         &self.points
