@@ -21,6 +21,8 @@ import statistics
 import subprocess
 import sys
 
+from drift_verdict import BAD_MM, GOOD_MM, case_args
+
 LINE = re.compile(r"frame (\d+): .*chromaticity residual ([0-9.NaN]+) of [0-9.NaN]+ "
                   r"\(step ([0-9.NaN]+)\), error [0-9.NaN]+ mm \(([0-9.NaN]+) mm seen\)")
 
@@ -36,16 +38,11 @@ FLOORS = [
 
 def collect(path, cases, flags):
     out = json.load(open(path)) if os.path.exists(path) else {}
-    binary = os.environ.get("BIN", "target/release/examples/nonrigid_slam")
     for case in cases.split():
         key = " ".join([case, *flags])
         if key in out:
             continue
-        parts = case.split(":")
-        sensor = parts[3] if len(parts) > 3 else "kinect"
-        args = [binary, "--surface", parts[0], "--field", parts[1], "--seed", parts[2],
-                "--sensor", sensor, "--max-frames", os.environ.get("FRAMES", "100"), "-v",
-                "--colour-drift-ratio", "0", *flags]
+        args = case_args(case, ["--colour-drift-ratio", "0", *flags])
         run = subprocess.run(args, capture_output=True, text=True)
         if run.returncode != 0:
             sys.exit(f"{case}: exit {run.returncode}\n{run.stderr[-2000:]}")
@@ -69,10 +66,10 @@ def judge(path):
                 good = bad = good_refused = bad_fused = 0
                 for i, (_, residual, step, seen) in enumerate(rows):
                     refused = i >= need and residual > ratio * max(floor, step)
-                    good += seen < 5
-                    good_refused += seen < 5 and refused
-                    bad += seen > 10
-                    bad_fused += seen > 10 and not refused
+                    good += seen < GOOD_MM
+                    good_refused += seen < GOOD_MM and refused
+                    bad += seen > BAD_MM
+                    bad_fused += seen > BAD_MM and not refused
                 per_case.append(f"{good_refused}/{good},{bad_fused}/{bad}")
                 for j, v in enumerate((good_refused, good, bad_fused, bad)):
                     totals[j] += v

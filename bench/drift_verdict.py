@@ -18,15 +18,24 @@ FRAME = re.compile(r"frame (\d+): .*error ([0-9.]+) mm \(([0-9.NaN]+) mm seen\)"
 REFUSED = re.compile(r"WARN frame (\d+): not fused")
 
 
-def run(case, flags):
+# a frame whose seen samples are within GOOD_MM of the truth is right, beyond BAD_MM wrong
+GOOD_MM, BAD_MM = 5, 10
+
+
+def case_args(case, flags):
+    """`nonrigid_slam`'s command line for a case surface:field:seed[:sensor] with `-v`, BIN and
+    FRAMES from the environment."""
     parts = case.split(":")
     surface, field, seed = parts[:3]
     sensor = parts[3] if len(parts) > 3 else "kinect"
     binary = os.environ.get("BIN", "target/release/examples/nonrigid_slam")
     frames = os.environ.get("FRAMES", "100")
-    args = [binary, "--surface", surface, "--field", field, "--seed", seed, "--sensor", sensor,
+    return [binary, "--surface", surface, "--field", field, "--seed", seed, "--sensor", sensor,
             "--max-frames", frames, "-v", *flags]
-    out = subprocess.run(args, capture_output=True, text=True)
+
+
+def run(case, flags):
+    out = subprocess.run(case_args(case, flags), capture_output=True, text=True)
     log = out.stdout + out.stderr
     if out.returncode != 0:
         sys.exit(f"{case}: exit {out.returncode}\n{log[-2000:]}")
@@ -41,8 +50,8 @@ def main():
     totals = [0, 0, 0, 0]
     for case in sys.argv[1].split():
         refused, rows = run(case, sys.argv[2:])
-        good = [k for k, e in rows if e < 5]
-        bad = [k for k, e in rows if e > 10]
+        good = [k for k, e in rows if e < GOOD_MM]
+        bad = [k for k, e in rows if e > BAD_MM]
         good_refused = sum(k in refused for k in good)
         bad_fused = sum(k not in refused for k in bad)
         worst = max([e for k, e in rows if k not in refused] or [0.0])
