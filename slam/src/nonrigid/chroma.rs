@@ -332,7 +332,11 @@ mod tests {
         let mut book = ChromaReferences::default();
         let (mut points, mut kept_normals) = (Vec::new(), Vec::new());
         // without a reference, each cube keeps its first point
-        book.thin((&[a, b, next], &normals[..3]), cell, (&mut points, &mut kept_normals));
+        book.thin(
+            (&[a, b, next], &normals[..3]),
+            cell,
+            (&mut points, &mut kept_normals),
+        );
         assert_eq!(points, [a, next]);
         // with one seen at b, the cube keeps b (or, without b, the point nearest it) wherever
         // it comes in the surface
@@ -347,9 +351,16 @@ mod tests {
             (vec![a, c, next], c),
             (vec![c, a, next], c),
         ] {
-            book.thin((&surface, &normals[..3]), cell, (&mut points, &mut kept_normals));
+            book.thin(
+                (&surface, &normals[..3]),
+                cell,
+                (&mut points, &mut kept_normals),
+            );
             assert_eq!(points.len(), 2);
-            assert!(points.contains(&kept) && points.contains(&next), "{points:?}");
+            assert!(
+                points.contains(&kept) && points.contains(&next),
+                "{points:?}"
+            );
             assert_eq!(kept_normals.len(), 2);
         }
         let mut references = Vec::new();

@@ -85,7 +85,7 @@ pub struct FusionParams {
     pub photometric_keyframe_every: usize,
     /// A tracked frame whose median chromaticity residual exceeds this many times its floor
     /// (that of the first tracked frames, or one 8-bit level of the chromaticity where that is
-    /// larger) has slid and is not fused (default 1.15, NOTES 132, 135; 0: never; module
+    /// larger) has slid and is not fused (default 1.2, NOTES 132, 135; 0: never; module
     /// `colour_drift`).
     pub colour_drift_ratio: f64,
 }
@@ -132,7 +132,7 @@ impl Default for FusionParams {
             min_matched_fraction: 0.2,
             photometric_window: 4,
             photometric_keyframe_every: 5,
-            colour_drift_ratio: 1.15,
+            colour_drift_ratio: 1.2,
         }
     }
 }
