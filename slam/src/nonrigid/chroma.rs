@@ -37,6 +37,7 @@ use crate::image::{downsample_gray, gradients, ColorImage, GrayImage};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
+use std::collections::hash_map::Entry;
 
 /// Channel sums (of 765) below which a colour is too dark for its chromaticity to mean anything:
 /// the same floor as the ratio's [`super::photometric::DARK`], on the sum of the channels.
@@ -112,10 +113,23 @@ pub fn cell_key(p: &Vector3<f64>, cell: f64) -> (i64, i64, i64) {
     (k.x, k.y, k.z)
 }
 
-/// The chromaticity each canonical cube was first seen with.
+/// The chromaticity each canonical cube was first seen with, and the canonical point it was seen
+/// at.
+///
+/// The data points are re-thinned from the canonical surface as fusion refines it
+/// ([`Self::thin`]); the point a cube keeps must be the one its reference was taken at, or the
+/// comparison `c(π(W(v))) − c_first` reads the texture up to a cube's diagonal away from where
+/// `c_first` was seen: a slide that the references themselves put in (NOTES 135).
 #[derive(Clone, Debug, Default)]
 pub struct ChromaReferences {
-    by_cell: FxHashMap<(i64, i64, i64), f32>,
+    by_cell: FxHashMap<(i64, i64, i64), Reference>,
+}
+
+/// A cube's reference: the chromaticity and where, in the canonical frame, it was seen.
+#[derive(Clone, Copy, Debug)]
+struct Reference {
+    chromaticity: f32,
+    at: Vector3<f64>,
 }
 
 impl ChromaReferences {
@@ -130,9 +144,42 @@ impl ChromaReferences {
         out.extend(points.iter().map(|p| {
             self.by_cell
                 .get(&cell_key(p, cell))
-                .copied()
-                .unwrap_or(f32::NAN)
+                .map_or(f32::NAN, |r| r.chromaticity)
         }));
+    }
+
+    /// Thins `surface` (canonical points and normals) to one point per cube of edge `cell`, into
+    /// `points` and `normals`: in a cube with a reference, the point nearest where the
+    /// reference was seen; elsewhere the first.
+    pub fn thin(
+        &self,
+        (surface, surface_normals): (&[Vector3<f64>], &[Vector3<f64>]),
+        cell: f64,
+        (points, normals): (&mut Vec<Vector3<f64>>, &mut Vec<Vector3<f64>>),
+    ) {
+        let mut kept: FxHashMap<(i64, i64, i64), usize> = FxHashMap::default();
+        points.clear();
+        normals.clear();
+        for (p, n) in surface.iter().zip(surface_normals) {
+            let key = cell_key(p, cell);
+            match kept.entry(key) {
+                Entry::Vacant(e) => {
+                    e.insert(points.len());
+                    points.push(*p);
+                    normals.push(*n);
+                }
+                Entry::Occupied(e) => {
+                    let i = *e.get();
+                    let nearer = self.by_cell.get(&key).is_some_and(|r| {
+                        (p - r.at).norm_squared() < (points[i] - r.at).norm_squared()
+                    });
+                    if nearer {
+                        points[i] = *p;
+                        normals[i] = *n;
+                    }
+                }
+            }
+        }
     }
 
     /// Points without a reference that were `seen` (index and position in the live camera
@@ -151,7 +198,11 @@ impl ChromaReferences {
             }
             if let Some((c, _)) = live.sample(&p) {
                 references[i] = c as f32;
-                self.by_cell.insert(cell_key(&points[i], cell), c as f32);
+                let reference = Reference {
+                    chromaticity: c as f32,
+                    at: points[i],
+                };
+                self.by_cell.insert(cell_key(&points[i], cell), reference);
             }
         }
     }
@@ -268,5 +319,54 @@ mod tests {
         book.assign(&moved, cell, &mut refs);
         assert_eq!(refs[..2], [0.25, 0.5]);
         assert!(refs[2].is_nan(), "a cube never seen has no reference");
+    }
+
+    #[test]
+    fn thinning_keeps_the_point_where_a_cubes_reference_was_seen() {
+        let cell = 0.01;
+        let a = Vector3::new(0.001, 0.001, 0.0);
+        let b = Vector3::new(0.008, 0.007, 0.0);
+        let c = Vector3::new(0.005, 0.004, 0.0);
+        let next = Vector3::new(0.015, 0.001, 0.0);
+        let normals = [Vector3::z(); 4];
+        let mut book = ChromaReferences::default();
+        let (mut points, mut kept_normals) = (Vec::new(), Vec::new());
+        // without a reference, each cube keeps its first point
+        book.thin(
+            (&[a, b, next], &normals[..3]),
+            cell,
+            (&mut points, &mut kept_normals),
+        );
+        assert_eq!(points, [a, next]);
+        // with one seen at b, the cube keeps b (or, without b, the point nearest it) wherever
+        // it comes in the surface
+        let reference = Reference {
+            chromaticity: 0.2,
+            at: b,
+        };
+        book.by_cell.insert(cell_key(&b, cell), reference);
+        for (surface, kept) in [
+            (vec![a, b, next], b),
+            (vec![next, b, a], b),
+            (vec![a, c, next], c),
+            (vec![c, a, next], c),
+        ] {
+            book.thin(
+                (&surface, &normals[..3]),
+                cell,
+                (&mut points, &mut kept_normals),
+            );
+            assert_eq!(points.len(), 2);
+            assert!(
+                points.contains(&kept) && points.contains(&next),
+                "{points:?}"
+            );
+            assert_eq!(kept_normals.len(), 2);
+        }
+        let mut references = Vec::new();
+        book.assign(&points, cell, &mut references);
+        let at = |p: &Vector3<f64>| points.iter().position(|q| q == p).unwrap();
+        assert_eq!(references[at(&c)], 0.2);
+        assert!(references[at(&next)].is_nan());
     }
 }

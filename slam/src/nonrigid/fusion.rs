@@ -21,7 +21,7 @@
 
 use super::band::{carry_back, BandSampling};
 use super::cell_nearest::bind_in_cells;
-use super::chroma::{cell_key, ChromaImage, ChromaReferences};
+use super::chroma::{ChromaImage, ChromaReferences};
 use super::colour_drift::{ColourDrift, ColourDrifted};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::linear_steps::LinearSteps;
@@ -41,7 +41,6 @@ use crate::tsdf::{TsdfError, TsdfParams, TsdfVolume, BLOCK};
 use dynamap_residuals::deform::transform_point;
 use nalgebra::{DualQuaternion, Isometry3, Vector3};
 use rayon::prelude::*;
-use rustc_hash::FxHashSet;
 use std::time::Instant;
 
 /// The edge of the cubes the data points are bound in, in node spacings: a cube's points share
@@ -86,7 +85,7 @@ pub struct FusionParams {
     pub photometric_keyframe_every: usize,
     /// A tracked frame whose median chromaticity residual exceeds this many times its floor
     /// (that of the first tracked frames, or one 8-bit level of the chromaticity where that is
-    /// larger) has slid and is not fused (default 1.3, NOTES 132; 0: never; module
+    /// larger) has slid and is not fused (default 1.2, NOTES 132, 135; 0: never; module
     /// `colour_drift`).
     pub colour_drift_ratio: f64,
 }
@@ -133,7 +132,7 @@ impl Default for FusionParams {
             min_matched_fraction: 0.2,
             photometric_window: 4,
             photometric_keyframe_every: 5,
-            colour_drift_ratio: 1.3,
+            colour_drift_ratio: 1.2,
         }
     }
 }
@@ -639,19 +638,16 @@ impl NonRigidFusion {
         self.params.data_level.min(self.pre.levels.len() - 1)
     }
 
-    /// Thins the canonical surface to the data points (one per `data_spacing` cube), binds them,
-    /// and gives them their cubes' chromaticities.
+    /// Thins the canonical surface to the data points (one per `data_spacing` cube, the one
+    /// nearest where the cube's chromaticity was seen), binds them, and gives them their cubes'
+    /// chromaticities.
     fn resample(&mut self, (points, normals): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)) {
         let cell = self.params.data_spacing.max(1e-6);
-        let mut seen = FxHashSet::default();
-        self.points.clear();
-        self.normals.clear();
-        for (p, n) in points.iter().zip(normals) {
-            if seen.insert(cell_key(p, cell)) {
-                self.points.push(*p);
-                self.normals.push(*n);
-            }
-        }
+        self.chroma_book.thin(
+            (points, normals),
+            cell,
+            (&mut self.points, &mut self.normals),
+        );
         self.chroma_book
             .assign(&self.points, cell, &mut self.chroma_reference);
         let graph = self.graph.as_ref().expect("started");
