@@ -85,7 +85,7 @@ pub struct FusionParams {
     pub photometric_keyframe_every: usize,
     /// A tracked frame whose median chromaticity residual exceeds this many times its floor
     /// (that of the first tracked frames, or one 8-bit level of the chromaticity where that is
-    /// larger) has slid and is not fused (default 1.2, NOTES 132, 135; 0: never; module
+    /// larger) has slid and is not fused (default 1.2, NOTES 132, 135, 136; 0: never; module
     /// `colour_drift`).
     pub colour_drift_ratio: f64,
 }
