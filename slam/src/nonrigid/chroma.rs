@@ -157,23 +157,23 @@ impl ChromaReferences {
         cell: f64,
         (points, normals): (&mut Vec<Vector3<f64>>, &mut Vec<Vector3<f64>>),
     ) {
-        let mut kept: FxHashMap<(i64, i64, i64), usize> = FxHashMap::default();
+        // per cube: the kept point's index, and where its reference was seen (looked up once)
+        let mut kept = FxHashMap::default();
         points.clear();
         normals.clear();
         for (p, n) in surface.iter().zip(surface_normals) {
             let key = cell_key(p, cell);
             match kept.entry(key) {
                 Entry::Vacant(e) => {
-                    e.insert(points.len());
+                    e.insert((points.len(), self.by_cell.get(&key).map(|r| r.at)));
                     points.push(*p);
                     normals.push(*n);
                 }
                 Entry::Occupied(e) => {
-                    let i = *e.get();
-                    let nearer = self.by_cell.get(&key).is_some_and(|r| {
-                        (p - r.at).norm_squared() < (points[i] - r.at).norm_squared()
-                    });
-                    if nearer {
+                    let (i, at) = *e.get();
+                    if at
+                        .is_some_and(|at| (p - at).norm_squared() < (points[i] - at).norm_squared())
+                    {
                         points[i] = *p;
                         normals[i] = *n;
                     }
