@@ -16,6 +16,7 @@
 //! - [`sheet`]: plain sheets bent, rolled, folded, twisted and saddled (issue 26), at any size;
 //! - [`sequence`]: writing everything in the TUM layout;
 //! - [`surface_error`]: how far a reconstructed mesh lies from the scene (a wall fused twice);
+//! - [`view_cone`]: the objects a camera's rays may meet, so that the others are not tested;
 //! - [`faults`]: a sequence with dropped, corrupt and blank frames, a jump and a textureless
 //!   stretch, for reliability tests.
 //!
@@ -37,3 +38,4 @@ pub mod sequence;
 pub mod sheet;
 pub mod surface_error;
 pub mod texture;
+pub mod view_cone;

@@ -2,6 +2,7 @@
 
 use super::bvh::Bvh;
 use super::texture::Texture;
+use super::view_cone::ViewCone;
 use crate::mesh::Mesh;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 use std::sync::Arc;
@@ -129,9 +130,41 @@ fn to_local(
 pub struct PreparedScene<'a> {
     scene: &'a Scene,
     to_object: Vec<(Matrix3<f64>, Vector3<f64>)>,
+    /// The objects rays are tested against, in the scene's order (all, or those a
+    /// [`ViewCone`] may meet).
+    order: Vec<usize>,
 }
 
 impl PreparedScene<'_> {
+    /// The same scene for the rays of `cone` only: the objects none of them can meet are left
+    /// out, the others tested in the same order, so every answer for such a ray is the same.
+    pub fn within(&self, cone: &ViewCone) -> Self {
+        let objects = &self.scene.objects;
+        Self {
+            scene: self.scene,
+            to_object: self.to_object.clone(),
+            order: (self.order.iter().copied())
+                .filter(|&k| {
+                    let o = &objects[k];
+                    cone.may_meet(
+                        &Point3::from(o.pose.translation.vector),
+                        o.shape.bounding_radius_squared(),
+                    )
+                })
+                .collect(),
+        }
+    }
+
+    /// How many objects rays are tested against.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Whether rays meet nothing.
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
     #[inline]
     fn local(
         &self,
@@ -151,7 +184,9 @@ impl PreparedScene<'_> {
     ) -> Option<(f64, Point3<f64>, Vector3<f64>)> {
         let n = self
             .scene
-            .nearest_with(origin, dir, |k, _| self.local(k, origin, dir))?;
+            .nearest_with(self.order.iter().copied(), origin, dir, |k, _| {
+                self.local(k, origin, dir)
+            })?;
         Some((n.t, self.scene.objects[n.object].pose * n.local, n.normal))
     }
 
@@ -159,13 +194,16 @@ impl PreparedScene<'_> {
     pub(crate) fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
         let n = self
             .scene
-            .nearest_with(origin, dir, |k, _| self.local(k, origin, dir))?;
+            .nearest_with(self.order.iter().copied(), origin, dir, |k, _| {
+                self.local(k, origin, dir)
+            })?;
         Some(self.scene.textured(n))
     }
 
     /// As [`Scene::blocked`].
     pub fn blocked(&self, origin: &Point3<f64>, dir: &Vector3<f64>, t_max: f64) -> bool {
-        self.scene.objects.iter().enumerate().any(|(k, obj)| {
+        self.order.iter().any(|&k| {
+            let obj = &self.scene.objects[k];
             may_hit(obj, origin, dir, t_max) && {
                 let (o, d) = self.local(k, origin, dir);
                 intersect_local(&obj.shape, &o, &d, t_max).is_some()
@@ -393,18 +431,22 @@ impl Scene {
     }
 
     fn nearest(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Nearest> {
-        self.nearest_with(origin, dir, |_, obj| to_local(&obj.pose, origin, dir))
+        let all = 0..self.objects.len();
+        self.nearest_with(all, origin, dir, |_, obj| to_local(&obj.pose, origin, dir))
     }
 
-    /// [`Self::nearest`] with the ray moved into object k's frame by `local(k, object)`.
+    /// [`Self::nearest`] among the objects `order` (in that order), with the ray moved into
+    /// object k's frame by `local(k, object)`.
     fn nearest_with(
         &self,
+        order: impl Iterator<Item = usize>,
         origin: &Point3<f64>,
         dir: &Vector3<f64>,
         local: impl Fn(usize, &Object) -> (Vector3<f64>, Vector3<f64>),
     ) -> Option<Nearest> {
         let mut best: Option<Nearest> = None;
-        for (k, obj) in self.objects.iter().enumerate() {
+        for k in order {
+            let obj = &self.objects[k];
             let t_max = best.as_ref().map_or(f64::INFINITY, |b| b.t);
             if !may_hit(obj, origin, dir, t_max) {
                 continue;
@@ -455,6 +497,7 @@ impl Scene {
                     )
                 })
                 .collect(),
+            order: (0..self.objects.len()).collect(),
         }
     }
 

@@ -64,6 +64,7 @@ pub fn capture(
 fn render_sharp(rec: &Recorder, scene: &PreparedScene, pose: &Isometry3<f64>) -> Sharp {
     let (w, h) = (rec.camera.width, rec.camera.height);
     let origin = Point3::from(pose.translation.vector);
+    let scene = &scene.within(&rec.rays.cone(pose, 0.0));
     let px: Vec<([f32; 3], Option<Vector3<f64>>)> = (0..w * h)
         .into_par_iter()
         .with_min_len(256)

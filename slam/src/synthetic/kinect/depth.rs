@@ -78,6 +78,12 @@ pub fn capture(
     let (w, h) = (camera.width, camera.height);
     let seed = mix(model.seed ^ mix(frame as u64 ^ 0xD0));
     let noise = Noise::new(model, w, h, seed);
+    // the shadow rays run to the projector and the infrared camera
+    let eyes = model
+        .ir_offset
+        .abs()
+        .max((model.ir_offset + model.baseline).abs());
+    let scene = &scene.within(&rec.rays.cone(pose, eyes));
     let mut z = vec![0f32; w * h];
     z.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
         let mut rng = row_rng(seed, PIXEL, v);

@@ -25,6 +25,7 @@ pub mod depth;
 pub(crate) mod fields;
 
 use super::scene::Scene;
+use super::view_cone::ViewCone;
 use crate::camera::Camera;
 use crate::distortion::{Distortion, TumSensor};
 use crate::image::{ColorImage, Image};
@@ -229,12 +230,14 @@ pub(crate) struct Rays {
     width: usize,
     height: usize,
     xy: Vec<[f64; 2]>,
+    /// The largest |(x, y)| of a ray: every ray, interpolated or not, lies within it.
+    widest: f64,
 }
 
 impl Rays {
     fn new(camera: &Camera, distortion: &Distortion) -> Self {
         let (w, h) = (camera.width, camera.height);
-        let xy = (0..w * h)
+        let xy: Vec<[f64; 2]> = (0..w * h)
             .into_par_iter()
             .map(|i| {
                 let (xd, yd) = (
@@ -249,11 +252,22 @@ impl Rays {
                     .map_or([f64::NAN; 2], |(x, y)| [x, y])
             })
             .collect();
+        let widest = (xy.iter())
+            .map(|[x, y]: &[f64; 2]| x.hypot(*y))
+            .filter(|r| r.is_finite())
+            .fold(0.0, f64::max);
         Self {
             width: w,
             height: h,
             xy,
+            widest,
         }
+    }
+
+    /// The cone of every ray from a camera at `pose` (camera-to-world), with shadow rays to eyes
+    /// within `reach` of its centre.
+    pub(crate) fn cone(&self, pose: &Isometry3<f64>, reach: f64) -> ViewCone {
+        ViewCone::new(pose, self.widest, reach)
     }
 
     /// The ray through pixel centre `i`.
