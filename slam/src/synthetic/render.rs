@@ -33,25 +33,12 @@ pub struct Rendering {
     pub hits: Vec<Option<Hit>>,
 }
 
-/// The largest tan of the angle between `camera`'s axis and a ray through a pixel centre (a
-/// corner's).
-fn widest_tan(camera: &Camera) -> f64 {
-    let (u, v) = ((camera.width - 1) as f64, (camera.height - 1) as f64);
-    [(0.0, 0.0), (u, 0.0), (0.0, v), (u, v)]
-        .iter()
-        .map(|&(u, v)| {
-            let r = camera.ray(u, v);
-            r.x.hypot(r.y) / r.z
-        })
-        .fold(0.0, f64::max)
-}
-
 /// Renders `scene` seen by `camera` at `pose` (camera-to-world), one ray through each pixel centre.
 pub fn render(scene: &Scene, camera: &Camera, pose: &Isometry3<f64>) -> Rendering {
     let (w, h) = (camera.width, camera.height);
     let origin = Point3::from(pose.translation.vector);
     let prepared = scene.prepare();
-    let scene = prepared.within(&ViewCone::new(pose, widest_tan(camera), 0.0));
+    let scene = prepared.within(&ViewCone::of_camera(camera, pose, 0.0));
     let hits: Vec<Option<Hit>> = (0..w * h)
         .into_par_iter()
         .with_min_len(256)

@@ -16,6 +16,7 @@
 //! (1 − s) P + s C; so a ball that stays farther than `reach` from the cone meets no shadow ray
 //! either.
 
+use crate::camera::Camera;
 use nalgebra::{Isometry3, Point3, Vector3};
 
 /// Relative slack on a ball's radius, above the ray–sphere test's own (1e-9 on r²).
@@ -46,6 +47,20 @@ impl ViewCone {
             sin: angle.sin(),
             reach: reach.max(0.0),
         }
+    }
+
+    /// The cone of an undistorted `camera` at `pose`: its widest ray passes through a corner
+    /// pixel's centre.
+    pub fn of_camera(camera: &Camera, pose: &Isometry3<f64>, reach: f64) -> Self {
+        let (u, v) = ((camera.width - 1) as f64, (camera.height - 1) as f64);
+        let widest = [(0.0, 0.0), (u, 0.0), (0.0, v), (u, v)]
+            .iter()
+            .map(|&(u, v)| {
+                let r = camera.ray(u, v);
+                r.x.hypot(r.y) / r.z
+            })
+            .fold(0.0, f64::max);
+        Self::new(pose, widest, reach)
     }
 
     /// Whether a ball at `centre` of squared radius `radius2` may meet one of the rays or
@@ -116,6 +131,42 @@ mod tests {
         assert!(
             met > 100 && left_out > 1000,
             "{met} met, {left_out} left out"
+        );
+    }
+
+    #[test]
+    fn a_corridor_frame_meets_the_same_surfaces_against_fewer_objects() {
+        use crate::synthetic::layouts::{build, Layout};
+        use crate::synthetic::motion::{procedural, Motion};
+        let scene = build(Layout::Corridor, 71);
+        let camera = Camera::scaled_default(64, 48);
+        let every = scene.prepare();
+        let (eye, mut left_out, mut shadowed) = (Point3::new(0.05, 0.0, 0.0), 0, 0);
+        for pose in procedural(Motion::Corridor, 400, 15.0)
+            .poses
+            .iter()
+            .step_by(40)
+        {
+            let near = every.within(&ViewCone::of_camera(&camera, pose, 0.05));
+            left_out += every.len() - near.len();
+            let origin = Point3::from(pose.translation.vector);
+            for i in 0..camera.width * camera.height {
+                let ray = camera.ray((i % camera.width) as f64, (i / camera.width) as f64);
+                let dir = pose.rotation * ray;
+                let hit = every.intersect(&origin, &dir);
+                assert_eq!(hit, near.intersect(&origin, &dir));
+                let Some(hit) = hit else { continue };
+                // a shadow ray from the hit to an eye 5 cm beside the camera
+                let to = pose * eye - hit.point;
+                let (from, d) = (hit.point + hit.normal * 1e-6, to.normalize());
+                let blocked = every.blocked(&from, &d, to.norm() - 1e-6);
+                assert_eq!(blocked, near.blocked(&from, &d, to.norm() - 1e-6));
+                shadowed += usize::from(blocked);
+            }
+        }
+        assert!(
+            left_out > 0 && shadowed > 0,
+            "{left_out} left out, {shadowed} shadowed"
         );
     }
 
