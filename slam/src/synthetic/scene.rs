@@ -129,7 +129,8 @@ fn to_local(
 #[derive(Clone, Debug)]
 pub struct PreparedScene<'a> {
     scene: &'a Scene,
-    to_object: Vec<(Matrix3<f64>, Vector3<f64>)>,
+    /// Every object's world-to-object transform, shared by the views [`Self::within`] makes.
+    to_object: Arc<[(Matrix3<f64>, Vector3<f64>)]>,
     /// The objects rays are tested against, in the scene's order (all, or those a
     /// [`ViewCone`] may meet).
     order: Vec<usize>,
@@ -142,7 +143,7 @@ impl PreparedScene<'_> {
         let objects = &self.scene.objects;
         Self {
             scene: self.scene,
-            to_object: self.to_object.clone(),
+            to_object: Arc::clone(&self.to_object),
             order: (self.order.iter().copied())
                 .filter(|&k| {
                     let o = &objects[k];
