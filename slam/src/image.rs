@@ -370,8 +370,11 @@ pub fn downsample_depth(input: &DepthImage, sigma_range: f32, out: &mut DepthIma
         }
         sum / wsum
     };
-    // Interior outputs ox in [1, n], whose windows span input columns 2·ox − 2 .. 2·ox + 2.
-    let n = if w >= 5 { (w - 3) / 2 } else { 0 };
+    // Interior outputs ox in [1, n], whose windows span input columns 2·ox − 2 .. 2·ox + 2 and
+    // whose five taps each read 2n columns from their own offset (at most 4 + 2n ≤ w): on an odd
+    // width the last output whose window fits takes the checked path, which sums the same taps
+    // in the same order.
+    let n = w.saturating_sub(4) / 2;
     par_rows(&mut out.data, ow, |oy, row| {
         let cy = 2 * oy;
         if cy < 2 || cy + 2 >= h || n == 0 {
@@ -698,6 +701,69 @@ mod tests {
         downsample_gray(&g, &mut go);
         assert_eq!((go.width, go.height), (4, 3));
         assert!(go.data.iter().all(|v| (v - 0.25).abs() < 1e-6));
+    }
+
+    /// Eq. 2.10 for one output, pixel by pixel: the 5×5 binomial taps in row-major order over
+    /// the valid inputs within `cutoff` of the centre.
+    fn halved_at(input: &DepthImage, cutoff: f32, ox: usize, oy: usize) -> f32 {
+        const K: [f32; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
+        let (w, h) = (input.width as isize, input.height as isize);
+        let (cx, cy) = (2 * ox as isize, 2 * oy as isize);
+        let c = input.at(cx as usize, cy as usize);
+        if c <= 0.0 {
+            return 0.0;
+        }
+        let (mut sum, mut wsum) = (0.0f32, 0.0f32);
+        for (j, ky) in K.iter().enumerate() {
+            for (i, kx) in K.iter().enumerate() {
+                let (x, y) = (cx + i as isize - 2, cy + j as isize - 2);
+                if x < 0 || y < 0 || x >= w || y >= h {
+                    continue;
+                }
+                let d = input.at(x as usize, y as usize);
+                let wt = if d > 0.0 && (d - c).abs() < cutoff {
+                    ky * kx
+                } else {
+                    0.0
+                };
+                sum += wt * d;
+                wsum += wt;
+            }
+        }
+        sum / wsum
+    }
+
+    #[test]
+    fn the_depth_pyramid_halves_every_size_as_eq_2_10_pixel_by_pixel() {
+        // odd and even widths and heights from 1 up, holes and steps deeper than the cutoff:
+        // every output has the bits of the pixel-by-pixel sum (the vectorised interior once read
+        // past the row on odd widths and panicked)
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for w in 1..=21 {
+            for h in 1..=9 {
+                let mut d = DepthImage::new(w, h);
+                for v in d.data.iter_mut() {
+                    *v = match rng.random_range(0..6) {
+                        0 => 0.0,
+                        1 => 2.0 + rng.random_range(0.0..0.01),
+                        _ => 1.0 + rng.random_range(0.0..0.05),
+                    };
+                }
+                let mut o = DepthImage::new(1, 1);
+                downsample_depth(&d, 0.03, &mut o);
+                assert_eq!((o.width, o.height), ((w / 2).max(1), (h / 2).max(1)));
+                for oy in 0..o.height {
+                    for ox in 0..o.width {
+                        let want = halved_at(&d, 3.0 * 0.03f32, ox, oy);
+                        assert_eq!(
+                            o.at(ox, oy).to_bits(),
+                            want.to_bits(),
+                            "{w}x{h} ({ox}, {oy})"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
