@@ -87,6 +87,29 @@ impl Distortion {
         ((fx - xd).abs() < 1e-9 && (fy - yd).abs() < 1e-9).then_some((x, y))
     }
 
+    /// The first pixel of `camera`'s image (row by row) where the model folds the image over, if
+    /// any: a pixel of the ideal image whose recorded point lies inside the recorded image although
+    /// the map is not one-to-one there. That is where ∂(x_d, y_d)/∂(x, y) has a determinant ≤ 0 (a
+    /// neighbourhood is mirrored or squashed) or the radial factor 1 + k1 r² + k2 r⁴ + k3 r⁶ is
+    /// ≤ 0 (the point is sent through the centre to the other side). Either way two points of the
+    /// scene would be recorded at one pixel, and the undistorted frame would hold copies of parts
+    /// of the recorded one. A model fitted to a real lens keeps both positive over its image; a
+    /// coefficient of the wrong sign, order or units does not.
+    pub fn fold_in(&self, camera: &Camera) -> Option<(usize, usize)> {
+        let (w, h) = (camera.width, camera.height);
+        (0..w * h).map(|i| (i % w, i / w)).find(|&(u, v)| {
+            let x = (u as f64 - camera.cx) / camera.fx;
+            let y = (v as f64 - camera.cy) / camera.fy;
+            let (xd, yd) = self.distort(x, y);
+            let (us, vs) = (camera.fx * xd + camera.cx, camera.fy * yd + camera.cy);
+            let inside = us > -0.5 && vs > -0.5 && us < w as f64 - 0.5 && vs < h as f64 - 0.5;
+            let r2 = x * x + y * y;
+            let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+            let [a, b, c, d] = self.jacobian(x, y);
+            inside && (radial <= 0.0 || a * d - b * c <= 0.0)
+        })
+    }
+
     /// ∂(x_d, y_d)/∂(x, y), row-major.
     fn jacobian(&self, x: f64, y: f64) -> [f64; 4] {
         let r2 = x * x + y * y;
@@ -351,6 +374,38 @@ mod tests {
 
     /// A distorted render of an image whose values are its own ideal coordinates, undistorted by
     /// the remap, gives back each pixel's coordinates to a fraction of a pixel.
+    #[test]
+    fn a_lens_model_that_folds_the_image_over_is_found() {
+        // TUM's three calibrations and the generator's at 320×240 keep the map one-to-one
+        for sensor in [
+            TumSensor::Freiburg1,
+            TumSensor::Freiburg2,
+            TumSensor::Freiburg3,
+        ] {
+            let (camera, d) = sensor.calibration();
+            assert_eq!(d.fold_in(&camera), None, "{sensor:?}");
+        }
+        let (fr1, d) = TumSensor::Freiburg1.calibration();
+        let half = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+        assert_eq!(d.fold_in(&half), None);
+        // strong but monotonic: most of the ideal image falls outside, nothing is folded
+        let steep = Distortion::from_array([100.0, 100.0, 0.0, 0.0, 100.0]);
+        assert_eq!(steep.fold_in(&fr1), None);
+        // r (1 − 5 r²) turns back at r = 0.26 (about 130 px from the centre at f = 517): a pixel
+        // past it whose recorded point is inside the image is found, and the map's determinant
+        // is negative there
+        let folded = Distortion::from_array([-5.0, 0.0, 0.0, 0.0, 0.0]);
+        let (u, v) = folded.fold_in(&fr1).expect("a fold");
+        let (x, y) = ((u as f64 - fr1.cx) / fr1.fx, (v as f64 - fr1.cy) / fr1.fy);
+        assert!(x.hypot(y) > 0.25, "({u}, {v})");
+        let [a, b, c, e] = folded.jacobian(x, y);
+        let radial = 1.0 - 5.0 * (x * x + y * y);
+        assert!(a * e - b * c <= 0.0 || radial <= 0.0);
+        // a tangential term far too large folds it too
+        let skewed = Distortion::from_array([0.0, 0.0, 3.0, 0.0, 0.0]);
+        assert!(skewed.fold_in(&fr1).is_some());
+    }
+
     #[test]
     fn undistorting_a_distorted_render_recovers_the_ideal_geometry() {
         let (camera, d) = TumSensor::Freiburg1.calibration();

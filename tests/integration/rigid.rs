@@ -93,8 +93,8 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
     assert!(a.stats.max < 0.01, "ATE {:?}", a.stats);
 }
 
-/// A sensor whose image has an odd width and height (cropped frames, ETH3D's 739 × 458) is
-/// tracked like any other: every pyramid level of odd size is filtered and halved. Before the
+/// A sensor whose image has an odd width and height (cropped or rectified frames) is tracked
+/// like any other: every pyramid level of odd size is filtered and halved. Before the
 /// depth pyramid's fix, halving an odd width read past the row and panicked.
 #[test]
 fn a_sensor_of_odd_width_and_height_is_tracked() {

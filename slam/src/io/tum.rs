@@ -342,6 +342,17 @@ pub(crate) fn parse_calibration(
         Some(k) => Distortion::from_array([k[0], k[1], k[2], k[3], k[4]]),
         None => Distortion::default(),
     };
+    if let Some((pu, pv)) = d.fold_in(&c) {
+        return Err(IoError::line(
+            path,
+            line,
+            format!(
+                "the lens distortion (k1 k2 p1 p2 k3) folds the {width}x{height} image over at \
+                 pixel ({pu}, {pv}): two points would be recorded at one pixel; check the \
+                 coefficients' signs, order (OpenCV's k1 k2 p1 p2 k3) and units"
+            ),
+        ));
+    }
     Ok((c, d))
 }
 
@@ -698,6 +709,15 @@ mod tests {
         );
         // the camera-only reader does not drop coefficients silently
         assert!(parse_intrinsics(fr1, p, 640, 480).is_err());
+        // k1 of the wrong sign and scale folds the image over: refused, naming a pixel
+        let folded = "517.3 516.5 318.6 255.3 5000 -5 0 0 0 0\n";
+        let e = parse_calibration(folded, p, 640, 480)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("intrinsics.txt:1") && e.contains("folds the 640x480 image over at pixel ("),
+            "{e}"
+        );
     }
 
     #[test]
