@@ -66,6 +66,13 @@ pub fn parse_open3d_camera(text: &str, path: &Path) -> Result<Camera, IoError> {
         })
         .collect::<Result<_, _>>()?;
     // column-major: [fx, 0, 0, 0, fy, 0, cx, cy, 1]
+    if m[0] == 0.0 || m[4] == 0.0 {
+        // a zero focal length puts every pixel on one ray: every frame would be lost
+        return Err(IoError::file(
+            path,
+            "field intrinsic_matrix: focal lengths (entries 0 and 4) must be non-zero",
+        ));
+    }
     let mut c = Camera::new(m[0], m[4], m[6], m[7], width, height);
     c.depth_scale = 1000.0;
     Ok(c)
@@ -162,5 +169,31 @@ impl FolderSequence {
             check_size(i, &self.camera, "colour", (color.width, color.height), c)?;
         }
         Ok(undistorted(frame, self.undistorter.as_ref()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_open3d_camera_is_read_column_major_and_a_zero_focal_length_is_refused() {
+        let p = Path::new("camera_intrinsic.json");
+        let json = |fx: f64| {
+            format!(
+                "{{\"width\": 640, \"height\": 480, \
+                 \"intrinsic_matrix\": [{fx}, 0, 0, 0, 520.5, 0, 319.5, 241.0, 1]}}"
+            )
+        };
+        let c = parse_open3d_camera(&json(525.0), p).unwrap();
+        assert_eq!((c.fx, c.fy, c.cx, c.cy), (525.0, 520.5, 319.5, 241.0));
+        assert_eq!((c.width, c.height, c.depth_scale), (640, 480, 1000.0));
+        let e = parse_open3d_camera(&json(0.0), p).unwrap_err().to_string();
+        assert!(
+            e.contains("camera_intrinsic.json") && e.contains("focal lengths"),
+            "{e}"
+        );
+        let short = r#"{"width": 640, "height": 480, "intrinsic_matrix": [525, 0, 0]}"#;
+        assert!(parse_open3d_camera(short, p).is_err());
     }
 }
