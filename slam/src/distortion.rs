@@ -93,8 +93,8 @@ impl Distortion {
     /// neighbourhood is mirrored or squashed) or the radial factor 1 + k1 r² + k2 r⁴ + k3 r⁶ is
     /// ≤ 0 (the point is sent through the centre to the other side). Either way two points of the
     /// scene would be recorded at one pixel, and the undistorted frame would hold copies of parts
-    /// of the recorded one. A model fitted to a real lens keeps both positive over its image; a
-    /// coefficient of the wrong sign, order or units does not.
+    /// of the recorded one. TUM's calibrations keep both positive over their images; a coefficient
+    /// of the wrong sign, order or units may not.
     pub fn fold_in(&self, camera: &Camera) -> Option<(usize, usize)> {
         let (w, h) = (camera.width, camera.height);
         (0..w * h).map(|i| (i % w, i / w)).find(|&(u, v)| {
@@ -372,8 +372,8 @@ mod tests {
         }
     }
 
-    /// A distorted render of an image whose values are its own ideal coordinates, undistorted by
-    /// the remap, gives back each pixel's coordinates to a fraction of a pixel.
+    /// `fold_in` finds a fold where the map turns back or is far too skewed, and none in the
+    /// calibrations in use or in a steep model that stays one-to-one.
     #[test]
     fn a_lens_model_that_folds_the_image_over_is_found() {
         // TUM's three calibrations and the generator's at 320×240 keep the map one-to-one
@@ -406,6 +406,8 @@ mod tests {
         assert!(skewed.fold_in(&fr1).is_some());
     }
 
+    /// A distorted render of an image whose values are its own ideal coordinates, undistorted by
+    /// the remap, gives back each pixel's coordinates to a fraction of a pixel.
     #[test]
     fn undistorting_a_distorted_render_recovers_the_ideal_geometry() {
         let (camera, d) = TumSensor::Freiburg1.calibration();
