@@ -57,7 +57,7 @@ impl Distortion {
     #[inline]
     pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
         let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        let radial = self.radial(r2);
         (
             x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
             y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
@@ -96,24 +96,43 @@ impl Distortion {
     /// of the recorded one. TUM's calibrations keep both positive over their images; a coefficient
     /// of the wrong sign, order or units may not.
     pub fn fold_in(&self, camera: &Camera) -> Option<(usize, usize)> {
-        let (w, h) = (camera.width, camera.height);
-        (0..w * h).map(|i| (i % w, i / w)).find(|&(u, v)| {
-            let x = (u as f64 - camera.cx) / camera.fx;
-            let y = (v as f64 - camera.cy) / camera.fy;
-            let (xd, yd) = self.distort(x, y);
-            let (us, vs) = (camera.fx * xd + camera.cx, camera.fy * yd + camera.cy);
-            let inside = us > -0.5 && vs > -0.5 && us < w as f64 - 0.5 && vs < h as f64 - 0.5;
-            let r2 = x * x + y * y;
-            let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
-            let [a, b, c, d] = self.jacobian(x, y);
-            inside && (radial <= 0.0 || a * d - b * c <= 0.0)
-        })
+        let w = camera.width;
+        (0..w * camera.height)
+            .map(|i| (i % w, i / w))
+            .find(|&(u, v)| {
+                let ((x, y), recorded) = self.recorded_pixel(camera, u, v);
+                let [a, b, c, d] = self.jacobian(x, y);
+                recorded.is_some() && (self.radial(x * x + y * y) <= 0.0 || a * d - b * c <= 0.0)
+            })
+    }
+
+    /// Ideal pixel (u, v) of `camera`: its normalised coordinates, and where the lens records it,
+    /// if that falls inside the image (within half a pixel of its border pixels' centres).
+    fn recorded_pixel(
+        &self,
+        camera: &Camera,
+        u: usize,
+        v: usize,
+    ) -> ((f64, f64), Option<(f64, f64)>) {
+        let x = (u as f64 - camera.cx) / camera.fx;
+        let y = (v as f64 - camera.cy) / camera.fy;
+        let (xd, yd) = self.distort(x, y);
+        let (us, vs) = (camera.fx * xd + camera.cx, camera.fy * yd + camera.cy);
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let inside = us > -0.5 && vs > -0.5 && us < w - 0.5 && vs < h - 0.5;
+        ((x, y), inside.then_some((us, vs)))
+    }
+
+    /// The radial factor 1 + k1 r² + k2 r⁴ + k3 r⁶ at r² = `r2`.
+    #[inline]
+    fn radial(&self, r2: f64) -> f64 {
+        1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
     }
 
     /// ∂(x_d, y_d)/∂(x, y), row-major.
     fn jacobian(&self, x: f64, y: f64) -> [f64; 4] {
         let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        let radial = self.radial(r2);
         // d radial / d r²
         let dr = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3);
         [
@@ -164,11 +183,7 @@ impl Undistorter {
             .enumerate()
             .for_each(|(v, row)| {
                 for (u, m) in row.iter_mut().enumerate() {
-                    let x = (u as f64 - camera.cx) / camera.fx;
-                    let y = (v as f64 - camera.cy) / camera.fy;
-                    let (xd, yd) = distortion.distort(x, y);
-                    let (us, vs) = (camera.fx * xd + camera.cx, camera.fy * yd + camera.cy);
-                    if us > -0.5 && vs > -0.5 && us < w as f64 - 0.5 && vs < h as f64 - 0.5 {
+                    if let (_, Some((us, vs))) = distortion.recorded_pixel(camera, u, v) {
                         *m = [us as f32, vs as f32];
                     }
                 }

@@ -20,7 +20,11 @@ struct Views {
 }
 
 fn views(m: Motion, frames: usize) -> Views {
-    let cam = Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240);
+    views_by(Camera::new(262.5, 262.5, 159.5, 119.5, 320, 240), m, frames)
+}
+
+/// [`views`] through another camera.
+fn views_by(cam: Camera, m: Motion, frames: usize) -> Views {
     let gt = motion::procedural(m, frames, 30.0);
     let scene = Scene::room(7);
     let frames = gt
@@ -99,31 +103,13 @@ fn tracking_a_generated_sequence_stays_within_a_centimetre() {
 #[test]
 fn a_sensor_of_odd_width_and_height_is_tracked() {
     let cam = Camera::new(262.5, 262.5, 159.0, 118.0, 319, 237);
-    let gt = motion::procedural(Motion::Orbit, 20, 30.0);
-    let scene = Scene::room(7);
     let noise = SensorNoise {
         seed: 3,
         ..SensorNoise::default()
     };
-    let mut slam = RigidSlam::new(cam, SlamParams::default(), gt.poses[0]);
-    let mut est = Trajectory::default();
-    for (k, pose) in gt.poses.iter().enumerate() {
-        let mut r = render(&scene, &cam, pose);
-        let raw = noise.apply(
-            k as u64,
-            &r.depth,
-            &r.cos_incidence,
-            &mut r.color,
-            cam.depth_scale,
-        );
-        let report = slam.process(&raw, Some(&r.color));
-        assert!(
-            report.failure().is_none(),
-            "frame {k}: {:?}",
-            report.failure()
-        );
-        est.push(gt.stamps[k], report.pose);
-    }
+    let views = views_by(cam, Motion::Orbit, 20);
+    let (gt, est, failed) = run_sensor(&views, 0..0, SlamParams::default(), noise);
+    assert!(failed.is_empty(), "frames {failed:?} failed");
     let a = ate(&gt, &est, Alignment::Se3, 1e-3).unwrap();
     assert!(a.stats.max < 0.01, "ATE {:?}", a.stats);
 }
