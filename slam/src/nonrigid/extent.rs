@@ -25,6 +25,14 @@ pub fn surface_diagonal(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
     )
 }
 
+/// The points' mean, the origin a registration turns the shape about (zero for no points).
+pub fn centroid(points: &[Vector3<f64>]) -> Vector3<f64> {
+    if points.is_empty() {
+        return Vector3::zeros();
+    }
+    points.iter().sum::<Vector3<f64>>() / points.len() as f64
+}
+
 fn diagonal_of<'a>(points: impl Iterator<Item = &'a Vector3<f64>>) -> f64 {
     let (lo, hi) = points.fold(
         (

@@ -187,6 +187,12 @@ impl DeformationGraph {
             }));
     }
 
+    /// Rebuilds the node tree after nodes moved (the edges kept).
+    fn rebuild_tree(&mut self) {
+        let positions: Vec<[f64; 3]> = self.nodes.iter().map(|n| n.position.into()).collect();
+        self.tree = ImmutableKdTree::new_from_slice(&positions);
+    }
+
     /// Rebuilds the node tree and the edges after nodes were added.
     fn rebuild(&mut self) {
         let positions: Vec<[f64; 3]> = self.nodes.iter().map(|n| n.position.into()).collect();
@@ -324,8 +330,20 @@ impl DeformationGraph {
             m.translation.vector *= k;
             n.motion = dual_quaternion(&m);
         }
-        let positions: Vec<[f64; 3]> = self.nodes.iter().map(|n| n.position.into()).collect();
-        self.tree = ImmutableKdTree::new_from_slice(&positions);
+        self.rebuild_tree();
+    }
+
+    /// The same graph for points moved by `o`: positions move by `o` and every motion A_k
+    /// becomes T_o A_k T_o⁻¹ (its rotation kept, its translation t + o − R o), so that the warp
+    /// of points moved by `o` is the warp moved by `o`.
+    pub fn shift(&mut self, o: &Vector3<f64>) {
+        for n in &mut self.nodes {
+            n.position += o;
+            let mut m = rigid_motion(&n.motion);
+            m.translation.vector += o - m.rotation * o;
+            n.motion = dual_quaternion(&m);
+        }
+        self.rebuild_tree();
     }
 
     /// Applies a rigid motion after the warp: every node's motion becomes `T A_k`. Blending is
@@ -341,4 +359,60 @@ impl DeformationGraph {
 /// A dual quaternion scaled to a unit real part, with the dual part made orthogonal to it.
 fn normalised(b: &DualQuaternion<f64>) -> DualQuaternion<f64> {
     dual_quaternion(&rigid_motion(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A graph shifted by `o` with its points warps them (bound as before) to its warp shifted
+    /// by `o`, normals unchanged.
+    #[test]
+    fn a_shifted_graph_warps_shifted_points_to_the_shifted_warp() {
+        let points: Vec<Vector3<f64>> = (0..400)
+            .map(|k| {
+                let (a, b) = ((k % 20) as f64, (k / 20) as f64);
+                Vector3::new(0.01 * a, 0.01 * b, 0.002 * ((a * b) % 7.0))
+            })
+            .collect();
+        let normals = vec![Vector3::z(); points.len()];
+        let params = GraphParams {
+            spacing: 0.04,
+            ..GraphParams::default()
+        };
+        let mut graph = DeformationGraph::sample(&points, params).unwrap();
+        for (k, n) in graph.nodes.iter_mut().enumerate() {
+            let k = k as f64;
+            n.motion = dual_quaternion(&Isometry3::from_parts(
+                Translation3::new(0.01 * k, -0.02, 0.005),
+                UnitQuaternion::from_euler_angles(0.1 * k, -0.2, 0.05),
+            ));
+        }
+        let bindings = graph.bind_all(&points);
+        let warp = |graph: &DeformationGraph, points: &[Vector3<f64>]| {
+            let (mut p, mut n) = (Vec::new(), Vec::new());
+            graph.warp_all(&bindings, points, &normals, &mut p, &mut n);
+            (p, n)
+        };
+        let (before, before_n) = warp(&graph, &points);
+        let o = Vector3::new(30.0, -20.0, 50.0);
+        graph.shift(&o);
+        let moved: Vec<_> = points.iter().map(|p| p + o).collect();
+        let (after, after_n) = warp(&graph, &moved);
+        assert!(graph.nodes.len() > 10, "{}", graph.nodes.len());
+        for (k, ((a, b), (na, nb))) in after
+            .iter()
+            .zip(&before)
+            .zip(after_n.iter().zip(&before_n))
+            .enumerate()
+        {
+            assert!(
+                (a - (b + o)).norm() < 1e-9,
+                "point {k}: {a:?} against {:?}",
+                b + o
+            );
+            assert!((na - nb).norm() < 1e-12, "normal {k}");
+        }
+    }
 }

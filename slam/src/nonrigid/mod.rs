@@ -54,6 +54,7 @@ pub mod surface_area;
 pub mod surface_fit;
 mod system;
 mod voxel_bindings;
+mod weld;
 
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};

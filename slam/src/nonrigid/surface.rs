@@ -6,6 +6,7 @@
 
 use super::boundary::{rim_matches, RimMatches};
 use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
+use super::extent::centroid;
 pub use super::extent::{bounding_diagonal, surface_diagonal};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
@@ -15,6 +16,7 @@ use super::register::{
     Target, WarpOptimiser,
 };
 use super::surface_fit::{SurfaceFit, SurfaceVerdict, MIN_SHARE};
+use super::weld::{weld, Welded};
 use crate::eval::umeyama;
 use crate::mesh::Mesh;
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -193,6 +195,12 @@ pub fn register_surfaces(
 /// What every pass of a surface registration starts from: the source's graph at rest and its
 /// bindings, the rigid starting guesses and the target's KD-tree, built once for all passes.
 ///
+/// Inside, points are taken relative to the source's centroid (`origin`): the pre-alignment's
+/// rotation and the node motions' rotations then turn about the shape, not about the origin of the
+/// caller's frame, and the damping and stopping tests, which weigh rotations against
+/// translations, do the same wherever the shape lies. Before, the camel pair 1 → 3 moved 30
+/// diagonals from the origin ended at 1.08 % mean error against 0.75 % where it was.
+///
 /// For [`register_meshes`] every length inside is in units of the source's size (`unit`, the
 /// bounding-box diagonal of the vertices its faces use, [`surface_diagonal`]), the points and
 /// the settings alike, and the result is scaled back: with settings relative to the size (as
@@ -204,6 +212,7 @@ pub fn register_surfaces(
 /// at one vertex in units of its diagonal (NOTES 66).
 struct Passes {
     unit: f64,
+    origin: Vector3<f64>,
     source: (Vec<Vector3<f64>>, Vec<Vector3<f64>>),
     target_points: Vec<Vector3<f64>>,
     rest: DeformationGraph,
@@ -229,8 +238,9 @@ impl Passes {
             Some(d) if d.is_finite() && d > 0.0 => d,
             _ => 1.0,
         };
-        let scaled = |p: &[Vector3<f64>]| p.iter().map(|p| p / unit).collect::<Vec<_>>();
-        let (sp, tp) = (scaled(source.0), scaled(target.points));
+        let origin = centroid(source.0);
+        let local = |p: &[Vector3<f64>]| p.iter().map(|p| (p - origin) / unit).collect::<Vec<_>>();
+        let (sp, tp) = (local(source.0), local(target.points));
         graph.spacing /= unit;
         params.max_distance /= unit;
         params.rigid_max_distance /= unit;
@@ -243,6 +253,7 @@ impl Passes {
         }
         Ok(Self {
             unit,
+            origin,
             target: if target.faces.is_empty() {
                 Box::new(CloudTarget::new(&tp, target.normals))
             } else {
@@ -270,13 +281,28 @@ impl Passes {
         }
     }
 
-    /// Starts every later pass from `start` (a pass's pre-alignment, in the caller's units) with
+    /// Starts every later pass from `start` (a pass's pre-alignment, in the caller's frame) with
     /// no rigid iterations: the passes share the rigid start, and it need not be found again.
     fn keep_rigid_start(&mut self, start: &Isometry3<f64>) {
-        let mut t = *start;
-        t.translation.vector /= self.unit;
-        self.guesses = vec![t];
+        self.guesses = vec![self.to_local(start)];
         self.params.rigid_iterations = 0;
+    }
+
+    /// A rigid motion of the caller's frame in the passes' frame, x' = (x − o) / u: the same
+    /// rotation, the translation (t − o + R o) / u.
+    fn to_local(&self, t: &Isometry3<f64>) -> Isometry3<f64> {
+        let mut local = *t;
+        local.translation.vector =
+            (t.translation.vector - self.origin + t.rotation * self.origin) / self.unit;
+        local
+    }
+
+    /// The inverse of [`Self::to_local`]: the translation u t' + o − R o.
+    fn to_caller(&self, t: &Isometry3<f64>) -> Isometry3<f64> {
+        let mut caller = *t;
+        caller.translation.vector =
+            t.translation.vector * self.unit + self.origin - t.rotation * self.origin;
+        caller
     }
 
     /// Each source point's partner on the target (with the target's `normals`) as [`Seeds`].
@@ -342,9 +368,12 @@ impl Passes {
             SurfaceFit::measure(&points, self.target.as_ref(), &self.target_points, &graph);
         fit.tolerance *= self.unit;
         fit.median_distance *= self.unit;
-        points.iter_mut().for_each(|p| *p *= self.unit);
+        points
+            .iter_mut()
+            .for_each(|p| *p = *p * self.unit + self.origin);
         graph.scale(self.unit);
-        summary.prealigned.translation.vector *= self.unit;
+        graph.shift(&self.origin);
+        summary.prealigned = self.to_caller(&summary.prealigned);
         // both costs are sums of squared lengths
         summary.data_cost *= self.unit * self.unit;
         summary.regulariser_cost *= self.unit * self.unit;
@@ -439,7 +468,61 @@ pub fn register_mesh_or_cloud(
 /// stage holding the rim's own vertices to theirs, and closest point taken on the target's
 /// triangles ([`MeshTarget`]), not its vertices (NOTES 84). All of it runs in units of the
 /// source's bounding-box diagonal, so that it does the same at any size.
+///
+/// A mesh stored as a triangle soup (vertices repeated at equal positions, one set per triangle,
+/// as STL exports are) is registered welded (module `weld`), so that its triangles share
+/// their edges; every vertex of `source`, in its order, is then warped by the graph found.
+/// Registered as a soup, the camel pair 1 → 3 ended at 3.76 % mean error and 21 % at worst
+/// against 0.75 % and 5.6 % welded, and was reported as registered.
 pub fn register_meshes(
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    graph_params: GraphParams,
+    params: RegisterParams,
+    principal_axes: bool,
+    seeding: &Seeding,
+) -> Result<SurfaceRegistration, SurfaceError> {
+    let (ws, wt) = (
+        weld(source.points, source.normals, source.faces),
+        weld(target.points, target.normals, target.faces),
+    );
+    let mut done = register_welded(
+        welded_view(source, &ws),
+        welded_view(target, &wt),
+        graph_params,
+        params,
+        principal_axes,
+        seeding,
+    )?;
+    if ws.is_some() {
+        let bindings = done.graph.bind_all(source.points);
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        done.graph.warp_all(
+            &bindings,
+            source.points,
+            source.normals,
+            &mut points,
+            &mut normals,
+        );
+        (done.points, done.normals) = (points, normals);
+    }
+    Ok(done)
+}
+
+/// `mesh` welded, when welding joined any of its vertices.
+fn welded_view<'a>(mesh: SurfaceMesh<'a>, welded: &'a Option<Welded>) -> SurfaceMesh<'a> {
+    match welded {
+        Some(w) => SurfaceMesh {
+            points: &w.points,
+            normals: &w.normals,
+            faces: &w.faces,
+        },
+        None => mesh,
+    }
+}
+
+/// [`register_meshes`] of meshes whose vertices each have a position of their own.
+fn register_welded(
     source: SurfaceMesh<'_>,
     target: SurfaceMesh<'_>,
     graph_params: GraphParams,
@@ -589,6 +672,18 @@ mod tests {
                 source: (sp, sn),
                 target: (tp, tn),
                 faces,
+            }
+        }
+
+        /// The pair with every point of both tubes mapped by `f` (moved or scaled), normals kept.
+        fn mapped(&self, f: impl Fn(&Vector3<f64>) -> Vector3<f64>) -> Self {
+            let map = |(p, n): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)| {
+                (p.iter().map(&f).collect(), n.clone())
+            };
+            Self {
+                source: map(&self.source),
+                target: map(&self.target),
+                faces: self.faces.clone(),
             }
         }
 
@@ -742,8 +837,9 @@ mod tests {
         )
         .unwrap();
         assert_eq!(meshes.summary.iterations, surfaces.summary.iterations);
+        // (both centred on the source's centroid, computed before and after the scaling)
         for (a, b) in meshes.points.iter().zip(&surfaces.points) {
-            assert!((a - b * d).norm() < 1e-9 * d, "{a:?} {:?}", b * d);
+            assert!((a - b * d).norm() < 1e-6 * d, "{a:?} {:?}", b * d);
         }
         // and the graph comes back in the caller's units
         let spacing = meshes.graph.params.spacing;
@@ -755,18 +851,78 @@ mod tests {
         let pair = TubePair::new(12, 8, 0.4);
         let base = pair.register(1);
         for k in [0.05, 20.0] {
-            let scaled = |(p, n): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)| {
-                (p.iter().map(|p| p * k).collect::<Vec<_>>(), n.clone())
-            };
-            let big = TubePair {
-                source: scaled(&pair.source),
-                target: scaled(&pair.target),
-                faces: pair.faces.clone(),
-            };
-            let reg = big.register(1);
+            let reg = pair.mapped(|p| p * k).register(1);
             for (a, b) in reg.points.iter().zip(&base.points) {
                 assert!((a - b * k).norm() < 1e-6 * k, "at {k}: {a:?} {:?}", b * k);
             }
+        }
+    }
+
+    /// A mesh stored as a triangle soup: three vertices of its own per triangle, in the
+    /// triangles' order.
+    fn soup(mesh: &Mesh) -> Mesh {
+        let corners = mesh.faces.iter().flatten().map(|&v| v as usize);
+        Mesh {
+            vertices: corners.clone().map(|v| mesh.vertices[v]).collect(),
+            normals: corners.map(|v| mesh.normals[v]).collect(),
+            faces: (0..mesh.faces.len() as u32)
+                .map(|f| [3 * f, 3 * f + 1, 3 * f + 2])
+                .collect(),
+            ..Mesh::default()
+        }
+    }
+
+    /// A sheet stored as a triangle soup is registered by its rim as the mesh with shared
+    /// vertices is (issue 26's bounds: the largest vertex error at most 10 % of the largest
+    /// displacement, the mean 3 %), and every vertex of the soup is warped, in its order. As
+    /// soups, each triangle's edges are all rim: the S-bend ended 19 % off at its worst and 13 %
+    /// on average.
+    #[test]
+    fn a_mesh_stored_as_a_triangle_soup_registers_as_the_welded_mesh() {
+        use crate::synthetic::sheet::{case_motion, flat_sheet, SheetDeformation, SheetShape};
+        let width = 0.5;
+        let case = SheetDeformation {
+            shape: SheetShape::SBend { tilt: 1.2 },
+            rigid: Some(case_motion(15.0, 0.03)),
+        };
+        let source = flat_sheet(21, 13, width);
+        let target = case.deformed(&source, width);
+        let reg = register_mesh_pair(&soup(&source), &soup(&target), &Seeding::default()).unwrap();
+        assert_eq!(reg.points.len(), 3 * source.faces.len());
+        // each vertex of the sheet where the soup first repeats it
+        let mut warped = vec![Vector3::zeros(); source.vertices.len()];
+        let corners: Vec<u32> = source.faces.iter().flatten().copied().collect();
+        for (corner, &v) in corners.iter().enumerate().rev() {
+            warped[v as usize] = reg.points[corner];
+        }
+        let score = case.score(&source, &warped, width);
+        assert!(
+            score.max <= 0.10 && score.mean <= 0.03,
+            "max {}, mean {}",
+            score.max,
+            score.mean
+        );
+    }
+
+    /// Moved far from the origin, a pair registers as it does where it lies: the passes turn it
+    /// about its centroid. Turned about the origin, the camel pair 1 → 3 moved 30 diagonals out
+    /// ended at 1.08 % mean error against 0.75 % in place, and this tube did not end where it
+    /// did in place either.
+    #[test]
+    fn a_registration_of_meshes_is_the_same_wherever_the_shape_lies() {
+        let pair = TubePair::new(12, 8, 0.4);
+        let base = pair.register(1);
+        let d = bounding_diagonal(&pair.source.0);
+        for o in [Vector3::new(1.5, 0.0, 0.0), Vector3::new(30.0, -20.0, 50.0)] {
+            let o = o * d;
+            let reg = pair.mapped(|p| p + o).register(1);
+            for (a, b) in reg.points.iter().zip(&base.points) {
+                assert!((a - o - b).norm() < 1e-6 * d, "at {o:?}: {:?} {b:?}", a - o);
+            }
+            let t = reg.summary.prealigned;
+            let expected = base.summary.prealigned.translation.vector + o
+                - base.summary.prealigned.rotation * o;
+            assert!((t.translation.vector - expected).norm() < 1e-6 * d, "{t:?}");
         }
     }
 
