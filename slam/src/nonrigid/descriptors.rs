@@ -16,7 +16,7 @@
 //! distances are shortest paths along the mesh edges (Dijkstra), not along a nearest-neighbour
 //! graph, whose edges cut across nearby parts.
 
-use super::extent::bounding_diagonal;
+use super::extent::{bounding_diagonal, centroid};
 use super::extremities::{assign, Extremities, EXTREMITIES};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
@@ -77,7 +77,7 @@ pub(crate) fn core_anchors(
     if points.is_empty() || count == 0 {
         return Vec::new();
     }
-    let centre = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+    let centre = centroid(points);
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by(|&a, &b| {
         (points[a] - centre)

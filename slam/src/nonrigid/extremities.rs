@@ -13,6 +13,7 @@
 //! which a bend of the limbs leaves as it is (an orientation-preserving map, as in Ren et al.,
 //! *Continuous and orientation-preserving correspondences via functional maps*, 2018).
 
+use super::extent::centroid;
 use nalgebra::{Matrix3, Vector3};
 
 /// Extremities per shape.
@@ -47,8 +48,7 @@ impl Extremities {
         if points.len() < EXTREMITIES {
             return None;
         }
-        let centroid = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
-        let centre = nearest(points, &centroid)?;
+        let centre = nearest(points, &centroid(points))?;
         let mut nearest_extremity = column(centre);
         let mut vertices = [0; EXTREMITIES];
         let mut columns = Vec::with_capacity(EXTREMITIES);
@@ -74,7 +74,7 @@ impl Extremities {
 
     /// The extremities' positions relative to the centroid o of `points`.
     fn about_centroid(&self, points: &[Vector3<f64>]) -> [Vector3<f64>; EXTREMITIES] {
-        let o = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+        let o = centroid(points);
         self.vertices.map(|v| points[v] - o)
     }
 }

@@ -16,6 +16,7 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
+use super::extent::centroid;
 use super::graph::{Binding, DeformationGraph};
 use super::linear_steps::LinearSteps;
 use super::photometric::{PhotometricFit, PhotometricTarget};
@@ -803,7 +804,7 @@ pub fn principal_axes_guesses(
 ) -> Vec<Isometry3<f64>> {
     let frame = |pts: &[Vector3<f64>]| {
         let n = pts.len().max(1) as f64;
-        let c = pts.iter().sum::<Vector3<f64>>() / n;
+        let c = centroid(pts);
         let cov = pts
             .iter()
             .map(|p| (p - c) * (p - c).transpose())
