@@ -63,7 +63,7 @@ use dynamap_slam::nonrigid::{
     surface_diagonal, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
     SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
-use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_SHARE};
+use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
 use nalgebra::Vector3;
@@ -584,13 +584,15 @@ fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
         SurfaceVerdict::NotRegistered(fit) => {
             tracing::warn!(
                 "not registered: {:.0} % of the source ended within {:.3e} of the target and \
-                 {:.0} % of the target is covered (at least {:.0} % each must be); the source's \
-                 area over the target's is {} at rest and {} warped (within {AREA_FACTOR}× of 1 \
-                 must be)",
+                 {:.0} % of the target is covered (at least {:.0} % each must be); {:.0} % of the \
+                 former face the target's way (at least {:.0} % must); the source's area over \
+                 the target's is {} at rest and {} warped (within {AREA_FACTOR}× of 1 must be)",
                 100.0 * fit.on_target,
                 fit.tolerance,
                 100.0 * fit.covered,
                 100.0 * MIN_SHARE,
+                100.0 * fit.facing,
+                100.0 * MIN_FACING,
                 ratio(fit.source_area_ratio),
                 ratio(fit.area_ratio)
             );
@@ -643,13 +645,29 @@ fn run(args: Args, session: &Session) -> Result<()> {
     }
 }
 
+/// A surface's points and their normals, in double precision.
+type PointsAndNormals = (Vec<Vector3<f64>>, Vec<Vector3<f64>>);
+
+/// The points and normals of `mesh` read from `path`, the normals computed from its triangles
+/// where the file gives none; a point cloud without normals is refused (it has nothing to compute
+/// them from, and a normal made up would be registered as if it were true).
+fn surface_points(mesh: &Mesh, path: &Path) -> Result<PointsAndNormals> {
+    if mesh.faces.is_empty() && mesh.normals.len() != mesh.vertices.len() {
+        return Err(cli::bad_input(format_args!(
+            "{}: a point cloud needs normals (the file has neither triangles nor normals)",
+            path.display()
+        )));
+    }
+    Ok(mesh_points(mesh))
+}
+
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
 /// vertex map, and prints the JSON line.
 fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let source = read_mesh(&args.source).bad_input()?;
     let target = read_mesh(&args.target).bad_input()?;
-    let (sp, sn) = mesh_points(&source);
-    let (tp, tn) = mesh_points(&target);
+    let (sp, sn) = surface_points(&source, &args.source)?;
+    let (tp, tn) = surface_points(&target, &args.target)?;
     let size = |points: &[Vector3<f64>], mesh: &Mesh, path: &Path| {
         let d = surface_diagonal(points, &mesh.faces);
         if d.is_finite() && d > 0.0 {
@@ -700,9 +718,11 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     }
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
     json["registered"] = surface_verdict_json(reg.verdict());
+    json["target_normals_turned"] = reg.target_normals_turned.into();
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,
         "covered": reg.fit.covered,
+        "facing": reg.fit.facing,
         "median_distance": reg.fit.median_distance,
         "area_ratio": reg.fit.area_ratio,
         "source_area_ratio": reg.fit.source_area_ratio,

@@ -202,8 +202,11 @@ pub fn write_mesh(
 /// the faces when not given). Returns a dict: vertices and normals (the source's, warped, in its
 /// order), nodes (the graph's node count), iterations, data_cost, regulariser_cost, matched (source
 /// points with a correspondence at the end) and matched_fraction, seconds, and the verdict:
-/// registered (bool) and fit (on_target and covered: the shares of the warped source within a
-/// node spacing of the target and of the target covered, at least half each; area_ratio and
+/// registered (bool), target_normals_turned (bool: both meshes closed, the target's normals
+/// pointing the other way, so turned over) and fit (on_target and covered: the shares of the
+/// warped source within a node spacing of the target and of the target covered; facing, the
+/// share of the former whose normals point the target's way; at least half each, and 0.8
+/// facing; area_ratio and
 /// source_area_ratio, the source's area warped and at rest over the target's for two meshes,
 /// within 1.5× of 1, else None; median_distance; tolerance). A source pulled onto a much smaller
 /// target ends fully matched but not registered.
@@ -269,9 +272,11 @@ pub fn register_meshes<'py>(
     d.set_item("matched_fraction", fraction)?;
     d.set_item("seconds", s.seconds)?;
     d.set_item("registered", reg.verdict() == SurfaceVerdict::Registered)?;
+    d.set_item("target_normals_turned", reg.target_normals_turned)?;
     let fit = PyDict::new(py);
     fit.set_item("on_target", reg.fit.on_target)?;
     fit.set_item("covered", reg.fit.covered)?;
+    fit.set_item("facing", reg.fit.facing)?;
     fit.set_item("area_ratio", reg.fit.area_ratio)?;
     fit.set_item("source_area_ratio", reg.fit.source_area_ratio)?;
     fit.set_item("median_distance", reg.fit.median_distance)?;

@@ -289,7 +289,8 @@ fn nonrigid_register_takes_one_subcommand_per_input_with_its_own_flags() {
 
 /// Vertices that no face uses (legal in PLY and OFF files) do not make a mesh larger: its
 /// settings and its score scale with the surface itself, so a plate with two stray vertices
-/// far off registers as the plate does. A surface with no extent is refused by name.
+/// far off registers as the plate does. A surface with no extent, and a point cloud without
+/// normals, are refused by name.
 #[test]
 fn stray_vertices_leave_a_registration_as_it_was_and_a_point_sized_mesh_is_refused() {
     use dynamap_slam::io::ply;
@@ -312,11 +313,15 @@ fn stray_vertices_leave_a_registration_as_it_was_and_a_point_sized_mesh_is_refus
         .iter_mut()
         .for_each(|p| *p = nalgebra::Point3::origin());
     point.normals.clear();
+    let mut cloud = bent.clone();
+    cloud.faces.clear();
+    cloud.normals.clear();
     for (name, mesh) in [
         ("flat", &source),
         ("bent", &bent),
         ("stray", &stray),
         ("point", &point),
+        ("cloud", &cloud),
     ] {
         ply::write(dir.join(format!("{name}.ply")), mesh).unwrap();
     }
@@ -363,6 +368,12 @@ fn stray_vertices_leave_a_registration_as_it_was_and_a_point_sized_mesh_is_refus
         &["meshes", &path("point.ply"), &path("bent.ply")],
     );
     assert_exit(&refused, 2, &["point.ply", "no extent"]);
+    // a cloud has no triangles to compute its normals from
+    let refused = run(
+        "nonrigid_register",
+        &["meshes", &path("flat.ply"), &path("cloud.ply")],
+    );
+    assert_exit(&refused, 2, &["cloud.ply", "needs normals"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

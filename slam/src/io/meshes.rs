@@ -8,7 +8,8 @@ use nalgebra::Point3;
 use std::path::Path;
 
 /// Reads a PLY, OFF or OBJ mesh by its extension; normals are computed from the faces when the file
-/// has none.
+/// has none. A point cloud (no faces) without normals keeps none: it has nothing to compute them
+/// from, and a made-up normal would be taken as measured.
 pub fn read_mesh(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
     let path = path.as_ref();
     let ext = path
@@ -29,7 +30,7 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
     if mesh.vertices.is_empty() {
         return Err(IoError::file(path, "the mesh has no vertices"));
     }
-    if mesh.normals.len() != mesh.vertices.len() {
+    if mesh.normals.len() != mesh.vertices.len() && !mesh.faces.is_empty() {
         mesh.compute_normals();
     }
     Ok(mesh)
@@ -238,6 +239,7 @@ fn obj_index(s: &str, so_far: i64, path: &Path, line: usize) -> Result<u32, IoEr
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
 
     #[test]
     fn off_and_obj_give_the_same_square() {
@@ -293,6 +295,26 @@ mod tests {
             let e = parse_off(&text, p).unwrap_err();
             assert!(e.message.contains(says) && e.line == 1, "{text:?}: {e}");
         }
+    }
+
+    /// Normals are computed from the faces where a file gives none; a point cloud without
+    /// normals has nothing to compute them from and is read without.
+    #[test]
+    fn normals_are_computed_from_faces_and_not_made_up_for_a_cloud() {
+        let dir = std::env::temp_dir().join(format!("dynamap_meshes_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (mesh, cloud) = (dir.join("square.off"), dir.join("cloud.off"));
+        std::fs::write(&mesh, "OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n").unwrap();
+        std::fs::write(&cloud, "OFF\n4 0 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n").unwrap();
+        let square = read_mesh(&mesh).unwrap();
+        assert!(square
+            .normals
+            .iter()
+            .all(|n| (n - Vector3::z()).norm() < 1e-6));
+        assert_eq!(square.normals.len(), 4);
+        let cloud = read_mesh(&cloud).unwrap();
+        assert_eq!((cloud.vertices.len(), cloud.normals.len()), (4, 0));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -44,6 +44,7 @@ pub mod graph;
 pub mod linear_steps;
 pub mod mesh_point;
 pub mod mesh_target;
+pub mod orientation;
 pub mod photometric;
 pub mod reference_frame;
 pub mod register;
@@ -83,4 +84,4 @@ pub use surface::{
     register_mesh_pair, register_meshes, register_surfaces, surface_diagonal, Seeding,
     SurfaceError, SurfaceMesh, SurfaceRegistration,
 };
-pub use surface_fit::{SurfaceFit, SurfaceVerdict, AREA_FACTOR, MIN_SHARE};
+pub use surface_fit::{SurfaceFit, SurfaceVerdict, AREA_FACTOR, MIN_FACING, MIN_SHARE};

@@ -11,6 +11,7 @@ pub use super::extent::{bounding_diagonal, surface_diagonal};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
 use super::mesh_target::MeshTarget;
+use super::orientation::{relation, Oriented, Relation};
 use super::register::{
     principal_axes_guesses, CloudTarget, RegisterError, RegisterParams, RegisterSummary, Seeds,
     Target, WarpOptimiser,
@@ -44,6 +45,13 @@ pub struct SurfaceMesh<'a> {
     pub normals: &'a [Vector3<f64>],
     /// Triangles as vertex indices.
     pub faces: &'a [[u32; 3]],
+}
+
+impl<'a> SurfaceMesh<'a> {
+    /// The mesh as module `orientation` takes it.
+    fn oriented(&self) -> Oriented<'a> {
+        (self.points, self.normals, self.faces)
+    }
 }
 
 /// Settings of [`register_meshes`]' seeded passes.
@@ -95,6 +103,11 @@ pub struct SurfaceRegistration {
     pub summary: RegisterSummary,
     /// How closely the result and the target lie on each other at the end.
     pub fit: SurfaceFit,
+    /// Whether the target's normals were turned over to point the way the source's do (both
+    /// meshes closed, one's normals out and the other's in, module `orientation`; or, where
+    /// that cannot be told, the registration with them as given did not register and this one
+    /// did).
+    pub target_normals_turned: bool,
 }
 
 impl SurfaceRegistration {
@@ -364,8 +377,12 @@ impl Passes {
         )?;
         let (mut points, mut normals) = (Vec::new(), Vec::new());
         graph.warp_all(&self.bindings, sp, sn, &mut points, &mut normals);
-        let mut fit =
-            SurfaceFit::measure(&points, self.target.as_ref(), &self.target_points, &graph);
+        let mut fit = SurfaceFit::measure(
+            (&points, &normals),
+            self.target.as_ref(),
+            &self.target_points,
+            &graph,
+        );
         fit.tolerance *= self.unit;
         fit.median_distance *= self.unit;
         points
@@ -383,6 +400,7 @@ impl Passes {
             graph,
             summary,
             fit,
+            target_normals_turned: false,
         })
     }
 }
@@ -417,8 +435,9 @@ pub fn register_mesh_pair(
 }
 
 /// [`register_meshes`] where both surfaces have faces and `seeding.passes` > 0, else
-/// [`register_surfaces`] (closest point alone; point clouds have no geodesics to seed from):
-/// what `nonrigid_register meshes` and the Python bindings run.
+/// [`register_surfaces`] (closest point alone; point clouds have no geodesics to seed from),
+/// with the target's normals turned as [`register_meshes`] turns them (a cloud's where the
+/// registration did not register): what `nonrigid_register meshes` and the Python bindings run.
 pub fn register_mesh_or_cloud(
     source: SurfaceMesh<'_>,
     target: SurfaceMesh<'_>,
@@ -428,11 +447,13 @@ pub fn register_mesh_or_cloud(
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     if seeding.passes == 0 || source.faces.is_empty() || target.faces.is_empty() {
-        let (s, t) = (
-            (source.points, source.normals),
-            (target.points, target.normals),
-        );
-        return register_surfaces(s, t, graph_params, params, principal_axes);
+        return facing_the_source(source, target, |target| {
+            let (s, t) = (
+                (source.points, source.normals),
+                (target.points, target.normals),
+            );
+            register_surfaces(s, t, graph_params, params.clone(), principal_axes)
+        });
     }
     register_meshes(
         source,
@@ -442,6 +463,48 @@ pub fn register_mesh_or_cloud(
         principal_axes,
         seeding,
     )
+}
+
+/// Registers by `register` onto `target` with its normals pointing the source's way: as they
+/// are where both meshes are closed and point the same way, turned over where they point
+/// opposite ways (module `orientation`), and where that cannot be told (an open mesh, a cloud)
+/// as they are and, when that did not register, turned over, keeping the turned one if it
+/// registers ([`SurfaceRegistration::target_normals_turned`]); its summary counts both tries'
+/// iterations and seconds.
+fn facing_the_source(
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    register: impl Fn(SurfaceMesh<'_>) -> Result<SurfaceRegistration, SurfaceError>,
+) -> Result<SurfaceRegistration, SurfaceError> {
+    let turned_normals: Vec<Vector3<f64>> = target.normals.iter().map(|n| -n).collect();
+    let turned = || {
+        let mut reg = register(SurfaceMesh {
+            normals: &turned_normals,
+            ..target
+        })?;
+        reg.target_normals_turned = true;
+        Ok::<_, SurfaceError>(reg)
+    };
+    match relation(source.oriented(), target.oriented()) {
+        Relation::Same => register(target),
+        Relation::Opposite => turned(),
+        Relation::Unknown => {
+            let first = register(target)?;
+            if first.verdict() == SurfaceVerdict::Registered {
+                return Ok(first);
+            }
+            let second = turned()?;
+            let (mut kept, other) = if second.verdict() == SurfaceVerdict::Registered {
+                (second, first)
+            } else {
+                (first, second)
+            };
+            kept.summary.iterations += other.summary.iterations;
+            kept.summary.seconds += other.summary.seconds;
+            kept.summary.times.add(&other.summary.times);
+            Ok(kept)
+        }
+    }
 }
 
 /// Registers one mesh onto another in several passes, for poses far apart whose parts swing
@@ -474,6 +537,12 @@ pub fn register_mesh_or_cloud(
 /// their edges; every vertex of `source`, in its order, is then warped by the graph found.
 /// Registered as a soup, the camel pair 1 → 3 ended at 3.76 % mean error and 21 % at worst
 /// against 0.72 % and 6.3 % welded, and was reported as registered.
+///
+/// Where both meshes are closed and the target's normals point into it while the source's point
+/// out (or the other way round: a mesh wound the other way), the target's normals are turned
+/// over (module `orientation`); where a mesh is open, so that no way is known to be right, a
+/// registration that did not register is tried again with them turned
+/// ([`SurfaceRegistration::target_normals_turned`]).
 pub fn register_meshes(
     source: SurfaceMesh<'_>,
     target: SurfaceMesh<'_>,
@@ -482,18 +551,26 @@ pub fn register_meshes(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
+    facing_the_source(source, target, |target| {
+        as_welded(source, target, |s, t| {
+            let params = params.clone();
+            register_welded(s, t, graph_params, params, principal_axes, seeding)
+        })
+    })
+}
+
+/// Registers by `register` the meshes welded (module `weld`), and warps every vertex of `source`
+/// by the graph found.
+fn as_welded(
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    register: impl FnOnce(SurfaceMesh<'_>, SurfaceMesh<'_>) -> Result<SurfaceRegistration, SurfaceError>,
+) -> Result<SurfaceRegistration, SurfaceError> {
     let (ws, wt) = (
         weld(source.points, source.normals, source.faces),
         weld(target.points, target.normals, target.faces),
     );
-    let mut done = register_welded(
-        welded_view(source, &ws),
-        welded_view(target, &wt),
-        graph_params,
-        params,
-        principal_axes,
-        seeding,
-    )?;
+    let mut done = register(welded_view(source, &ws), welded_view(target, &wt))?;
     if ws.is_some() {
         let bindings = done.graph.bind_all(source.points);
         let (mut points, mut normals) = (Vec::new(), Vec::new());
@@ -926,6 +1003,72 @@ mod tests {
         }
     }
 
+    /// Normals pointing the other way on the target alone (a mesh wound the other way round)
+    /// are turned over when both meshes are closed: an ellipsoid onto its bent copy registers as
+    /// onto the copy wound as it is. An open tube has no inside to tell which way is right: onto
+    /// a target whose normals all point the other way it did not register (12 % of it on the
+    /// target), and is registered again with them turned, as onto the target as it was.
+    #[test]
+    fn a_target_wound_the_other_way_is_registered_with_its_normals_turned() {
+        use crate::nonrigid::orientation::tests::sphere;
+        let (ball, faces) = sphere(1.0, Vector3::zeros(), 12);
+        let source: Vec<Vector3<f64>> = ball
+            .iter()
+            .map(|p| p.component_mul(&Vector3::new(1.0, 0.5, 0.5)))
+            .collect();
+        let bent: Vec<Vector3<f64>> = source
+            .iter()
+            .map(|p| p + Vector3::z() * 0.3 * p.x * p.x)
+            .collect();
+        let reversed: Vec<[u32; 3]> = faces.iter().map(|&[a, b, c]| [a, c, b]).collect();
+        let (sn, tn, tn_in) = (
+            with_normals(&source, &faces),
+            with_normals(&bent, &faces),
+            with_normals(&bent, &reversed),
+        );
+        let (graph, params) = clean_surface_settings(bounding_diagonal(&source));
+        let register = |target: SurfaceMesh<'_>| {
+            let source = SurfaceMesh {
+                points: &source,
+                normals: &sn,
+                faces: &faces,
+            };
+            let seeding = Seeding::default();
+            register_meshes(source, target, graph, params.clone(), false, &seeding).unwrap()
+        };
+        let same = register(SurfaceMesh {
+            points: &bent,
+            normals: &tn,
+            faces: &faces,
+        });
+        let turned = register(SurfaceMesh {
+            points: &bent,
+            normals: &tn_in,
+            faces: &reversed,
+        });
+        assert!(!same.target_normals_turned && turned.target_normals_turned);
+        assert_eq!(
+            turned.verdict(),
+            SurfaceVerdict::Registered,
+            "{:?}",
+            turned.fit
+        );
+        let d = bounding_diagonal(&source);
+        for (a, b) in turned.points.iter().zip(&same.points) {
+            assert!((a - b).norm() < 1e-6 * d, "{a:?} {b:?}");
+        }
+        let mut pair = TubePair::new(12, 8, 0.4);
+        let as_wound = pair.register(1);
+        pair.target.1.iter_mut().for_each(|n| *n = -*n);
+        let open = pair.register(1);
+        assert!(!as_wound.target_normals_turned && open.target_normals_turned);
+        assert_eq!(open.verdict(), SurfaceVerdict::Registered, "{:?}", open.fit);
+        let d = bounding_diagonal(&pair.source.0);
+        for (a, b) in open.points.iter().zip(&as_wound.points) {
+            assert!((a - b).norm() < 1e-6 * d, "{a:?} {b:?}");
+        }
+    }
+
     /// The later passes start from the first pass's rigid motion, carried in the caller's
     /// units (a tube 20 times the size, so that a unit slip would show) and reported.
     #[test]
@@ -1006,6 +1149,7 @@ mod tests {
         let fit = |on_target, covered| SurfaceFit {
             on_target,
             covered,
+            facing: 1.0,
             median_distance: 0.0,
             tolerance: 0.03,
             area_ratio: None,

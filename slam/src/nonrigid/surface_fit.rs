@@ -7,6 +7,10 @@
 //!   surface for a mesh target, its points for a cloud);
 //! - `covered`: the share of target points within the tolerance of a warped source point: a
 //!   source gathered onto part of the target leaves the rest bare;
+//! - `facing`: of the source points on the target, the share whose warped normal points the way
+//!   the target's does there (a positive dot product): a source laid on the target inside out,
+//!   or onto a target whose normals point the other way (a mesh wound the other way round), lies
+//!   on it as closely as a right one, and faces it (NOTES 140);
 //! - for a mesh onto a mesh, `source_area_ratio` and `area_ratio`: the source's area before and
 //!   after the warp over the target's, measured so that the vertices' noise does not count
 //!   ([`SurfaceFit::add_areas`], NOTES 107). Bending keeps area, so a whole shape and the whole
@@ -21,7 +25,8 @@
 //! size as every setting of [`clean_surface_settings`](super::clean_surface_settings) is.
 //! A registration is *registered* when most of the source lies on the target and most of the
 //! target is covered ([`MIN_SHARE`] each, the plain meaning of "most", as for frames, NOTES 68),
-//! and, for meshes, the areas agree within [`AREA_FACTOR`]. The camel's 30 maps end with
+//! nearly all of it faces the target's way ([`MIN_FACING`]), and, for meshes, the areas agree
+//! within [`AREA_FACTOR`]. The camel's 30 maps end with
 //! 99.8–100 % on the target and 85–100 % covered. Necessary, not sufficient: a symmetric shape
 //! turned over fits as closely as the right way up.
 
@@ -34,6 +39,11 @@ use rayon::prelude::*;
 
 /// The share of the source on the target, and of the target covered, that a registration needs.
 pub const MIN_SHARE: f64 = 0.5;
+/// The share of the source on the target that must face the way the target does. Registrations
+/// that are right face it nearly everywhere (the camel's 30 maps 0.971–1, the sheets' 120 cases
+/// 1, a tube onto a copy with noise of an edge's length 0.98); the camel 1 → 3 onto a cloud whose
+/// normals point in ended 10.6 % off with 0.57 facing (NOTES 140).
+pub const MIN_FACING: f64 = 0.8;
 /// A mesh registration's source, before and after the warp, may differ in area from the target
 /// by at most this factor (half as much again, or a third less).
 pub const AREA_FACTOR: f64 = 1.5;
@@ -45,6 +55,9 @@ pub struct SurfaceFit {
     pub on_target: f64,
     /// Share of the target's points within `tolerance` of a warped source point.
     pub covered: f64,
+    /// Of the warped source's points within `tolerance` of the target, the share whose warped
+    /// normal has a positive dot product with the target's normal there (0 when none is within).
+    pub facing: f64,
     /// Median distance from a warped source point to the target.
     pub median_distance: f64,
     /// The distance within which a point counts as on the other surface (the node spacing).
@@ -59,36 +72,45 @@ pub struct SurfaceFit {
 /// Whether a surface registration can be trusted.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SurfaceVerdict {
-    /// Most of the source lies on the target, most of the target is covered, and (meshes)
-    /// their areas agree.
+    /// Most of the source lies on the target facing its way, most of the target is covered,
+    /// and (meshes) their areas agree.
     Registered,
     /// One of those failed; the fit says which.
     NotRegistered(SurfaceFit),
 }
 
 impl SurfaceFit {
-    /// Measures a registration's result `warped` against the `target` it was registered onto
-    /// (`target_points` its points), with the optimised `graph`, all in one unit of length.
-    /// Non-finite points count as off the other surface (source) or are left out (target).
-    /// Either side without a finite point gives shares of 0 and an infinite median distance.
+    /// Measures a registration's result `warped` (points and normals) against the `target` it
+    /// was registered onto (`target_points` its points), with the optimised `graph`, all in one
+    /// unit of length. Non-finite points count as off the other surface (source) or are left out
+    /// (target). Either side without a finite point gives shares of 0 and an infinite median
+    /// distance.
     pub fn measure(
-        warped: &[Vector3<f64>],
+        warped: (&[Vector3<f64>], &[Vector3<f64>]),
         target: &dyn Target,
         target_points: &[Vector3<f64>],
         graph: &DeformationGraph,
     ) -> Self {
         let tolerance = graph.params.spacing;
         let finite = |p: &&Vector3<f64>| p.iter().all(|x| x.is_finite());
-        let mut to_target: Vec<f64> = warped
+        // each finite point's distance to the target, and whether its normal faces the target's
+        let (mut to_target, facing): (Vec<f64>, Vec<bool>) = warped
+            .0
             .par_iter()
-            .filter(finite)
-            .filter_map(|p| target.associate(p).map(|(q, _)| (p - q).norm()))
-            .collect();
+            .zip(warped.1)
+            .filter(|(p, _)| finite(p))
+            .filter_map(|(p, n)| {
+                let (q, nq) = target.associate(p)?;
+                Some(((p - q).norm(), n.dot(&nq) > 0.0))
+            })
+            .unzip();
+        let warped = warped.0;
         let coords: Vec<[f64; 3]> = warped.iter().filter(finite).map(|&p| p.into()).collect();
         let target_points: Vec<&Vector3<f64>> = target_points.iter().filter(finite).collect();
         let mut fit = Self {
             on_target: 0.0,
             covered: 0.0,
+            facing: 0.0,
             median_distance: f64::INFINITY,
             tolerance,
             area_ratio: None,
@@ -108,7 +130,9 @@ impl SurfaceFit {
             })
             .count();
         let close = to_target.iter().filter(|&&d| d <= tolerance).count();
+        let faces = (to_target.iter().zip(&facing)).filter(|(&d, &f)| d <= tolerance && f);
         fit.on_target = close as f64 / warped.len() as f64;
+        fit.facing = faces.count() as f64 / close.max(1) as f64;
         fit.covered = near as f64 / target_points.len() as f64;
         let mid = to_target.len() / 2;
         fit.median_distance = *to_target.select_nth_unstable_by(mid, f64::total_cmp).1;
@@ -159,12 +183,14 @@ impl SurfaceFit {
     }
 
     /// [`SurfaceVerdict::Registered`] when the source lies on the target and covers it
-    /// ([`MIN_SHARE`] each) and, for meshes, the areas agree within [`AREA_FACTOR`].
+    /// ([`MIN_SHARE`] each), faces its way ([`MIN_FACING`]) and, for meshes, the areas agree
+    /// within [`AREA_FACTOR`].
     pub fn verdict(&self) -> SurfaceVerdict {
         let agrees =
             |r: Option<f64>| r.is_none_or(|r| (1.0 / AREA_FACTOR..=AREA_FACTOR).contains(&r));
         let areas_agree = agrees(self.area_ratio) && agrees(self.source_area_ratio);
-        if self.on_target >= MIN_SHARE && self.covered >= MIN_SHARE && areas_agree {
+        let shares = self.on_target >= MIN_SHARE && self.covered >= MIN_SHARE;
+        if shares && self.facing >= MIN_FACING && areas_agree {
             SurfaceVerdict::Registered
         } else {
             SurfaceVerdict::NotRegistered(*self)
@@ -187,6 +213,11 @@ mod tests {
         (points, normals)
     }
 
+    /// Normals +z for every one of `points`.
+    fn up(points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        vec![Vector3::z(); points.len()]
+    }
+
     fn graph(points: &[Vector3<f64>]) -> DeformationGraph {
         let params = GraphParams {
             spacing: 0.1,
@@ -199,10 +230,42 @@ mod tests {
     fn a_source_on_its_target_registered() {
         let (points, normals) = square();
         let target = CloudTarget::new(&points, &normals);
-        let fit = SurfaceFit::measure(&points, &target, &points, &graph(&points));
-        assert_eq!((fit.on_target, fit.covered), (1.0, 1.0));
+        let fit = SurfaceFit::measure((&points, &up(&points)), &target, &points, &graph(&points));
+        assert_eq!((fit.on_target, fit.covered, fit.facing), (1.0, 1.0, 1.0));
         assert_eq!(fit.median_distance, 0.0);
         assert_eq!(fit.tolerance, 0.1);
+        assert_eq!(fit.verdict(), SurfaceVerdict::Registered);
+    }
+
+    /// The square on itself with its normals turned over (as a mesh wound the other way round
+    /// has them) lies on it as closely and faces it the wrong way; with one in ten turned over
+    /// it faces it nearly everywhere, with one in three not.
+    #[test]
+    fn a_source_on_its_target_facing_the_other_way_is_not_registered() {
+        let (points, normals) = square();
+        let target = CloudTarget::new(&points, &normals);
+        let turned = |every: usize| -> Vec<Vector3<f64>> {
+            (0..points.len())
+                .map(|k| {
+                    if k % every == 0 {
+                        -Vector3::z()
+                    } else {
+                        Vector3::z()
+                    }
+                })
+                .collect()
+        };
+        let measure = |normals: &[Vector3<f64>]| {
+            SurfaceFit::measure((&points, normals), &target, &points, &graph(&points))
+        };
+        let fit = measure(&turned(1));
+        assert_eq!((fit.on_target, fit.covered, fit.facing), (1.0, 1.0, 0.0));
+        assert_eq!(fit.verdict(), SurfaceVerdict::NotRegistered(fit));
+        let fit = measure(&turned(3));
+        assert!((fit.facing - 1120.0 / 1681.0).abs() < 1e-12, "{fit:?}");
+        assert_eq!(fit.verdict(), SurfaceVerdict::NotRegistered(fit));
+        let fit = measure(&turned(10));
+        assert!((fit.facing - 1512.0 / 1681.0).abs() < 1e-12, "{fit:?}");
         assert_eq!(fit.verdict(), SurfaceVerdict::Registered);
     }
 
@@ -212,7 +275,7 @@ mod tests {
         let target = CloudTarget::new(&points, &normals);
         // 1.5 node spacings above the target
         let left: Vec<Vector3<f64>> = points.iter().map(|p| p + Vector3::z() * 0.15).collect();
-        let fit = SurfaceFit::measure(&left, &target, &points, &graph(&points));
+        let fit = SurfaceFit::measure((&left, &up(&left)), &target, &points, &graph(&points));
         assert_eq!((fit.on_target, fit.covered), (0.0, 0.0));
         assert!((fit.median_distance - 0.15).abs() < 1e-12);
         assert_eq!(fit.verdict(), SurfaceVerdict::NotRegistered(fit));
@@ -229,14 +292,14 @@ mod tests {
             .filter(|(p, _)| p.x <= 0.25)
             .unzip();
         let target = CloudTarget::new(&part, &part_normals);
-        let fit = SurfaceFit::measure(&points, &target, &part, &graph(&points));
+        let fit = SurfaceFit::measure((&points, &up(&points)), &target, &part, &graph(&points));
         assert_eq!(fit.covered, 1.0);
         // within a node spacing of x ≤ 0.25: x ≤ 0.35, 15 of 41 columns
         assert!((fit.on_target - 15.0 / 41.0).abs() < 1e-12, "{fit:?}");
         assert!(matches!(fit.verdict(), SurfaceVerdict::NotRegistered(_)));
         // and the other way round, the part onto the whole: on it, but most of it bare
         let whole = CloudTarget::new(&points, &normals);
-        let fit = SurfaceFit::measure(&part, &whole, &points, &graph(&part));
+        let fit = SurfaceFit::measure((&part, &up(&part)), &whole, &points, &graph(&part));
         assert_eq!(fit.on_target, 1.0);
         assert!((fit.covered - 15.0 / 41.0).abs() < 1e-12, "{fit:?}");
         assert!(matches!(fit.verdict(), SurfaceVerdict::NotRegistered(_)));
@@ -271,7 +334,8 @@ mod tests {
             .map(|p| Vector3::new(p.x.min(1.0 - p.x), p.y, 0.0))
             .collect();
         let target = CloudTarget::new(&points, &normals);
-        let mut fit = SurfaceFit::measure(&folded, &target, &points, &graph(&points));
+        let mut fit =
+            SurfaceFit::measure((&folded, &up(&folded)), &target, &points, &graph(&points));
         fit.add_areas(&points, &folded, &faces, (&points, &left));
         assert_eq!(fit.on_target, 1.0);
         let ratio = fit.area_ratio.unwrap();
@@ -303,7 +367,7 @@ mod tests {
         let (points, normals) = square();
         let target = CloudTarget::new(&points, &normals);
         let lost = vec![Vector3::repeat(f64::NAN); points.len()];
-        let fit = SurfaceFit::measure(&lost, &target, &points, &graph(&points));
+        let fit = SurfaceFit::measure((&lost, &up(&lost)), &target, &points, &graph(&points));
         assert_eq!((fit.on_target, fit.covered), (0.0, 0.0));
         assert_eq!(fit.median_distance, f64::INFINITY);
         assert!(matches!(fit.verdict(), SurfaceVerdict::NotRegistered(_)));
