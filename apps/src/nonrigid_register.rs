@@ -18,9 +18,11 @@
 //! than `--cover` source point spacings from the warped source pulls the nearest warped point
 //! (NOTES 101; 0 turns it off). One JSON line last: nodes, iterations, seconds, final data and
 //! regulariser costs, and whether it `registered` (`fit`: the shares of the warped source within
-//! a node spacing of the target and of the target covered, at least half each, and the source's
-//! area at rest and warped over the target's, each within 1.5× of 1; a warning says which
-//! failed).
+//! a node spacing of the target and of the target covered, at least half each, the share of the
+//! former facing the target's way, at least 0.8, and the source's area at rest and warped over
+//! the target's, each within 1.5× of 1; a warning says which failed), and whether the target's
+//! normals were turned to point the source's way (`target_normals_turned`, NOTES 140). A point
+//! cloud (no faces) must carry its normals.
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
