@@ -45,16 +45,17 @@ pub fn facing(mesh: Oriented<'_>) -> Option<Facing> {
     if normals.len() != points.len() || faces.is_empty() {
         return None;
     }
-    let (area, boundary) = area_and_boundary(points, faces)?;
-    if !(area > 0.0 && boundary <= HOLES * area.sqrt()) {
-        return None;
-    }
-    let c = centroid(points);
+    let boundary = boundary_length(points, faces)?;
     let mut vertex_area = vec![0.0; points.len()];
     for f in faces {
         let third = triangle_area(points, f) / 3.0;
         f.iter().for_each(|&v| vertex_area[v as usize] += third);
     }
+    let area: f64 = vertex_area.iter().sum();
+    if !(area > 0.0 && area.is_finite() && boundary <= HOLES * area.sqrt()) {
+        return None;
+    }
+    let c = centroid(points);
     let terms =
         (points.iter().zip(normals).zip(&vertex_area)).map(|((p, n), a)| a * n.dot(&(p - c)));
     let (flux, magnitude) = terms.fold((0.0, 0.0), |(f, m), t| (f + t, m + t.abs()));
@@ -88,9 +89,9 @@ pub fn relation(source: Oriented<'_>, target: Oriented<'_>) -> Relation {
     }
 }
 
-/// The area of `faces` and the length of their boundary, or `None` when a face refers past
-/// `points` or a length is not finite.
-fn area_and_boundary(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Option<(f64, f64)> {
+/// The length of the boundary of `faces` (their edges that one face alone has), or `None` when
+/// a face refers past `points` or the length is not finite.
+fn boundary_length(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Option<f64> {
     if faces.iter().flatten().any(|&v| v as usize >= points.len()) {
         return None;
     }
@@ -106,8 +107,7 @@ fn area_and_boundary(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Option<(f64
     let boundary: f64 = (uses.iter().filter(|(_, &n)| n == 1))
         .map(|(&(a, b), _)| (points[a as usize] - points[b as usize]).norm())
         .sum();
-    let area: f64 = faces.iter().map(|f| triangle_area(points, f)).sum();
-    (area.is_finite() && boundary.is_finite()).then_some((area, boundary))
+    boundary.is_finite().then_some(boundary)
 }
 
 /// The area of triangle `f`.
