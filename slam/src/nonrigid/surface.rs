@@ -34,6 +34,16 @@ pub enum SurfaceError {
     /// The geodesic descriptors could not be formed.
     #[error(transparent)]
     Descriptor(#[from] DescriptorError),
+    /// The target's normals are not one per point (a point cloud given without normals).
+    #[error(
+        "the target has {normals} normals for {points} points (a point cloud needs its normals)"
+    )]
+    TargetNormals {
+        /// Target points given.
+        points: usize,
+        /// Target normals given.
+        normals: usize,
+    },
 }
 
 /// A mesh with vertex normals, as [`register_meshes`] takes it.
@@ -160,10 +170,12 @@ fn fits_as_well(next: &SurfaceFit, last: &SurfaceFit) -> bool {
     next.on_target + next.covered >= last.on_target + last.covered - PASS_SLACK
 }
 
-/// A mesh's vertices and normals in double precision.
+/// A mesh's vertices and normals in double precision, the normals computed from its faces where
+/// it has not one per vertex. A point cloud (no faces) keeps the normals it has: none are made
+/// up for it, and the registrations refuse a cloud whose normals are missing.
 pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     let points = m.vertices.iter().map(|p| p.coords.cast()).collect();
-    if m.normals.len() == m.vertices.len() {
+    if m.normals.len() == m.vertices.len() || m.faces.is_empty() {
         return (points, m.normals.iter().map(|n| n.cast()).collect());
     }
     let mut with_normals = Mesh {
@@ -247,6 +259,12 @@ impl Passes {
         principal_axes: bool,
         size: Option<f64>,
     ) -> Result<Self, SurfaceError> {
+        if target.normals.len() != target.points.len() {
+            return Err(SurfaceError::TargetNormals {
+                points: target.points.len(),
+                normals: target.normals.len(),
+            });
+        }
         let unit = match size {
             Some(d) if d.is_finite() && d > 0.0 => d,
             _ => 1.0,
@@ -1067,6 +1085,39 @@ mod tests {
         for (a, b) in open.points.iter().zip(&as_wound.points) {
             assert!((a - b).norm() < 1e-6 * d, "{a:?} {b:?}");
         }
+    }
+
+    /// A point cloud without normals gets none made up: as the target it is refused, as the
+    /// source the optimiser refuses it, each with an error rather than a registration by +z.
+    #[test]
+    fn a_cloud_without_normals_is_refused() {
+        let pair = TubePair::new(12, 8, 0.4);
+        let mesh = |p: &[Vector3<f64>]| Mesh {
+            vertices: p.iter().map(|p| Point3::from(p.cast::<f32>())).collect(),
+            faces: pair.faces.clone(),
+            ..Mesh::default()
+        };
+        let (source, target) = (mesh(&pair.source.0), mesh(&pair.target.0));
+        let cloud = |m: &Mesh| Mesh {
+            faces: Vec::new(),
+            ..m.clone()
+        };
+        assert!(mesh_points(&cloud(&target)).1.is_empty());
+        let seeding = Seeding::default();
+        assert_eq!(
+            register_mesh_pair(&source, &cloud(&target), &seeding).unwrap_err(),
+            SurfaceError::TargetNormals {
+                points: target.vertices.len(),
+                normals: 0
+            }
+        );
+        assert!(matches!(
+            register_mesh_pair(&cloud(&source), &target, &seeding),
+            Err(SurfaceError::Register(RegisterError::Mismatch {
+                normals: 0,
+                ..
+            }))
+        ));
     }
 
     /// The later passes start from the first pass's rigid motion, carried in the caller's
