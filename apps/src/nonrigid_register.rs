@@ -22,7 +22,9 @@
 //! former facing the target's way, at least 0.8, and the source's area at rest and warped over
 //! the target's, each within 1.5× of 1; a warning says which failed), and whether the target's
 //! normals were turned to point the source's way (`target_normals_turned`, NOTES 140). A point
-//! cloud (no faces) must carry its normals.
+//! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
+//! triangles after those wound against their neighbours are turned over (`faces_turned`, per
+//! mesh, with a warning; NOTES 141).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
@@ -57,7 +59,10 @@ use dynamap_slam::image::{depth_to_metres, ColorImage, DepthImage, Image};
 use dynamap_slam::io::deepdeform::read_graph_nodes;
 use dynamap_slam::io::flow::{read_flow, write_flow};
 use dynamap_slam::io::images::{read_color, read_depth, read_mask, write_color};
-use dynamap_slam::io::{meshes::read_mesh, ply};
+use dynamap_slam::io::{
+    meshes::{read_mesh, read_mesh_oriented},
+    ply,
+};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
@@ -663,11 +668,29 @@ fn surface_points(mesh: &Mesh, path: &Path) -> Result<PointsAndNormals> {
     Ok(mesh_points(mesh))
 }
 
+/// Reads a mesh, and how many of its triangles were turned to be wound like their neighbours
+/// when its normals were computed from them (0 when it gave normals or has no faces), with a
+/// warning naming the file when any were.
+fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
+    let (mesh, winding) = read_mesh_oriented(path).bad_input()?;
+    let winding = winding.unwrap_or_default();
+    if winding.turned > 0 {
+        tracing::warn!(
+            "{}: {} of {} triangles were wound against their neighbours and were turned over \
+             before the normals were computed",
+            path.display(),
+            winding.turned,
+            mesh.faces.len()
+        );
+    }
+    Ok((mesh, winding.turned))
+}
+
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
 /// vertex map, and prints the JSON line.
 fn register_mesh_files(args: &MeshArgs) -> Result<()> {
-    let source = read_mesh(&args.source).bad_input()?;
-    let target = read_mesh(&args.target).bad_input()?;
+    let (source, source_winding) = read_oriented(&args.source)?;
+    let (target, target_winding) = read_oriented(&args.target)?;
     let (sp, sn) = surface_points(&source, &args.source)?;
     let (tp, tn) = surface_points(&target, &args.target)?;
     let size = |points: &[Vector3<f64>], mesh: &Mesh, path: &Path| {
@@ -721,6 +744,7 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
     json["registered"] = surface_verdict_json(reg.verdict());
     json["target_normals_turned"] = reg.target_normals_turned.into();
+    json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,
         "covered": reg.fit.covered,

@@ -70,7 +70,8 @@ fn faces_of(
         .collect()
 }
 
-/// A mesh from arrays; normals come from the faces when not given (a cloud needs them).
+/// A mesh from arrays; normals come from the faces when not given (a cloud needs them), after
+/// the triangles wound against their neighbours are turned over (`Mesh::orient_faces`).
 fn mesh_of(
     vertices: &Matrix<'_>,
     faces: Option<PyArrayLike2<'_, i64, numpy::AllowTypeChange>>,
@@ -110,7 +111,10 @@ fn mesh_of(
                 "{what}: a point cloud needs normals (or give faces to compute them from)"
             )))
         }
-        None => mesh.compute_normals(),
+        None => {
+            mesh.orient_faces();
+            mesh.compute_normals()
+        }
     }
     Ok(mesh)
 }

@@ -287,6 +287,76 @@ fn nonrigid_register_takes_one_subcommand_per_input_with_its_own_flags() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A source mesh without normals whose triangles are wound some one way, some the other (an OFF
+/// file stitched from pieces), has them turned alike before its normals are computed: the JSON
+/// counts them per mesh, and the plate registers as the consistently wound one does.
+#[test]
+fn a_mesh_wound_against_itself_is_counted_and_registers_as_the_consistent_one() {
+    use dynamap_slam::io::ply;
+    use dynamap_slam::synthetic::plate::{flat_grid, PlateDeformation};
+    let dir = scratch("winding");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
+    let source = flat_grid();
+    let target = PlateDeformation::ALL[0].deformed(&source);
+    ply::write(dir.join("bent.ply"), &target).unwrap();
+    let corners: String = source
+        .vertices
+        .iter()
+        .map(|p| format!("{} {} {}\n", p.x, p.y, p.z))
+        .collect();
+    let off = |turn_every: usize| {
+        let faces: String = source
+            .faces
+            .iter()
+            .enumerate()
+            .map(|(k, &[a, b, c])| match k % turn_every {
+                0 => format!("3 {a} {c} {b}\n"),
+                _ => format!("3 {a} {b} {c}\n"),
+            })
+            .collect();
+        let counts = format!("{} {} 0\n", source.vertices.len(), source.faces.len());
+        format!("OFF\n{counts}{corners}{faces}")
+    };
+    let map: String = (0..source.vertices.len())
+        .map(|k| format!("{k}\n"))
+        .collect();
+    std::fs::write(dir.join("map.txt"), map).unwrap();
+    let register = |turn_every: usize| {
+        std::fs::write(dir.join("flat.off"), off(turn_every)).unwrap();
+        let out = run(
+            "nonrigid_register",
+            &[
+                "meshes",
+                &path("flat.off"),
+                &path("bent.ply"),
+                "--ground-truth",
+                &path("map.txt"),
+                "-q",
+            ],
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        result_json(&out)
+    };
+    // every face's index is a multiple of `faces + 1` only for face 0: one triangle turned
+    let (once, mixed) = (register(source.faces.len() + 1), register(4));
+    let turned = source.faces.len().div_ceil(4);
+    assert_eq!(
+        once["faces_turned"],
+        serde_json::json!({"source": 1, "target": 0})
+    );
+    assert_eq!(
+        mixed["faces_turned"],
+        serde_json::json!({"source": turned, "target": 0})
+    );
+    let error = |json: &serde_json::Value| json["error_after"]["mean"].as_f64().unwrap();
+    assert!(
+        (error(&mixed) - error(&once)).abs() <= 1e-9 + 1e-6 * error(&once),
+        "{mixed}"
+    );
+    assert_eq!(mixed["registered"], once["registered"], "{mixed}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Vertices that no face uses (legal in PLY and OFF files) do not make a mesh larger: its
 /// settings and its score scale with the surface itself, so a plate with two stray vertices
 /// far off registers as the plate does. A surface with no extent, and a point cloud without

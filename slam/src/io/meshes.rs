@@ -3,14 +3,22 @@
 //! extension. Polygons with more than three corners are fanned into triangles.
 
 use super::{ply, read_text, IoError};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, Winding};
 use nalgebra::Point3;
 use std::path::Path;
 
 /// Reads a PLY, OFF or OBJ mesh by its extension; normals are computed from the faces when the file
-/// has none. A point cloud (no faces) without normals keeps none: it has nothing to compute them
-/// from, and a made-up normal would be taken as measured.
+/// has none, after the triangles wound against their neighbours are turned over
+/// ([`Mesh::orient_faces`]; [`read_mesh_oriented`] says how many). A point cloud (no faces)
+/// without normals keeps none: it has nothing to compute them from, and a made-up normal would be
+/// taken as measured.
 pub fn read_mesh(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
+    read_mesh_oriented(path).map(|(mesh, _)| mesh)
+}
+
+/// [`read_mesh`], with what orienting the faces did when the normals were computed from them
+/// (`None` when the file gave normals or has no faces).
+pub fn read_mesh_oriented(path: impl AsRef<Path>) -> Result<(Mesh, Option<Winding>), IoError> {
     let path = path.as_ref();
     let ext = path
         .extension()
@@ -30,10 +38,12 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<Mesh, IoError> {
     if mesh.vertices.is_empty() {
         return Err(IoError::file(path, "the mesh has no vertices"));
     }
+    let mut winding = None;
     if mesh.normals.len() != mesh.vertices.len() && !mesh.faces.is_empty() {
+        winding = Some(mesh.orient_faces());
         mesh.compute_normals();
     }
-    Ok(mesh)
+    Ok((mesh, winding))
 }
 
 /// Parses a finite coordinate.
@@ -314,6 +324,53 @@ mod tests {
         assert_eq!(square.normals.len(), 4);
         let cloud = read_mesh(&cloud).unwrap();
         assert_eq!((cloud.vertices.len(), cloud.normals.len()), (4, 0));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A grid whose triangles are wound some up, some down, is read with one normal direction
+    /// (the majority's), and the read says how many were turned; a file with normals is left be.
+    #[test]
+    fn triangles_wound_against_their_neighbours_are_turned_before_normals_are_made() {
+        let n = 5;
+        let counts = format!("{} {} 0\n", (n + 1) * (n + 1), 2 * n * n);
+        let corners = |normal: &str| {
+            let rows = (0..=n).flat_map(|j| (0..=n).map(move |i| (i, j)));
+            rows.map(|(i, j)| format!("{i} {j} 0{normal}\n"))
+                .collect::<String>()
+        };
+        let mut faces = String::new();
+        let at = |i: usize, j: usize| j * (n + 1) + i;
+        for (k, (i, j)) in (0..n).flat_map(|j| (0..n).map(move |i| (i, j))).enumerate() {
+            let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+            // every third square is wound downwards, the corner (0, 0) among them
+            let (b, d) = if k % 3 == 0 { (d, b) } else { (b, d) };
+            faces += &format!("3 {a} {b} {c}\n3 {a} {c} {d}\n");
+        }
+        let dir = std::env::temp_dir().join(format!("dynamap_winding_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("grid.off");
+        std::fs::write(&file, format!("OFF\n{counts}{}{faces}", corners(""))).unwrap();
+        let (mesh, winding) = read_mesh_oriented(&file).unwrap();
+        let winding = winding.expect("normals were computed from the faces");
+        assert_eq!((winding.turned, winding.pieces), (18, 1));
+        assert_eq!(winding.disagreeing, 0);
+        for (v, normal) in mesh.normals.iter().enumerate() {
+            assert!(
+                (normal - Vector3::z()).norm() < 1e-6,
+                "vertex {v}: {normal:?}"
+            );
+        }
+        let ply = dir.join("grid.ply");
+        let head = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+             property float z\nproperty float nx\nproperty float ny\nproperty float nz\n\
+             element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            (n + 1) * (n + 1),
+            2 * n * n
+        );
+        std::fs::write(&ply, format!("{head}{}{faces}", corners(" 0 0 1"))).unwrap();
+        let (given, winding) = read_mesh_oriented(&ply).unwrap();
+        assert_eq!((given.normals.len(), winding), ((n + 1) * (n + 1), None));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

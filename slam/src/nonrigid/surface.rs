@@ -171,8 +171,9 @@ fn fits_as_well(next: &SurfaceFit, last: &SurfaceFit) -> bool {
 }
 
 /// A mesh's vertices and normals in double precision, the normals computed from its faces where
-/// it has not one per vertex. A point cloud (no faces) keeps the normals it has: none are made
-/// up for it, and the registrations refuse a cloud whose normals are missing.
+/// it has not one per vertex (on a copy whose triangles are wound alike, [`Mesh::orient_faces`]).
+/// A point cloud (no faces) keeps the normals it has: none are made up for it, and the
+/// registrations refuse a cloud whose normals are missing.
 pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     let points = m.vertices.iter().map(|p| p.coords.cast()).collect();
     if m.normals.len() == m.vertices.len() || m.faces.is_empty() {
@@ -183,6 +184,7 @@ pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
         faces: m.faces.clone(),
         ..Mesh::default()
     };
+    with_normals.orient_faces();
     with_normals.compute_normals();
     (
         points,
@@ -749,6 +751,23 @@ mod tests {
             ..Mesh::default()
         };
         mesh_points(&mesh).1
+    }
+
+    /// A mesh whose triangles are wound against each other gives the normals of the one wound
+    /// alike: the faces are oriented before the normals are averaged from them.
+    #[test]
+    fn mesh_points_orients_the_faces_before_making_normals() {
+        let (points, faces) = tube(10, 8, 0.3);
+        let mixed: Vec<[u32; 3]> = faces
+            .iter()
+            .enumerate()
+            .map(|(i, &[a, b, c])| if i % 3 == 1 { [a, c, b] } else { [a, b, c] })
+            .collect();
+        let (wound, unwound) = (with_normals(&points, &faces), with_normals(&points, &mixed));
+        assert_eq!(wound.len(), points.len());
+        for (i, (n, m)) in wound.iter().zip(&unwound).enumerate() {
+            assert!((n - m).norm() < 1e-6, "vertex {i}: {n:?} against {m:?}");
+        }
     }
 
     /// A tube and its copy bent by `bend` radians, with normals.

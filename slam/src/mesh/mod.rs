@@ -3,6 +3,9 @@
 
 use nalgebra::{Point3, Vector3};
 
+mod winding;
+pub use winding::Winding;
+
 /// An indexed triangle mesh with optional per-vertex normals and colours.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mesh {
