@@ -203,7 +203,8 @@ pub fn write_mesh(
 /// point cloud, or with `seeded_passes=0`).
 ///
 /// Each surface is vertices (n × 3) with faces (m × 3, optional) and normals (n × 3; computed from
-/// the faces when not given). Returns a dict: vertices and normals (the source's, warped, in its
+/// the faces when not given, after those wound against their neighbours are turned alike).
+/// Returns a dict: vertices and normals (the source's, warped, in its
 /// order), nodes (the graph's node count), iterations, data_cost, regulariser_cost, matched (source
 /// points with a correspondence at the end) and matched_fraction, seconds, and the verdict:
 /// registered (bool), target_normals_turned (bool: both meshes closed, the target's normals

@@ -78,6 +78,19 @@ def test_a_point_cloud_with_normals_registers_by_closest_point():
     assert result["matched"] > 0.9 * len(v)
 
 
+def test_a_source_wound_against_itself_registers_as_the_consistent_one():
+    """Normals computed from faces some of which are wound the other way come from the faces
+    turned alike first (NOTES 141): the registration is the same as with the consistent ones."""
+    v, f = sheet()
+    t = bent(v)
+    mixed = f.copy()
+    mixed[::4] = mixed[::4, ::-1]
+    consistent = dynamap.register_meshes(v, t, source_faces=f, target_faces=f)
+    result = dynamap.register_meshes(v, t, source_faces=mixed, target_faces=mixed)
+    np.testing.assert_allclose(result["vertices"], consistent["vertices"], rtol=0, atol=1e-9)
+    assert result["registered"]
+
+
 def test_a_sheet_onto_a_third_of_its_copy_is_fully_matched_but_not_registered(tmp_path):
     v, f = sheet()
     t = bent(v)
