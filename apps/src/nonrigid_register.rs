@@ -670,7 +670,7 @@ fn surface_points(mesh: &Mesh, path: &Path) -> Result<PointsAndNormals> {
 
 /// Reads a mesh, and how many of its triangles were turned to be wound like their neighbours
 /// when its normals were computed from them (0 when it gave normals or has no faces), with a
-/// warning naming the file when any were.
+/// warning naming the file when any were, and another when some cannot be.
 fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
     let (mesh, winding) = read_mesh_oriented(path).bad_input()?;
     let winding = winding.unwrap_or_default();
@@ -681,6 +681,14 @@ fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
             path.display(),
             winding.turned,
             mesh.faces.len()
+        );
+    }
+    if winding.disagreeing > 0 {
+        tracing::warn!(
+            "{}: {} shared edge(s) join triangles that cannot be wound alike (a surface that \
+             cannot be oriented, as a Möbius strip); its normals point both ways there",
+            path.display(),
+            winding.disagreeing
         );
     }
     Ok((mesh, winding.turned))

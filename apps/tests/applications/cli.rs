@@ -354,6 +354,32 @@ fn a_mesh_wound_against_itself_is_counted_and_registers_as_the_consistent_one() 
         "{mixed}"
     );
     assert_eq!(mixed["registered"], once["registered"], "{mixed}");
+    // a Möbius strip cannot be wound alike throughout: the run says so, naming the file
+    let n = 24;
+    let mut strip = format!("OFF\n{} {} 0\n", 2 * n, 2 * n);
+    for k in 0..n {
+        let t = std::f64::consts::TAU * k as f64 / n as f64;
+        for w in [-0.2, 0.2] {
+            let r = 1.0 + w * (t / 2.0).cos();
+            strip += &format!("{} {} {}\n", r * t.cos(), r * t.sin(), w * (t / 2.0).sin());
+        }
+    }
+    for k in 0..n {
+        let (a, b) = (2 * k, 2 * k + 1);
+        // the last quad joins the strip's ends with its sides swapped
+        let (c, d) = if k + 1 == n { (1, 0) } else { (a + 2, b + 2) };
+        strip += &format!("3 {a} {c} {b}\n3 {b} {c} {d}\n");
+    }
+    std::fs::write(dir.join("strip.off"), strip).unwrap();
+    let out = run(
+        "nonrigid_register",
+        &["meshes", &path("strip.off"), &path("strip.off")],
+    );
+    let says = text(&out.stderr);
+    assert!(
+        says.contains("strip.off") && says.contains("cannot be wound alike"),
+        "{says}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
