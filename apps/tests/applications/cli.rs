@@ -354,7 +354,14 @@ fn a_mesh_wound_against_itself_is_counted_and_registers_as_the_consistent_one() 
         "{mixed}"
     );
     assert_eq!(mixed["registered"], once["registered"], "{mixed}");
-    // a Möbius strip cannot be wound alike throughout: the run says so, naming the file
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A Möbius strip cannot be wound alike throughout: the run says so, naming the file.
+#[test]
+fn a_surface_that_cannot_be_oriented_is_warned_of_by_name() {
+    let dir = scratch("mobius");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
     let n = 24;
     let mut strip = format!("OFF\n{} {} 0\n", 2 * n, 2 * n);
     for k in 0..n {
