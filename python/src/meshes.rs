@@ -112,8 +112,7 @@ fn mesh_of(
             )))
         }
         None => {
-            mesh.orient_faces();
-            mesh.compute_normals()
+            mesh.compute_oriented_normals();
         }
     }
     Ok(mesh)

@@ -40,8 +40,7 @@ pub fn read_mesh_oriented(path: impl AsRef<Path>) -> Result<(Mesh, Option<Windin
     }
     let mut winding = None;
     if mesh.normals.len() != mesh.vertices.len() && !mesh.faces.is_empty() {
-        winding = Some(mesh.orient_faces());
-        mesh.compute_normals();
+        winding = Some(mesh.compute_oriented_normals());
     }
     Ok((mesh, winding))
 }

@@ -85,6 +85,17 @@ impl Mesh {
     }
 }
 
+impl Mesh {
+    /// Vertex normals from the faces ([`Mesh::compute_normals`]) after the faces are wound
+    /// alike ([`Mesh::orient_faces`]): for meshes read or given by a user, whose winding may be
+    /// mixed. Marching cubes winds its own triangles alike and calls `compute_normals` alone.
+    pub fn compute_oriented_normals(&mut self) -> Winding {
+        let winding = self.orient_faces();
+        self.compute_normals();
+        winding
+    }
+}
+
 /// Each triangle's neighbours across its edges of exactly two triangles, with whether the two
 /// run along the edge the same way.
 struct SharedEdges {

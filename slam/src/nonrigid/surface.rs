@@ -184,8 +184,7 @@ pub fn mesh_points(m: &Mesh) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
         faces: m.faces.clone(),
         ..Mesh::default()
     };
-    with_normals.orient_faces();
-    with_normals.compute_normals();
+    with_normals.compute_oriented_normals();
     (
         points,
         with_normals.normals.iter().map(|n| n.cast()).collect(),
