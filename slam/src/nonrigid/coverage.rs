@@ -12,6 +12,7 @@
 //! 101). The same gates as forward matching apply: the distance gate and the normals' angle; a
 //! sample farther than the data terms' Tukey c gets no weight.
 
+use kiddo::traits::DistanceMetric;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -38,9 +39,21 @@ pub(crate) struct Coverage {
     nearest: Vec<Option<(u32, f64)>>,
     /// Per warped point: the nearest uncovered sample that chose it, and the squared distance.
     chosen: Vec<Option<(u32, f64)>>,
+    /// Per target sample: the warped point found nearest it when it was last searched for
+    /// (`u32::MAX` for none). While that point stays within the coverage distance the sample
+    /// is covered, whichever point is nearest now, and is not searched for again.
+    last: Vec<u32>,
+    /// Per target sample: whether this round searches for its nearest warped point.
+    search: Vec<bool>,
 }
 
 impl Coverage {
+    /// Forgets the samples' last nearest points: the next round searches for every one (a new
+    /// optimisation, whose points or target may differ).
+    pub fn forget(&mut self) {
+        self.last.clear();
+    }
+
     /// Gives each warped point that is the nearest of some uncovered target sample (within the
     /// gates) the nearest such sample as its partner in `matches`. Returns how many points were
     /// given one.
@@ -52,34 +65,67 @@ impl Coverage {
         matches: &mut [Option<Match>],
     ) -> usize {
         let (points, normals) = warped;
-        self.coords.clear();
-        self.coords
-            .extend(points.iter().map(|p| <[f64; 3]>::from(*p)));
-        if self.coords.is_empty() {
+        if points.is_empty() {
             return 0;
         }
-        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&self.coords);
         let (cover2, gate2) = (gates.cover * gates.cover, gates.max_distance.powi(2));
+        self.mark_searches(points, samples.0, cover2);
         self.nearest.clear();
         self.nearest.resize(samples.0.len(), None);
-        self.nearest
+        if self.search.iter().any(|&s| s) {
+            self.coords.clear();
+            self.coords
+                .extend(points.iter().map(|p| <[f64; 3]>::from(*p)));
+            let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&self.coords);
+            self.nearest
+                .par_iter_mut()
+                .zip(self.last.par_iter_mut())
+                .zip(self.search.par_iter())
+                .zip(samples.0.par_iter().zip(samples.1.par_iter()))
+                .filter(|(((_, _), search), _)| **search)
+                .for_each(|(((out, last), _), (q, n))| {
+                    let near = tree.nearest_one::<SquaredEuclidean>(&(*q).into());
+                    let i = near.item as usize;
+                    *last = near.item as u32;
+                    if near.distance > cover2
+                        && near.distance <= gate2
+                        && normals[i].dot(n) >= gates.min_cos
+                    {
+                        *out = Some((i as u32, near.distance));
+                    }
+                });
+        }
+        self.give_partners(points.len(), samples, matches)
+    }
+
+    /// Marks the samples to search for this round: the finite ones whose last nearest warped
+    /// point is not within the coverage distance (squared: `cover2`) of them now.
+    fn mark_searches(&mut self, points: &[Vector3<f64>], samples: &[Vector3<f64>], cover2: f64) {
+        self.last.resize(samples.len(), u32::MAX);
+        self.search.clear();
+        self.search.resize(samples.len(), false);
+        self.search
             .par_iter_mut()
-            .zip(samples.0.par_iter().zip(samples.1.par_iter()))
-            .for_each(|(out, (q, n))| {
-                if !q.iter().chain(n.iter()).all(|v| v.is_finite()) {
-                    return;
-                }
-                let near = tree.nearest_one::<SquaredEuclidean>(&(*q).into());
-                let i = near.item as usize;
-                if near.distance > cover2
-                    && near.distance <= gate2
-                    && normals[i].dot(n) >= gates.min_cos
-                {
-                    *out = Some((i as u32, near.distance));
-                }
+            .zip(self.last.par_iter())
+            .zip(samples.par_iter())
+            .for_each(|((search, &last), q)| {
+                let covered = points.get(last as usize).is_some_and(|w| {
+                    let (q, w): ([f64; 3], [f64; 3]) = ((*q).into(), (*w).into());
+                    <SquaredEuclidean as DistanceMetric<f64, 3>>::dist(&q, &w) <= cover2
+                });
+                *search = !covered && q.iter().all(|v| v.is_finite());
             });
+    }
+
+    /// Gives each warped point (of `count`) the nearest uncovered sample that chose it.
+    fn give_partners(
+        &mut self,
+        count: usize,
+        samples: (&[Vector3<f64>], &[Vector3<f64>]),
+        matches: &mut [Option<Match>],
+    ) -> usize {
         self.chosen.clear();
-        self.chosen.resize(points.len(), None);
+        self.chosen.resize(count, None);
         for (s, found) in self.nearest.iter().enumerate() {
             if let Some((i, d2)) = *found {
                 let slot = &mut self.chosen[i as usize];

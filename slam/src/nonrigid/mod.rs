@@ -29,6 +29,7 @@ mod band;
 pub mod boundary;
 mod cell_nearest;
 pub mod chroma;
+mod cloud_target;
 pub mod colour_check;
 pub mod colour_drift;
 mod coverage;

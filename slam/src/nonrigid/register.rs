@@ -15,6 +15,7 @@
 //! factorisation for as long as the graph stays the same and the points' node pairs fit its
 //! structure (rounds, stages, and further calls and frames).
 
+pub use super::cloud_target::CloudTarget;
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
 use super::extent::centroid;
 use super::graph::{Binding, DeformationGraph};
@@ -32,7 +33,6 @@ use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Huber;
 use dynamap_solver::FactorPrecision;
 use dynamap_solver::{SolveError, SE3};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -89,6 +89,19 @@ pub trait Target: Sync {
     /// The target point and unit normal associated with the warped point `p` (before rejection).
     fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)>;
 
+    /// [`Self::associate`] for a point whose partner at the last association was the target's
+    /// point `*last` (`u32::MAX` for none; [`Self::samples`]' index): a target that can tell
+    /// without a search that it still is keeps it, and writes the partner it found to `last`
+    /// otherwise. The answer is the one [`Self::associate`] gives; by default it is that call.
+    fn associate_from(
+        &self,
+        p: &Vector3<f64>,
+        last: &mut u32,
+    ) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        let _ = last;
+        self.associate(p)
+    }
+
     /// The live intensities and the data points' reference intensities, for the photometric
     /// term (module `photometric`), if the target has them.
     fn photometric(&self) -> Option<PhotometricTarget<'_>> {
@@ -106,45 +119,6 @@ pub trait Target: Sync {
     /// is a whole shape: a mesh or a cloud, not a view.
     fn samples(&self) -> Option<Samples<'_>> {
         None
-    }
-}
-
-/// A point cloud with normals (a mesh's vertices), associated by closest point through a KD-tree.
-pub struct CloudTarget {
-    points: Vec<Vector3<f64>>,
-    normals: Vec<Vector3<f64>>,
-    tree: ImmutableKdTree<f64, 3>,
-}
-
-impl CloudTarget {
-    /// A target from points and their unit normals (non-finite points are left out).
-    pub fn new(points: &[Vector3<f64>], normals: &[Vector3<f64>]) -> Self {
-        let (points, normals): (Vec<_>, Vec<_>) = points
-            .iter()
-            .zip(normals)
-            .filter(|(p, n)| p.iter().chain(n.iter()).all(|v| v.is_finite()))
-            .map(|(p, n)| (*p, *n))
-            .unzip();
-        let coords: Vec<[f64; 3]> = points.iter().map(|p| (*p).into()).collect();
-        Self {
-            tree: ImmutableKdTree::new_from_slice(&coords),
-            points,
-            normals,
-        }
-    }
-}
-
-impl Target for CloudTarget {
-    fn associate(&self, p: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
-        if self.points.is_empty() {
-            return None;
-        }
-        let k = self.tree.nearest_one::<SquaredEuclidean>(&(*p).into()).item as usize;
-        Some((self.points[k], self.normals[k]))
-    }
-
-    fn samples(&self) -> Option<Samples<'_>> {
-        Some((&self.points, &self.normals))
     }
 }
 
@@ -378,6 +352,9 @@ pub struct WarpOptimiser {
     warped: Vec<Vector3<f64>>,
     warped_normals: Vec<Vector3<f64>>,
     matches: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
+    /// Per point, its partner's index at the last association, for [`Target::associate_from`]
+    /// (`u32::MAX` for none; forgotten when an optimisation starts, as its target may differ).
+    partners: Vec<u32>,
     coverage: Coverage,
 }
 
@@ -393,6 +370,7 @@ impl WarpOptimiser {
             warped: Vec::new(),
             warped_normals: Vec::new(),
             matches: Vec::new(),
+            partners: Vec::new(),
             coverage: Coverage::default(),
         }
     }
@@ -457,6 +435,8 @@ impl WarpOptimiser {
             clock = now;
         };
         let cover = self.coverage_distance(points, target);
+        self.partners.clear();
+        self.coverage.forget();
         let prealigned = self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
         self.start_system(graph, bindings)?;
@@ -597,12 +577,14 @@ impl WarpOptimiser {
             self.params.max_normal_angle_deg.to_radians().cos(),
         );
         self.matches.resize(points.len(), None);
+        self.partners.resize(points.len(), u32::MAX);
         self.matches
             .par_iter_mut()
+            .zip(self.partners.par_iter_mut())
             .zip(self.warped.par_iter().zip(self.warped_normals.par_iter()))
-            .for_each(|(m, (p, n))| {
+            .for_each(|((m, last), (p, n))| {
                 *m = target
-                    .associate(p)
+                    .associate_from(p, last)
                     .filter(|(q, nq)| (q - p).norm_squared() <= d2 && nq.dot(n) >= min_cos);
             });
     }
