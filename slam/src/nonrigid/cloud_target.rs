@@ -8,11 +8,10 @@
 //! `|p − t_j| ≥ |t_j − t_k| − |p − t_k| > s_k / 2 > |p − t_k|`: k is still the unique nearest,
 //! the answer the KD-tree would give. Otherwise the tree is searched.
 
+use super::coverage::neighbour_distances2;
 use super::register::{Samples, Target};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
-use rayon::prelude::*;
-use std::num::NonZero;
 
 /// A point cloud with normals, associated by closest point through a KD-tree.
 pub struct CloudTarget {
@@ -35,17 +34,9 @@ impl CloudTarget {
             .unzip();
         let coords: Vec<[f64; 3]> = points.iter().map(|p| (*p).into()).collect();
         let tree = ImmutableKdTree::new_from_slice(&coords);
-        let two = NonZero::new(2).expect("2 is not 0");
-        // the second nearest of a point's own coordinates is its nearest neighbour (the first,
-        // at 0, is itself or a point on it); a margin of 10⁻⁹ keeps rounding from deciding
-        let keep = coords
-            .par_iter()
-            .map(|q| {
-                let near = tree.nearest_n::<SquaredEuclidean>(q, two);
-                near.get(1)
-                    .map_or(0.0, |n| 0.25 * n.distance * (1.0 - 1e-9))
-            })
-            .collect();
+        // half the distance, squared; a margin of 10⁻⁹ keeps rounding from deciding
+        let mut keep = neighbour_distances2(&tree, &coords);
+        keep.iter_mut().for_each(|d| *d *= 0.25 * (1.0 - 1e-9));
         Self {
             tree,
             points,

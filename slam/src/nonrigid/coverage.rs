@@ -69,7 +69,7 @@ impl Coverage {
             return 0;
         }
         let (cover2, gate2) = (gates.cover * gates.cover, gates.max_distance.powi(2));
-        self.mark_searches(points, samples.0, cover2);
+        self.mark_searches(points, samples, cover2);
         self.nearest.clear();
         self.nearest.resize(samples.0.len(), None);
         if self.search.iter().any(|&s| s) {
@@ -98,22 +98,28 @@ impl Coverage {
         self.give_partners(points.len(), samples, matches)
     }
 
-    /// Marks the samples to search for this round: the finite ones whose last nearest warped
-    /// point is not within the coverage distance (squared: `cover2`) of them now.
-    fn mark_searches(&mut self, points: &[Vector3<f64>], samples: &[Vector3<f64>], cover2: f64) {
+    /// Marks the samples to search for this round: those with a finite point and normal whose
+    /// last nearest warped point is not within the coverage distance (squared: `cover2`) of
+    /// them now.
+    fn mark_searches(
+        &mut self,
+        points: &[Vector3<f64>],
+        (samples, normals): (&[Vector3<f64>], &[Vector3<f64>]),
+        cover2: f64,
+    ) {
         self.last.resize(samples.len(), u32::MAX);
         self.search.clear();
         self.search.resize(samples.len(), false);
         self.search
             .par_iter_mut()
             .zip(self.last.par_iter())
-            .zip(samples.par_iter())
-            .for_each(|((search, &last), q)| {
+            .zip(samples.par_iter().zip(normals.par_iter()))
+            .for_each(|((search, &last), (q, n))| {
                 let covered = points.get(last as usize).is_some_and(|w| {
                     let (q, w): ([f64; 3], [f64; 3]) = ((*q).into(), (*w).into());
                     <SquaredEuclidean as DistanceMetric<f64, 3>>::dist(&q, &w) <= cover2
                 });
-                *search = !covered && q.iter().all(|v| v.is_finite());
+                *search = !covered && q.iter().chain(n.iter()).all(|v| v.is_finite());
             });
     }
 
@@ -145,6 +151,24 @@ impl Coverage {
     }
 }
 
+/// The squared distance from each of `coords` (the points of `tree`) to its nearest other
+/// point, 0 where another point lies on it or there is none.
+pub(crate) fn neighbour_distances2(
+    tree: &ImmutableKdTree<f64, 3>,
+    coords: &[[f64; 3]],
+) -> Vec<f64> {
+    let two = std::num::NonZero::new(2).expect("2 is not 0");
+    // the second nearest of a point's own coordinates is its nearest neighbour (the first, at
+    // 0, is itself or a point on it)
+    coords
+        .par_iter()
+        .map(|q| {
+            let near = tree.nearest_n::<SquaredEuclidean>(q, two);
+            near.get(1).map_or(0.0, |n| n.distance)
+        })
+        .collect()
+}
+
 /// The median distance from a point to its nearest neighbour: the points' sampling (a mesh's
 /// edge length), 0 for fewer than two.
 pub(crate) fn sampling_spacing(points: &[Vector3<f64>]) -> f64 {
@@ -157,14 +181,8 @@ pub(crate) fn sampling_spacing(points: &[Vector3<f64>]) -> f64 {
         return 0.0;
     }
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&coords);
-    let two = std::num::NonZero::new(2).expect("2 is not 0");
-    let mut d: Vec<f64> = coords
-        .par_iter()
-        .map(|q| {
-            let near = tree.nearest_n::<SquaredEuclidean>(q, two);
-            near.last().map_or(0.0, |n| n.distance.sqrt())
-        })
-        .collect();
+    let mut d = neighbour_distances2(&tree, &coords);
+    d.iter_mut().for_each(|d| *d = d.sqrt());
     let mid = d.len() / 2;
     *d.select_nth_unstable_by(mid, f64::total_cmp).1
 }
