@@ -10,8 +10,9 @@
 //! pulled back to. Where the target's depth lies in front of the point instead, the point may be
 //! hidden and is left to projective association (which rejects the occluder by the gates).
 
+use super::cloud_target::CloudTarget;
 use super::photometric::PhotometricTarget;
-use super::register::{CloudTarget, DepthTarget, Target};
+use super::register::{DepthTarget, Target};
 use crate::image::valid;
 use nalgebra::{Point3, Vector3};
 

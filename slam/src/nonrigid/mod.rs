@@ -60,6 +60,7 @@ mod weld;
 
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
+pub use cloud_target::CloudTarget;
 pub use colour_check::ColourCheck;
 pub use colour_drift::{ColourDrift, ColourDrifted};
 pub use descriptors::{descriptor_matches, DescriptorError, DescriptorPair, MeshRef};
@@ -77,8 +78,8 @@ pub use mesh_target::MeshTarget;
 pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};
 pub use reference_frame::ReferenceFrame;
 pub use register::{
-    principal_axes_guesses, CloudTarget, DepthTarget, RegisterError, RegisterParams,
-    RegisterSummary, RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
+    principal_axes_guesses, DepthTarget, RegisterError, RegisterParams, RegisterSummary,
+    RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
 };
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,

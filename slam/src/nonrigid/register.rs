@@ -15,7 +15,6 @@
 //! factorisation for as long as the graph stays the same and the points' node pairs fit its
 //! structure (rounds, stages, and further calls and frames).
 
-pub use super::cloud_target::CloudTarget;
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
 use super::extent::centroid;
 use super::graph::{Binding, DeformationGraph};
@@ -965,6 +964,7 @@ fn colour_term(
 mod tests {
     use super::*;
     use crate::image::Image;
+    use crate::nonrigid::cloud_target::CloudTarget;
 
     #[test]
     fn a_first_optimisation_is_counted_and_its_rigid_motion_comes_first() {

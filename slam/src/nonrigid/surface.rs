@@ -5,6 +5,7 @@
 //! so anyone can score them.
 
 use super::boundary::{rim_matches, RimMatches};
+use super::cloud_target::CloudTarget;
 use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
 use super::extent::centroid;
 pub use super::extent::{bounding_diagonal, surface_diagonal};
@@ -13,8 +14,8 @@ use super::mesh_point::MeshPoint;
 use super::mesh_target::MeshTarget;
 use super::orientation::{relation, Oriented, Relation};
 use super::register::{
-    principal_axes_guesses, CloudTarget, RegisterError, RegisterParams, RegisterSummary, Seeds,
-    Target, WarpOptimiser,
+    principal_axes_guesses, RegisterError, RegisterParams, RegisterSummary, Seeds, Target,
+    WarpOptimiser,
 };
 use super::surface_fit::{SurfaceFit, SurfaceVerdict, MIN_SHARE};
 use super::weld::{weld, Welded};

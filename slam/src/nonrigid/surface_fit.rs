@@ -201,8 +201,8 @@ impl SurfaceFit {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nonrigid::cloud_target::CloudTarget;
     use crate::nonrigid::graph::GraphParams;
-    use crate::nonrigid::register::CloudTarget;
 
     /// A flat 1 × 1 square of 41 × 41 points in z = 0, normals +z.
     fn square() -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
