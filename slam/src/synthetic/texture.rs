@@ -14,7 +14,8 @@ type Lanes = [f64x4; 4];
 /// A plane wave: wave vector (radians per metre), phase and the channel it colours.
 type Wave = (Vector3<f64>, f64, usize);
 
-/// A solid texture: per channel, `0.5 + 0.5 tanh(½ Σ_k sin(w_k · p + φ_k))`, mixed with a base colour.
+/// A solid texture: per channel c, `0.5 + 0.5 tanh(½ (S_c + 0.3 Σ_{c'≠c} S_c'))` with S_c the sum of
+/// channel c's waves `sin(w_k · p + φ_k)`, mixed with a base colour.
 #[derive(Clone, Debug)]
 pub struct Texture {
     base: [f64; 3],
@@ -27,7 +28,7 @@ impl Texture {
     /// A random texture from `seed`, with wave numbers between `min_k` and `max_k` (radians per metre).
     pub fn random(seed: u64, min_k: f64, max_k: f64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let waves = (0..12)
+        let waves: Vec<Wave> = (0..12)
             .map(|i| {
                 let dir = Vector3::new(
                     rng.random::<f64>() - 0.5,
@@ -45,30 +46,26 @@ impl Texture {
             0.2 + 0.6 * rng.random::<f64>(),
             0.2 + 0.6 * rng.random::<f64>(),
         ];
-        Self::new(waves, base, 0.6)
+        Self::new(&waves, base, 0.6)
     }
 
     /// One flat colour everywhere: a surface without texture, where the photometric term sees no
     /// gradient.
     pub fn plain(color: [f64; 3]) -> Self {
-        Self::new(Vec::new(), color, 0.0)
+        Self::new(&[], color, 0.0)
     }
 
     /// The texture of `waves` (wave vector, phase, channel), with base colour and contrast.
-    fn new(waves: Vec<Wave>, base: [f64; 3], contrast: f64) -> Self {
+    fn new(waves: &[Wave], base: [f64; 3], contrast: f64) -> Self {
         let lanes = [0, 1, 2].map(|c| {
-            let of_c: Vec<_> = waves.iter().filter(|w| w.2 == c).collect();
+            let of_c: Vec<&Wave> = waves.iter().filter(|w| w.2 == c).collect();
             (of_c.chunks(4))
                 .map(|four| {
-                    let lane = |f: &dyn Fn(&Wave) -> f64| {
-                        f64x4::from([0, 1, 2, 3].map(|j| four.get(j).map_or(0.0, |w| f(w))))
-                    };
-                    [
-                        lane(&|w| w.0.x),
-                        lane(&|w| w.0.y),
-                        lane(&|w| w.0.z),
-                        lane(&|w| w.1),
-                    ]
+                    let mut lane = [[0.0; 4]; 4];
+                    for (j, (w, phase, _)) in four.iter().enumerate() {
+                        [lane[0][j], lane[1][j], lane[2][j], lane[3][j]] = [w.x, w.y, w.z, *phase];
+                    }
+                    lane.map(f64x4::from)
                 })
                 .collect()
         });
@@ -135,7 +132,7 @@ mod tests {
                 (dir * (2.0 + 3.0 * a), 0.7 * a, i % 3)
             })
             .collect();
-        let tex = Texture::new(waves.clone(), [0.3, 0.5, 0.7], 0.6);
+        let tex = Texture::new(&waves, [0.3, 0.5, 0.7], 0.6);
         let mut worst = 0.0f64;
         for i in 0..2000 {
             let a = i as f64;
