@@ -134,25 +134,53 @@ pub struct PreparedScene<'a> {
     /// The objects rays are tested against, in the scene's order (all, or those a
     /// [`ViewCone`] may meet).
     order: Vec<usize>,
+    /// For a view made by [`Self::within`]: what each of `order`'s objects makes of rays from the
+    /// cone's apex, worked out once for all of them.
+    eye: Option<Eye>,
+}
+
+/// The parts of a ray's tests against an object that depend only on the ray's origin, for rays
+/// from one point (a camera's centre): the same operations on the same numbers as per ray, so the
+/// same bits.
+#[derive(Clone, Debug)]
+struct Eye {
+    origin: Point3<f64>,
+    /// Per object of the view's order: (centre − origin, its squared norm, the bounding sphere's
+    /// squared radius, the origin in the object's frame).
+    parts: Vec<(Vector3<f64>, f64, f64, Vector3<f64>)>,
 }
 
 impl PreparedScene<'_> {
     /// The same scene for the rays of `cone` only: the objects none of them can meet are left
     /// out, the others tested in the same order, so every answer for such a ray is the same.
+    /// Rays from the cone's apex (see [`ViewCone::apex`]) reuse the parts of their tests that
+    /// depend on the origin alone.
     pub fn within(&self, cone: &ViewCone) -> Self {
         let objects = &self.scene.objects;
+        let order: Vec<usize> = (self.order.iter().copied())
+            .filter(|&k| {
+                let o = &objects[k];
+                cone.may_meet(
+                    &Point3::from(o.pose.translation.vector),
+                    o.shape.bounding_radius_squared(),
+                )
+            })
+            .collect();
+        let origin = cone.apex();
+        let parts = (order.iter())
+            .map(|&k| {
+                let obj = &objects[k];
+                let oc = obj.pose.translation.vector - origin.coords;
+                let (r, t) = &self.to_object[k];
+                let r2 = obj.shape.bounding_radius_squared();
+                (oc, oc.norm_squared(), r2, r * origin.coords + t)
+            })
+            .collect();
         Self {
             scene: self.scene,
             to_object: Arc::clone(&self.to_object),
-            order: (self.order.iter().copied())
-                .filter(|&k| {
-                    let o = &objects[k];
-                    cone.may_meet(
-                        &Point3::from(o.pose.translation.vector),
-                        o.shape.bounding_radius_squared(),
-                    )
-                })
-                .collect(),
+            order,
+            eye: Some(Eye { origin, parts }),
         }
     }
 
@@ -183,22 +211,34 @@ impl PreparedScene<'_> {
         origin: &Point3<f64>,
         dir: &Vector3<f64>,
     ) -> Option<(f64, Point3<f64>, Vector3<f64>)> {
-        let n = self
-            .scene
-            .nearest_with(self.order.iter().copied(), origin, dir, |k, _| {
-                self.local(k, origin, dir)
-            })?;
+        let n = self.nearest(origin, dir)?;
         Some((n.t, self.scene.objects[n.object].pose * n.local, n.normal))
     }
 
     /// As [`Scene::intersect`].
     pub(crate) fn intersect(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Hit> {
-        let n = self
-            .scene
-            .nearest_with(self.order.iter().copied(), origin, dir, |k, _| {
-                self.local(k, origin, dir)
-            })?;
+        let n = self.nearest(origin, dir)?;
         Some(self.scene.textured(n))
+    }
+
+    /// The nearest hit among the view's objects: from the eye by its parts, else object by object.
+    fn nearest(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Nearest> {
+        let (order, scene) = (&self.order, self.scene);
+        match &self.eye {
+            Some(eye) if eye.origin == *origin => {
+                scene.nearest_with(order.len(), dir, |i, t_max| {
+                    let (oc, oc2, r2, o) = &eye.parts[i];
+                    let k = order[i];
+                    may_hit_from(oc, *oc2, *r2, dir, t_max)
+                        .then(|| (k, (*o, self.to_object[k].0 * dir)))
+                })
+            }
+            _ => scene.nearest_with(order.len(), dir, |i, t_max| {
+                let k = order[i];
+                may_hit(&scene.objects[k], origin, dir, t_max)
+                    .then(|| (k, self.local(k, origin, dir)))
+            }),
+        }
     }
 
     /// As [`Scene::blocked`].
@@ -235,10 +275,17 @@ pub struct Scene {
 /// world frame, cheaper than moving the ray into the object's frame.
 #[inline]
 fn may_hit(obj: &Object, origin: &Point3<f64>, dir: &Vector3<f64>, t_max: f64) -> bool {
-    let r2 = obj.shape.bounding_radius_squared();
     let oc = obj.pose.translation.vector - origin.coords;
+    let r2 = obj.shape.bounding_radius_squared();
+    may_hit_from(&oc, oc.norm_squared(), r2, dir, t_max)
+}
+
+/// [`may_hit`] from the object's centre less the ray's origin, `oc`, its squared norm and the
+/// bounding sphere's squared radius `r2`.
+#[inline]
+fn may_hit_from(oc: &Vector3<f64>, oc2: f64, r2: f64, dir: &Vector3<f64>, t_max: f64) -> bool {
     let along = oc.dot(dir);
-    let off2 = oc.norm_squared() - along * along;
+    let off2 = oc2 - along * along;
     if off2 > r2 * (1.0 + 1e-9) + 1e-12 {
         return false;
     }
@@ -432,27 +479,28 @@ impl Scene {
     }
 
     fn nearest(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<Nearest> {
-        let all = 0..self.objects.len();
-        self.nearest_with(all, origin, dir, |_, obj| to_local(&obj.pose, origin, dir))
+        self.nearest_with(self.objects.len(), dir, |k, t_max| {
+            let obj = &self.objects[k];
+            may_hit(obj, origin, dir, t_max).then(|| (k, to_local(&obj.pose, origin, dir)))
+        })
     }
 
-    /// [`Self::nearest`] among the objects `order` (in that order), with the ray moved into
-    /// object k's frame by `local(k, object)`.
+    /// The nearest hit along the unit `dir` among `count` candidates: `candidate(i, t_max)`
+    /// gives the i-th's object and the ray in its frame, or `None` where the ray cannot meet it
+    /// before `t_max`. Candidates are tried in order; a later one replaces a hit only nearer.
     fn nearest_with(
         &self,
-        order: impl Iterator<Item = usize>,
-        origin: &Point3<f64>,
+        count: usize,
         dir: &Vector3<f64>,
-        local: impl Fn(usize, &Object) -> (Vector3<f64>, Vector3<f64>),
+        candidate: impl Fn(usize, f64) -> Option<(usize, (Vector3<f64>, Vector3<f64>))>,
     ) -> Option<Nearest> {
         let mut best: Option<Nearest> = None;
-        for k in order {
-            let obj = &self.objects[k];
+        for i in 0..count {
             let t_max = best.as_ref().map_or(f64::INFINITY, |b| b.t);
-            if !may_hit(obj, origin, dir, t_max) {
+            let Some((k, (o, d))) = candidate(i, t_max) else {
                 continue;
-            }
-            let (o, d) = local(k, obj);
+            };
+            let obj = &self.objects[k];
             if let Some((t, normal, triangle)) = intersect_local(&obj.shape, &o, &d, t_max) {
                 best = Some(Nearest {
                     object: k,
@@ -499,6 +547,7 @@ impl Scene {
                 })
                 .collect(),
             order: (0..self.objects.len()).collect(),
+            eye: None,
         }
     }
 

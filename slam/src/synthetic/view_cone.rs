@@ -63,6 +63,11 @@ impl ViewCone {
         Self::new(pose, widest, reach)
     }
 
+    /// The camera's centre, from which every primary ray starts.
+    pub fn apex(&self) -> Point3<f64> {
+        self.apex
+    }
+
     /// Whether a ball at `centre` of squared radius `radius2` may meet one of the rays or
     /// shadow rays (the module's documentation): false only where none can.
     pub fn may_meet(&self, centre: &Point3<f64>, radius2: f64) -> bool {
@@ -147,6 +152,8 @@ mod tests {
             .iter()
             .step_by(40)
         {
+            // `near` casts its primary rays by the parts worked out once for the camera's
+            // centre (scene::Eye), `every` ray by ray: the same hits to the bit
             let near = every.within(&ViewCone::of_camera(&camera, pose, 0.05));
             left_out += every.len() - near.len();
             let origin = Point3::from(pose.translation.vector);

@@ -122,9 +122,9 @@ fn motion_blur(
             let mut acc = [0f32; 3];
             for j in 0..n {
                 let s = j as f64 / (n - 1) as f64 - 0.5;
-                let (x, y) = (u - m.0 * s, v - m.1 * s);
-                for (c, a) in acc.iter_mut().enumerate() {
-                    *a += bilinear(&sharp.planes[c], w, h, x, y);
+                let at = Bilinear::new(w, h, u - m.0 * s, v - m.1 * s);
+                for (a, plane) in acc.iter_mut().zip(&sharp.planes) {
+                    *a += at.sample(plane);
                 }
             }
             acc.map(|a| a / n as f32)
@@ -133,16 +133,36 @@ fn motion_blur(
     [0, 1, 2].map(|c| samples.iter().map(|s| s[c]).collect())
 }
 
-/// The plane's value at (x, y), clamped to the image.
-fn bilinear(plane: &[f32], w: usize, h: usize, x: f64, y: f64) -> f32 {
-    let x = x.clamp(0.0, (w - 1) as f64);
-    let y = y.clamp(0.0, (h - 1) as f64);
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-    let top = plane[y0 * w + x0] * (1.0 - fx) + plane[y0 * w + x1] * fx;
-    let bottom = plane[y1 * w + x0] * (1.0 - fx) + plane[y1 * w + x1] * fx;
-    top * (1.0 - fy) + bottom * fy
+/// Where a bilinear lookup at (x, y), clamped to the image, reads a plane: the four pixels and
+/// the weights, found once and used for each colour plane.
+struct Bilinear {
+    top: (usize, usize),
+    bottom: (usize, usize),
+    fx: f32,
+    fy: f32,
+}
+
+impl Bilinear {
+    fn new(w: usize, h: usize, x: f64, y: f64) -> Self {
+        let x = x.clamp(0.0, (w - 1) as f64);
+        let y = y.clamp(0.0, (h - 1) as f64);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        Self {
+            top: (y0 * w + x0, y0 * w + x1),
+            bottom: (y1 * w + x0, y1 * w + x1),
+            fx: (x - x0 as f64) as f32,
+            fy: (y - y0 as f64) as f32,
+        }
+    }
+
+    /// The plane's value there.
+    fn sample(&self, plane: &[f32]) -> f32 {
+        let (fx, fy) = (self.fx, self.fy);
+        let top = plane[self.top.0] * (1.0 - fx) + plane[self.top.1] * fx;
+        let bottom = plane[self.bottom.0] * (1.0 - fx) + plane[self.bottom.1] * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
 }
 
 /// Gain, vignetting, noise and 8-bit quantisation.
