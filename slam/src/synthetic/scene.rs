@@ -145,9 +145,21 @@ pub struct PreparedScene<'a> {
 #[derive(Clone, Debug)]
 struct Eye {
     origin: Point3<f64>,
-    /// Per object of the view's order: (centre − origin, its squared norm, the bounding sphere's
-    /// squared radius, the origin in the object's frame).
-    parts: Vec<(Vector3<f64>, f64, f64, Vector3<f64>)>,
+    /// One per object of the view's order.
+    parts: Vec<EyePart>,
+}
+
+/// What rays from an [`Eye`] share for one object.
+#[derive(Clone, Copy, Debug)]
+struct EyePart {
+    /// The object's centre less the eye.
+    to_centre: Vector3<f64>,
+    /// Its squared norm.
+    to_centre2: f64,
+    /// The squared radius of the object's bounding sphere.
+    radius2: f64,
+    /// The eye in the object's frame.
+    local_origin: Vector3<f64>,
 }
 
 impl PreparedScene<'_> {
@@ -170,10 +182,14 @@ impl PreparedScene<'_> {
         let parts = (order.iter())
             .map(|&k| {
                 let obj = &objects[k];
-                let oc = obj.pose.translation.vector - origin.coords;
+                let to_centre = obj.pose.translation.vector - origin.coords;
                 let (r, t) = &self.to_object[k];
-                let r2 = obj.shape.bounding_radius_squared();
-                (oc, oc.norm_squared(), r2, r * origin.coords + t)
+                EyePart {
+                    to_centre,
+                    to_centre2: to_centre.norm_squared(),
+                    radius2: obj.shape.bounding_radius_squared(),
+                    local_origin: r * origin.coords + t,
+                }
             })
             .collect();
         Self {
@@ -227,10 +243,9 @@ impl PreparedScene<'_> {
         match &self.eye {
             Some(eye) if eye.origin == *origin => {
                 scene.nearest_with(order.len(), dir, |i, t_max| {
-                    let (oc, oc2, r2, o) = &eye.parts[i];
-                    let k = order[i];
-                    may_hit_from(oc, *oc2, *r2, dir, t_max)
-                        .then(|| (k, (*o, self.to_object[k].0 * dir)))
+                    let (p, k) = (&eye.parts[i], order[i]);
+                    may_hit_from(&p.to_centre, p.to_centre2, p.radius2, dir, t_max)
+                        .then(|| (k, (p.local_origin, self.to_object[k].0 * dir)))
                 })
             }
             _ => scene.nearest_with(order.len(), dir, |i, t_max| {
