@@ -530,6 +530,7 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "matches": m.matches,
         "inliers": m.source.len(),
     })));
+    json["start"] = reg.start.name().into();
     json["registered"] = verdict_json(reg.verdict());
     json["colour_check"] = serde_json::json!(reg.colour.map(|c| serde_json::json!({
         "aligned": c.aligned,

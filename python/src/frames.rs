@@ -65,7 +65,9 @@ fn mask_image(mask: &PyReadonlyArray2<'_, bool>, camera: &Camera) -> PyResult<Im
 /// point), `flow` (height × width × 3, NaN off the object), `nodes`, `matched`, `data_points`,
 /// `iterations`, `seconds`, `registered` (bool), `verdict` ("registered", "depth": too little
 /// of the source ended on the target, or "colour": its colour disagrees, slid along the
-/// surface) and `colour_check` (aligned, off, flat, floor; None without colour). An array of the
+/// surface), `start` ("features", "outline": placed by the object's outline against the
+/// target's depth, or "none") and `colour_check` (aligned, off, flat, floor; None without
+/// colour). An array of the
 /// wrong shape or type is a `ValueError` naming it (the source's images are frame 0, the
 /// target's frame 1).
 #[pyfunction]
@@ -131,6 +133,7 @@ fn registration_dict<'py>(
     let verdict = reg.verdict();
     d.set_item("registered", verdict == FrameVerdict::Registered)?;
     d.set_item("verdict", verdict.name())?;
+    d.set_item("start", reg.start.name())?;
     let colour = reg
         .colour
         .as_ref()

@@ -29,6 +29,8 @@ def test_a_wall_moved_nearer_is_registered_with_its_flow():
     result = dynamap.register_frames(wall(), wall(0.01), **INTRINSICS)
     assert result["registered"] and result["verdict"] == "registered"
     assert result["colour_check"] is None
+    # no colour, and a wall filling the view has no outline to search by: its own place
+    assert result["start"] == "none"
     assert result["points"].shape == result["warped"].shape
     assert len(result["pixels"]) == len(result["points"])
     flow = result["flow"]

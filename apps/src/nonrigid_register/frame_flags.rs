@@ -18,6 +18,10 @@ pub(super) struct FrameFlags {
     /// by local agreement, fitted first, held throughout).
     #[arg(long)]
     matches_start_only: bool,
+    /// Where no feature match agrees, start where the source is instead of searching the
+    /// target's depth for the object's outline
+    #[arg(long)]
+    no_outline_start: bool,
     /// Weight of the chromaticity term, (R − B)/(R + G + B) of the source pixel against the
     /// target's where the warp carries it (0: none; both frames need colour) [default: 0.3]
     #[arg(long, value_name = "WEIGHT")]
@@ -43,6 +47,7 @@ impl FrameFlags {
             settings.nearest_within = within;
         }
         settings.hold_matches = !self.matches_start_only;
+        settings.outline_start = !self.no_outline_start;
         if let Some(w) = self.chroma_weight {
             if !(w >= 0.0 && w.is_finite()) {
                 return Err(bad_input(format!(

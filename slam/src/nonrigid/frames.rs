@@ -15,6 +15,7 @@ use super::frame_matches::{
 use super::frame_target::SeenThroughTarget;
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::linear_steps::LinearSteps;
+use super::outline_start::{search, OutlineInput, Placement};
 use super::photometric::PhotometricTarget;
 use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
 use crate::camera::Camera;
@@ -62,6 +63,9 @@ pub struct FrameSettings {
     /// them before the depth is looked at, and held through every stage
     /// ([`super::frame_matches`]).
     pub hold_matches: bool,
+    /// Without a feature start, whether to search for one by the object's outline against the
+    /// target's depth (default true; [`super::outline_start`]).
+    pub outline_start: bool,
 }
 
 impl Default for FrameSettings {
@@ -98,6 +102,7 @@ impl Default for FrameSettings {
             bilateral: BilateralParams::default(),
             nearest_within: 0.05,
             hold_matches: true,
+            outline_start: true,
         }
     }
 }
@@ -143,11 +148,35 @@ pub struct FrameRegistration {
     pub summary: RegisterSummary,
     /// The feature matches that gave the rigid start (None: none were asked for or none agreed).
     pub matches: Option<FrameMatches>,
+    /// Where the rigid start came from.
+    pub start: FrameStart,
     /// Source pixels that carried data terms.
     pub data_points: usize,
     /// Whether the colour agrees with the warp (module `colour_check`; None without colour or
     /// when the warped source is nowhere in the target's view).
     pub colour: Option<ColourCheck>,
+}
+
+/// Where a frame registration's rigid start came from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FrameStart {
+    /// Colour feature matches that agreed on a rigid motion ([`FrameRegistration::matches`]).
+    Features,
+    /// The outline search's placement ([`super::outline_start`]), with its scores.
+    Outline(Placement),
+    /// The source's own place: no feature start, and the outline search gave none or was off.
+    Identity,
+}
+
+impl FrameStart {
+    /// "features", "outline" or "none".
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Features => "features",
+            Self::Outline(_) => "outline",
+            Self::Identity => "none",
+        }
+    }
 }
 
 /// Whether a frame registration can be trusted.
@@ -388,6 +417,31 @@ fn feature_start(
     }
 }
 
+/// Without a feature start: the outline search's placement when it gives one
+/// ([`OutlineStart::start`]), else the source's own place.
+fn outline_start(
+    source: &FrameView<'_>,
+    target: &FrameView<'_>,
+    (pixels, points): (&[usize], &[Vector3<f64>]),
+    settings: &FrameSettings,
+) -> (FrameStart, Isometry3<f64>) {
+    let input = OutlineInput {
+        source_camera: source.camera,
+        source_depth: source.depth,
+        pixels,
+        points,
+        target_camera: target.camera,
+        target_depth: target.depth,
+        gate: settings.register.max_distance,
+        gap: settings.graph.spacing,
+    };
+    let found = settings.outline_start.then(|| search(&input)).flatten();
+    match found.and_then(|f| f.start().map(|motion| (f.best, motion))) {
+        Some((best, motion)) => (FrameStart::Outline(best), motion),
+        None => (FrameStart::Identity, Isometry3::identity()),
+    }
+}
+
 /// The matches that shape the warp ([`super::frame_matches`]): none without matches or when the
 /// settings keep them to the rigid start.
 fn held_matches(
@@ -430,7 +484,10 @@ pub fn register_frames(
     let mut graph = DeformationGraph::sample(&points, settings.graph)?;
     let bindings = graph.bind_all(&points);
     let matches = feature_start(source, target, settings);
-    let start = matches.as_ref().map_or(Isometry3::identity(), |m| m.motion);
+    let (how, start) = match &matches {
+        Some(m) => (FrameStart::Features, m.motion),
+        None => outline_start(source, target, (&pixels, &points), settings),
+    };
     let frames = MatchFrames {
         source: source.camera,
         target: target.camera,
@@ -486,6 +543,7 @@ pub fn register_frames(
         graph,
         summary,
         matches,
+        start: how,
         data_points: data.len(),
     })
 }

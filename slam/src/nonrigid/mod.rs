@@ -20,7 +20,8 @@
 //!   ([`boundary`]; the rim itself in `rim`, laid corner to corner in `rim_map`), whose matches
 //!   land between the target's vertices ([`mesh_point`]); [`surface_fit`]: whether the result
 //!   lies on the target and covers it (registered or not).
-//! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, dense
+//! - [`frames`]: one RGB-D frame registered onto another (feature-matched rigid start, or
+//!   [`outline_start`]'s placement by the object's outline where no feature match agrees; dense
 //!   non-rigid refinement), with per-pixel scene flow; [`frame_surface`]: a frame's object from a
 //!   graph's nodes, and the median distance from a registered source to the target's surface;
 //!   [`colour_check`]: whether the colour agrees with a frame registration, patch by patch.
@@ -46,6 +47,7 @@ pub mod linear_steps;
 pub mod mesh_point;
 pub mod mesh_target;
 pub mod orientation;
+pub mod outline_start;
 pub mod photometric;
 pub mod reference_frame;
 pub mod register;
@@ -67,8 +69,8 @@ pub use descriptors::{descriptor_matches, DescriptorError, DescriptorPair, MeshR
 pub use frame_surface::{frame_points, mask_near_nodes, median_distance};
 pub use frame_target::SeenThroughTarget;
 pub use frames::{
-    frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameVerdict,
-    FrameView, COLOUR_TOLERANCE, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
+    frame_verdict, register_frames, FrameError, FrameRegistration, FrameSettings, FrameStart,
+    FrameVerdict, FrameView, COLOUR_TOLERANCE, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
 };
 pub use fusion::{FusionFailure, FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
