@@ -22,6 +22,10 @@ pub(super) struct FrameFlags {
     /// target's depth for the object's outline
     #[arg(long)]
     no_outline_start: bool,
+    /// No colour feature matches: the rigid start comes from the outline search (or the
+    /// source's own place), as for a plain object
+    #[arg(long)]
+    no_features: bool,
     /// Weight of the chromaticity term, (R − B)/(R + G + B) of the source pixel against the
     /// target's where the warp carries it (0: none; both frames need colour) [default: 0.3]
     #[arg(long, value_name = "WEIGHT")]
@@ -48,6 +52,9 @@ impl FrameFlags {
         }
         settings.hold_matches = !self.matches_start_only;
         settings.outline_start = !self.no_outline_start;
+        if self.no_features {
+            settings.features = None;
+        }
         if let Some(w) = self.chroma_weight {
             if !(w >= 0.0 && w.is_finite()) {
                 return Err(bad_input(format!(

@@ -106,8 +106,7 @@ pub const MIN_OUTLINE: f64 = 0.5;
 impl OutlineStart {
     /// The best placement, when it scores above the source's own place, most of its outline
     /// stands before the background ([`MIN_OUTLINE`]) and it is unique ([`UNIQUE_RATIO`]); None
-    /// otherwise (an object that fits equally well in two places, such
-    /// as a plain plate on a larger plain surface, gives no start).
+    /// otherwise (an object that fits equally well in two places gives no start).
     pub fn start(&self) -> Option<Isometry3<f64>> {
         let best = self.best.score();
         let unique = self
