@@ -67,9 +67,8 @@ fn mask_image(mask: &PyReadonlyArray2<'_, bool>, camera: &Camera) -> PyResult<Im
 /// of the source ended on the target, or "colour": its colour disagrees, slid along the
 /// surface), `start` ("features", "outline": placed by the object's outline against the
 /// target's depth, or "none") and `colour_check` (aligned, off, flat, floor; None without
-/// colour). An array of the
-/// wrong shape or type is a `ValueError` naming it (the source's images are frame 0, the
-/// target's frame 1).
+/// colour). An array of the wrong shape or type is a `ValueError` naming it (the source's images
+/// are frame 0, the target's frame 1).
 #[pyfunction]
 #[pyo3(signature = (source_depth, target_depth, fx, fy, cx, cy, depth_scale = 1000.0, source_color = None, target_color = None, mask = None))]
 #[allow(clippy::too_many_arguments)]

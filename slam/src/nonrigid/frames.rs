@@ -418,7 +418,7 @@ fn feature_start(
 }
 
 /// Without a feature start: the outline search's placement when it gives one
-/// ([`OutlineStart::start`]), else the source's own place.
+/// ([`super::outline_start::OutlineStart::start`]), else the source's own place.
 fn outline_start(
     source: &FrameView<'_>,
     target: &FrameView<'_>,
