@@ -21,6 +21,10 @@ pub(super) struct PairArgs {
     /// A textured wall 0.8 m behind the surface.
     #[arg(long)]
     wall: bool,
+    /// NOTES 147's pairs moved far instead (12–33 cm): set 0, which the outline search was
+    /// shaped on, or 1, held out (the seeds are the set's own)
+    #[arg(long, value_name = "SET", value_parser = clap::value_parser!(u8).range(0..=1))]
+    far: Option<u8>,
     /// How the frames are registered, as `frames`.
     #[command(flatten)]
     registration: FrameFlags,
@@ -32,17 +36,21 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
     if args.seeds == 0 {
         return Err(cli::bad_input("--seeds must be at least 1"));
     }
-    let cases = FramePairCase::set(args.first_seed, args.seeds, args.wall);
+    let cases = match args.far {
+        Some(set) => FramePairCase::far_set(set, args.wall),
+        None => FramePairCase::set(args.first_seed, args.seeds, args.wall),
+    };
     let bar = session.progress(cases.len() as u64, "pairs");
     let row = |line: String| bar.suspend(|| println!("{line}"));
     row(format!(
-        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>7} {:>11} {:>12}",
+        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>8} {:>7} {:>11} {:>12}",
         "pair",
         "frame",
         "zero cm",
         "EPE cm",
         "< 5 cm",
         "matches",
+        "start",
         "seconds",
         "verdict",
         "colour off"
@@ -65,7 +73,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         not_registered += usize::from(!registered);
         bar.inc(1);
         row(format!(
-            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>7.2} {:>11} {:>12}",
+            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>8} {:>7.2} {:>11} {:>12}",
             case.name(),
             case.frame,
             100.0 * zero.stats.mean,
@@ -76,6 +84,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
                 m.source.len(),
                 m.matches
             )),
+            reg.start.name(),
             reg.summary.seconds,
             verdict.name(),
             reg.colour.as_ref().map_or("-".to_string(), |c| format!(

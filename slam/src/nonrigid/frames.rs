@@ -419,7 +419,7 @@ fn feature_start(
 
 /// Without a feature start: the outline search's placement when it gives one
 /// ([`super::outline_start::OutlineStart::start`]), else the source's own place.
-fn outline_start(
+fn searched_start(
     source: &FrameView<'_>,
     target: &FrameView<'_>,
     (pixels, points): (&[usize], &[Vector3<f64>]),
@@ -486,7 +486,7 @@ pub fn register_frames(
     let matches = feature_start(source, target, settings);
     let (how, start) = match &matches {
         Some(m) => (FrameStart::Features, m.motion),
-        None => outline_start(source, target, (&pixels, &points), settings),
+        None => searched_start(source, target, (&pixels, &points), settings),
     };
     let frames = MatchFrames {
         source: source.camera,

@@ -229,14 +229,18 @@ impl<'a> Search<'a> {
             .collect();
         poses
             .par_iter()
-            .filter_map(|&pose| self.placed(pose).map(|p| (pose, p)))
+            .map_init(Vec::new, |offsets, &pose| {
+                self.placed(pose, offsets).map(|p| (pose, p))
+            })
+            .flatten()
             .collect()
     }
 
     /// A pattern search from `pose`: the step from half the grid's, halved when no neighbour
     /// scores better, down to a pixel; never within the object's extent of `away`, when given.
     fn refined(&self, mut pose: Pose, away: Option<&Pose>) -> Option<(Pose, Placement)> {
-        let mut best = self.placed(pose)?;
+        let mut offsets = Vec::with_capacity(self.surface.len());
+        let mut best = self.placed(pose, &mut offsets)?;
         let mut step = self.step / 2.0;
         while step >= 1.0 {
             let moves = [(step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step)];
@@ -248,7 +252,7 @@ impl<'a> Search<'a> {
                         dv: pose.dv + dv,
                     };
                     let near = away.is_some_and(|a| a.distance(&p) <= self.extent);
-                    (!near).then(|| self.placed(p).map(|s| (p, s)))?
+                    (!near).then(|| self.placed(p, &mut offsets).map(|s| (p, s)))?
                 })
                 .filter(|(_, s)| s.score() > best.score())
                 .max_by(|a, b| a.1.score().total_cmp(&b.1.score()));
@@ -263,12 +267,12 @@ impl<'a> Search<'a> {
     /// The placement of `pose`, scored: the object moved so that its centroid lands on the
     /// shifted pixel at its own depth, then along that pixel's ray to the target's median depth
     /// under the object's points. None when too few land on the target.
-    fn placed(&self, pose: Pose) -> Option<Placement> {
+    fn placed(&self, pose: Pose, offsets: &mut Vec<f64>) -> Option<Placement> {
         let cam = self.input.target_camera;
         let c = self.centroid;
         let moved = cam.back_project(self.centre.0 + pose.du, self.centre.1 + pose.dv, c.z);
         let level = Isometry3::translation(moved.x - c.x, moved.y - c.y, 0.0);
-        let offset = self.depth_offset(&level)?;
+        let offset = self.depth_offset(&level, offsets)?;
         let scale = (moved.z + offset) / moved.z;
         if !(scale > 0.0 && scale.is_finite()) {
             return None;
@@ -278,16 +282,13 @@ impl<'a> Search<'a> {
     }
 
     /// The median of (target depth − point depth) over the sampled points that land on target
-    /// depth under `motion`; None when fewer than a tenth do.
-    fn depth_offset(&self, motion: &Isometry3<f64>) -> Option<f64> {
-        let mut offsets: Vec<f64> = self
-            .surface
-            .iter()
-            .filter_map(|p| {
-                let q = motion * Point3::from(*p);
-                self.target_depth(&q).map(|z| z - q.z)
-            })
-            .collect();
+    /// depth under `motion` (gathered in `offsets`); None when fewer than a tenth do.
+    fn depth_offset(&self, motion: &Isometry3<f64>, offsets: &mut Vec<f64>) -> Option<f64> {
+        offsets.clear();
+        offsets.extend(self.surface.iter().filter_map(|p| {
+            let q = motion * Point3::from(*p);
+            self.target_depth(&q).map(|z| z - q.z)
+        }));
         if offsets.len() * 10 < self.surface.len() {
             return None;
         }
@@ -316,10 +317,10 @@ impl<'a> Search<'a> {
             .map(|b| {
                 let q = motion * Point3::from(b.point);
                 let probe = motion * Point3::from(b.probe);
-                if self.input.target_camera.project_to_pixel(&probe).is_none() {
+                let Some(pixel) = self.input.target_camera.project_to_pixel(&probe) else {
                     return 0.5;
-                }
-                match self.target_depth(&probe) {
+                };
+                match self.depth_at(pixel) {
                     Some(z) if z <= q.z + gap => 0.0,
                     _ => 1.0,
                 }
@@ -334,7 +335,11 @@ impl<'a> Search<'a> {
 
     /// The target's depth at the pixel `q` projects to; None outside the image or without depth.
     fn target_depth(&self, q: &Point3<f64>) -> Option<f64> {
-        let (u, v) = self.input.target_camera.project_to_pixel(q)?;
+        self.depth_at(self.input.target_camera.project_to_pixel(q)?)
+    }
+
+    /// The target's depth at pixel (u, v); None without depth.
+    fn depth_at(&self, (u, v): (usize, usize)) -> Option<f64> {
         let depth = self.input.target_depth;
         let z = *depth.data.get(v * depth.width + u)? as f64;
         (z > 0.0 && z.is_finite()).then_some(z)

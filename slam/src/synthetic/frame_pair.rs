@@ -80,6 +80,58 @@ impl FramePairCase {
         cases
     }
 
+    /// NOTES 147's pairs moved far (12–33 cm; 8–16° of turn), for registrations started without
+    /// colour features: `set` 0, on which the outline search was shaped (seeds 30–35), or any
+    /// other, held out (seeds 40–45, another surface for each of the first three, another motion).
+    pub fn far_set(set: u8, wall: bool) -> Vec<Self> {
+        use SurfaceKind::{Cylinder, Plane, Sphere};
+        let firsts = if set == 0 {
+            [
+                (Plane, Field::Bend),
+                (Cylinder, Field::Wave),
+                (Sphere, Field::Twist),
+            ]
+        } else {
+            [
+                (Plane, Field::Wave),
+                (Cylinder, Field::Twist),
+                (Sphere, Field::Bend),
+            ]
+        };
+        let lasts = [
+            (Plane, Field::Twist),
+            (Cylinder, Field::Bend),
+            (Sphere, Field::Wave),
+        ];
+        (firsts.into_iter().chain(lasts).enumerate())
+            .map(|(k, (kind, field))| {
+                let s = k as f64;
+                let (shift, turn) = if set == 0 {
+                    (
+                        Vector3::new(0.25 - 0.1 * s, 0.2 - 0.08 * s, 0.05 * s - 0.1),
+                        Vector3::new(0.05, 0.1, 0.2 - 0.08 * s),
+                    )
+                } else {
+                    (
+                        Vector3::new(0.08 * s - 0.22, 0.12 - 0.06 * s, 0.08 - 0.04 * s),
+                        Vector3::new(0.03 * s - 0.08, 0.12 - 0.04 * s, 0.06 * s - 0.15),
+                    )
+                };
+                Self {
+                    kind,
+                    field,
+                    seed: if set == 0 { 30 } else { 40 } + k as u64,
+                    moved: Isometry3::from_parts(
+                        Translation3::from(shift),
+                        UnitQuaternion::from_scaled_axis(turn),
+                    ),
+                    frame: 8,
+                    wall,
+                }
+            })
+            .collect()
+    }
+
     /// `plane-bend-3` and the like.
     pub fn name(&self) -> String {
         format!("{:?}-{:?}-{}", self.kind, self.field, self.seed).to_lowercase()
