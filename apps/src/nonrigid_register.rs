@@ -68,7 +68,8 @@ use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
     register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
     surface_diagonal, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
-    SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_OFF_FRACTION, MIN_MATCHED_FRACTION,
+    SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION, MAX_OFF_FRACTION,
+    MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -538,6 +539,11 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "flat": c.flat,
         "floor": c.floor,
     })));
+    json["outline_check"] = serde_json::json!(reg.outline.map(|o| serde_json::json!({
+        "outline": o.outline,
+        "seen": o.seen,
+        "flush": o.flush,
+    })));
     json["surface_distance"] = serde_json::json!({
         "before": median_distance(&reg.points, &surface),
         "after": median_distance(&reg.warped, &surface),
@@ -568,6 +574,17 @@ fn verdict_json(verdict: FrameVerdict) -> serde_json::Value {
                 "not registered: {matched} of {data_points} data points ended on the target \
                  (at least {:.0} % must)",
                 100.0 * MIN_MATCHED_FRACTION
+            );
+            false.into()
+        }
+        FrameVerdict::LiesFlush(o) => {
+            tracing::warn!(
+                "not registered: {} of the {} outline points seen on the target lie flush in a \
+                 surface that goes on (at most {:.0} % may): a plain object laid on a surface \
+                 it is not",
+                o.flush,
+                o.seen,
+                100.0 * MAX_FLUSH_FRACTION
             );
             false.into()
         }

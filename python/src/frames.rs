@@ -9,7 +9,7 @@ use dynamap_slam::camera::Camera;
 use dynamap_slam::image::{depth_to_metres, DepthImage, Image};
 use dynamap_slam::nonrigid::{
     register_frames as register, ColourCheck, FrameRegistration, FrameSettings, FrameVerdict,
-    FrameView,
+    FrameView, OutlineCheck,
 };
 use nalgebra::Vector3;
 use numpy::{
@@ -139,6 +139,21 @@ fn registration_dict<'py>(
         .map(|c| colour_dict(py, c))
         .transpose()?;
     d.set_item("colour_check", colour)?;
+    let outline = reg
+        .outline
+        .as_ref()
+        .map(|o| outline_dict(py, o))
+        .transpose()?;
+    d.set_item("outline_check", outline)?;
+    Ok(d)
+}
+
+/// The outline check's counts.
+fn outline_dict<'py>(py: Python<'py>, o: &OutlineCheck) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("outline", o.outline)?;
+    d.set_item("seen", o.seen)?;
+    d.set_item("flush", o.flush)?;
     Ok(d)
 }
 

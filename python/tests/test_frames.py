@@ -1,5 +1,6 @@
 """RGB-D frames from numpy arrays registered non-rigidly, as `nonrigid_register frames` registers
-them: the flow, the verdict and the colour check, and arrays of the wrong shape refused."""
+them: the flow, the verdict, the colour and outline checks, and arrays of the wrong shape
+refused."""
 
 import numpy as np
 import pytest
@@ -62,6 +63,25 @@ def test_a_mask_keeps_the_object_only():
     result = dynamap.register_frames(wall(), wall(0.01), **INTRINSICS, mask=mask)
     assert result["registered"]
     assert len(result["points"]) == mask.sum()
+
+
+def test_a_plate_that_became_part_of_a_wall_is_not_registered():
+    """A plate 1 m away before a wall 2 m away; the target shows a plain wall at 1 m filling the
+    view. Every point of the plate lies on it, but its outline, which stood before the far wall,
+    lies flush in the near one: not registered, by the outline."""
+    source = np.full((120, 160), 2000, dtype=np.uint16)
+    source[30:90, 40:120] = 1000
+    target = np.full((120, 160), 1000, dtype=np.uint16)
+    result = dynamap.register_frames(source, target, **INTRINSICS, mask=source == 1000)
+    check = result["outline_check"]
+    assert not result["registered"] and result["verdict"] == "outline", check
+    assert check["seen"] >= 20 and check["flush"] > 0.9 * check["seen"], check
+    # the same plate in front of the same far wall: it stands, and is registered
+    kept = dynamap.register_frames(source, source, **INTRINSICS, mask=source == 1000)
+    assert kept["registered"] and kept["outline_check"]["flush"] == 0, kept["outline_check"]
+    # a plate flush with its own background has no outline to check
+    flat = dynamap.register_frames(target, target, **INTRINSICS, mask=source == 1000)
+    assert flat["registered"] and flat["outline_check"] is None
 
 
 def test_arrays_of_the_wrong_shape_are_refused():

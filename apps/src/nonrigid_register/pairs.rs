@@ -43,7 +43,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
     let bar = session.progress(cases.len() as u64, "pairs");
     let row = |line: String| bar.suspend(|| println!("{line}"));
     row(format!(
-        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>8} {:>7} {:>11} {:>12}",
+        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>8} {:>7} {:>11} {:>12} {:>13}",
         "pair",
         "frame",
         "zero cm",
@@ -53,7 +53,8 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         "start",
         "seconds",
         "verdict",
-        "colour off"
+        "colour off",
+        "outline flush"
     ));
     let (mut sum, mut not_registered) = (0.0, 0);
     for case in &cases {
@@ -73,7 +74,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         not_registered += usize::from(!registered);
         bar.inc(1);
         row(format!(
-            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>8} {:>7.2} {:>11} {:>12}",
+            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>8} {:>7.2} {:>11} {:>12} {:>13}",
             case.name(),
             case.frame,
             100.0 * zero.stats.mean,
@@ -91,6 +92,11 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
                 "{:.2} of {}",
                 c.fraction_off(),
                 c.off + c.aligned
+            )),
+            reg.outline.as_ref().map_or("-".to_string(), |o| format!(
+                "{:.2} of {}",
+                o.fraction_flush(),
+                o.seen
             ))
         ));
     }

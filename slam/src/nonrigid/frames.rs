@@ -15,6 +15,7 @@ use super::frame_matches::{
 use super::frame_target::SeenThroughTarget;
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::linear_steps::LinearSteps;
+use super::outline_check::{check_outline, OutlineCheck};
 use super::outline_start::{search, OutlineInput, Placement};
 use super::photometric::PhotometricTarget;
 use super::register::{DepthTarget, RegisterError, RegisterParams, RegisterSummary, WarpOptimiser};
@@ -155,6 +156,9 @@ pub struct FrameRegistration {
     /// Whether the colour agrees with the warp (module `colour_check`; None without colour or
     /// when the warped source is nowhere in the target's view).
     pub colour: Option<ColourCheck>,
+    /// Whether the warped object still stands before its background (module `outline_check`;
+    /// None when the source's object has no outline before its background).
+    pub outline: Option<OutlineCheck>,
 }
 
 /// Where a frame registration's rigid start came from.
@@ -194,6 +198,10 @@ pub enum FrameVerdict {
         /// Data points.
         data_points: usize,
     },
+    /// The source lies on the target's surface, but where it stood before its background in the
+    /// source, more than [`super::outline_check::MAX_FLUSH_FRACTION`] of its seen outline now lies flush in a surface
+    /// that goes on (module `outline_check`): a plain object laid on a plain surface it is not.
+    LiesFlush(OutlineCheck),
     /// The source lies on the target's surface, but its colour does not: on more than
     /// [`MAX_OFF_FRACTION`] of the textured patches the warped source's chromaticity differs
     /// from the target's by more than a slide of the tolerance could explain (module
@@ -217,10 +225,11 @@ pub const MAX_OFF_FRACTION: f64 = 0.2;
 pub const COLOUR_TOLERANCE: f64 = 0.3;
 
 /// [`FrameVerdict`] of a registration that left `matched` of `data_points` with a partner, and
-/// whose colour check, when there was one, came out as `colour`.
+/// whose outline and colour checks, when there were any, came out as `outline` and `colour`:
+/// the depth's count first, then the outline, then the colour.
 pub fn frame_verdict(
-    matched: usize,
-    data_points: usize,
+    (matched, data_points): (usize, usize),
+    outline: Option<&OutlineCheck>,
     colour: Option<&ColourCheck>,
 ) -> FrameVerdict {
     if data_points == 0 || (matched as f64) < MIN_MATCHED_FRACTION * data_points as f64 {
@@ -228,6 +237,9 @@ pub fn frame_verdict(
             matched,
             data_points,
         };
+    }
+    if let Some(o) = outline.filter(|o| o.lies_flush()) {
+        return FrameVerdict::LiesFlush(*o);
     }
     match colour {
         Some(c) if c.fraction_off() > MAX_OFF_FRACTION => FrameVerdict::ColourDisagrees(*c),
@@ -237,11 +249,13 @@ pub fn frame_verdict(
 
 impl FrameVerdict {
     /// The verdict by name: "registered", "depth" (too little of the source ended on the
-    /// target) or "colour" (on the surface, but slid along it).
+    /// target), "outline" (on a surface, but flush in it) or "colour" (on the surface, but slid
+    /// along it).
     pub fn name(&self) -> &'static str {
         match self {
             Self::Registered => "registered",
             Self::NotRegistered { .. } => "depth",
+            Self::LiesFlush(_) => "outline",
             Self::ColourDisagrees(_) => "colour",
         }
     }
@@ -251,7 +265,11 @@ impl FrameRegistration {
     /// Whether most of the source ended on the target, and its colour with it
     /// ([`frame_verdict`]).
     pub fn verdict(&self) -> FrameVerdict {
-        frame_verdict(self.summary.matched, self.data_points, self.colour.as_ref())
+        frame_verdict(
+            (self.summary.matched, self.data_points),
+            self.outline.as_ref(),
+            self.colour.as_ref(),
+        )
     }
 
     /// Per-pixel scene flow `warped − point` (NaN where the source had no point), `width × height`.
@@ -425,7 +443,22 @@ fn searched_start(
     (pixels, points): (&[usize], &[Vector3<f64>]),
     settings: &FrameSettings,
 ) -> (FrameStart, Isometry3<f64>) {
-    let input = OutlineInput {
+    let input = outline_input([source, target], (pixels, points), settings);
+    let found = settings.outline_start.then(|| search(&input)).flatten();
+    match found.and_then(|f| f.start().map(|motion| (f.best, motion))) {
+        Some((best, motion)) => (FrameStart::Outline(best), motion),
+        None => (FrameStart::Identity, Isometry3::identity()),
+    }
+}
+
+/// The outline search's and check's input: the source's object at `pixels` with its `points`
+/// against the target's depth, the association gate and the node spacing as the gap.
+fn outline_input<'a>(
+    [source, target]: [&'a FrameView<'a>; 2],
+    (pixels, points): (&'a [usize], &'a [Vector3<f64>]),
+    settings: &FrameSettings,
+) -> OutlineInput<'a> {
+    OutlineInput {
         source_camera: source.camera,
         source_depth: source.depth,
         pixels,
@@ -434,11 +467,6 @@ fn searched_start(
         target_depth: target.depth,
         gate: settings.register.max_distance,
         gap: settings.graph.spacing,
-    };
-    let found = settings.outline_start.then(|| search(&input)).flatten();
-    match found.and_then(|f| f.start().map(|motion| (f.best, motion))) {
-        Some((best, motion)) => (FrameStart::Outline(best), motion),
-        None => (FrameStart::Identity, Isometry3::identity()),
     }
 }
 
@@ -476,7 +504,7 @@ pub fn register_frames(
         pixels,
         points,
         normals,
-        data,
+        mut data,
     } = source_points(source, &source_normals, settings.data_stride.max(1));
     if points.is_empty() {
         return Err(FrameError::NoPoints);
@@ -503,7 +531,6 @@ pub fn register_frames(
     let fit = fit_to_matches(&mut graph, &held, &bound, &settings.register, &start)?;
     // a fit to the matches has moved the nodes already
     let start = fit.as_ref().map_or(start, |_| Isometry3::identity());
-    let mut data = data;
     let seeds = held_seeds(&held, &normals, &mut data);
     let pick = |v: &[Vector3<f64>]| -> Vec<Vector3<f64>> { data.iter().map(|&k| v[k]).collect() };
     let data_bindings: Vec<_> = data.iter().map(|&k| bindings[k]).collect();
@@ -527,15 +554,17 @@ pub fn register_frames(
         &[start],
         seeds.as_ref(),
     )?;
-    if let Some(fit) = fit {
-        summary.take_in_first(&fit);
-    }
+    fit.iter().for_each(|f| summary.take_in_first(f));
     let (warped, warped_normals) = warped_by(&graph, &bindings, (&points, &normals));
-    let colour = chroma
-        .as_ref()
-        .and_then(|c| c.check(target, &warped, (&target_vertices, settings)));
+    let (colour, outline) = verdict_checks(
+        [source, target],
+        chroma.as_ref(),
+        (&pixels, &points, &warped),
+        (&target_vertices, settings),
+    );
     Ok(FrameRegistration {
         colour,
+        outline,
         pixels,
         points,
         warped,
@@ -546,6 +575,20 @@ pub fn register_frames(
         start: how,
         data_points: data.len(),
     })
+}
+
+/// The verdict's colour and outline checks (modules `colour_check`, `outline_check`) of the
+/// source's `points` at `pixels` carried to `warped`; the colour's only when both frames have
+/// colour (`chroma`).
+fn verdict_checks(
+    [source, target]: [&FrameView<'_>; 2],
+    chroma: Option<&FrameChroma>,
+    (pixels, points, warped): (&[usize], &[Vector3<f64>], &[Vector3<f64>]),
+    (target_vertices, settings): (&VertexMap, &FrameSettings),
+) -> (Option<ColourCheck>, Option<OutlineCheck>) {
+    let colour = chroma.and_then(|c| c.check(target, warped, (target_vertices, settings)));
+    let input = outline_input([source, target], (pixels, points), settings);
+    (colour, check_outline(&input, warped))
 }
 
 /// `points` with their `normals` carried by `graph` through their `bindings`.
@@ -655,14 +698,17 @@ mod tests {
 
     #[test]
     fn most_of_the_source_must_end_on_the_target() {
-        assert_eq!(frame_verdict(50, 100, None), FrameVerdict::Registered);
+        assert_eq!(
+            frame_verdict((50, 100), None, None),
+            FrameVerdict::Registered
+        );
         let not = |matched, data_points| FrameVerdict::NotRegistered {
             matched,
             data_points,
         };
-        assert_eq!(frame_verdict(49, 100, None), not(49, 100));
+        assert_eq!(frame_verdict((49, 100), None, None), not(49, 100));
         assert_eq!(
-            frame_verdict(0, 0, None),
+            frame_verdict((0, 0), None, None),
             not(0, 0),
             "no data is no registration"
         );
@@ -678,31 +724,57 @@ mod tests {
         };
         let fine = check(40, 10);
         assert_eq!(
-            frame_verdict(90, 100, Some(&fine)),
+            frame_verdict((90, 100), None, Some(&fine)),
             FrameVerdict::Registered
         );
         let slid = check(39, 10);
         assert_eq!(
-            frame_verdict(90, 100, Some(&slid)),
+            frame_verdict((90, 100), None, Some(&slid)),
             FrameVerdict::ColourDisagrees(slid)
         );
         assert!(
             matches!(
-                frame_verdict(10, 100, Some(&fine)),
+                frame_verdict((10, 100), None, Some(&fine)),
                 FrameVerdict::NotRegistered { .. }
             ),
             "the depth's verdict comes first"
         );
         let names = [
-            frame_verdict(90, 100, Some(&fine)).name(),
-            frame_verdict(10, 100, Some(&fine)).name(),
-            frame_verdict(90, 100, Some(&slid)).name(),
+            frame_verdict((90, 100), None, Some(&fine)).name(),
+            frame_verdict((10, 100), None, Some(&fine)).name(),
+            frame_verdict((90, 100), None, Some(&slid)).name(),
         ];
         assert_eq!(names, ["registered", "depth", "colour"]);
         let grey = check(0, 0);
         assert_eq!(
-            frame_verdict(90, 100, Some(&grey)),
+            frame_verdict((90, 100), None, Some(&grey)),
             FrameVerdict::Registered
         );
+    }
+
+    #[test]
+    fn an_outline_mostly_flush_is_not_registered_before_the_colour_is_asked() {
+        let outline = |seen, flush| OutlineCheck {
+            outline: 100,
+            seen,
+            flush,
+        };
+        let check = ColourCheck {
+            aligned: 40,
+            off: 0,
+            flat: 100,
+            floor: 1e-4,
+        };
+        let verdict = |o: &OutlineCheck| frame_verdict((90, 100), Some(o), Some(&check));
+        assert_eq!(verdict(&outline(60, 30)), FrameVerdict::Registered);
+        let flush = outline(60, 31);
+        assert_eq!(verdict(&flush), FrameVerdict::LiesFlush(flush));
+        assert_eq!(verdict(&flush).name(), "outline");
+        // too few seen to judge: the colour decides
+        assert_eq!(verdict(&outline(19, 19)), FrameVerdict::Registered);
+        assert!(matches!(
+            frame_verdict((10, 100), Some(&flush), None),
+            FrameVerdict::NotRegistered { .. }
+        ));
     }
 }

@@ -47,6 +47,7 @@ pub mod linear_steps;
 pub mod mesh_point;
 pub mod mesh_target;
 pub mod orientation;
+pub mod outline_check;
 pub mod outline_start;
 pub mod photometric;
 pub mod reference_frame;
@@ -77,6 +78,7 @@ pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
 pub use linear_steps::{LinearSteps, LinearStepsError};
 pub use mesh_point::MeshPoint;
 pub use mesh_target::MeshTarget;
+pub use outline_check::{OutlineCheck, MAX_FLUSH_FRACTION};
 pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};
 pub use reference_frame::ReferenceFrame;
 pub use register::{

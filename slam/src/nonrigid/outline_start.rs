@@ -119,9 +119,19 @@ impl OutlineStart {
 
 /// An outline point and its outward probe, both in the source's camera frame.
 #[derive(Clone, Copy, Debug)]
-struct OutlinePoint {
-    point: Vector3<f64>,
-    probe: Vector3<f64>,
+pub(super) struct OutlinePoint {
+    /// Its index in the object's points.
+    pub(super) index: usize,
+    pub(super) point: Vector3<f64>,
+    pub(super) probe: Vector3<f64>,
+    /// The object's steepest depth slope over the probe's length along the image's axes,
+    /// `max |z_n − z| / (reach · z / f)` over the pixels `n` that far away that are the object's
+    /// (the tangent of the surface's angle to the image plane, near enough); infinite when none
+    /// is. The outline's own direction is not used: along a round outline's staircase it runs
+    /// nearly tangent to the outline. A sheet's edge seen face-on has a small
+    /// one; an occluding contour (a ball's or a tube's side, a silhouette the view makes) a
+    /// large one.
+    pub(super) slope: f64,
 }
 
 /// The prepared search: sampled points, outline, centroid and steps.
@@ -200,8 +210,7 @@ impl<'a> Search<'a> {
             return None;
         }
         let extent = (input.pixels.len() as f64).sqrt();
-        let probe = (extent * PROBE_FRACTION).max(2.0);
-        let outline = outline_points(input, probe);
+        let outline = outline_points(input);
         if outline.is_empty() {
             return None;
         }
@@ -339,17 +348,26 @@ impl<'a> Search<'a> {
     }
 
     /// The target's depth at pixel (u, v); None without depth.
-    fn depth_at(&self, (u, v): (usize, usize)) -> Option<f64> {
-        let depth = self.input.target_depth;
-        let z = *depth.data.get(v * depth.width + u)? as f64;
-        (z > 0.0 && z.is_finite()).then_some(z)
+    fn depth_at(&self, pixel: (usize, usize)) -> Option<f64> {
+        depth_at(self.input.target_depth, pixel)
     }
 }
 
+/// `depth` at pixel (u, v), metres; None outside it or without depth.
+pub(super) fn depth_at(depth: &DepthImage, (u, v): (usize, usize)) -> Option<f64> {
+    if u >= depth.width {
+        return None;
+    }
+    let z = *depth.data.get(v * depth.width + u)? as f64;
+    (z > 0.0 && z.is_finite()).then_some(z)
+}
+
 /// The object's outline points: object pixels whose next pixel in one of the four directions is
-/// not the object's, and whose pixel `probe` pixels out that way has no depth or depth at least
-/// the gap behind; each with its probe back-projected at the point's depth.
-fn outline_points(input: &OutlineInput<'_>, probe: f64) -> Vec<OutlinePoint> {
+/// not the object's, and whose pixel a probe's length out that way ([`PROBE_FRACTION`] of the
+/// object's extent in the image, at least two pixels) has no depth or depth at least the gap
+/// behind; each with its probe back-projected at the point's depth.
+pub(super) fn outline_points(input: &OutlineInput<'_>) -> Vec<OutlinePoint> {
+    let probe = ((input.pixels.len() as f64).sqrt() * PROBE_FRACTION).max(2.0);
     let depth = input.source_depth;
     let (w, h) = (depth.width as i64, depth.height as i64);
     let mut object = vec![false; depth.data.len()];
@@ -361,7 +379,7 @@ fn outline_points(input: &OutlineInput<'_>, probe: f64) -> Vec<OutlinePoint> {
     let at = |x: i64, y: i64| (x >= 0 && y >= 0 && x < w && y < h).then(|| (y * w + x) as usize);
     let reach = probe.round() as i64;
     let mut out = Vec::new();
-    for (&i, p) in input.pixels.iter().zip(input.points) {
+    for (index, (&i, p)) in input.pixels.iter().zip(input.points).enumerate() {
         let (x, y) = ((i as i64) % w, (i as i64) / w);
         for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
             let next = at(x + dx, y + dy);
@@ -377,7 +395,19 @@ fn outline_points(input: &OutlineInput<'_>, probe: f64) -> Vec<OutlinePoint> {
             }
             let (u, v) = ((x + reach * dx) as f64, (y + reach * dy) as f64);
             let probe = input.source_camera.back_project(u, v, p.z).coords;
-            out.push(OutlinePoint { point: *p, probe });
+            let run = reach as f64 * p.z / input.source_camera.fx;
+            let slope = [(1, 0), (-1, 0), (0, 1), (0, -1)]
+                .iter()
+                .filter_map(|&(ex, ey)| at(x + reach * ex, y + reach * ey).filter(|&n| object[n]))
+                .map(|n| (depth.data[n] as f64 - p.z).abs() / run)
+                .reduce(f64::max)
+                .unwrap_or(f64::INFINITY);
+            out.push(OutlinePoint {
+                index,
+                point: *p,
+                probe,
+                slope,
+            });
             break;
         }
     }
