@@ -200,13 +200,14 @@ mod tests {
     }
 
     #[test]
-    fn a_turned_plate_is_judged_with_its_probes_turned() {
+    fn a_plate_turned_upside_down_stands_with_its_probes_turned() {
         let camera = Camera::new(150.0, 150.0, 80.0, 60.0, 160, 120);
         let (source, pixels, points) = plate(&camera, 50, 0.0);
-        // the target shows the plate turned by 0.4 rad about the view axis through its centre
+        // the target shows the plate turned by 3 rad about the view axis through its centre:
+        // probes not turned with it would point into the plate and find it flush
         let centre = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
         let turn = Isometry3::rotation_wrt_point(
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.4),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 3.0),
             Point3::from(centre),
         );
         let turned: Vec<_> = points
