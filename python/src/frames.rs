@@ -64,10 +64,12 @@ fn mask_image(mask: &PyReadonlyArray2<'_, bool>, camera: &Camera) -> PyResult<Im
 /// `warped` (n × 3, source and target camera frames), `pixels` (row-major source pixel of each
 /// point), `flow` (height × width × 3, NaN off the object), `nodes`, `matched`, `data_points`,
 /// `iterations`, `seconds`, `registered` (bool), `verdict` ("registered", "depth": too little
-/// of the source ended on the target, or "colour": its colour disagrees, slid along the
-/// surface), `start` ("features", "outline": placed by the object's outline against the
-/// target's depth, or "none") and `colour_check` (aligned, off, flat, floor; None without
-/// colour). An array of the wrong shape or type is a `ValueError` naming it (the source's images
+/// of the source ended on the target, "outline": its outline lies flush in a surface that goes
+/// on, or "colour": its colour disagrees, slid along the surface), `start` ("features",
+/// "outline": placed by the object's outline against the target's depth, or "none"),
+/// `colour_check` (aligned, off, flat, floor; None without colour) and `outline_check`
+/// (outline, seen, flush; None when the object has no outline before its background in the
+/// source). An array of the wrong shape or type is a `ValueError` naming it (the source's images
 /// are frame 0, the target's frame 1).
 #[pyfunction]
 #[pyo3(signature = (source_depth, target_depth, fx, fy, cx, cy, depth_scale = 1000.0, source_color = None, target_color = None, mask = None))]

@@ -199,8 +199,9 @@ pub enum FrameVerdict {
         data_points: usize,
     },
     /// The source lies on the target's surface, but where it stood before its background in the
-    /// source, more than [`super::outline_check::MAX_FLUSH_FRACTION`] of its seen outline now lies flush in a surface
-    /// that goes on (module `outline_check`): a plain object laid on a plain surface it is not.
+    /// source, more than [`super::outline_check::MAX_FLUSH_FRACTION`] of its seen outline now
+    /// lies flush in a surface that goes on (module `outline_check`): a plain object laid on a
+    /// plain surface it is not.
     LiesFlush(OutlineCheck),
     /// The source lies on the target's surface, but its colour does not: on more than
     /// [`MAX_OFF_FRACTION`] of the textured patches the warped source's chromaticity differs
@@ -262,8 +263,8 @@ impl FrameVerdict {
 }
 
 impl FrameRegistration {
-    /// Whether most of the source ended on the target, and its colour with it
-    /// ([`frame_verdict`]).
+    /// Whether most of the source ended on the target, its outline standing as it stood and
+    /// its colour with it ([`frame_verdict`]).
     pub fn verdict(&self) -> FrameVerdict {
         frame_verdict(
             (self.summary.matched, self.data_points),

@@ -128,9 +128,8 @@ pub(super) struct OutlinePoint {
     /// `max |z_n − z| / (reach · z / f)` over the pixels `n` that far away that are the object's
     /// (the tangent of the surface's angle to the image plane, near enough); infinite when none
     /// is. The outline's own direction is not used: along a round outline's staircase it runs
-    /// nearly tangent to the outline. A sheet's edge seen face-on has a small
-    /// one; an occluding contour (a ball's or a tube's side, a silhouette the view makes) a
-    /// large one.
+    /// nearly tangent to the outline. A sheet's edge seen face-on has a small one; an occluding
+    /// contour (a ball's or a tube's side, a silhouette the view makes) a large one.
     pub(super) slope: f64,
 }
 
