@@ -7,11 +7,12 @@
 //! probe `b'`, kept where the surface meets the outline at most [`MAX_EDGE_SLOPE`] steep (an edge
 //! of the object, not a silhouette the view makes). After the registration, `b` is at `w(b)` and
 //! its probe at `w(b) + R (b' − b)`, `R` the rotation of the warp's best rigid fit (Horn's
-//! absolute orientation of the points onto their warped places). An outline point is seen when the target's depth at `w(b)`'s pixel
-//! agrees with `w(b)_z` within the association gate; a seen point stands when its probe sees no
-//! depth or depth at least the gap behind `w(b)_z`, and lies flush when the probe sees depth
-//! within the gap of it (a surface that goes on where the object should end). A probe that
-//! leaves the image or sees something nearer (an occluder) says nothing either way.
+//! absolute orientation of the points onto their warped places). An outline point is seen when
+//! the target's depth at `w(b)`'s pixel agrees with `w(b)_z` within the association gate; a
+//! seen point stands when its probe sees no depth or depth at least the gap behind `w(b)_z`,
+//! and lies flush when the probe sees depth within the gap of it (a surface that goes on where
+//! the object should end). A probe that leaves the image or sees something nearer (an occluder)
+//! says nothing either way.
 //!
 //! A plain object registered onto a plain surface it is not on (a wall beside it, a larger plain
 //! object) has its points on the surface, which is all the verdict's depth count asks, but its
@@ -22,7 +23,7 @@ use super::outline_start::{depth_at, outline_points, OutlineInput};
 use crate::eval::umeyama;
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
-/// The outline points seen on the target, at most, for the rotation's fit and the count.
+/// The object's points sampled for the rotation's fit, at most.
 const FIT_SAMPLES: usize = 2000;
 
 /// The steepest depth slope across the outline (module `outline_start`'s `slope`, the tangent
@@ -53,11 +54,7 @@ pub struct OutlineCheck {
 impl OutlineCheck {
     /// `flush / seen` (0 with nothing seen).
     pub fn fraction_flush(&self) -> f64 {
-        if self.seen == 0 {
-            0.0
-        } else {
-            self.flush as f64 / self.seen as f64
-        }
+        self.flush as f64 / self.seen.max(1) as f64
     }
 
     /// Whether the check judges: at least [`MIN_SEEN`] outline points seen.
@@ -89,13 +86,9 @@ pub fn check_outline(input: &OutlineInput<'_>, warped: &[Vector3<f64>]) -> Optio
     for b in &outline {
         let w = warped[b.index];
         let probe = w + rotation * (b.probe - b.point);
-        match judged(input, &w, &probe) {
-            Some(true) => seen += 1,
-            Some(false) => {
-                seen += 1;
-                flush += 1;
-            }
-            None => {}
+        if let Some(edge) = judged(input, &w, &probe) {
+            seen += 1;
+            flush += usize::from(edge == Edge::Flush);
         }
     }
     Some(OutlineCheck {
@@ -105,9 +98,18 @@ pub fn check_outline(input: &OutlineInput<'_>, warped: &[Vector3<f64>]) -> Optio
     })
 }
 
-/// Whether the outline point at `w` with its probe at `probe` stands (true) or lies flush
-/// (false) on the target; None when it is not seen or the probe says nothing.
-fn judged(input: &OutlineInput<'_>, w: &Vector3<f64>, probe: &Vector3<f64>) -> Option<bool> {
+/// What a seen outline point's probe finds on the target.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Edge {
+    /// No depth, or depth at least the gap behind: the object ends there.
+    Stands,
+    /// Depth within the gap: a surface goes on where the object should end.
+    Flush,
+}
+
+/// How the outline point at `w` with its probe at `probe` ends on the target; None when it is
+/// not seen or the probe says nothing.
+fn judged(input: &OutlineInput<'_>, w: &Vector3<f64>, probe: &Vector3<f64>) -> Option<Edge> {
     let camera = input.target_camera;
     let at = camera.project_to_pixel(&Point3::from(*w))?;
     let z = depth_at(input.target_depth, at)?;
@@ -116,10 +118,10 @@ fn judged(input: &OutlineInput<'_>, w: &Vector3<f64>, probe: &Vector3<f64>) -> O
     }
     let beyond = camera.project_to_pixel(&Point3::from(*probe))?;
     match depth_at(input.target_depth, beyond) {
-        None => Some(true),
-        Some(zp) if zp >= w.z + input.gap => Some(true),
+        None => Some(Edge::Stands),
+        Some(zp) if zp >= w.z + input.gap => Some(Edge::Stands),
         Some(zp) if zp <= w.z - input.gap => None,
-        Some(_) => Some(false),
+        Some(_) => Some(Edge::Flush),
     }
 }
 
