@@ -43,6 +43,9 @@ pub struct TsdfParams {
     pub evict: bool,
     /// Depths beyond this are not fused, metres (default 4).
     pub max_depth: f32,
+    /// In a run of holes in a raycast's hint, every how many rays march the whole range (default
+    /// 4; 1 marches them all): see [`TsdfVolume::raycast_with_hint`].
+    pub hole_stride: usize,
 }
 
 impl Default for TsdfParams {
@@ -54,6 +57,7 @@ impl Default for TsdfParams {
             max_blocks: 150_000,
             evict: true,
             max_depth: 4.0,
+            hole_stride: 4,
         }
     }
 }

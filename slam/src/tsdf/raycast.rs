@@ -222,6 +222,15 @@ impl TsdfVolume {
     /// first takes Newton steps from its hint; if they fail it marches [z − μ − 2 voxels, z + 3μ],
     /// and if that finds no surface, the whole range. So the hint changes speed, not the surface
     /// found, but for one nearer than the hint's band (a surface the live frame did not see).
+    ///
+    /// Where the hint has a run of holes and the previous pixel found nothing either (a border
+    /// the sensor does not measure, a view onto what the map has not seen), only every
+    /// [`TsdfParams::hole_stride`]-th ray of the run marches the whole range. When one of them
+    /// hits, the rays skipped before it are found from its depth as the pixels after it are, so a
+    /// surface that spans the stride's pixels of the run is found on them as with a stride of 1;
+    /// a narrower one between two marched rays is not.
+    ///
+    /// [`TsdfParams::hole_stride`]: super::TsdfParams::hole_stride
     pub fn raycast_with_hint(
         &self,
         camera: &Camera,
@@ -234,21 +243,7 @@ impl TsdfVolume {
         out.normals.resize(w, h, INVALID);
         out.depth.resize(w, h, 0.0);
         out.colors.resize(w, h, [0; 3]);
-        let origin = Point3::from(pose.translation.vector.cast::<f32>());
-        let rot = pose
-            .rotation
-            .to_rotation_matrix()
-            .into_inner()
-            .cast::<f32>();
-        // Nothing beyond max_depth was fused: rays stop a truncation band past it.
-        let (t_min, t_max) = (
-            camera.depth_min as f32,
-            self.params.max_depth + 2.0 * self.params.truncation(),
-        );
-        let band = 3.0 * self.params.truncation();
-        // the hinted surface lies within the sensor noise of the hint: start just outside its
-        // truncation band, where the stored distance lets the march take long steps at once
-        let lead = self.params.truncation() + 2.0 * self.params.voxel_size;
+        let rays = Rays::new(self, camera, pose);
         let hint = hint.filter(|d| d.width == w && d.height == h);
         out.vertices
             .data
@@ -258,50 +253,171 @@ impl TsdfVolume {
             .zip(out.colors.data.par_chunks_mut(w))
             .enumerate()
             .for_each(|(y, (((vr, nr), dr), cr))| {
-                let mut cache = BlockCache::new();
-                for x in 0..w {
-                    let rc = camera
-                        .back_project(x as f64, y as f64, 1.0)
-                        .coords
-                        .cast::<f32>();
-                    let len = rc.norm();
-                    let dir = rot * (rc / len);
-                    // where the hint has a hole, the surface the previous pixel of the row hit is
-                    // the best guess
-                    let z = match hint.map_or(0.0, |d| d.data[y * w + x]) {
-                        z if z > 0.0 || x == 0 || hint.is_none() => z,
-                        _ => dr[x - 1],
-                    };
-                    let hit = if z > t_max + band {
-                        None // the hint says the surface is beyond the fused range
-                    } else {
-                        let near = if z > 0.0 {
-                            self.cast_near_hint(&origin, &dir, z * len, &mut cache)
-                                .or_else(|| {
-                                    let (from, to) = ((z - lead).max(t_min), z + band);
-                                    self.cast_ray(&origin, &dir, from * len, to * len)
-                                })
-                        } else {
-                            None
-                        };
-                        near.or_else(|| self.cast_ray(&origin, &dir, t_min * len, t_max * len))
-                    };
-                    match hit {
-                        Some((p, n, c, t)) => {
-                            vr[x] = [p.x, p.y, p.z];
-                            nr[x] = [n.x, n.y, n.z];
-                            dr[x] = t / len;
-                            cr[x] = c;
-                        }
-                        None => {
-                            vr[x] = INVALID;
-                            nr[x] = INVALID;
-                            dr[x] = 0.0;
-                            cr[x] = [0; 3];
-                        }
-                    }
-                }
+                let mut row = RowMaps { vr, nr, dr, cr };
+                let hint = hint.map(|d| &d.data[y * w..(y + 1) * w]);
+                rays.cast_row(y, hint, &mut row);
             });
+    }
+}
+
+/// One row of the output maps.
+struct RowMaps<'a> {
+    vr: &'a mut [[f32; 3]],
+    nr: &'a mut [[f32; 3]],
+    dr: &'a mut [f32],
+    cr: &'a mut [[u8; 3]],
+}
+
+impl RowMaps<'_> {
+    /// Writes pixel `x`'s hit, or marks it missed.
+    fn set(&mut self, x: usize, hit: Option<RayHit>, len: f32) {
+        match hit {
+            Some((p, n, c, t)) => {
+                self.vr[x] = [p.x, p.y, p.z];
+                self.nr[x] = [n.x, n.y, n.z];
+                self.dr[x] = t / len;
+                self.cr[x] = c;
+            }
+            None => {
+                self.vr[x] = INVALID;
+                self.nr[x] = INVALID;
+                self.dr[x] = 0.0;
+                self.cr[x] = [0; 3];
+            }
+        }
+    }
+}
+
+/// The rays of a raycast: the camera's pixels seen from a pose, and the range they march.
+struct Rays<'a> {
+    volume: &'a TsdfVolume,
+    camera: &'a Camera,
+    origin: Point3<f32>,
+    rot: nalgebra::Matrix3<f32>,
+    t_min: f32,
+    t_max: f32,
+    /// How far past a hint its surface is looked for.
+    band: f32,
+    /// How far before a hint its surface is looked for.
+    lead: f32,
+    /// [`super::TsdfParams::hole_stride`], at least 1.
+    stride: usize,
+}
+
+impl<'a> Rays<'a> {
+    fn new(volume: &'a TsdfVolume, camera: &'a Camera, pose: &Isometry3<f64>) -> Self {
+        let mu = volume.params.truncation();
+        Self {
+            volume,
+            camera,
+            origin: Point3::from(pose.translation.vector.cast::<f32>()),
+            rot: pose
+                .rotation
+                .to_rotation_matrix()
+                .into_inner()
+                .cast::<f32>(),
+            // Nothing beyond max_depth was fused: rays stop a truncation band past it.
+            t_min: camera.depth_min as f32,
+            t_max: volume.params.max_depth + 2.0 * mu,
+            band: 3.0 * mu,
+            // the hinted surface lies within the sensor noise of the hint: start just outside its
+            // truncation band, where the stored distance lets the march take long steps at once
+            lead: mu + 2.0 * volume.params.voxel_size,
+            stride: volume.params.hole_stride.max(1),
+        }
+    }
+
+    /// The unit direction (world frame) of pixel (x, y)'s ray, and the ray's length per unit of
+    /// z-depth.
+    fn ray(&self, x: usize, y: usize) -> (Vector3<f32>, f32) {
+        let rc = self
+            .camera
+            .back_project(x as f64, y as f64, 1.0)
+            .coords
+            .cast::<f32>();
+        let len = rc.norm();
+        (self.rot * (rc / len), len)
+    }
+
+    /// The surface near z-depth `z` (> 0): Newton steps, then the band's march.
+    fn near(
+        &self,
+        dir: &Vector3<f32>,
+        len: f32,
+        z: f32,
+        cache: &mut BlockCache<'a>,
+    ) -> Option<RayHit> {
+        let v = self.volume;
+        v.cast_near_hint(&self.origin, dir, z * len, cache)
+            .or_else(|| {
+                let (from, to) = ((z - self.lead).max(self.t_min), z + self.band);
+                v.cast_ray(&self.origin, dir, from * len, to * len)
+            })
+    }
+
+    /// The first surface along the whole range.
+    fn whole(&self, dir: &Vector3<f32>, len: f32) -> Option<RayHit> {
+        let (from, to) = (self.t_min * len, self.t_max * len);
+        self.volume.cast_ray(&self.origin, dir, from, to)
+    }
+
+    /// Row `y`, with its hint's row (see [`TsdfVolume::raycast_with_hint`]).
+    fn cast_row(&self, y: usize, hint: Option<&[f32]>, row: &mut RowMaps) {
+        let mut cache = BlockCache::new();
+        // pixels of the current run without a guess and without a hit so far
+        let mut run = 0;
+        for x in 0..row.dr.len() {
+            let (dir, len) = self.ray(x, y);
+            // where the hint has a hole, the surface the previous pixel of the row hit is
+            // the best guess
+            let z = match hint.map_or(0.0, |d| d[x]) {
+                z if z > 0.0 || x == 0 || hint.is_none() => z,
+                _ => row.dr[x - 1],
+            };
+            let hit = if z > self.t_max + self.band {
+                None // the hint says the surface is beyond the fused range
+            } else if z > 0.0 {
+                self.near(&dir, len, z, &mut cache)
+                    .or_else(|| self.whole(&dir, len))
+            } else if hint.is_some() && run % self.stride != 0 {
+                None // skipped in a run of holes
+            } else {
+                self.whole(&dir, len)
+            };
+            let found = hit.is_some();
+            row.set(x, hit, len);
+            if hint.is_some() && z == 0.0 && !found {
+                run += 1;
+            } else {
+                if found && run > 0 {
+                    // the run ends on a hit: the rays skipped since its last marched one
+                    let skipped = (run - 1) % self.stride;
+                    self.back_fill(y, x, skipped, row, &mut cache);
+                }
+                run = 0;
+            }
+        }
+    }
+
+    /// The `skipped` pixels before pixel `x`, a hit that ends a run of holes (a marched ray of
+    /// the run, or a hinted pixel after it): each from its right neighbour's depth, until one
+    /// finds nothing there.
+    fn back_fill(
+        &self,
+        y: usize,
+        x: usize,
+        skipped: usize,
+        row: &mut RowMaps,
+        cache: &mut BlockCache<'a>,
+    ) {
+        for i in (x - skipped..x).rev() {
+            let (dir, len) = self.ray(i, y);
+            let hit = self.near(&dir, len, row.dr[i + 1], cache);
+            if hit.is_none() {
+                break;
+            }
+            row.set(i, hit, len);
+        }
     }
 }
 
