@@ -538,6 +538,8 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "off": c.off,
         "flat": c.flat,
         "floor": c.floor,
+        "correlation": c.correlation,
+        "contrast": c.contrast,
     })));
     json["outline_check"] = serde_json::json!(reg.outline.map(|o| serde_json::json!({
         "outline": o.outline,

@@ -294,8 +294,8 @@ def register_frames(
     points and warped (n x 3), pixels (row-major source pixel of each point), flow (height x
     width x 3, NaN off the object), nodes, matched, data_points, iterations, seconds,
     registered (bool), verdict ("registered", "depth", "outline" or "colour"), start
-    ("features", "outline" or "none"), colour_check (aligned, off, flat, floor; None without
-    colour) and outline_check (outline, seen, flush; None when the object has no outline before
+    ("features", "outline" or "none"), colour_check (aligned, off, flat, floor, correlation,
+    contrast; None without colour) and outline_check (outline, seen, flush; None when the object has no outline before
     its background in the source). An array of the wrong shape or type raises
     ValueError naming it (the source's images are frame 0, the target's frame 1)."""
 

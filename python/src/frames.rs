@@ -67,9 +67,9 @@ fn mask_image(mask: &PyReadonlyArray2<'_, bool>, camera: &Camera) -> PyResult<Im
 /// of the source ended on the target, "outline": its outline lies flush in a surface that goes
 /// on, or "colour": its colour disagrees, slid along the surface), `start` ("features",
 /// "outline": placed by the object's outline against the target's depth, or "none"),
-/// `colour_check` (aligned, off, flat, floor; None without colour) and `outline_check`
-/// (outline, seen, flush; None when the object has no outline before its background in the
-/// source). An array of the wrong shape or type is a `ValueError` naming it (the source's images
+/// `colour_check` (aligned, off, flat, floor, correlation, contrast; None without colour) and
+/// `outline_check` (outline, seen, flush; None when the object has no outline before its
+/// background in the source). An array of the wrong shape or type is a `ValueError` naming it (the source's images
 /// are frame 0, the target's frame 1).
 #[pyfunction]
 #[pyo3(signature = (source_depth, target_depth, fx, fy, cx, cy, depth_scale = 1000.0, source_color = None, target_color = None, mask = None))]
@@ -159,12 +159,14 @@ fn outline_dict<'py>(py: Python<'py>, o: &OutlineCheck) -> PyResult<Bound<'py, P
     Ok(d)
 }
 
-/// The colour check's counts and floor.
+/// The colour check's counts, floor, correlation and contrast.
 fn colour_dict<'py>(py: Python<'py>, c: &ColourCheck) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("aligned", c.aligned)?;
     d.set_item("off", c.off)?;
     d.set_item("flat", c.flat)?;
     d.set_item("floor", c.floor)?;
+    d.set_item("correlation", c.correlation)?;
+    d.set_item("contrast", c.contrast)?;
     Ok(d)
 }

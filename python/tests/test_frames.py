@@ -51,6 +51,7 @@ def test_with_colour_the_colour_is_checked_and_agrees():
     check = result["colour_check"]
     assert result["verdict"] == "registered", check
     assert check["aligned"] > 0 and check["off"] == 0, check
+    assert check["correlation"] > 0.9 and check["contrast"] > 4.0, check
     metres = dynamap.register_frames(
         wall().astype(np.float64) / 1000.0, wall(0.01).astype(np.float64) / 1000.0, **INTRINSICS
     )

@@ -853,12 +853,7 @@ fn without_features(
 #[test]
 fn a_plain_sheet_pressed_onto_the_wall_is_not_registered() {
     use dynamap::slam::nonrigid::FrameVerdict;
-    use dynamap::slam::synthetic::frame_pair::FramePairCase;
-    let case = FramePairCase::far_set(0, true)
-        .into_iter()
-        .find(|c| c.name() == "plane-twist-33")
-        .expect("NOTES 147's set 0 has plane-twist-33");
-    let pair = case.render();
+    let pair = far_pair("plane-twist-33", true);
     let (pressed, pressed_epe, _) = without_features(&pair, false);
     assert!(
         pressed_epe > 0.1,
@@ -882,4 +877,54 @@ fn a_plain_sheet_pressed_onto_the_wall_is_not_registered() {
         outline.judges() && outline.fraction_flush() < 0.4,
         "{outline:?}"
     );
+}
+
+/// A textured ball turned far, registered without a start: it ends turned on its own surface
+/// 15 cm off, every data point on the target and its outline all silhouette (not judged). Every
+/// patch of the colour check is slid farther than its search, so the floor rises with them and
+/// every patch reads flat ("0 of 0" off), which counted as agreeing (NOTES 148). Over the whole
+/// area its colour is unrelated to the target's: not registered (NOTES 152). Started by its
+/// colour features instead, it registers and its colour follows it.
+#[test]
+fn a_ball_turned_far_whose_colour_does_not_follow_is_not_registered() {
+    use dynamap::slam::nonrigid::{register_frames, FrameSettings, FrameVerdict, FrameView};
+    let pair = far_pair("sphere-twist-32", false);
+    let (slid, slid_epe, _) = without_features(&pair, false);
+    assert!(slid_epe > 0.1, "{slid_epe} m: not slid");
+    assert!(
+        slid.summary.matched * 2 >= slid.data_points,
+        "the depth's count alone would take it"
+    );
+    match slid.verdict() {
+        FrameVerdict::ColourDisagrees(c) => {
+            assert!(c.unrelated() && c.off + c.aligned == 0, "{c:?}")
+        }
+        other => panic!("{slid_epe} m off reported as {other:?}"),
+    }
+    let ((d0, c0), (d1, c1)) = (&pair.source, &pair.target);
+    let found = register_frames(
+        &FrameView::new(&pair.camera, d0, Some(c0), Some(&pair.mask)),
+        &FrameView::new(&pair.camera, d1, Some(c1), None),
+        &FrameSettings::default(),
+    )
+    .unwrap();
+    let (epe, _) = pair.score(&found.points, &found.warped);
+    assert!(
+        epe.stats.mean < 0.01,
+        "{} m from the features",
+        epe.stats.mean
+    );
+    assert_eq!(found.verdict(), FrameVerdict::Registered);
+    let colour = found.colour.expect("both frames have colour");
+    assert!(colour.correlation > 0.9, "{colour:?}");
+}
+
+/// The pair `name` of NOTES 147's far set 0, rendered (with the wall behind it or not).
+fn far_pair(name: &str, wall: bool) -> dynamap::slam::synthetic::frame_pair::FramePair {
+    use dynamap::slam::synthetic::frame_pair::FramePairCase;
+    FramePairCase::far_set(0, wall)
+        .into_iter()
+        .find(|c| c.name() == name)
+        .unwrap_or_else(|| panic!("NOTES 147's set 0 has no {name}"))
+        .render()
 }

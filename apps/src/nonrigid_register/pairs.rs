@@ -43,7 +43,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
     let bar = session.progress(cases.len() as u64, "pairs");
     let row = |line: String| bar.suspend(|| println!("{line}"));
     row(format!(
-        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>8} {:>7} {:>11} {:>12} {:>13}",
+        "{:<22} {:>5} | {:>9} {:>9} {:>8} | {:>9} {:>8} {:>7} {:>11} {:>18} {:>13}",
         "pair",
         "frame",
         "zero cm",
@@ -53,7 +53,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         "start",
         "seconds",
         "verdict",
-        "colour off",
+        "colour off   corr",
         "outline flush"
     ));
     let (mut sum, mut not_registered) = (0.0, 0);
@@ -74,7 +74,7 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
         not_registered += usize::from(!registered);
         bar.inc(1);
         row(format!(
-            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>8} {:>7.2} {:>11} {:>12} {:>13}",
+            "{:<22} {:>5} | {:>9.3} {:>9.3} {:>8.3} | {:>9} {:>8} {:>7.2} {:>11} {:>18} {:>13}",
             case.name(),
             case.frame,
             100.0 * zero.stats.mean,
@@ -89,9 +89,10 @@ pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> 
             reg.summary.seconds,
             verdict.name(),
             reg.colour.as_ref().map_or("-".to_string(), |c| format!(
-                "{:.2} of {}",
+                "{:.2} of {} {:>5.2}",
                 c.fraction_off(),
-                c.off + c.aligned
+                c.off + c.aligned,
+                c.correlation
             )),
             reg.outline.as_ref().map_or("-".to_string(), |o| format!(
                 "{:.2} of {}",

@@ -26,6 +26,16 @@
 //! A patch is *textured* when `S > M F`, a slide of the tolerance would stand out of the floor
 //! ([`MARGIN`] `= M`), and *off* when `e(0) > M F + S`: more is left than the floor and a slide
 //! of the tolerance could leave. Flat patches say nothing either way.
+//!
+//! The floor is the registration's own, so a registration wrong everywhere (every patch slid
+//! farther than half a patch) raises it with its errors and reads every patch flat. The whole
+//! judged area is therefore also read at once: the correlation (Pearson's `ρ`) of `P` with
+//! `C_t` at zero shift over the predicted pixels of the judged patches, and the source's
+//! *contrast*, the variance of `P` over half the mean squared difference of horizontally
+//! adjacent predicted pixels (about 1 for noise alone, large for a texture; it does not depend
+//! on the registration). Correlation is blind to a colour cast and to the chromaticity's
+//! scale. Where the contrast exceeds [`MARGIN`] and `ρ <` [`MIN_CORRELATION`], the source's
+//! colour does not follow it to where the registration put it: the colour is *unrelated*.
 
 use crate::camera::Camera;
 use crate::image::{GrayImage, VertexMap};
@@ -39,6 +49,11 @@ const MIN_COVERED: f64 = 0.5;
 pub const MARGIN: f64 = 4.0;
 /// The floor is this quantile of the patches' best fits.
 const FLOOR_QUANTILE: f64 = 0.1;
+/// A textured source's colour is unrelated to the target's where the registration put it when
+/// their correlation is below this: the source's colour explains less than a ninth of the
+/// target's variance (NOTES 152: registrations wrong everywhere 0.02–0.16, right ones on real
+/// DeepDeform pairs 0.55–0.65 and on generated pairs 0.90–0.99).
+pub const MIN_CORRELATION: f64 = 1.0 / 3.0;
 
 /// What the colour says of a registration.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -51,12 +66,24 @@ pub struct ColourCheck {
     pub flat: usize,
     /// The floor `F`: the squared difference of chromaticity where the colour fits.
     pub floor: f64,
+    /// The correlation of the prediction with the target over the judged patches (0 when
+    /// either is constant).
+    pub correlation: f64,
+    /// The source's contrast over the judged patches: the prediction's variance over its
+    /// pixel-to-pixel noise (0 when it cannot be read).
+    pub contrast: f64,
 }
 
 impl ColourCheck {
     /// The fraction of the textured patches that are off (0 with none).
     pub fn fraction_off(&self) -> f64 {
         self.off as f64 / (self.aligned + self.off).max(1) as f64
+    }
+
+    /// Whether the source is textured ([`MARGIN`] times its noise) and its colour is unrelated
+    /// to the target's where the registration put it (correlation below [`MIN_CORRELATION`]).
+    pub fn unrelated(&self) -> bool {
+        self.contrast > MARGIN && self.correlation < MIN_CORRELATION
     }
 }
 
@@ -105,8 +132,11 @@ pub fn check_colour(input: &CheckInput<'_>, patch: usize, tolerance: f64) -> Opt
     }
     let k = ((bests.len() - 1) as f64 * FLOOR_QUANTILE).round() as usize;
     let floor = *bests.select_nth_unstable_by(k, f64::total_cmp).1;
+    let (correlation, contrast) = Moments::over(&tiles, &prediction, input.target).read();
     let mut check = ColourCheck {
         floor,
+        correlation,
+        contrast,
         ..ColourCheck::default()
     };
     for &(at_zero, _, signal) in &costs {
@@ -145,6 +175,66 @@ fn splat(input: &CheckInput<'_>) -> (GrayImage, GrayImage) {
         }
     }
     (value, depth)
+}
+
+/// Sums over the predicted pixels of the judged patches: of the prediction `p` and the target
+/// `t` for their correlation, and of the squared differences of horizontally adjacent `p`.
+#[derive(Default)]
+struct Moments {
+    n: f64,
+    p: f64,
+    t: f64,
+    pp: f64,
+    tt: f64,
+    pt: f64,
+    steps: f64,
+    step_sq: f64,
+}
+
+impl Moments {
+    fn over(tiles: &[Tile], prediction: &GrayImage, target: &GrayImage) -> Self {
+        let mut m = Self::default();
+        for (x, y) in tiles.iter().flat_map(Tile::pixels) {
+            let p = prediction.at(x, y) as f64;
+            if !p.is_finite() {
+                continue;
+            }
+            let t = target.at(x, y) as f64;
+            m.n += 1.0;
+            (m.p, m.t) = (m.p + p, m.t + t);
+            (m.pp, m.tt, m.pt) = (m.pp + p * p, m.tt + t * t, m.pt + p * t);
+            let next = if x + 1 < prediction.width {
+                prediction.at(x + 1, y) as f64
+            } else {
+                f64::NAN
+            };
+            if next.is_finite() {
+                m.steps += 1.0;
+                m.step_sq += (next - p) * (next - p);
+            }
+        }
+        m
+    }
+
+    /// Pearson's correlation of `p` with `t`, and the contrast `var(p) / (½ mean step²)` (each
+    /// 0 when it cannot be read).
+    fn read(&self) -> (f64, f64) {
+        if self.n < 2.0 {
+            return (0.0, 0.0);
+        }
+        let (mp, mt) = (self.p / self.n, self.t / self.n);
+        let vp = (self.pp / self.n - mp * mp).max(0.0);
+        let vt = (self.tt / self.n - mt * mt).max(0.0);
+        let cov = self.pt / self.n - mp * mt;
+        let correlation = if vp * vt > 0.0 {
+            cov / (vp * vt).sqrt()
+        } else {
+            0.0
+        };
+        let noise = 0.5 * self.step_sq / self.steps.max(1.0);
+        let contrast = if noise > 0.0 { vp / noise } else { 0.0 };
+        (correlation, contrast)
+    }
 }
 
 /// A square patch of the target image, with the mean depth of its predicted pixels.
@@ -242,6 +332,7 @@ impl Tile {
 mod tests {
     use super::*;
     use crate::nonrigid::chroma::{chromaticity, ChromaImage};
+    use std::f64::consts::PI;
 
     /// A plane 1.5 m in front of the camera whose colour has a smooth two-dimensional pattern
     /// of chromaticity, seen by the source and by the target, each with its own noise of a few
@@ -263,9 +354,15 @@ mod tests {
     }
 
     fn plane(offset: Vector3<f64>, cast: f64) -> Plane {
+        patterned(offset, cast, 1.0)
+    }
+
+    /// [`plane`] with the pattern's amplitude scaled by `texture` (0: a plain colour).
+    fn patterned(offset: Vector3<f64>, cast: f64, texture: f64) -> Plane {
         let camera = Camera::tum_default();
         let (w, h, z) = (camera.width, camera.height, 1.5);
-        let pattern = |x: f64, y: f64| 0.15 * (x * 40.0).sin() + 0.12 * (y * 31.0 + 0.3).cos();
+        let pattern =
+            |x: f64, y: f64| texture * (0.15 * (x * 40.0).sin() + 0.12 * (y * 31.0 + 0.3).cos());
         let colour_of = |c: f64, i: usize, frame: usize, red: f64| {
             // R + G + B = 300 and R − B = 300 c, then noise on each channel
             let rgb = [100.0 + 150.0 * c, 100.0, 100.0 - 150.0 * c];
@@ -337,6 +434,20 @@ mod tests {
     fn a_colour_cast_between_the_frames_is_not_a_slide() {
         let cast = check(Vector3::zeros(), 1.06, 0.01);
         assert!(cast.aligned > 100 && cast.fraction_off() < 0.05, "{cast:?}");
+    }
+
+    /// Slid by half the pattern's period along both axes (7.9 and 10.1 cm, farther than half
+    /// a patch, 4.6 cm here), every patch's colour is wrong and the floor rises with them; the
+    /// correlation over the whole area tells.
+    #[test]
+    fn a_colour_wrong_everywhere_is_unrelated_and_a_plain_one_is_not_judged() {
+        let half = Vector3::new(PI / 40.0, PI / 31.0, 0.0);
+        let slid = check(half, 1.0, 0.01);
+        assert!(slid.unrelated(), "{slid:?}");
+        let exact = check(Vector3::zeros(), 1.06, 0.01);
+        assert!(exact.correlation > 0.9 && !exact.unrelated(), "{exact:?}");
+        let plain = patterned(half, 1.0, 0.0).check(0.01).expect("in view");
+        assert!(plain.contrast < MARGIN && !plain.unrelated(), "{plain:?}");
     }
 
     #[test]

@@ -205,8 +205,9 @@ pub enum FrameVerdict {
     LiesFlush(OutlineCheck),
     /// The source lies on the target's surface, but its colour does not: on more than
     /// [`MAX_OFF_FRACTION`] of the textured patches the warped source's chromaticity differs
-    /// from the target's by more than a slide of the tolerance could explain (module
-    /// `colour_check`). The material slid along the surface.
+    /// from the target's by more than a slide of the tolerance could explain, or over the whole
+    /// judged area a textured source's colour is unrelated to the target's
+    /// ([`ColourCheck::unrelated`]; module `colour_check`). The material slid along the surface.
     ColourDisagrees(ColourCheck),
 }
 
@@ -243,7 +244,9 @@ pub fn frame_verdict(
         return FrameVerdict::LiesFlush(*o);
     }
     match colour {
-        Some(c) if c.fraction_off() > MAX_OFF_FRACTION => FrameVerdict::ColourDisagrees(*c),
+        Some(c) if c.fraction_off() > MAX_OFF_FRACTION || c.unrelated() => {
+            FrameVerdict::ColourDisagrees(*c)
+        }
         _ => FrameVerdict::Registered,
     }
 }
@@ -722,6 +725,8 @@ mod tests {
             off,
             flat: 100,
             floor: 1e-4,
+            correlation: 0.9,
+            contrast: 20.0,
         };
         let fine = check(40, 10);
         assert_eq!(
@@ -754,6 +759,26 @@ mod tests {
     }
 
     #[test]
+    fn a_textured_colour_unrelated_to_the_target_is_a_slide_with_every_patch_flat() {
+        let check = |correlation, contrast| ColourCheck {
+            flat: 30,
+            floor: 1e-2,
+            correlation,
+            contrast,
+            ..ColourCheck::default()
+        };
+        let verdict = |c: &ColourCheck| frame_verdict((90, 100), None, Some(c));
+        let unrelated = check(0.1, 15.0);
+        assert_eq!(
+            verdict(&unrelated),
+            FrameVerdict::ColourDisagrees(unrelated)
+        );
+        assert_eq!(verdict(&check(0.5, 15.0)), FrameVerdict::Registered);
+        // a plain source (its variance about its noise's) says nothing
+        assert_eq!(verdict(&check(0.1, 1.5)), FrameVerdict::Registered);
+    }
+
+    #[test]
     fn an_outline_mostly_flush_is_not_registered_before_the_colour_is_asked() {
         let outline = |seen, flush| OutlineCheck {
             outline: 100,
@@ -765,6 +790,8 @@ mod tests {
             off: 0,
             flat: 100,
             floor: 1e-4,
+            correlation: 0.9,
+            contrast: 20.0,
         };
         let verdict = |o: &OutlineCheck| frame_verdict((90, 100), Some(o), Some(&check));
         assert_eq!(verdict(&outline(60, 30)), FrameVerdict::Registered);
