@@ -17,6 +17,8 @@
 //! - [`synthetic`]: the project's own rendered RGB-D sequences (rigid and deforming) with ground truth.
 //! - [`eval`]: ATE and RPE (as evo computes them), scene-flow EPE, mesh distances.
 //! - [`features`]: FAST/BRIEF colour matches between frames and a RANSAC rigid fit to them.
+//! - [`correlation`]: Pearson's correlation from running sums (the tracker's and the colour
+//!   check's texture tests).
 //!
 //! ## The model
 //!
@@ -58,6 +60,7 @@
 #![warn(missing_docs)]
 
 pub mod camera;
+pub mod correlation;
 pub mod distortion;
 pub mod eval;
 pub mod features;

@@ -38,6 +38,7 @@
 //! colour does not follow it to where the registration put it: the colour is *unrelated*.
 
 use crate::camera::Camera;
+use crate::correlation::pearson;
 use crate::image::{GrayImage, VertexMap};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -177,16 +178,12 @@ fn splat(input: &CheckInput<'_>) -> (GrayImage, GrayImage) {
     (value, depth)
 }
 
-/// Sums over the predicted pixels of the judged patches: of the prediction `p` and the target
-/// `t` for their correlation, and of the squared differences of horizontally adjacent `p`.
+/// Sums over the predicted pixels of the judged patches: `[n, Σp, Σt, Σp², Σt², Σpt]` of the
+/// prediction `p` and the target `t`, and the count and sum of the squared differences of
+/// horizontally adjacent `p`.
 #[derive(Default)]
 struct Moments {
-    n: f64,
-    p: f64,
-    t: f64,
-    pp: f64,
-    tt: f64,
-    pt: f64,
+    sums: [f64; 6],
     steps: f64,
     step_sq: f64,
 }
@@ -200,9 +197,9 @@ impl Moments {
                 continue;
             }
             let t = target.at(x, y) as f64;
-            m.n += 1.0;
-            (m.p, m.t) = (m.p + p, m.t + t);
-            (m.pp, m.tt, m.pt) = (m.pp + p * p, m.tt + t * t, m.pt + p * t);
+            for (slot, v) in m.sums.iter_mut().zip([1.0, p, t, p * p, t * t, p * t]) {
+                *slot += v;
+            }
             let next = if x + 1 < prediction.width {
                 prediction.at(x + 1, y) as f64
             } else {
@@ -216,24 +213,18 @@ impl Moments {
         m
     }
 
-    /// Pearson's correlation of `p` with `t`, and the contrast `var(p) / (½ mean step²)` (each
-    /// 0 when it cannot be read).
+    /// Pearson's correlation of `p` with `t` (module `correlation`), and the contrast
+    /// `var(p) / (½ mean step²)` (0 when it cannot be read).
     fn read(&self) -> (f64, f64) {
-        if self.n < 2.0 {
-            return (0.0, 0.0);
-        }
-        let (mp, mt) = (self.p / self.n, self.t / self.n);
-        let vp = (self.pp / self.n - mp * mp).max(0.0);
-        let vt = (self.tt / self.n - mt * mt).max(0.0);
-        let cov = self.pt / self.n - mp * mt;
-        let correlation = if vp * vt > 0.0 {
-            cov / (vp * vt).sqrt()
+        let [n, sp, _, spp, ..] = self.sums;
+        let variance = if n > 0.0 {
+            (spp / n - (sp / n).powi(2)).max(0.0)
         } else {
             0.0
         };
         let noise = 0.5 * self.step_sq / self.steps.max(1.0);
-        let contrast = if noise > 0.0 { vp / noise } else { 0.0 };
-        (correlation, contrast)
+        let contrast = if noise > 0.0 { variance / noise } else { 0.0 };
+        (pearson(self.sums), contrast)
     }
 }
 

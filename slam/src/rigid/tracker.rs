@@ -6,6 +6,7 @@
 use super::exposure::Exposure;
 use super::outcome::TrackFailure;
 use crate::camera::Camera;
+use crate::correlation::pearson;
 use crate::image::{
     downsample_gray, gradients, intensity, valid, GrayImage, Image, NormalMap, VertexMap, INVALID,
 };
@@ -587,18 +588,13 @@ fn emit_prior<E: FnMut(f64, &[f64; 6], usize)>(
 /// Fewer agreeing points and the correlation is not measured ([`correlation_of`]).
 const MIN_CORRELATION_POINTS: usize = 50;
 
-/// ρ = Σ(l − l̄)(m − m̄) / √(Σ(l − l̄)² Σ(m − m̄)²) from the sums `[n, Σl, Σm, Σl², Σm², Σlm]`;
-/// 0 with fewer than [`MIN_CORRELATION_POINTS`] points or no contrast.
-fn correlation_of([n, sl, sm, sll, smm, slm]: [f64; 6]) -> f64 {
-    if n < MIN_CORRELATION_POINTS as f64 {
+/// Pearson's ρ from the sums `[n, Σl, Σm, Σl², Σm², Σlm]` (module `correlation`); 0 with fewer
+/// than [`MIN_CORRELATION_POINTS`] points or no contrast.
+fn correlation_of(sums: [f64; 6]) -> f64 {
+    if sums[0] < MIN_CORRELATION_POINTS as f64 {
         return 0.0;
     }
-    let cov = slm - sl * sm / n;
-    let (vl, vm) = (sll - sl * sl / n, smm - sm * sm / n);
-    if vl <= 0.0 || vm <= 0.0 {
-        return 0.0;
-    }
-    (cov / (vl * vm).sqrt()).clamp(-1.0, 1.0)
+    pearson(sums)
 }
 
 /// Grid points visited per pass of the exposure fit ([`IcpTerms::fit_gain`]).
