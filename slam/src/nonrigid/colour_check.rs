@@ -52,7 +52,7 @@ pub const MARGIN: f64 = 4.0;
 const FLOOR_QUANTILE: f64 = 0.1;
 /// A textured source's colour is unrelated to the target's where the registration put it when
 /// their correlation is below this: the source's colour explains less than a ninth of the
-/// target's variance (NOTES 152: registrations wrong everywhere 0.02–0.16, right ones on real
+/// target's variance (NOTES 152: registrations wrong everywhere −0.04–0.16, right ones on real
 /// DeepDeform pairs 0.55–0.65 and on generated pairs 0.90–0.99).
 pub const MIN_CORRELATION: f64 = 1.0 / 3.0;
 
