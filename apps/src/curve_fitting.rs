@@ -15,6 +15,7 @@ use crate::preview;
 use anyhow::{Context, Result};
 use clap::Parser;
 use cli::Session;
+use dynamap_residuals::text::without_bom;
 use dynamap_solver::robust::Cauchy;
 use dynamap_solver::{AutoDiff, CostFunctor, Euclidean, Options, Problem, Real, Solver};
 use iterations::IterationLog;
@@ -109,7 +110,7 @@ fn read_data(path: &std::path::Path) -> Result<Vec<(f64, f64)>> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| cli::bad_input(format!("{}: cannot read: {e}", path.display())))?;
     let mut data = Vec::new();
-    for (k, line) in text.lines().enumerate() {
+    for (k, line) in without_bom(&text).lines().enumerate() {
         let line = line.split('#').next().unwrap_or("").trim();
         if line.is_empty() {
             continue;

@@ -44,6 +44,7 @@ pub mod bal;
 pub mod deform;
 pub mod icp;
 pub mod pose_graph;
+pub mod text;
 
 use dynamap_solver::Jacobians;
 

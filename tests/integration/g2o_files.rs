@@ -231,3 +231,30 @@ fn writing_goes_through_a_temporary_file_and_round_trips() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A file saved by a Windows editor: a byte-order mark before the first vertex and CRLF line
+/// ends. It is the same graph, read from text and from a file (the mark used to make the first
+/// tag unknown).
+#[test]
+fn a_byte_order_mark_and_crlf_lines_read_as_the_same_graph() {
+    for planar in [true, false] {
+        let text = sample(planar);
+        let plain = g2o::parse(&text, "f.g2o").unwrap();
+        let marked = format!("\u{feff}{}", text.replace('\n', "\r\n"));
+        let from_text = g2o::parse(&marked, "f.g2o").unwrap();
+        assert_eq!(from_text.vertices, plain.vertices);
+        assert_eq!(from_text.edges.len(), plain.edges.len());
+        let dir = std::env::temp_dir().join(format!("dynamap-g2o-bom-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("marked.g2o");
+        std::fs::write(&path, &marked).unwrap();
+        let from_file = g2o::read(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(from_file.vertices, plain.vertices);
+        assert_eq!(from_file.edges.len(), plain.edges.len());
+        // a mark anywhere else is content, and the line is named
+        let inside = text.replacen("\nEDGE", "\n\u{feff}EDGE", 1);
+        let e = g2o::parse(&inside, "f.g2o").unwrap_err();
+        assert!(e.line > 1, "{e}");
+    }
+}

@@ -4,7 +4,7 @@ use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
 use dynamap::slam::image::{ColorImage, DepthImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
-use dynamap::slam::rigid::{RigidSlam, SlamParams, TrackFailure};
+use dynamap::slam::rigid::{PhotometricWeight, RigidSlam, SlamParams, TrackFailure};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
 use dynamap::slam::synthetic::render::render;
@@ -300,9 +300,13 @@ fn wall_slide(cam: Camera) {
             &-Vector3::y(),
         )
     };
-    for (texture, degenerate) in [
-        (Texture::plain([0.6, 0.6, 0.6]), true),
-        (Texture::random(4, 10.0, 40.0), false),
+    // the texture holds the slide only where the photometric term is on: with λ = 0 the
+    // textured wall is as free as the plain one
+    let textured = || Texture::random(4, 10.0, 40.0);
+    for (texture, photometric, degenerate) in [
+        (Texture::plain([0.6, 0.6, 0.6]), true, true),
+        (textured(), true, false),
+        (textured(), false, true),
     ] {
         let mut scene = Scene::default();
         scene.add(
@@ -310,7 +314,11 @@ fn wall_slide(cam: Camera) {
             Isometry3::translation(0.0, 0.0, 1.0),
             texture,
         );
-        let mut slam = RigidSlam::new(cam, SlamParams::default(), at(0.0));
+        let mut params = SlamParams::default();
+        if !photometric {
+            params.tracker.photometric_weight = PhotometricWeight::Fixed(0.0);
+        }
+        let mut slam = RigidSlam::new(cam, params, at(0.0));
         let frame = |x: f64| {
             let mut r = render(&scene, &cam, &at(x));
             let raw = SensorNoise::default().apply_to(0, &mut r, cam.depth_scale);

@@ -1004,6 +1004,12 @@ fn curve_fitting_fits_observations_from_a_file_and_names_a_bad_line() {
     assert_eq!(json["points"], 60);
     assert!(json["robust_error"].as_f64().unwrap() < 1e-3, "{json}");
     assert!(json["robust_iterations"].as_u64().unwrap() > 0);
+    // the same file saved with a byte-order mark and CRLF line ends reads the same points
+    let marked = dir.join("marked.txt");
+    std::fs::write(&marked, format!("\u{feff}{}", lines.replace('\n', "\r\n"))).unwrap();
+    let out = run("curve_fitting", &["--data", marked.to_str().unwrap(), "-q"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(result_json(&out)["points"], 60);
     let bad = dir.join("bad.txt");
     std::fs::write(&bad, "0 1\n1 2\n2 3 x\n").unwrap();
     let out = run("curve_fitting", &["--data", bad.to_str().unwrap(), "-q"]);

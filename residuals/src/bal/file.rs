@@ -159,6 +159,7 @@ impl<'a> Tokens<'a> {
 
 /// Parses a BAL problem from text; `path` names it in errors.
 pub fn parse(text: &str, path: &str) -> Result<BalProblem, BalError> {
+    let text = crate::text::without_bom(text);
     let mut tokens = Tokens::new(text, path);
     let num_cameras = tokens.count("number of cameras")?;
     let num_points = tokens.count("number of points")?;
@@ -238,6 +239,13 @@ mod tests {
         write(&path, &s.start).unwrap();
         assert_eq!(read(&path).unwrap(), s.start);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_byte_order_mark_and_crlf_lines_read_as_the_same_problem() {
+        let plain = parse(SMALL, "small.txt").unwrap();
+        let marked = format!("\u{feff}{}", SMALL.replace('\n', "\r\n"));
+        assert_eq!(parse(&marked, "small.txt").unwrap(), plain);
     }
 
     #[test]

@@ -11,6 +11,7 @@
 
 use super::graph::{Dimension, Edge, Measurement, Pose, PoseGraph};
 use super::information::{self, InformationRepair};
+use crate::text::without_bom;
 use nalgebra::{Isometry2, Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector2};
 use std::collections::btree_map::Entry;
 use std::collections::BTreeMap;
@@ -216,7 +217,9 @@ fn parse_lines<S: AsRef<str>>(
     for (i, raw) in lines.enumerate() {
         let p = LineParser { path, line: i + 1 };
         let raw = raw.map_err(|e| p.err(format!("cannot read: {e}")))?;
-        let content = raw.as_ref().split('#').next().unwrap_or("").trim();
+        let raw = raw.as_ref();
+        let raw = if i == 0 { without_bom(raw) } else { raw };
+        let content = raw.split('#').next().unwrap_or("").trim();
         if content.is_empty() {
             continue;
         }

@@ -4,6 +4,7 @@
 
 use super::{ply, read_text, IoError};
 use crate::mesh::{Mesh, Winding};
+use dynamap_residuals::text::without_bom;
 use nalgebra::Point3;
 use std::path::Path;
 
@@ -95,7 +96,7 @@ fn push_polygon(
 /// their positions; the counts may follow the keyword on its line, even without a space
 /// (`OFF490 518 0`, as in some of ModelNet's files); a byte-order mark before it is skipped.
 pub fn parse_off(text: &str, path: &Path) -> Result<Mesh, IoError> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = without_bom(text);
     // (1-based line number, fields) of the lines that carry data
     let mut lines = text.lines().enumerate().filter_map(|(i, l)| {
         let l = l.split('#').next().unwrap_or("").trim();
@@ -203,7 +204,7 @@ fn off_keyword(word: &str) -> Option<Result<&str, &str>> {
 /// name a vertex defined further down the file: indices are checked once every vertex is read.
 pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
     // a byte-order mark would hide the first statement's keyword
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = without_bom(text);
     let mut mesh = Mesh::default();
     // every face's corners, flat, and (line, first corner) per face
     let (mut corners, mut faces) = (Vec::new(), Vec::new());

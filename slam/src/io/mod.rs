@@ -13,6 +13,7 @@ pub mod sequence;
 pub mod trajectory;
 pub mod tum;
 
+use dynamap_residuals::text::without_bom;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
@@ -58,10 +59,15 @@ impl IoError {
     }
 }
 
-/// Reads a text file, naming it in the error.
+/// Reads a text file, naming it in the error; a leading byte-order mark is dropped
+/// (`dynamap_residuals::text`).
 pub(crate) fn read_text(path: impl AsRef<Path>) -> Result<String, IoError> {
     let path = path.as_ref();
-    std::fs::read_to_string(path).map_err(|e| IoError::file(path, format!("cannot read: {e}")))
+    let mut text = std::fs::read_to_string(path)
+        .map_err(|e| IoError::file(path, format!("cannot read: {e}")))?;
+    let mark = text.len() - without_bom(&text).len();
+    text.drain(..mark);
+    Ok(text)
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder, renamed into place: a

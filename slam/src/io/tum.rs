@@ -720,6 +720,51 @@ mod tests {
         );
     }
 
+    /// A folder whose lists and calibration a Windows editor saved: each text file begins with
+    /// a byte-order mark (which hid the first line's `#`, or made its stamp not a number: the
+    /// folder was refused) and ends its lines in CRLF. It is the same sequence.
+    #[test]
+    fn text_files_with_a_byte_order_mark_and_crlf_read_as_without() {
+        use super::super::images::{write_color, write_depth};
+        let write = |dir: &Path, mark: &str, end: &str| {
+            for sub in ["rgb", "depth"] {
+                std::fs::create_dir_all(dir.join(sub)).unwrap();
+            }
+            for k in 0..2 {
+                let depth = Image::filled(64, 48, 5000u16);
+                write_depth(dir.join(format!("depth/{k}.png")), &depth).unwrap();
+                let color = ColorImage::filled(64, 48, [90, 120, 200]);
+                write_color(dir.join(format!("rgb/{k}.png")), &color).unwrap();
+            }
+            let files = [
+                ("rgb.txt", "# colour\n0.004 rgb/0.png\n0.037 rgb/1.png\n"),
+                ("depth.txt", "0.000 depth/0.png\n0.033 depth/1.png\n"),
+                ("associations.txt", "0.004 rgb/0.png 0.000 depth/0.png\n"),
+                ("groundtruth.txt", "0.0 1 2 3 0 0 0 1\n0.1 1 2 4 0 0 0 1\n"),
+                ("intrinsics.txt", "52.5 52.5 31.5 23.5 5000\n"),
+            ];
+            for (name, text) in files {
+                let text = format!("{mark}{}", text.replace('\n', end));
+                std::fs::write(dir.join(name), text).unwrap();
+            }
+        };
+        let root = std::env::temp_dir().join(format!("dynamap-bom-{}", std::process::id()));
+        let (plain, marked) = (root.join("plain"), root.join("marked"));
+        write(&plain, "", "\n");
+        write(&marked, "\u{feff}", "\r\n");
+        let (a, b) = (
+            TumSequence::open(&plain).unwrap(),
+            TumSequence::open(&marked).unwrap(),
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+        assert_eq!(b.camera, a.camera);
+        assert_eq!(b.frames.len(), 1);
+        assert_eq!(b.frames[0].timestamp, a.frames[0].timestamp);
+        assert_eq!(b.frames[0].depth.file_name(), a.frames[0].depth.file_name());
+        let gt = |s: &TumSequence| s.groundtruth.as_ref().map(|t| t.poses.len());
+        assert_eq!((gt(&a), gt(&b)), (Some(2), Some(2)));
+    }
+
     #[test]
     fn a_sequence_with_distortion_delivers_undistorted_frames() {
         use super::super::images::{write_color, write_depth};

@@ -971,19 +971,19 @@ impl FrameConstraint {
 
     /// Why the frame cannot fix its pose under `p`, if it cannot: too few points to measure
     /// anything (a blank frame, or a view beyond the sensor's range), or a plane without texture,
-    /// which leaves motions that no start pose can fix.
+    /// which leaves motions that no start pose can fix. The texture holds the pose only where the
+    /// photometric term is on: with λ = 0 a textured plane is as free as a plain one.
     pub fn degeneracy(&self, p: &TrackerParams) -> Option<TrackFailure> {
         if self.points < MIN_CONSTRAINT_POINTS {
             return Some(TrackFailure::NoDepth {
                 points: self.points,
             });
         }
-        (self.conditioning < p.min_conditioning && self.texture < p.min_texture).then_some(
-            TrackFailure::Degenerate {
-                conditioning: self.conditioning,
-                texture: self.texture,
-            },
-        )
+        let textured = p.photometric_weight.is_on() && self.texture >= p.min_texture;
+        (self.conditioning < p.min_conditioning && !textured).then_some(TrackFailure::Degenerate {
+            conditioning: self.conditioning,
+            texture: self.texture,
+        })
     }
 }
 
