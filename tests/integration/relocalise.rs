@@ -284,3 +284,66 @@ fn a_new_map_after_a_gap_is_placed_by_a_loop_whose_texture_matches() {
         "the last frames are not placed in the map: {placed:?}"
     );
 }
+
+/// The wall 1.5 m ahead and the floor 0.4 m below of a camera that slides along x: the depth
+/// of pixel row `v` in the camera's frame, which a slide does not change.
+fn wall_over_floor(cam: &Camera, v: usize) -> f64 {
+    let y = (v as f64 - cam.cy) / cam.fy;
+    if y > 0.4 / 1.5 {
+        0.4 / y
+    } else {
+        1.5
+    }
+}
+
+/// The frame of a camera at `x` along the wall and floor of [`wall_over_floor`], painted with
+/// stripes across x that repeat every 20 cm, beaten by a fainter wave of 54 cm.
+fn striped_frame(cam: &Camera, x: f64) -> (Image<u16>, ColorImage) {
+    let (w, h) = (cam.width, cam.height);
+    let mut depth = Image::filled(w, h, 0u16);
+    let mut color = ColorImage::filled(w, h, [0; 3]);
+    let tau = std::f64::consts::TAU;
+    for v in 0..h {
+        for u in 0..w {
+            let d = wall_over_floor(cam, v);
+            let along = x + cam.back_project(u as f64, v as f64, d).x;
+            let grey = 128.0 + 50.0 * (tau * along / 0.2).sin() + 20.0 * (tau * along / 0.54).sin();
+            depth.data[v * w + u] = (d * cam.depth_scale).round() as u16;
+            color.data[v * w + u] = [grey as u8; 3];
+        }
+    }
+    (depth, color)
+}
+
+/// A camera that slides along a striped wall, speeding up by 3 cm a frame to 12 cm a frame,
+/// and stops dead: the constant-velocity start lies 12 cm ahead, 0.6 of the stripes' period,
+/// and the track settled on the next stripe, 20 cm ahead, with a correlation of about 0.8
+/// against the recent 0.99: above the half that refuses a frame, and the geometry (both
+/// planes hold the x axis) cannot tell. Such a track now faces the relocaliser's starts, and
+/// the last pose's correlates better (NOTES 154). No frame may be reported more than 3 cm off.
+#[test]
+fn a_track_one_stripe_ahead_on_a_repeating_wall_is_not_kept() {
+    let cam = Camera::scaled_default(320, 240);
+    let steps = [
+        0.0, 0.0, 0.0, 0.03, 0.06, 0.09, 0.12, 0.12, 0.12, 0.0, 0.0, 0.0,
+    ];
+    let mut slam = RigidSlam::new(cam, SlamParams::default(), Isometry3::identity());
+    let mut x = 0.0;
+    for (k, step) in steps.iter().enumerate() {
+        x += step;
+        let (depth, color) = striped_frame(&cam, x);
+        let stamp = k as f64 / 30.0;
+        let stamps = FrameStamps {
+            depth: stamp,
+            color: stamp,
+        };
+        let report = slam.process_timed(&depth, Some(&color), stamps);
+        assert!(report.outcome.is_fused(), "frame {k}: {:?}", report.outcome);
+        let off = (report.pose.translation.vector - nalgebra::Vector3::new(x, 0.0, 0.0)).norm();
+        assert!(
+            off < 0.03,
+            "frame {k} ({:?}) is {off:.3} m off",
+            report.outcome
+        );
+    }
+}

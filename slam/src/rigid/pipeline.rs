@@ -654,31 +654,7 @@ impl RigidSlam {
                 ),
             }
         } else {
-            let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
-            let fraction = tracked.inlier_fraction();
-            let doubtful = tracked.failure.is_some()
-                || tracked.agreement < expected.agreement
-                || fraction < expected.fraction;
-            let retry = doubtful && enabled && tracked.valid_pixels > 0;
-            // a pose that replaces the track needs only a better fraction, but its texture must
-            // match the model as the recent frames' did
-            let floors = Floors {
-                local: Fit {
-                    correlation: expected.correlation,
-                    ..Fit::default()
-                },
-                keyframe_ratio: 0.0,
-            };
-            let conditioning = constraint.conditioning;
-            match retry
-                .then(|| self.relocalise(color, floors, conditioning))
-                .flatten()
-            {
-                Some(found) if tracked.failure.is_some() || found.inlier_fraction() > fraction => {
-                    (found, true)
-                }
-                _ => (tracked, false),
-            }
+            self.track_from(color, start, expected, constraint.conditioning)
         };
         let outcome = match color {
             Some(_) => self.refused_on_texture(outcome),
@@ -704,6 +680,59 @@ impl RigidSlam {
             Some(why) => Err(why),
             None => Ok(outcome.gain),
         }
+    }
+
+    /// The frame tracked from `start`; a track that fails, falls below the `expected` fit or
+    /// whose texture is in doubt ([`Self::texture_doubt`]) faces the relocaliser, whose pose
+    /// replaces it when the track failed, or has a higher inlier fraction, or (in doubt over
+    /// the texture) correlates better. Whether the pose is the relocaliser's.
+    fn track_from(
+        &mut self,
+        color: Option<&ColorImage>,
+        start: Isometry3<f64>,
+        expected: Fit,
+        conditioning: f64,
+    ) -> (TrackOutcome, bool) {
+        let tracked = self.tracker.track(&self.pre.levels, &self.model, &start);
+        let fraction = tracked.inlier_fraction();
+        let texture_doubt = color.is_some() && self.texture_doubt(tracked.correlation);
+        let doubtful = tracked.failure.is_some()
+            || texture_doubt
+            || tracked.agreement < expected.agreement
+            || fraction < expected.fraction;
+        let retry = doubtful && self.params.relocalise.enabled && tracked.valid_pixels > 0;
+        // a pose that replaces the track needs only a better fraction, but its texture must
+        // match the model as the recent frames' did
+        let floors = Floors {
+            local: Fit {
+                correlation: expected.correlation,
+                ..Fit::default()
+            },
+            keyframe_ratio: 0.0,
+        };
+        match retry
+            .then(|| self.relocalise(color, floors, conditioning))
+            .flatten()
+        {
+            Some(found)
+                if tracked.failure.is_some()
+                    || found.inlier_fraction() > fraction
+                    || (texture_doubt && found.correlation > tracked.correlation) =>
+            {
+                (found, true)
+            }
+            _ => (tracked, false),
+        }
+    }
+
+    /// Whether a track's `correlation` with the model falls below
+    /// [`RelocaliseParams::min_correlation_ratio`] of the recent frames' median, where that
+    /// median can tell poses apart ([`Fit::telling`]).
+    fn texture_doubt(&self, correlation: f64) -> bool {
+        let ratio = self.params.relocalise.min_correlation_ratio;
+        self.health
+            .expected()
+            .is_some_and(|recent| recent.telling() && correlation < ratio * recent.correlation)
     }
 
     /// `outcome`, or a failure at the last good pose when its texture matches the model far

@@ -66,6 +66,14 @@ pub struct RelocaliseParams {
     /// relocaliser, the agreement with the model and the inlier fraction must be at least this
     /// share of the recent frames' medians (default 0.85).
     pub min_fit_ratio: f64,
+    /// A track whose texture correlates with the model below this share of the recent frames'
+    /// median correlation (where that median can tell poses apart) faces the relocaliser's
+    /// starts too, and a start that correlates better replaces it (default 0.9). On a wall
+    /// held along itself by a repeating texture alone, a track that slid to the neighbouring
+    /// period keeps the geometry's fraction and agreement, and its correlation falls only to
+    /// 0.6–0.8 against the recent 0.96: above the half that refuses it outright, then fused,
+    /// and the next frames slid further (NOTES 153, 154).
+    pub min_correlation_ratio: f64,
     /// Stamps further apart than this many typical frame intervals since the last fused frame
     /// are a break in the stream (default 3).
     pub gap_intervals: f64,
@@ -93,6 +101,7 @@ impl Default for RelocaliseParams {
             loops: LoopParams::default(),
             candidates: 5,
             min_fit_ratio: 0.85,
+            min_correlation_ratio: 0.9,
             gap_intervals: 3.0,
             new_map_after: 3,
         }
