@@ -4,6 +4,7 @@
 //! ends with a typed [`outcome`].
 
 mod color_timing;
+mod conditioning;
 pub mod exposure;
 mod health;
 mod joins;

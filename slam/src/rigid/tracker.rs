@@ -3,6 +3,7 @@
 //! λ·photometric residuals (eq. 3.1, 3.2, 3.14) under Huber kernels, coarse to fine over the pyramid,
 //! solved by the solver's dense 6-DoF path with exact SE(3) updates.
 
+use super::conditioning::{geometric_conditioning, MIN_CONSTRAINT_POINTS};
 use super::exposure::Exposure;
 use super::outcome::TrackFailure;
 use crate::camera::Camera;
@@ -951,14 +952,12 @@ impl TrackOutcome {
     }
 }
 
-/// Fewer points with a normal than the six a pose has degrees of freedom measure nothing.
-const MIN_CONSTRAINT_POINTS: usize = 6;
-
 /// How well a live frame can fix its pose, whatever the pose: the geometry's conditioning and the
 /// image's texture, from its coarsest level (see [`TrackerParams::min_conditioning`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameConstraint {
-    /// λ_min / λ_max of the depth-scaled point-to-plane covariance.
+    /// λ_min / λ_max of the depth-scaled point-to-plane covariance, with the normals of planes
+    /// fitted to patches (NOTES 156).
     pub conditioning: f64,
     /// RMS intensity gradient, intensity per radian of view (0 without colour).
     pub texture: f64,
@@ -1305,40 +1304,6 @@ fn failure_of(
     } else {
         None
     }
-}
-
-/// λ_min / λ_max of Σ [p × n; n][p × n; n]ᵀ over a level's valid points, with the rotation part
-/// divided by the mean depth so both parts are in metres (0 when there are too few points).
-fn geometric_conditioning(level: &Level) -> (f64, usize) {
-    let mut c = nalgebra::Matrix6::<f64>::zeros();
-    let (mut depth, mut n) = (0.0, 0usize);
-    for (p, nn) in level.vertices.data.iter().zip(&level.normals.data) {
-        if !(valid(p) && valid(nn)) {
-            continue;
-        }
-        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-        let nn = Vector3::new(nn[0] as f64, nn[1] as f64, nn[2] as f64);
-        let row = nalgebra::Vector6::from_iterator(p.cross(&nn).iter().chain(nn.iter()).copied());
-        c.syger(1.0, &row, &row, 1.0);
-        depth += p.z;
-        n += 1;
-    }
-    if n < MIN_CONSTRAINT_POINTS {
-        return (0.0, n);
-    }
-    let k = n as f64 / depth.max(1e-6);
-    for i in 0..6 {
-        for j in 0..6 {
-            c[(i, j)] *= if i < 3 { k } else { 1.0 } * if j < 3 { k } else { 1.0 };
-        }
-    }
-    let e = c.symmetric_eigenvalues();
-    let conditioning = if e.max() > 0.0 {
-        (e.min() / e.max()).max(0.0)
-    } else {
-        0.0
-    };
-    (conditioning, n)
 }
 
 /// The mean depth of a level's valid points (1 m when there are none).
