@@ -812,3 +812,65 @@ fn deepdeform_a_pair_that_barely_moves_does_not_get_worse() {
         );
     }
 }
+
+/// Every real frame here (ICL-NUIM's living room, Open3D's PrimeSense frames, TUM fr2 and fr3)
+/// has the geometry to fix its pose: its conditioning (planes fitted to patches, NOTES 156) is
+/// well above the degeneracy floor, so a floor chosen on rendered far walls does not call a real
+/// room degenerate.
+#[test]
+fn real_frames_are_well_conditioned() {
+    use dynamap::slam::preprocess::{PreprocessParams, Preprocessor};
+    use dynamap::slam::rigid::{FrameConstraint, TrackerParams};
+    use dynamap::slam::Camera;
+    let floor = TrackerParams::default().min_conditioning;
+    let mut frames = Vec::new();
+    let icl = IclNuimSequence::open(data("rgbd/iclnuim_lr_kt2_5frames")).unwrap();
+    for i in 0..icl.len() {
+        let f = icl.load(i).unwrap();
+        frames.push((format!("ICL-NUIM {i}"), icl.camera, f.depth, f.color));
+    }
+    let ps = FolderSequence::open(data("rgbd/primesense_5frames"), None).unwrap();
+    for i in 0..ps.len() {
+        let f = ps.load(i).unwrap();
+        frames.push((format!("PrimeSense {i}"), ps.camera, f.depth, f.color));
+    }
+    let fr2 = Camera::new(520.9, 521.0, 325.1, 249.7, 640, 480);
+    let fr3 = Camera::new(535.4, 539.2, 320.1, 247.6, 640, 480);
+    for (name, cam, d, c) in [
+        (
+            "TUM fr2 1",
+            fr2,
+            "rgbd/tum_fr2_2frames/1_depth.png",
+            "rgbd/tum_fr2_2frames/1.png",
+        ),
+        (
+            "TUM fr2 2",
+            fr2,
+            "rgbd/tum_fr2_2frames/2_depth.png",
+            "rgbd/tum_fr2_2frames/2.png",
+        ),
+        (
+            "TUM fr3",
+            fr3,
+            "rgbd/tum_fr3_long_office_1frame/TUM_depth.png",
+            "rgbd/tum_fr3_long_office_1frame/TUM_color.png",
+        ),
+    ] {
+        let depth = read_depth(data(d)).unwrap();
+        let color = read_color(data(c)).unwrap();
+        frames.push((name.to_string(), cam, depth, Some(color)));
+    }
+    for (name, cam, depth, color) in &frames {
+        let mut pre = Preprocessor::new(*cam, PreprocessParams::default());
+        let k = FrameConstraint::of(pre.process(depth, color.as_ref()));
+        eprintln!(
+            "{name}: conditioning {:.2e}, texture {:.2}",
+            k.conditioning, k.texture
+        );
+        assert!(
+            k.conditioning > 1.5 * floor,
+            "{name}: conditioning {:.2e} (floor {floor:.1e})",
+            k.conditioning
+        );
+    }
+}

@@ -127,6 +127,11 @@ struct Args {
     /// to the frame's points (TrackerParams::motion_prior; 0 turns it off).
     #[arg(long, default_value_t = SlamParams::default().tracker.motion_prior)]
     motion_prior: f64,
+    /// A frame whose geometry fixes its pose worse than this (λ_min / λ_max of its point-to-plane
+    /// information, TrackerParams::min_conditioning) and whose texture cannot hold it is
+    /// reported degenerate, not tracked.
+    #[arg(long, default_value_t = SlamParams::default().tracker.min_conditioning)]
+    min_conditioning: f64,
     /// Focal length x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
     #[arg(long)]
     fx: Option<f64>,
@@ -224,6 +229,7 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.tracker.max_normal_angle_deg = args.max_angle;
     p.tracker.depth_weight_power = args.depth_weight_power;
     p.tracker.motion_prior = args.motion_prior;
+    p.tracker.min_conditioning = args.min_conditioning;
     p.relocalise.enabled = !args.no_relocalise;
     p.relocalise.loops.loop_deviation = args.loop_deviation;
     p.relocalise.loops.odometry_drift = args.odometry_drift;

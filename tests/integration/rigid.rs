@@ -288,10 +288,10 @@ fn a_walls_texture_measures_the_same_at_any_resolution() {
 
 /// A textured wall 2.7 m away over a strip of floor, as a Kinect records it: the sensor's noise
 /// tilts each coarse normal at random, and per-pixel normals read those tilts as constraint
-/// along the slide the two planes leave free (conditioning 3·10⁻³–2·10⁻², above the floor:
-/// with λ = 0 all 300 frames of such a render were reported tracked, ATE 651 mm; NOTES 156).
+/// along the slide the two planes leave free (conditioning 3·10⁻³–2·10⁻², above the floor of
+/// then, 10⁻³: with λ = 0 all 300 frames of such a render were reported tracked, ATE 651 mm; NOTES 156).
 /// The planes fitted to patches see two planes, degenerate without the texture; a room with
-/// its table, recorded the same way, stays far above the floor.
+/// its table, recorded the same way, reads over four times the floor (NOTES 157).
 #[test]
 fn a_far_wall_over_a_floor_is_degenerate_without_its_texture_despite_the_noise() {
     use dynamap::slam::preprocess::{PreprocessParams, Preprocessor};
@@ -363,7 +363,7 @@ fn a_far_wall_over_a_floor_is_degenerate_without_its_texture_despite_the_noise()
             "the textured wall is held by its texture"
         );
         assert!(
-            r.conditioning > 10.0 * p.min_conditioning,
+            r.conditioning > 4.0 * p.min_conditioning,
             "the room's conditioning {:.1e}",
             r.conditioning
         );

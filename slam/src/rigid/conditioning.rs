@@ -6,10 +6,11 @@
 //! The normals are those of planes fitted to patches of the level ([`PATCHES_ACROSS`] across),
 //! not the level's own per-pixel ones. A depth sensor's noise tilts each pixel's normal at
 //! random, and those tilts fill the free directions: renders of a textured wall 2.5–3 m from a
-//! Kinect, over a strip of floor, read 3·10⁻³–2·10⁻² per pixel, above the 10⁻³ floor, and with
-//! λ = 0 all 300 frames of one were reported tracked with an ATE of 651 mm (NOTES 155, 156). A
-//! patch's plane averages the noise away and keeps the surface's shape: the same walls read
-//! 6·10⁻⁵–4·10⁻³ (median 7·10⁻⁴), our generator's rooms and fast sweep 2·10⁻²–5·10⁻².
+//! Kinect, over a strip of floor, read 3·10⁻³–2·10⁻² per pixel, and with λ = 0 all 300 frames
+//! of one were reported tracked with an ATE of 651 mm (NOTES 155, 156). A patch's plane
+//! averages the noise away and keeps the surface's shape: the same walls read 6·10⁻⁵–3.5·10⁻³
+//! (median 7·10⁻⁴), real frames 8·10⁻³–2.4·10⁻², our generator's rooms and fast sweep
+//! 2·10⁻²–5·10⁻² (NOTES 157).
 
 use crate::image::valid;
 use crate::preprocess::Level;
