@@ -8,9 +8,12 @@
 //! random, and those tilts fill the free directions: renders of a textured wall 2.5–3 m from a
 //! Kinect, over a strip of floor, read 3·10⁻³–2·10⁻² per pixel, and with λ = 0 all 300 frames
 //! of one were reported tracked with an ATE of 651 mm (NOTES 155, 156). A patch's plane
-//! averages the noise away and keeps the surface's shape: the same walls read 6·10⁻⁵–3.5·10⁻³
-//! (median 7·10⁻⁴), real frames 8·10⁻³–2.4·10⁻², our generator's rooms and fast sweep
-//! 2·10⁻²–5·10⁻² (NOTES 157).
+//! averages the noise away and keeps the surface's shape. The patches are large, because a
+//! structured-light sensor's depth comes in steps (z² / 348 m: 21 mm at 2.7 m, 72 mm at 5 m):
+//! a small patch on one step of a slanted wall fits the step, not the wall, and the steps' tilts
+//! grow with the depth. With 16 patches across, the far walls read up to 3.5·10⁻³ at 2.5–3 m and
+//! 1.1·10⁻² with their depth doubled and re-stepped; with 6 across, 2.1·10⁻³ and 2.6·10⁻³. Real frames read
+//! 4.4·10⁻³–1.9·10⁻², our generator's rooms and fast sweep 1.1·10⁻²–4.6·10⁻² (NOTES 157).
 
 use crate::image::valid;
 use crate::preprocess::Level;
@@ -19,9 +22,9 @@ use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 /// Fewer points with a normal than the six a pose has degrees of freedom measure nothing.
 pub(super) const MIN_CONSTRAINT_POINTS: usize = 6;
 
-/// Patches across the level's width (square, so about 12 down a 4:3 frame): 40 px at 640×480,
-/// 10 px on its coarsest level.
-const PATCHES_ACROSS: usize = 16;
+/// Patches across the level's width (square, so 4–5 down a 4:3 frame): 26 px on the coarsest
+/// level of 640×480 (104 px at full resolution), 13 px at 320×240.
+const PATCHES_ACROSS: usize = 6;
 
 /// λ_min / λ_max of Σ [p × n; n][p × n; n]ᵀ over a level's valid points, each with the normal of
 /// its patch's plane, the rotation part divided by the mean depth so both parts are in metres

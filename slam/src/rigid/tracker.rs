@@ -173,10 +173,11 @@ pub struct TrackerParams {
     /// normals of planes fitted to patches), rotations scaled by the mean depth, below this (a
     /// plane leaves three motions free: Gelfand et al., *Geometrically stable sampling for the
     /// ICP algorithm*, 3DIM 2003) — and its image has no texture for the photometric term to
-    /// hold on to (see `min_texture`). Default 5e-3, chosen on two renders of a far wall over a
-    /// floor (which read up to 3.5e-3 and, with λ = 0, were tracked up to 44 cm off at 1e-3)
-    /// and verified on five others; real frames (ICL-NUIM, PrimeSense, TUM fr2 and fr3) read
-    /// 8e-3–2.4e-2, our generator's rooms and sweeps 1.8e-2–4.9e-2 (NOTES 157).
+    /// hold on to (see `min_texture`). Default 3e-3, chosen on two renders of a far wall over a
+    /// floor (up to 2.1e-3; with λ = 0 and the old floor of 1e-3, frames were reported tracked
+    /// up to 44 cm off) and the real frames (from 4.4e-3, a wall with slivers of two others),
+    /// verified on five more renders (up to 2.1e-3), our sensor model's walls at 4–5 m (up to
+    /// 2.6e-3) and our generator's rooms (1.1e-2 and more; NOTES 157).
     pub min_conditioning: f64,
     /// … the RMS intensity gradient of the coarsest level below this, in intensity per radian
     /// of view (the gradient per pixel times the level's focal length, so that one scene
@@ -237,7 +238,7 @@ impl Default for TrackerParams {
             min_inlier_fraction: 0.1,
             max_translation: 0.3,
             max_rotation_deg: 30.0,
-            min_conditioning: 5e-3,
+            min_conditioning: 3e-3,
             min_texture: 0.65,
             fit_gain: true,
             fit_vignetting: true,
