@@ -11,9 +11,10 @@
 //! averages the noise away and keeps the surface's shape. The patches are large, because a
 //! structured-light sensor's depth comes in steps (z² / 348 m: 21 mm at 2.7 m, 72 mm at 5 m):
 //! a small patch on one step of a slanted wall fits the step, not the wall, and the steps' tilts
-//! grow with the depth. With 16 patches across, the far walls read up to 3.5·10⁻³ at 2.5–3 m and
-//! 1.1·10⁻² with their depth doubled and re-stepped; with 6 across, 2.1·10⁻³ and 2.6·10⁻³. Real frames read
-//! 4.4·10⁻³–1.9·10⁻², our generator's rooms and fast sweep 1.1·10⁻²–4.6·10⁻² (NOTES 157).
+//! grow with the depth. With 16 patches across, the far walls read up to 3.5·10⁻³ at 2.5–3 m
+//! and 1.1·10⁻² with their depth doubled and re-stepped; with 6 across, 2.1·10⁻³ and 2.6·10⁻³.
+//! Real frames read 4.4·10⁻³–1.9·10⁻², our generator's rooms and fast sweep 1.1·10⁻²–4.6·10⁻²
+//! (NOTES 157).
 
 use crate::image::valid;
 use crate::preprocess::Level;

@@ -962,7 +962,7 @@ impl TrackOutcome {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameConstraint {
     /// λ_min / λ_max of the depth-scaled point-to-plane covariance, with the normals of planes
-    /// fitted to patches (NOTES 156).
+    /// fitted to patches (NOTES 156, 157).
     pub conditioning: f64,
     /// RMS intensity gradient, intensity per radian of view (0 without colour).
     pub texture: f64,
