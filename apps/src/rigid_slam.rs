@@ -234,6 +234,11 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.relocalise.loops.loop_deviation = args.loop_deviation;
     p.relocalise.loops.odometry_drift = args.odometry_drift;
     p.relocalise.loops.tracking_spread = !args.no_tracking_spread;
+    if !(0.0..1.0).contains(&args.min_conditioning) {
+        return Err(cli::bad_input(
+            "--min-conditioning is a ratio of eigenvalues: at least 0 and below 1",
+        ));
+    }
     let deviations = [args.loop_deviation, args.odometry_drift];
     if !deviations.iter().all(|d| d.is_finite() && *d > 0.0) {
         return Err(cli::bad_input(

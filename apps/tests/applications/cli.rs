@@ -201,6 +201,14 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
         2,
         &["--strides"],
     );
+    // a degeneracy floor that is not a ratio of eigenvalues (NaN included)
+    for floor in ["-0.1", "1.5", "NaN"] {
+        assert_exit(
+            &run("rigid_slam", &[&format!("--min-conditioning={floor}")]),
+            2,
+            &["--min-conditioning"],
+        );
+    }
     assert_exit(
         &run("evaluate", &["ate", &path("none.txt"), &path("none.txt")]),
         2,
