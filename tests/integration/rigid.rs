@@ -386,6 +386,7 @@ fn a_far_wall_over_a_floor_is_degenerate_without_its_texture_despite_the_noise()
     }
 }
 
+/// [`a_plain_wall_is_degenerate_and_a_textured_one_is_tracked`] with one camera.
 fn wall_slide(cam: Camera) {
     use dynamap::slam::synthetic::motion::look_at;
     use dynamap::slam::synthetic::scene::Shape;

@@ -18,7 +18,7 @@
 
 use crate::image::valid;
 use crate::preprocess::Level;
-use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
+use nalgebra::{Matrix3, Matrix6, Vector3};
 
 /// Fewer points with a normal than the six a pose has degrees of freedom measure nothing.
 pub(super) const MIN_CONSTRAINT_POINTS: usize = 6;
@@ -47,22 +47,13 @@ pub(super) fn geometric_conditioning(level: &Level) -> (f64, usize) {
     let (mut depth, mut n) = (0.0, 0usize);
     for y0 in (0..h).step_by(side) {
         for x0 in (0..w).step_by(side) {
-            let patch = Patch {
-                level,
-                x0,
-                y0,
-                side,
-            };
-            let Some(normal) = patch.plane_normal() else {
+            let m = Moments::of_patch(level, (x0, y0), side);
+            let Some(normal) = m.plane_normal(side * side / 4) else {
                 continue;
             };
-            for p in patch.points() {
-                let row =
-                    Vector6::from_iterator(p.cross(&normal).iter().chain(normal.iter()).copied());
-                c.syger(1.0, &row, &row, 1.0);
-                depth += p.z;
-                n += 1;
-            }
+            m.add_constraint(&normal, &mut c);
+            depth += m.sum.z;
+            n += m.count;
         }
     }
     if n < MIN_CONSTRAINT_POINTS {
@@ -86,47 +77,46 @@ fn ratio(mut c: Matrix6<f64>, k: f64) -> f64 {
     }
 }
 
-/// A square of `side` pixels of a level, from (`x0`, `y0`), clipped to the level.
-struct Patch<'a> {
-    level: &'a Level,
-    x0: usize,
-    y0: usize,
-    side: usize,
+/// The zeroth, first and second moments of a patch's valid points (camera frame): all that the
+/// plane fit and the patch's share of the information need, gathered in one pass.
+struct Moments {
+    count: usize,
+    /// Σ p.
+    sum: Vector3<f64>,
+    /// Σ p pᵀ.
+    outer: Matrix3<f64>,
 }
 
-impl Patch<'_> {
-    /// The patch's valid points, camera frame.
-    fn points(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
-        let v = &self.level.vertices;
-        let (x1, y1) = (
-            (self.x0 + self.side).min(v.width),
-            (self.y0 + self.side).min(v.height),
-        );
-        (self.y0..y1).flat_map(move |y| {
-            (self.x0..x1).filter_map(move |x| {
-                let p = v.data[y * v.width + x];
-                valid(&p).then(|| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-            })
-        })
+impl Moments {
+    /// The moments of the square of `side` pixels of `level` from `(x0, y0)`, clipped to it.
+    fn of_patch(level: &Level, (x0, y0): (usize, usize), side: usize) -> Self {
+        let v = &level.vertices;
+        let mut m = Self {
+            count: 0,
+            sum: Vector3::zeros(),
+            outer: Matrix3::zeros(),
+        };
+        for y in y0..(y0 + side).min(v.height) {
+            for p in &v.data[y * v.width + x0..y * v.width + (x0 + side).min(v.width)] {
+                if valid(p) {
+                    let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                    m.count += 1;
+                    m.sum += p;
+                    m.outer += p * p.transpose();
+                }
+            }
+        }
+        m
     }
 
-    /// The unit normal (facing the camera) of the plane fitted to the patch's points by their
-    /// scatter's least eigenvector; `None` for a patch less than a quarter covered.
-    fn plane_normal(&self) -> Option<Vector3<f64>> {
-        let (mut sum, mut n) = (Vector3::zeros(), 0usize);
-        for p in self.points() {
-            sum += p;
-            n += 1;
-        }
-        if n < (self.side * self.side / 4).max(3) {
+    /// The unit normal (facing the camera) of the plane fitted to the points: the least
+    /// eigenvector of their scatter Σ p pᵀ − n p̄ p̄ᵀ; `None` below `min_count` points (or 3).
+    fn plane_normal(&self, min_count: usize) -> Option<Vector3<f64>> {
+        if self.count < min_count.max(3) {
             return None;
         }
-        let mean = sum / n as f64;
-        let mut scatter = Matrix3::zeros();
-        for p in self.points() {
-            let d = p - mean;
-            scatter += d * d.transpose();
-        }
+        let mean = self.sum / self.count as f64;
+        let scatter = self.outer - self.sum * mean.transpose();
         let eig = scatter.symmetric_eigen();
         let normal = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
         Some(if normal.dot(&mean) > 0.0 {
@@ -134,5 +124,20 @@ impl Patch<'_> {
         } else {
             normal
         })
+    }
+
+    /// Adds Σ [p × n; n][p × n; n]ᵀ over the points, all with the normal `n`, to `c`. With
+    /// p × n = A p, A = [n]ₓᵀ: the blocks A (Σ p pᵀ) Aᵀ, A (Σ p) nᵀ and count · n nᵀ.
+    fn add_constraint(&self, n: &Vector3<f64>, c: &mut Matrix6<f64>) {
+        let a = n.cross_matrix().transpose();
+        let rot_trans = (a * self.sum) * n.transpose();
+        let mut block = |r: usize, k: usize, m: Matrix3<f64>| {
+            let mut view = c.fixed_view_mut::<3, 3>(r, k);
+            view += m;
+        };
+        block(0, 0, a * self.outer * a.transpose());
+        block(0, 3, rot_trans);
+        block(3, 0, rot_trans.transpose());
+        block(3, 3, n * n.transpose() * self.count as f64);
     }
 }
