@@ -33,17 +33,21 @@ pub(crate) struct Fit {
     pub fraction: f64,
     /// Of the points landing on the model, the share that agree with it.
     pub agreement: f64,
+    /// … and the share near it, whatever the normals' angle
+    /// ([`super::TrackOutcome::proximity`]).
+    pub proximity: f64,
     /// Over those points, the correlation of the live intensities with the model's (0 without
     /// colour; [`super::TrackOutcome::correlation`]).
     pub correlation: f64,
 }
 
 impl Fit {
-    /// All three scaled by `r`.
+    /// Each scaled by `r`.
     pub fn scaled(self, r: f64) -> Self {
         Self {
             fraction: r * self.fraction,
             agreement: r * self.agreement,
+            proximity: r * self.proximity,
             correlation: r * self.correlation,
         }
     }
@@ -60,6 +64,7 @@ impl Fit {
 pub(crate) struct Health {
     fractions: VecDeque<f64>,
     agreements: VecDeque<f64>,
+    proximities: VecDeque<f64>,
     correlations: VecDeque<f64>,
     intervals: VecDeque<f64>,
     last_stamp: Option<f64>,
@@ -73,6 +78,7 @@ impl Health {
         if let Some(f) = fit {
             push_bounded(&mut self.fractions, f.fraction);
             push_bounded(&mut self.agreements, f.agreement);
+            push_bounded(&mut self.proximities, f.proximity);
             push_bounded(&mut self.correlations, f.correlation);
         }
         if let Some(last) = self.last_stamp.filter(|&l| stamp > l) {
@@ -92,6 +98,7 @@ impl Health {
     pub(crate) fn forget_fits(&mut self) {
         self.fractions.clear();
         self.agreements.clear();
+        self.proximities.clear();
         self.correlations.clear();
         self.anchor = None;
     }
@@ -102,12 +109,14 @@ impl Health {
         let medians = (
             median(&self.fractions),
             median(&self.agreements),
+            median(&self.proximities),
             median(&self.correlations),
         );
         match medians {
-            (Some(fraction), Some(agreement), Some(correlation)) => Some(Fit {
+            (Some(fraction), Some(agreement), Some(proximity), Some(correlation)) => Some(Fit {
                 fraction,
                 agreement,
+                proximity,
                 correlation,
             }),
             _ => self.anchor,
@@ -158,6 +167,7 @@ mod tests {
         Fit {
             fraction: x,
             agreement: x + 0.2,
+            proximity: x + 0.3,
             correlation: x + 0.4,
         }
     }

@@ -138,6 +138,8 @@ pub struct FrameReport {
     /// Of those pixels that land on the model, the share that agree with it (see
     /// [`TrackOutcome::agreement`]).
     pub agreement: f64,
+    /// … and the share near it whatever the normals' angle ([`TrackOutcome::proximity`]).
+    pub proximity: f64,
     /// Over the agreeing points, the correlation of the live intensities with the model's
     /// ([`TrackOutcome::correlation`]).
     pub correlation: f64,
@@ -451,6 +453,7 @@ impl RigidSlam {
             inliers: 0,
             inlier_fraction: 0.0,
             agreement: 0.0,
+            proximity: 0.0,
             correlation: 0.0,
             conditioning: 0.0,
             anchor: None,
@@ -480,6 +483,7 @@ impl RigidSlam {
         let fit = (!untracked).then_some(Fit {
             fraction: report.inlier_fraction,
             agreement: report.agreement,
+            proximity: report.proximity,
             correlation: report.correlation,
         });
         let agreement = fit.map(|f| f.agreement);
@@ -669,6 +673,7 @@ impl RigidSlam {
         report.inliers = outcome.inliers;
         report.inlier_fraction = outcome.inlier_fraction();
         report.agreement = outcome.agreement;
+        report.proximity = outcome.proximity;
         report.correlation = outcome.correlation;
         if outcome.failure.is_none() {
             report.vignetting = outcome.vignetting;
@@ -1019,6 +1024,7 @@ impl RigidSlam {
             inliers = report.inliers,
             fraction = report.inlier_fraction,
             agreement = report.agreement,
+            proximity = report.proximity,
             correlation = report.correlation,
             conditioning = report.conditioning,
             gain = report.gain,

@@ -123,10 +123,11 @@ pub(crate) struct LiveFrame<'a> {
 /// What a relocalised pose must reach, beyond the tracker's tests.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct Floors {
-    /// For a pose near the last one (the local round): its agreement with the model and its
-    /// correlation, and also its inlier fraction unless the sparse features' motion led to it
-    /// or the correlation is telling ([`Fit::telling`]). The correlation's floor holds for a
-    /// pose found from a keyframe too.
+    /// For a pose near the last one (the local round): its proximity to the model (the
+    /// agreement without the normal test, which a far surface's depth steps fail at the right
+    /// pose too: NOTES 158) and its correlation, and also its inlier fraction unless the sparse
+    /// features' motion led to it or the correlation is telling ([`Fit::telling`]). The
+    /// correlation's floor holds for a pose found from a keyframe too.
     pub local: Fit,
     /// For a pose found from a keyframe: this share of the agreement the keyframe was tracked
     /// with (the same view should match about as well as it did then).
@@ -326,6 +327,7 @@ impl Relocaliser {
             screened,
             fraction,
             agreement = o.agreement,
+            proximity = o.proximity,
             correlation = o.correlation,
             reachable,
             floor = ?floor,
@@ -344,7 +346,7 @@ impl Relocaliser {
         // the model as the recent frames did (where the camera moved on to what the model has
         // not seen, the fraction falls at the right pose too)
         let supported = from_features == Some(k) || telling;
-        let fits = o.agreement >= floor.agreement
+        let fits = o.proximity >= floor.proximity
             && o.correlation >= floor.correlation
             && (supported || fraction >= floor.fraction);
         (o.failure.is_none() && fraction >= strict && fits && reachable).then_some(o)

@@ -691,59 +691,73 @@ impl IcpTerms<'_> {
     #[inline]
     fn test(
         &self,
+        landed: (usize, Vector3<f64>, Projected, usize),
+        lin: &Linearisation,
+    ) -> Option<Association> {
+        self.test_within(landed, lin, self.max_distance, self.min_cos)
+    }
+
+    /// A projected point kept when it lies within `max_distance` of its model point and the
+    /// cosine of the angle between their normals is at least `min_cos`.
+    #[inline]
+    fn test_within(
+        &self,
         (i, p, x, j): (usize, Vector3<f64>, Projected, usize),
         lin: &Linearisation,
+        max_distance: f64,
+        min_cos: f64,
     ) -> Option<Association> {
         let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
-        let t = &lin.t;
-        if (t.apply(&p) - q).norm_squared() > self.max_distance * self.max_distance {
+        if (lin.t.apply(&p) - q).norm_squared() > max_distance * max_distance {
             return None;
         }
-        let n = self.live.normals.data[i];
-        let nl = t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
-        if nl.dot(&nq) < self.min_cos {
-            return None;
-        }
-        Some(Association {
+        let a = Association {
             pixel: i,
             p,
             x,
             q,
             nq,
-        })
+        };
+        (self.normal_cos(&a, lin) >= min_cos).then_some(a)
     }
 
-    /// The agreement and the correlation at `x`, in one pass over the grid:
+    /// The agreement, the proximity and the correlation at `x`, in one pass over the grid:
     /// - the agreement: the share of the grid points landing on the model that pass the
     ///   association's normal test and lie within [`agreement_tolerance`] of their model point.
     ///   Where the camera sees what the model has not, points land nowhere and the share stays;
     ///   at a wrong pose they land on surfaces they do not match and it falls;
-    /// - the correlation: over those agreeing points, the normalised cross-correlation of the
+    /// - the proximity: the same share without the normal test, the normals only facing the
+    ///   same way. A structured-light sensor's depth steps tilt per-pixel normals beyond the
+    ///   association's angle on much of a surface a few metres away, and that noise, not the
+    ///   pose, moves the agreement there (a wall 2.7 m away: agreement 0.41, proximity 0.99;
+    ///   NOTES 158);
+    /// - the correlation: over the agreeing points, the normalised cross-correlation of the
     ///   live intensities (through the exposure) and the model's ([`correlation_of`]). Blind to
     ///   gain and offset; where the geometry leaves a slide free (a wall, a wall and a floor) it
     ///   is what tells the true pose from a slid one. 0 without colour.
-    fn fit_measures(&self, x: &[f64]) -> (f64, f64) {
+    fn fit_measures(&self, x: &[f64]) -> FitMeasures {
         let lin = self.prepare(x);
         let slack = 0.1 * self.max_distance;
-        // [landed, agreeing, then over the agreeing points with intensities: n, Σl, Σm, Σl², Σm²,
-        // Σlm]
-        let add = |mut s: [f64; 8], k: usize| {
+        // [landed, near, agreeing, then over the agreeing points with intensities: n, Σl, Σm,
+        // Σl², Σm², Σlm]
+        let add = |mut s: [f64; 9], k: usize| {
             let Some(landed) = self.project(k, &lin) else {
                 return s;
             };
             s[0] += 1.0;
-            let Some(a) = self.test(landed, &lin) else {
+            let tol = agreement_tolerance(landed.1.z, slack).min(self.max_distance);
+            let Some(a) = self.test_within(landed, &lin, tol, 0.0) else {
                 return s;
             };
-            let tol = agreement_tolerance(a.p.z, slack);
-            if (lin.t.apply(&a.p) - a.q).norm_squared() > tol * tol {
+            s[1] += 1.0;
+            if self.normal_cos(&a, &lin) < self.min_cos {
                 return s;
             }
-            s[1] += 1.0;
+            s[2] += 1.0;
             if let Some((l, m)) = self.intensities(&a) {
-                for (slot, v) in s[2..].iter_mut().zip([1.0, l, m, l * l, m * m, l * m]) {
+                for (slot, v) in s[3..].iter_mut().zip([1.0, l, m, l * l, m * m, l * m]) {
                     *slot += v;
                 }
             }
@@ -751,13 +765,23 @@ impl IcpTerms<'_> {
         };
         let sums = (0..self.grid.len())
             .into_par_iter()
-            .fold(|| [0.0; 8], add)
-            .reduce(|| [0.0; 8], |a, b| std::array::from_fn(|i| a[i] + b[i]));
-        let [landed, agreeing, n, sl, sm, sll, smm, slm] = sums;
-        (
-            agreeing / landed.max(1.0),
-            correlation_of([n, sl, sm, sll, smm, slm]),
-        )
+            .fold(|| [0.0; 9], add)
+            .reduce(|| [0.0; 9], |a, b| std::array::from_fn(|i| a[i] + b[i]));
+        let [landed, near, agreeing, n, sl, sm, sll, smm, slm] = sums;
+        FitMeasures {
+            agreement: agreeing / landed.max(1.0),
+            proximity: near / landed.max(1.0),
+            correlation: correlation_of([n, sl, sm, sll, smm, slm]),
+        }
+    }
+
+    /// The cosine of the angle between an associated point's live normal (in the world) and
+    /// its model normal.
+    #[inline]
+    fn normal_cos(&self, a: &Association, lin: &Linearisation) -> f64 {
+        let n = self.live.normals.data[a.pixel];
+        let nl = lin.t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+        nl.dot(&a.nq)
     }
 
     /// An associated point's live intensity (through the exposure) and the model's at its
@@ -898,6 +922,14 @@ fn agreement_tolerance(z: f64, slack: f64) -> f64 {
     3.0 * (0.0012 + 0.0019 * (z - 0.4).powi(2)) + slack
 }
 
+/// How well the live points fit the model at a pose ([`IcpTerms::fit_measures`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct FitMeasures {
+    agreement: f64,
+    proximity: f64,
+    correlation: f64,
+}
+
 /// The result of tracking one frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackOutcome {
@@ -913,6 +945,10 @@ pub struct TrackOutcome {
     /// agree with it: the normal test passed and within three noise deviations of the model
     /// point (0 when not tracked).
     pub agreement: f64,
+    /// Of the same points, the share within three noise deviations of the model point, on its
+    /// side, whatever the angle between the normals (0 when not tracked): the agreement without
+    /// the normal test, which a far surface's depth steps fail at the right pose too.
+    pub proximity: f64,
     /// Over those agreeing points, the normalised cross-correlation of the live intensities
     /// (through the exposure) with the model's, blind to gain and offset (0 when not tracked,
     /// without colour, or with fewer than 50 such points).
@@ -948,6 +984,7 @@ impl TrackOutcome {
             inliers: 0,
             valid_pixels: 0,
             agreement: 0.0,
+            proximity: 0.0,
             correlation: 0.0,
             gain: 1.0,
             vignetting: 0.0,
@@ -1090,7 +1127,7 @@ impl Tracker {
         let stride_of = |l: usize| level_stride(p, &live[l], l);
         let valid_pixels = Grid::new(&live[finest], stride_of(finest)).valid_points(&live[finest]);
         let (z_mean, prior) = depth_and_prior(p, &live[levels - 1], start);
-        let (mut inliers, mut agreement, mut correlation) = (0, 0.0, 0.0);
+        let (mut inliers, mut measures) = (0, FitMeasures::default());
         let mut exposure = Exposure::NEUTRAL;
         let (mut covariance, mut stop) = (None, DenseStop::NoTerms);
         for l in (0..levels).rev().filter(|&l| iterations_at(p, l) > 0) {
@@ -1125,7 +1162,7 @@ impl Tracker {
             if l == finest {
                 // point-to-plane associations of the last linearisation
                 inliers = summary.last.group_rows[0];
-                (agreement, correlation) = terms.fit_measures(&x);
+                measures = terms.fit_measures(&x);
                 if !matches!(stop, DenseStop::NoTerms) {
                     covariance = geometric_covariance(&mut terms, &x, &groups, &mut self.partials);
                     if prior.is_some() && covariance.is_none() {
@@ -1147,8 +1184,9 @@ impl Tracker {
             failure,
             inliers,
             valid_pixels,
-            agreement,
-            correlation,
+            agreement: measures.agreement,
+            proximity: measures.proximity,
+            correlation: measures.correlation,
             gain: exposure.image_gain(),
             vignetting: exposure.vignetting,
             photometric_weight: groups[1].weight,
