@@ -216,8 +216,8 @@ class RigidSlam:
     ) -> Dict[str, Any]:
         """One frame (depth uint16 sensor units or float metres, colour h x w x 3 uint8): a dict
         with index, outcome, tracked, fused, failure, pose (4 x 4), inliers, inlier_fraction,
-        agreement, correlation. A frame that cannot be tracked is reported so, never fused with a
-        wrong pose."""
+        agreement, proximity (the agreement without the normal test), correlation. A frame that
+        cannot be tracked is reported so, never fused with a wrong pose."""
     def trajectory(self) -> Tuple[Vector, Matrix]:
         """The tracked frames' stamps (n,) and poses (n x 7, [t, q], camera to world)."""
     def write_trajectory(self, path: Path) -> None:

@@ -223,9 +223,9 @@ impl RigidSlam {
     /// `color` (height × width × 3 uint8, optional), stamped `timestamp` seconds (default the
     /// frame's index) and `color_timestamp` (default the same). Returns a dict: index, outcome,
     /// tracked, fused, failure (why not tracked, or None), pose (4 × 4, camera to world; the last
-    /// good pose when not tracked), inliers, inlier_fraction, agreement, correlation (of the
-    /// texture with the model's). A frame that cannot be tracked is reported so, never fused with
-    /// a wrong pose; a malformed array raises.
+    /// good pose when not tracked), inliers, inlier_fraction, agreement, proximity (the agreement
+    /// without the normal test), correlation (of the texture with the model's). A frame that
+    /// cannot be tracked is reported so, never fused with a wrong pose; a malformed array raises.
     #[pyo3(signature = (depth, color = None, timestamp = None, color_timestamp = None))]
     fn process<'py>(
         &mut self,
@@ -325,6 +325,7 @@ fn report_dict<'py>(
     d.set_item("inliers", r.inliers)?;
     d.set_item("inlier_fraction", r.inlier_fraction)?;
     d.set_item("agreement", r.agreement)?;
+    d.set_item("proximity", r.proximity)?;
     d.set_item("correlation", r.correlation)?;
     Ok(d)
 }

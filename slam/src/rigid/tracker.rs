@@ -925,8 +925,11 @@ fn agreement_tolerance(z: f64, slack: f64) -> f64 {
 /// How well the live points fit the model at a pose ([`IcpTerms::fit_measures`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct FitMeasures {
+    /// [`TrackOutcome::agreement`].
     agreement: f64,
+    /// [`TrackOutcome::proximity`].
     proximity: f64,
+    /// [`TrackOutcome::correlation`].
     correlation: f64,
 }
 
