@@ -694,25 +694,27 @@ impl IcpTerms<'_> {
         landed: (usize, Vector3<f64>, Projected, usize),
         lin: &Linearisation,
     ) -> Option<Association> {
-        self.test_within(landed, lin, self.max_distance, self.min_cos)
+        self.pair_within(landed, lin, self.max_distance)
+            .and_then(|(a, cos)| (cos >= self.min_cos).then_some(a))
     }
 
-    /// A projected point kept when it lies within `max_distance` of its model point and the
-    /// cosine of the angle between their normals is at least `min_cos`.
+    /// A projected point and its model point when they lie within `max_distance` of each other,
+    /// with the cosine of the angle between their normals (the live one in the world).
     #[inline]
-    fn test_within(
+    fn pair_within(
         &self,
         (i, p, x, j): (usize, Vector3<f64>, Projected, usize),
         lin: &Linearisation,
         max_distance: f64,
-        min_cos: f64,
-    ) -> Option<Association> {
+    ) -> Option<(Association, f64)> {
         let (m, nm) = (self.model.vertices.data[j], self.model.normals.data[j]);
         let q = Vector3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         let nq = Vector3::new(nm[0] as f64, nm[1] as f64, nm[2] as f64);
         if (lin.t.apply(&p) - q).norm_squared() > max_distance * max_distance {
             return None;
         }
+        let n = self.live.normals.data[i];
+        let nl = lin.t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
         let a = Association {
             pixel: i,
             p,
@@ -720,7 +722,7 @@ impl IcpTerms<'_> {
             q,
             nq,
         };
-        (self.normal_cos(&a, lin) >= min_cos).then_some(a)
+        Some((a, nl.dot(&nq)))
     }
 
     /// The agreement, the proximity and the correlation at `x`, in one pass over the grid:
@@ -748,11 +750,13 @@ impl IcpTerms<'_> {
             };
             s[0] += 1.0;
             let tol = agreement_tolerance(landed.1.z, slack).min(self.max_distance);
-            let Some(a) = self.test_within(landed, &lin, tol, 0.0) else {
+            // near: within the noise, the normals facing the same way; agreeing: also within
+            // the association's angle
+            let Some((a, cos)) = self.pair_within(landed, &lin, tol).filter(|p| p.1 >= 0.0) else {
                 return s;
             };
             s[1] += 1.0;
-            if self.normal_cos(&a, &lin) < self.min_cos {
+            if cos < self.min_cos {
                 return s;
             }
             s[2] += 1.0;
@@ -773,15 +777,6 @@ impl IcpTerms<'_> {
             proximity: near / landed.max(1.0),
             correlation: correlation_of([n, sl, sm, sll, smm, slm]),
         }
-    }
-
-    /// The cosine of the angle between an associated point's live normal (in the world) and
-    /// its model normal.
-    #[inline]
-    fn normal_cos(&self, a: &Association, lin: &Linearisation) -> f64 {
-        let n = self.live.normals.data[a.pixel];
-        let nl = lin.t.r * Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
-        nl.dot(&a.nq)
     }
 
     /// An associated point's live intensity (through the exposure) and the model's at its
