@@ -39,6 +39,9 @@ pub(crate) struct MotionModel {
     /// the frames reach back that far.
     recent: VecDeque<(f64, Isometry3<f64>)>,
     fastest: (f64, f64),
+    /// The velocity the last [`Self::reset`] forgot: the relative motion over the recent poses
+    /// and the time it took.
+    held: Option<(Isometry3<f64>, f64)>,
 }
 
 impl MotionModel {
@@ -70,8 +73,29 @@ impl MotionModel {
 
     /// Forgets the motion (after a frame that was not tracked: what came before says nothing
     /// reliable about what follows).
+    /// The velocity is held for [`Self::coast`].
     pub fn reset(&mut self) {
+        if let Some(v) = self.velocity() {
+            self.held = Some(v);
+        }
         self.recent.clear();
+    }
+
+    /// The relative motion T₁⁻¹ T₂ from the oldest pose kept to the newest, and the time it
+    /// took: the velocity over up to [`HISTORY`], steadier than over the last interval.
+    fn velocity(&self) -> Option<(Isometry3<f64>, f64)> {
+        let ((s1, t1), (s2, t2)) = (self.recent.front()?, self.recent.back()?);
+        let span = s2 - s1;
+        (span > 0.0 && span.is_finite()).then(|| (t1.inverse() * t2, span))
+    }
+
+    /// The camera's motion over `tau` after the last tracked frame at the velocity it had
+    /// before the track broke off (or now, if it has not): Δ^(τ / span), Δ the relative motion
+    /// over the recent poses. Where the stream skipped a stretch, a camera carried on a walk
+    /// is about there; `None` without a velocity or a finite `tau`.
+    pub(crate) fn coast(&self, tau: f64) -> Option<Isometry3<f64>> {
+        let (rel, span) = self.velocity().or(self.held)?;
+        extrapolate((0.0, Isometry3::identity()), (span, rel), tau)
     }
 
     /// The camera's motion over `tau` seconds after the last tracked frame, as T(s₂)⁻¹ T(s₂ + τ),
@@ -145,6 +169,37 @@ mod tests {
         assert!((half.translation.vector - delta.translation.vector * 0.5).norm() < 1e-12);
         m.reset();
         assert!(m.step(1.0).is_none());
+    }
+
+    /// The coast outlives a reset: a camera screwing along x at 0.5 m/s and 0.2 rad/s, lost,
+    /// is carried 0.75 m and 0.3 rad over 1.5 s at the velocity over the recent poses; a newer
+    /// track's velocity replaces it.
+    #[test]
+    fn a_reset_holds_the_velocity_for_the_coast() {
+        let at = |t: f64| Isometry3::new(Vector3::new(0.5 * t, 0.0, 0.0), Vector3::x() * 0.2 * t);
+        let mut m = MotionModel::default();
+        assert!(m.coast(1.0).is_none());
+        for k in 0..10 {
+            m.push(k as f64 / 30.0, at(k as f64 / 30.0));
+        }
+        m.reset();
+        assert!(m.step(1.5).is_none());
+        let c = m.coast(1.5).unwrap();
+        let truth = at(9.0 / 30.0).inverse() * at(9.0 / 30.0 + 1.5);
+        assert!((c.translation.vector - truth.translation.vector).norm() < 1e-9);
+        assert!(c.rotation.angle_to(&truth.rotation) < 1e-9);
+        // a reset with fewer than two poses keeps the velocity held
+        m.push(5.0, at(5.0));
+        m.reset();
+        assert!(m
+            .coast(1.5)
+            .is_some_and(|d| (d.rotation.angle() - 0.3).abs() < 1e-9));
+        // a new track's velocity is the one carried
+        m.push(6.0, Isometry3::identity());
+        m.push(7.0, Isometry3::translation(0.0, 0.0, 0.1));
+        let d = m.coast(2.0).unwrap();
+        assert!((d.translation.vector - Vector3::new(0.0, 0.0, 0.2)).norm() < 1e-12);
+        assert!(d.rotation.angle() < 1e-12);
     }
 
     #[test]

@@ -650,7 +650,7 @@ impl RigidSlam {
         {
             (TrackOutcome::failed(self.pose, why), false)
         } else if broken && enabled {
-            match self.relocalise(color, floors, constraint.conditioning) {
+            match self.relocalise(color, floors, constraint.conditioning, true) {
                 Some(found) => (found, true),
                 None => (
                     TrackOutcome::failed(self.pose, TrackFailure::NotRelocalised),
@@ -716,7 +716,7 @@ impl RigidSlam {
             keyframe_ratio: 0.0,
         };
         match retry
-            .then(|| self.relocalise(color, floors, conditioning))
+            .then(|| self.relocalise(color, floors, conditioning, false))
             .flatten()
         {
             Some(found)
@@ -764,14 +764,21 @@ impl RigidSlam {
     }
 
     /// The relocaliser's pose for the live frame (whose geometry's conditioning is
-    /// `conditioning`), if it finds one.
+    /// `conditioning`), if it finds one; after a break in the stream (`broken`) it also starts
+    /// from where the camera's last velocity carries it ([`RelocaliseParams::coast`]).
     fn relocalise(
         &mut self,
         color: Option<&ColorImage>,
         floors: Floors,
         conditioning: f64,
+        broken: bool,
     ) -> Option<TrackOutcome> {
         let since = self.health.last_stamp().unwrap_or(self.stamp);
+        // where the camera got to had it gone on as it was going (RelocaliseParams::coast)
+        let coast = (broken && self.params.relocalise.coast)
+            .then(|| self.motion.coast(self.stamp - since))
+            .flatten()
+            .map(|m| self.pose * m);
         let reach = if self.timed {
             self.reach_after(self.stamp - since)
         } else {
@@ -790,7 +797,7 @@ impl RigidSlam {
             &mut self.tracker,
             (&self.volume, &self.model),
             &live,
-            (self.pose, reach, conditioning),
+            (self.pose, coast, reach, conditioning),
             floors,
             (self.frames, &place),
         );

@@ -1,9 +1,10 @@
 //! Finding a lost track again, in two rounds:
 //! - local: start poses around the last good pose (shifted along each world axis, turned about
 //!   the camera's x and y) and the motion that sparse features matched against the last fused
-//!   frame give (FAST/BRIEF on an image pyramid, and RANSAC: [`crate::features`]) are each
-//!   tracked on the coarsest level against the model raycast at the last pose; the best is
-//!   refined on all levels;
+//!   frame give (FAST/BRIEF on an image pyramid, and RANSAC: [`crate::features`]), and after a
+//!   break in the stream the last pose carried on at the camera's velocity for the time the
+//!   break took ([`RelocaliseParams::coast`]), are each tracked on the coarsest level against
+//!   the model raycast at the last pose; the best is refined on all levels;
 //! - global (after a gap the camera may be anywhere it has been): the keyframes of the map
 //!   fragments joined to the current one ([`super::loops`]) whose fern codes are nearest the
 //!   frame's ([`super::keyframes`]) are matched by features, a rigid motion fitted by RANSAC on
@@ -16,7 +17,8 @@
 //! only when it passes the tracker's tests and, away from the last pose, a stricter inlier
 //! fraction ([`RelocaliseParams::min_inlier_fraction`]); after a break in the stream also floors
 //! on its fit to the model ([`RelocaliseParams::min_fit_ratio`] × the recent frames' fit for the
-//! local round, × the keyframe's own agreement for the global one). The fit's third number, the
+//! local round, × the keyframe's own agreement for the global one, or the recent frames' floor
+//! for a keyframe that started a map and was tracked against nothing). The fit's third number, the
 //! correlation of the live texture with the model's, has the recent frames' floor in both rounds:
 //! it is what sees a pose slid along a wall, where every pixel still lands on the right plane
 //! (NOTES 90). The blind starts (shifts and turns) are tried only where something can tell their
@@ -55,6 +57,11 @@ pub struct RelocaliseParams {
     /// 1.25, from the full image to a third of it, so that a place seen from up to about three
     /// times nearer or further matches, as after a gap on a walk; NOTES 125).
     pub features: FeatureParams,
+    /// After a break in the stream, one more start: the last pose carried on at the velocity
+    /// the camera had before the break for the time the break took (default true). A camera
+    /// walked along a corridor whose plain walls give the features nothing to match is about
+    /// there, further than the blind starts reach.
+    pub coast: bool,
     /// Keyframes for the global round.
     pub keyframes: KeyframeParams,
     /// Loops between keyframes ([`super::loops`]).
@@ -97,6 +104,7 @@ impl Default for RelocaliseParams {
                 levels: 6,
                 ..FeatureParams::default()
             },
+            coast: true,
             keyframes: KeyframeParams::default(),
             loops: LoopParams::default(),
             candidates: 5,
@@ -130,7 +138,8 @@ pub(crate) struct Floors {
     /// correlation's floor holds for a pose found from a keyframe too.
     pub local: Fit,
     /// For a pose found from a keyframe: this share of the agreement the keyframe was tracked
-    /// with (the same view should match about as well as it did then).
+    /// with (the same view should match about as well as it did then); a keyframe that started
+    /// a map has none, and `local`'s agreement stands in.
     pub keyframe_ratio: f64,
 }
 
@@ -243,7 +252,8 @@ impl Relocaliser {
     /// local round's own reach: [`local_extent`]) is refused, whatever its fit: where two places
     /// look alike, the one the camera could not have reached is the wrong one (NOTES 92).
     /// `conditioning` is the live frame's ([`super::tracker::FrameConstraint`], measured once by
-    /// the pipeline).
+    /// the pipeline); `coast`, if given, is one more start for the local round (where the
+    /// camera's velocity carried the last pose: [`RelocaliseParams::coast`]).
     #[allow(clippy::too_many_arguments)]
     pub fn relocalise(
         &mut self,
@@ -251,7 +261,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         map: (&TsdfVolume, &ModelPyramid),
         live: &LiveFrame<'_>,
-        (last, reach, conditioning): (Isometry3<f64>, Reach, f64),
+        (last, coast, reach, conditioning): (Isometry3<f64>, Option<Isometry3<f64>>, Reach, f64),
         floors: Floors,
         (frame, place): (usize, &dyn Fn(usize) -> Option<Isometry3<f64>>),
     ) -> Option<TrackOutcome> {
@@ -272,7 +282,7 @@ impl Relocaliser {
             tracker,
             map,
             (live, keypoints),
-            (last, reach, conditioning),
+            (last, coast, reach, conditioning),
             floors.local,
             frame,
         );
@@ -306,7 +316,7 @@ impl Relocaliser {
         tracker: &mut Tracker,
         (volume, model): (&TsdfVolume, &ModelPyramid),
         (live, keypoints): (&LiveFrame<'_>, Option<&Keypoints>),
-        (last, reach, conditioning): (Isometry3<f64>, Reach, f64),
+        (last, coast, reach, conditioning): (Isometry3<f64>, Option<Isometry3<f64>>, Reach, f64),
         floor: Fit,
         frame: usize,
     ) -> Option<TrackOutcome> {
@@ -315,7 +325,8 @@ impl Relocaliser {
         // it, and only a texture the recent frames matched well can
         let telling = floor.telling();
         let blind = telling || conditioning >= tracker.params.min_conditioning;
-        let (starts, from_features) = self.starts(params, live.camera, keypoints, last, blind);
+        let (mut starts, from_features) = self.starts(params, live.camera, keypoints, last, blind);
+        starts.extend(coast);
         let (screened, k, pose) = screen(tracker, model, live.levels, &starts, floor.correlation)?;
         let o = self.verifier.verify(tracker, volume, live, &pose);
         let fraction = o.inlier_fraction();
@@ -392,10 +403,12 @@ impl Relocaliser {
                 tracing::debug!(frame, keyframe = key.frame, "keyframe start out of reach");
                 continue;
             }
-            let (keyframe, floor) = (
-                key.frame,
-                floors.keyframe_ratio * key.agreement.unwrap_or(0.0),
-            );
+            // a keyframe that started a map was tracked against nothing: the recent frames'
+            // floor stands in for its own
+            let floor = key
+                .agreement
+                .map_or(floors.local.agreement, |a| floors.keyframe_ratio * a);
+            let keyframe = key.frame;
             let o = self.verifier.verify(tracker, volume, live, &start);
             let (fraction, shift) = (o.inlier_fraction(), view_shift(last, &o.pose, scale));
             let reachable = reach.admits(last, &o.pose);
