@@ -72,8 +72,8 @@ impl MotionModel {
     }
 
     /// Forgets the motion (after a frame that was not tracked: what came before says nothing
-    /// reliable about what follows).
-    /// The velocity is held for [`Self::coast`].
+    /// reliable about the next frame's start). The velocity is held for [`Self::coast`]: after
+    /// a break it is the best guess of where the camera went.
     pub fn reset(&mut self) {
         if let Some(v) = self.velocity() {
             self.held = Some(v);
