@@ -773,14 +773,15 @@ impl RigidSlam {
         conditioning: f64,
         broken: bool,
     ) -> Option<TrackOutcome> {
-        let since = self.health.last_stamp().unwrap_or(self.stamp);
+        // the time since the last fused frame
+        let elapsed = self.stamp - self.health.last_stamp().unwrap_or(self.stamp);
         // where the camera got to had it gone on as it was going (RelocaliseParams::coast)
         let coast = (broken && self.params.relocalise.coast)
-            .then(|| self.motion.coast(self.stamp - since))
+            .then(|| self.motion.coast(elapsed))
             .flatten()
             .map(|m| self.pose * m);
         let reach = if self.timed {
-            self.reach_after(self.stamp - since)
+            self.reach_after(elapsed)
         } else {
             Reach::UNBOUNDED
         };
