@@ -185,22 +185,10 @@ fn nonrigid_fusion_reports_each_failure_and_keeps_its_field() {
     assert_eq!(slam.process(&depth, Some(&color), None).failure, None);
 }
 
-/// Tracks `frames` frames of the generated plate under `field` (texture `seed`) with these
-/// colour weights; see [`track_surface`]. Every frame must be fused.
-fn track_plate(
-    field: dynamap::slam::synthetic::deform::Field,
-    seed: u64,
-    weights: ColourWeights,
-    frames: usize,
-) -> Tracked {
-    use dynamap::slam::synthetic::deform::SurfaceKind;
-    let tracked = track_surface(
-        SurfaceKind::Plane,
-        field,
-        seed,
-        tracking_params(weights),
-        frames,
-    );
+/// Tracks the rendered plate's frames with these colour weights; see [`track_surface`]. Every
+/// frame must be fused.
+fn track_plate(plate: &Rendered, weights: ColourWeights) -> Tracked {
+    let tracked = track_surface(plate, tracking_params(weights));
     tracked.assert_all_fused();
     tracked
 }
@@ -240,25 +228,46 @@ impl Tracked {
     }
 }
 
-/// Tracks `frames` frames of a generated surface under `field` (texture `seed`), rendered with
-/// sensor noise at 320 × 240, with `params`.
-fn track_surface(
+/// A generated surface and its frames, rendered once for every run over them.
+struct Rendered {
+    scene: dynamap::slam::synthetic::deform::DeformingScene,
+    frames: Vec<(
+        dynamap::slam::image::Image<u16>,
+        dynamap::slam::image::ColorImage,
+    )>,
+}
+
+/// The first `frames` frames of a generated surface under `field` (texture `seed`), rendered
+/// with sensor noise at 320 × 240.
+fn render_surface(
     kind: dynamap::slam::synthetic::deform::SurfaceKind,
     field: dynamap::slam::synthetic::deform::Field,
     seed: u64,
-    params: dynamap::slam::nonrigid::FusionParams,
     frames: usize,
-) -> Tracked {
-    use dynamap::slam::camera::Camera;
-    use dynamap::slam::nonrigid::NonRigidFusion;
+) -> Rendered {
     use dynamap::slam::synthetic::deform::{surface, DeformingScene};
     use dynamap::slam::synthetic::noise::SensorNoise;
 
     let scene = DeformingScene::new(surface(kind, 60), field, seed);
-    let camera = Camera::tum_default().level(1);
+    let camera = tracking_camera();
     let noise = SensorNoise::default();
-    track_frames(&scene, NonRigidFusion::new(camera, params), frames, |k| {
-        scene.sensor_frame(&camera, &Isometry3::identity(), k, &noise)
+    let frames = (0..frames)
+        .map(|k| scene.sensor_frame(&camera, &Isometry3::identity(), k, &noise))
+        .collect();
+    Rendered { scene, frames }
+}
+
+/// The camera of [`render_surface`]'s frames (320 × 240).
+fn tracking_camera() -> dynamap::slam::camera::Camera {
+    dynamap::slam::camera::Camera::tum_default().level(1)
+}
+
+/// Tracks the rendered surface's frames with `params`.
+fn track_surface(rendered: &Rendered, params: dynamap::slam::nonrigid::FusionParams) -> Tracked {
+    use dynamap::slam::nonrigid::NonRigidFusion;
+    let slam = NonRigidFusion::new(tracking_camera(), params);
+    track_frames(&rendered.scene, slam, rendered.frames.len(), |k| {
+        rendered.frames[k].clone()
     })
 }
 
@@ -303,13 +312,16 @@ fn track_frames(
 /// there is, bar the edges that turn into view).
 #[test]
 fn a_bending_plate_is_tracked_within_five_millimetres() {
-    use dynamap::slam::synthetic::deform::Field;
+    use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
     let Tracked {
         errors,
         first_nodes,
         nodes,
         ..
-    } = track_plate(Field::Bend, 3, (None, None), 30);
+    } = track_plate(
+        &render_surface(SurfaceKind::Plane, Field::Bend, 3, 30),
+        (None, None),
+    );
     let worst = errors.iter().fold(0.0f64, |a, &e| a.max(e));
     assert!(worst < 5e-3, "worst frame's mean error {worst} m");
     assert!(
@@ -324,8 +336,9 @@ fn a_bending_plate_is_tracked_within_five_millimetres() {
 /// frames) it is more than twice as large. The intensity ratio alone holds it too.
 #[test]
 fn a_travelling_wave_is_held_by_the_photometric_term() {
-    use dynamap::slam::synthetic::deform::Field;
-    let last = |w| *track_plate(Field::Wave, 5, w, 40).errors.last().unwrap();
+    use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
+    let wave = render_surface(SurfaceKind::Plane, Field::Wave, 5, 40);
+    let last = |w| *track_plate(&wave, w).errors.last().unwrap();
     let (held, ratio, slid) = (
         last((None, None)),
         last((None, Some(0.0))),
@@ -345,13 +358,14 @@ fn a_travelling_wave_is_held_by_the_photometric_term() {
 fn a_twisting_tube_is_held_by_the_chromaticity() {
     use dynamap::slam::nonrigid::FusionParams;
     use dynamap::slam::synthetic::deform::{Field, SurfaceKind};
+    let tube = render_surface(SurfaceKind::Cylinder, Field::Twist, 3, 15);
     let mean = |w| {
         // the term's hold is measured with every frame fused: no colour drift judged
         let params = FusionParams {
             colour_drift_ratio: 0.0,
             ..tracking_params(w)
         };
-        let tracked = track_surface(SurfaceKind::Cylinder, Field::Twist, 3, params, 15);
+        let tracked = track_surface(&tube, params);
         tracked.assert_all_fused();
         tracked.errors.iter().sum::<f64>() / tracked.errors.len() as f64
     };

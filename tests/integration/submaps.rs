@@ -7,6 +7,7 @@ use super::sensor_frame::sensor_frame;
 use dynamap::residuals::pose_graph::Measurement;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
+use dynamap::slam::image::{ColorImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::mesh::Mesh;
 use dynamap::slam::rigid::loops::{KeyframeGraph, LoopCandidate};
@@ -15,8 +16,10 @@ use dynamap::slam::rigid::{RelocaliseParams, RigidSlam, SlamParams};
 use dynamap::slam::synthetic::layouts::{self, Layout};
 use dynamap::slam::synthetic::motion::{self, Motion};
 use dynamap::slam::synthetic::noise::SensorNoise;
+use dynamap::slam::synthetic::scene::Scene;
 use dynamap::slam::synthetic::surface_error::{surface_error, SurfaceError};
 use nalgebra::{Isometry3, Matrix6};
+use std::sync::OnceLock;
 
 /// Every `step`-th pose of `frames` survey frames.
 fn survey(frames: usize, step: usize) -> Trajectory {
@@ -95,19 +98,50 @@ pub(crate) fn short_submap_run() -> (Camera, SlamParams) {
     (cam, params)
 }
 
-/// Runs the pipeline with sub-maps on `layout` along `gt`.
-fn run(layout: Layout, gt: &Trajectory, pace: Pace) -> Run {
-    let (cam, params) = short_submap_run();
+/// A survey in a layout: its ground truth, its scene and each frame as the sensor gives it (raw
+/// depth, colour).
+struct Survey {
+    gt: Trajectory,
+    scene: Scene,
+    frames: Vec<(Image<u16>, ColorImage)>,
+}
+
+/// `gt` rendered in `layout` (seed 3) by the short runs' camera with sensor noise of seed 9.
+fn render(layout: Layout, gt: Trajectory) -> Survey {
+    let (cam, _) = short_submap_run();
     let scene = layouts::build(layout, 3);
     let noise = SensorNoise {
         seed: 9,
         ..SensorNoise::default()
     };
+    let frames = (gt.poses.iter().enumerate())
+        .map(|(k, pose)| sensor_frame(&scene, &cam, pose, &noise, k))
+        .collect();
+    Survey { gt, scene, frames }
+}
+
+/// 1.4 rounds of the room survey at 6× speed (the camera is back where it began after 150
+/// frames), rendered once for the tests that run it.
+fn room_survey() -> &'static Survey {
+    static SURVEY: OnceLock<Survey> = OnceLock::new();
+    SURVEY.get_or_init(|| render(Layout::Room, survey(210, 6)))
+}
+
+/// The room survey's run with the loop searches off the tracking thread, shared by the tests
+/// that read it.
+fn room_run() -> &'static Run {
+    static RUN: OnceLock<Run> = OnceLock::new();
+    RUN.get_or_init(|| run(room_survey(), Pace::Free))
+}
+
+/// Runs the pipeline with sub-maps along `survey`.
+fn run(survey: &Survey, pace: Pace) -> Run {
+    let (cam, params) = short_submap_run();
+    let (gt, scene) = (&survey.gt, &survey.scene);
     let mut slam = RigidSlam::new(cam, params, gt.poses[0]);
     let (mut tracked, mut anchors) = (Trajectory::default(), Vec::new());
-    for (k, (stamp, pose)) in gt.stamps.iter().zip(&gt.poses).enumerate() {
-        let (raw, color) = sensor_frame(&scene, &cam, pose, &noise, k);
-        let report = slam.process(&raw, Some(&color));
+    for (k, (stamp, (raw, color))) in gt.stamps.iter().zip(&survey.frames).enumerate() {
+        let report = slam.process(raw, Some(color));
         assert!(
             report.failure().is_none(),
             "frame {k}: {:?}",
@@ -155,10 +189,8 @@ fn run(layout: Layout, gt: &Trajectory, pace: Pace) -> Run {
 
 #[test]
 fn a_short_looping_survey_closes_its_loop_and_lowers_the_trajectory_error() {
-    // 1.4 rounds of the survey at 6× speed: the camera is back where it began after 150 frames
-    let gt = survey(210, 6);
-    let r = run(Layout::Room, &gt, Pace::Free);
-    let error = |t: &Trajectory| ate(&gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
+    let (gt, r) = (&room_survey().gt, room_run());
+    let error = |t: &Trajectory| ate(gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
     let (before, after) = (error(&r.tracked), error(&r.corrected));
     let kept = r.loops.iter().filter(|l| l.1 > 0.5).count();
     assert!(
@@ -203,9 +235,9 @@ fn a_short_looping_survey_closes_its_loop_and_lowers_the_trajectory_error() {
 fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
     // in the twin room the place half a round away looks the same as this one: loops to it are
     // false, and they must be rejected or switched off
-    let gt = survey(300, 6);
-    let r = run(Layout::Twins, &gt, Pace::Free);
-    let error = |t: &Trajectory| ate(&gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
+    let twins = render(Layout::Twins, survey(300, 6));
+    let r = run(&twins, Pace::Free);
+    let error = |t: &Trajectory| ate(&twins.gt, t, Alignment::Se3, 1e-3).unwrap().stats.rmse;
     let (before, after) = (error(&r.tracked), error(&r.corrected));
     let report = format!(
         "ATE {:.1} mm corrected against {:.1} mm tracked; loops (error m, weight): {:?}",
@@ -230,9 +262,8 @@ fn identical_places_half_a_round_apart_do_not_bend_the_trajectory() {
 fn the_loop_search_off_the_tracking_thread_finds_what_a_waited_for_search_finds() {
     // the search reads only what its keyframe captured, so however far tracking runs ahead of
     // it, the same loops reach the graph in the same order, and tracking is not disturbed
-    let gt = survey(210, 6);
-    let free = run(Layout::Room, &gt, Pace::Free);
-    let waited = run(Layout::Room, &gt, Pace::WaitForLoops);
+    let free = room_run();
+    let waited = run(room_survey(), Pace::WaitForLoops);
     assert!(free.found.len() >= 2, "{} loops", free.found.len());
     assert_eq!(free.found, waited.found);
     assert_eq!(free.tracked.poses, waited.tracked.poses);
