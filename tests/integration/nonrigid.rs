@@ -228,13 +228,16 @@ impl Tracked {
     }
 }
 
+/// A frame as the sensor gives it: raw depth and colour.
+type SensorFrame = (
+    dynamap::slam::image::Image<u16>,
+    dynamap::slam::image::ColorImage,
+);
+
 /// A generated surface and its frames, rendered once for every run over them.
 struct Rendered {
     scene: dynamap::slam::synthetic::deform::DeformingScene,
-    frames: Vec<(
-        dynamap::slam::image::Image<u16>,
-        dynamap::slam::image::ColorImage,
-    )>,
+    frames: Vec<SensorFrame>,
 }
 
 /// The first `frames` frames of a generated surface under `field` (texture `seed`), rendered
@@ -267,23 +270,21 @@ fn track_surface(rendered: &Rendered, params: dynamap::slam::nonrigid::FusionPar
     use dynamap::slam::nonrigid::NonRigidFusion;
     let slam = NonRigidFusion::new(tracking_camera(), params);
     track_frames(&rendered.scene, slam, rendered.frames.len(), |k| {
-        rendered.frames[k].clone()
+        &rendered.frames[k]
     })
 }
 
 /// Runs `slam` over the first `frames` frames of `scene`, frame k's depth and colour being
 /// `frame(k)`.
-fn track_frames(
+fn track_frames<F>(
     scene: &dynamap::slam::synthetic::deform::DeformingScene,
     mut slam: dynamap::slam::nonrigid::NonRigidFusion,
     frames: usize,
-    frame: impl Fn(
-        usize,
-    ) -> (
-        dynamap::slam::image::Image<u16>,
-        dynamap::slam::image::ColorImage,
-    ),
-) -> Tracked {
+    frame: impl Fn(usize) -> F,
+) -> Tracked
+where
+    F: std::borrow::Borrow<SensorFrame>,
+{
     use dynamap::slam::eval::Stats;
     let mut tracked = Tracked {
         errors: Vec::new(),
@@ -292,8 +293,9 @@ fn track_frames(
         nodes: 0,
     };
     for k in 0..frames {
-        let (depth, color) = frame(k);
-        let report = slam.process(&depth, Some(&color), None);
+        let f = frame(k);
+        let (depth, color) = f.borrow();
+        let report = slam.process(depth, Some(color), None);
         tracked.failures.push(report.failure);
         if k == 0 {
             tracked.first_nodes = report.nodes;
