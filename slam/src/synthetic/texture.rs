@@ -82,13 +82,15 @@ impl Texture {
     /// within a few ulp of the standard library's).
     pub fn color(&self, p: &Point3<f64>) -> [f64; 3] {
         let (x, y, z) = (f64x4::splat(p.x), f64x4::splat(p.y), f64x4::splat(p.z));
-        let s = self.lanes.each_ref().map(|lanes| {
+        // a loop, not an array `map`: LLVM left `map`'s closure out of line in some builds
+        let mut s = [0.0; 3];
+        for (sum, lanes) in s.iter_mut().zip(&self.lanes) {
             let mut acc = f64x4::ZERO;
             for [wx, wy, wz, phase] in lanes {
                 acc += (*wx * x + *wy * y + *wz * z + *phase).sin_cos().0;
             }
-            acc.reduce_add()
-        });
+            *sum = acc.reduce_add();
+        }
         let f = [0, 1, 2].map(|k| s[k] + 0.3 * (s[(k + 1) % 3] + s[(k + 2) % 3]));
         let t = (f64x4::from([f[0], f[1], f[2], 0.0]) * f64x4::splat(0.5))
             .tanh()
