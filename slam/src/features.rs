@@ -227,8 +227,8 @@ fn pyramid_levels(params: &FeatureParams) -> usize {
 /// `image` shrunk to `w` × `h` by a bilinear filter widened to the scale (no aliasing), with
 /// `fast_image_resize`'s SIMD convolution; `None` if it refused (the sizes are consistent by
 /// construction, so it should not). Called on its one-byte pixel type (`resize_typed`): its
-/// untyped `resize` would compile the convolutions of all 13 pixel types into this crate, 36 %
-/// of its code (NOTES 161).
+/// untyped `resize` compiled the convolutions of all 13 pixel types into this crate, about half
+/// of its LLVM IR (NOTES 161).
 fn shrink(image: &image::GrayImage, w: u32, h: u32) -> Option<image::GrayImage> {
     use fast_image_resize::images::{TypedImage, TypedImageRef};
     use fast_image_resize::{pixels::U8, FilterType, ResizeAlg, ResizeOptions, Resizer};
