@@ -5,8 +5,8 @@
 //! never comes back, the frames of the smaller fragment have no pose in the map and are said to
 //! have none.
 
+use super::sensor_frame::{sensor_frame, SensorFrame};
 use dynamap::slam::eval::{ate, Alignment};
-use dynamap::slam::image::{ColorImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::rigid::{FrameOutcome, FrameStamps, RigidSlam};
 use dynamap::slam::synthetic::layouts::{self, Layout};
@@ -16,15 +16,13 @@ use std::collections::BTreeSet;
 use std::ops::Range;
 use std::sync::OnceLock;
 
-use super::sensor_frame::sensor_frame;
-
 /// Frames of the survey at 6× speed (a frame every 0.2 s, 2.4° of the round).
 const STEP: usize = 6;
 /// The longest run's frames.
 const FRAMES: usize = 195;
 
 /// Ground truth, and each frame as the sensor gives it (raw depth, colour).
-type Survey = (Trajectory, Vec<(Image<u16>, ColorImage)>);
+type Survey = (Trajectory, Vec<SensorFrame>);
 
 /// The survey's first [`FRAMES`] frames, rendered once for all the runs of this file.
 fn survey() -> &'static Survey {

@@ -1,6 +1,7 @@
 //! Non-rigid registration: the thesis' grid experiment (Table 4.1) beaten tenfold, and the
 //! deformation graph growing only over new surface.
 
+use super::sensor_frame::SensorFrame;
 use dynamap::residuals::deform::rigid_motion;
 use dynamap::slam::nonrigid::{mesh_points, register_surfaces, DeformationGraph, GraphParams};
 use dynamap::slam::synthetic::plate::{flat_grid, registration_settings, PlateDeformation};
@@ -227,12 +228,6 @@ impl Tracked {
         }
     }
 }
-
-/// A frame as the sensor gives it: raw depth and colour.
-type SensorFrame = (
-    dynamap::slam::image::Image<u16>,
-    dynamap::slam::image::ColorImage,
-);
 
 /// A generated surface and its frames, rendered once for every run over them.
 struct Rendered {

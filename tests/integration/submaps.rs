@@ -3,11 +3,10 @@
 //! the older sub-maps give dense loops, and the frames carried with their keyframes to the
 //! graph's solution lie nearer the ground truth than the frames as tracked.
 
-use super::sensor_frame::sensor_frame;
+use super::sensor_frame::{sensor_frame, SensorFrame};
 use dynamap::residuals::pose_graph::Measurement;
 use dynamap::slam::camera::Camera;
 use dynamap::slam::eval::{ate, Alignment};
-use dynamap::slam::image::{ColorImage, Image};
 use dynamap::slam::io::trajectory::Trajectory;
 use dynamap::slam::mesh::Mesh;
 use dynamap::slam::rigid::loops::{KeyframeGraph, LoopCandidate};
@@ -103,7 +102,7 @@ pub(crate) fn short_submap_run() -> (Camera, SlamParams) {
 struct Survey {
     gt: Trajectory,
     scene: Scene,
-    frames: Vec<(Image<u16>, ColorImage)>,
+    frames: Vec<SensorFrame>,
 }
 
 /// `gt` rendered in `layout` (seed 3) by the short runs' camera with sensor noise of seed 9.
