@@ -103,6 +103,44 @@ pub fn bad_input(message: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(BadInput(anyhow::anyhow!("{message}")))
 }
 
+/// How a run over a sequence's frames went, for [`FrameCounts::check`].
+#[derive(Clone, Debug, Default)]
+pub struct FrameCounts {
+    /// Frames taken from the sequence.
+    pub taken: usize,
+    /// Frames that could not be read.
+    pub unreadable: usize,
+    /// Why the first of them could not.
+    pub first_unreadable: Option<String>,
+    /// Frames whose result the run kept (tracked, or fused).
+    pub kept: usize,
+}
+
+impl FrameCounts {
+    /// A run that took frames and kept none fails (called once its outputs and summary are
+    /// written): as bad input (exit code 2) when no frame could be read, naming the first one's
+    /// fault, and as a runtime failure (exit code 1) when frames were read and none kept.
+    /// `source` names the sequence, `kept` says what keeping is ("tracked", "fused").
+    pub fn check(&self, source: &str, kept: &str) -> Result<()> {
+        if self.taken == 0 || self.kept > 0 {
+            return Ok(());
+        }
+        if self.unreadable == self.taken {
+            let first = self.first_unreadable.as_deref().unwrap_or("unknown");
+            return Err(bad_input(format!(
+                "none of the {} frames of {source} could be read; the first: {first}",
+                self.taken
+            )));
+        }
+        anyhow::bail!(
+            "no frame of {source} was {kept}: {} of {} read and not {kept}, {} unreadable (the warnings above say why)",
+            self.taken - self.unreadable,
+            self.taken,
+            self.unreadable
+        )
+    }
+}
+
 /// What a run's body gets besides its arguments.
 pub struct Session {
     /// `-q` was given.

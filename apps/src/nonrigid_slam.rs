@@ -15,7 +15,8 @@
 //! fused), skipped (frames that could not be read), nodes, per-stage
 //! seconds per frame and, for the generated sequence, the tracking error: over every canonical
 //! sample, over the samples the camera sees, and the worst seen error of a frame reported tracked
-//! (NOTES 132).
+//! (NOTES 132). A run that fused no frame at all exits with code 1 after its outputs and JSON line
+//! (2 when no frame could be read).
 
 use crate::cli;
 use crate::preview;
@@ -422,6 +423,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
             Err(e) => {
                 tally.skipped += 1;
                 tracing::warn!("frame {i} skipped: {e:#}");
+                tally
+                    .first_unreadable
+                    .get_or_insert_with(|| format!("{e:#}"));
                 continue;
             }
         };
@@ -450,6 +454,15 @@ fn run(args: Args, session: &Session) -> Result<()> {
         write_preview(dir, &slam, &camera, &tally.errors)?;
     }
     println!("{}", result_line(n, seconds, &tally, &slam));
+    let counts = cli::FrameCounts {
+        taken: n,
+        unreadable: tally.skipped,
+        first_unreadable: tally.first_unreadable,
+        kept: tally.processed - tally.failures,
+    };
+    let name =
+        (args.dir.as_ref()).map_or("the generated sequence".into(), |d| d.display().to_string());
+    counts.check(&name, "fused")?;
     logged
 }
 
@@ -497,6 +510,8 @@ struct Tally {
     failures: usize,
     skipped: usize,
     processed: usize,
+    /// Why the first frame that could not be read could not be.
+    first_unreadable: Option<String>,
     /// Time in `process`, seconds.
     processing: f64,
     /// Each frame's tracking error on a generated sequence.

@@ -19,6 +19,8 @@
 //! trajectory holds the tracked frames only.
 //!
 //! A frame that cannot be read or tracked is logged with its reason and left out; the run goes on.
+//! A run that tracked no frame at all exits with code 1 after its outputs and JSON line (2 when
+//! no frame could be read).
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
 
 use crate::cli;
@@ -447,6 +449,13 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if interrupted {
         return Err(cli::Interrupted.into());
     }
+    let counts = cli::FrameCounts {
+        taken: tally.processed,
+        unreadable: tally.skipped,
+        first_unreadable: tally.first_unreadable,
+        kept: tally.trajectory.len(),
+    };
+    counts.check(&dir.display().to_string(), "tracked")?;
     logged
 }
 
@@ -560,6 +569,8 @@ struct Tally {
     read_seconds: f64,
     /// Frames taken from the stream.
     processed: usize,
+    /// Why the first frame that could not be read could not be.
+    first_unreadable: Option<String>,
     /// The last frame tracked.
     last_good: Option<usize>,
     /// The depth stamp of each frame the pipeline counted, in order: its frame number `n`
@@ -625,6 +636,9 @@ fn track_frames(
                 Err(e) => {
                     tally.skipped += 1;
                     tracing::warn!("frame {i} skipped: {e}");
+                    tally
+                        .first_unreadable
+                        .get_or_insert_with(|| format!("{e:#}"));
                     bar.inc(1);
                     continue;
                 }

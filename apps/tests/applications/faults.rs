@@ -110,16 +110,22 @@ fn orbit(dir: &Path, frames: usize) {
     .unwrap();
 }
 
-#[test]
-fn every_tenth_depth_file_deleted_or_cut_is_skipped_and_counted() {
-    let dir = scratch("tenth");
-    let seq = dir.join("seq");
-    orbit(&seq, 40);
+/// The depth images of the sequence in `seq`, in stamp order.
+fn depth_files(seq: &Path) -> Vec<std::path::PathBuf> {
     let mut depth: Vec<_> = std::fs::read_dir(seq.join("depth"))
         .unwrap()
         .map(|e| e.unwrap().path())
         .collect();
     depth.sort();
+    depth
+}
+
+#[test]
+fn every_tenth_depth_file_deleted_or_cut_is_skipped_and_counted() {
+    let dir = scratch("tenth");
+    let seq = dir.join("seq");
+    orbit(&seq, 40);
+    let depth = depth_files(&seq);
     // frames 0, 10, 20, 30: deleted, cut, deleted, cut (the first one too: the run must still
     // find the image size)
     for (n, path) in depth.iter().step_by(10).enumerate() {
@@ -152,6 +158,75 @@ fn every_tenth_depth_file_deleted_or_cut_is_skipped_and_counted() {
         );
     }
     assert!(summary["ate_rmse"].as_f64().unwrap() < 0.01, "{summary}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A run that tracks nothing does not exit 0: its only frames unreadable (the first two of the
+/// sequence in 8 bits, `--max-frames 2`; the size is read from a later one) is bad input (exit 2,
+/// naming the first frame's file), every depth image blank a runtime failure (exit 1). The
+/// summary line is printed first either way, and the trajectory file written. A deforming
+/// sequence whose depth is all blank fails `nonrigid_slam` the same way.
+#[test]
+fn a_run_that_tracks_no_frame_fails_and_says_why() {
+    let dir = scratch("nothing");
+    let seq = dir.join("seq");
+    orbit(&seq, 4);
+    let depth = depth_files(&seq);
+    let traj = dir.join("t.txt");
+    let (seq, out) = (seq.to_str().unwrap(), traj.to_str().unwrap());
+    for path in &depth[..2] {
+        image::GrayImage::new(320, 240).save(path).unwrap();
+    }
+    let unreadable = run("rigid_slam", &[seq, "--output", out, "--max-frames", "2"]);
+    for path in &depth {
+        image::ImageBuffer::<image::Luma<u16>, _>::new(320, 240)
+            .save(path)
+            .unwrap();
+    }
+    let blank = run("rigid_slam", &[seq, "--output", out]);
+    let first = depth[0].display().to_string();
+    for (what, run, code, says) in [
+        (
+            "unreadable",
+            unreadable,
+            2,
+            ["none of the 2 frames", first.as_str()],
+        ),
+        (
+            "blank",
+            blank,
+            1,
+            ["was tracked", "4 of 4 read and not tracked"],
+        ),
+    ] {
+        let stderr = text(&run.stderr);
+        assert_eq!(run.status.code(), Some(code), "{what}: {stderr}");
+        assert_eq!(result_json(&run)["tracked"], 0, "{what}");
+        assert!(says.iter().all(|s| stderr.contains(s)), "{what}: {stderr}");
+    }
+    assert!(traj.exists(), "no trajectory file");
+    // a deforming sequence whose depth is blank: nothing is fused
+    let deforming = dir.join("deforming");
+    let made = run(
+        "generate",
+        &[
+            "-q",
+            "deforming",
+            deforming.to_str().unwrap(),
+            "--frames",
+            "3",
+        ],
+    );
+    assert!(made.status.success(), "{}", text(&made.stderr));
+    for entry in std::fs::read_dir(deforming.join("depth")).unwrap() {
+        image::ImageBuffer::<image::Luma<u16>, _>::new(640, 480)
+            .save(entry.unwrap().path())
+            .unwrap();
+    }
+    let fused = run("nonrigid_slam", &[deforming.to_str().unwrap()]);
+    let stderr = text(&fused.stderr);
+    assert_eq!(fused.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("3 of 3 read and not fused"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
