@@ -14,6 +14,8 @@
 use anyhow::{Context, Result};
 use clap::parser::ValueSource;
 use clap::ArgAction;
+use dynamap_slam::io::sequence::Sequence;
+use dynamap_slam::io::tum::IntrinsicsSource;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::ffi::OsString;
 use std::io::{IsTerminal, Write};
@@ -121,7 +123,7 @@ impl FrameCounts {
     /// written): as bad input (exit code 2) when no frame could be read, naming the first one's
     /// fault, and as a runtime failure (exit code 1) when frames were read and none kept.
     /// `source` names the sequence, `kept` says what keeping is ("tracked", "fused").
-    pub fn check(&self, source: &str, kept: &str) -> Result<()> {
+    pub fn check(&self, source: impl std::fmt::Display, kept: &str) -> Result<()> {
         if self.taken == 0 || self.kept > 0 {
             return Ok(());
         }
@@ -139,6 +141,40 @@ impl FrameCounts {
             self.unreadable
         )
     }
+}
+
+/// Refuses a TUM-layout folder that gives no intrinsics (no `intrinsics.txt` or
+/// `calibration.txt`) when its images are not 640 × 480, the size TUM's published intrinsics are
+/// for; warns where TUM's default Kinect intrinsics are assumed for a folder whose name names no
+/// TUM sensor. `flags` is whether all of `--fx --fy --cx --cy` were given (which settles it), or
+/// `None` for a command without them.
+pub fn check_tum_intrinsics(dir: &Path, seq: &Sequence, flags: Option<bool>) -> Result<()> {
+    let given = flags == Some(true);
+    let Some(source) = seq.intrinsics_source().filter(|s| s.is_tums() && !given) else {
+        return Ok(());
+    };
+    let (c, dir) = (seq.camera(), dir.display());
+    let or_flags = if flags.is_some() {
+        ", or give --fx --fy --cx --cy"
+    } else {
+        ""
+    };
+    if (c.width, c.height) != (640, 480) {
+        return Err(bad_input(format!(
+            "{dir}: the images are {}x{} and the folder gives no intrinsics; TUM's published \
+             ones are for 640x480 images: write intrinsics.txt (fx fy cx cy depth_scale) or \
+             calibration.txt (fx fy cx cy) into the folder{or_flags}",
+            c.width, c.height
+        )));
+    }
+    if source == IntrinsicsSource::Assumed {
+        tracing::warn!(
+            "{dir}: no intrinsics.txt or calibration.txt, and the folder's name names no TUM \
+             sensor (freiburg1, 2 or 3): TUM's default Kinect intrinsics are assumed (fx = fy = \
+             525, cx = 319.5, cy = 239.5){or_flags}"
+        );
+    }
+    Ok(())
 }
 
 /// What a run's body gets besides its arguments.

@@ -462,7 +462,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
     };
     let name =
         (args.dir.as_ref()).map_or("the generated sequence".into(), |d| d.display().to_string());
-    counts.check(&name, "fused")?;
+    counts.check(name, "fused")?;
     logged
 }
 
@@ -491,10 +491,14 @@ fn open_source(args: &Args) -> Result<Source> {
             }),
             frames: args.max_frames.unwrap_or(30),
         },
-        Some(d) => Source::Folder {
-            seq: Sequence::open(d, &OpenOptions::default()).bad_input()?,
-            masks: args.masks.clone(),
-        },
+        Some(d) => {
+            let seq = Sequence::open(d, &OpenOptions::default()).bad_input()?;
+            cli::check_tum_intrinsics(d, &seq, None)?;
+            Source::Folder {
+                seq,
+                masks: args.masks.clone(),
+            }
+        }
     })
 }
 

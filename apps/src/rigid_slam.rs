@@ -414,16 +414,11 @@ fn run(args: Args, session: &Session) -> Result<()> {
         );
     }
     write_outputs(&args, &slam, &tally.trajectory, solved.as_ref())?;
-    let ate_result = seq
-        .groundtruth()
-        .and_then(|gt| ate(gt, &tally.trajectory, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok());
+    let ate_result = ate_against(&seq, &tally.trajectory);
     if let Some(out) = &args.preview {
         write_preview(out, &slam, &seq, &tally.trajectory, ate_result.as_ref())?;
     }
-    let ate_tracked = seq
-        .groundtruth()
-        .and_then(|gt| ate(gt, &tracked, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok())
-        .map(|a| a.stats.rmse);
+    let ate_tracked = ate_against(&seq, &tracked).map(|a| a.stats.rmse);
     let ate_rmse = ate_result.as_ref().map(|a| a.stats.rmse);
     log_summary(&tally, &slam, ate_rmse, &dir);
     let graph = slam.keyframe_graph();
@@ -449,14 +444,15 @@ fn run(args: Args, session: &Session) -> Result<()> {
     if interrupted {
         return Err(cli::Interrupted.into());
     }
-    let counts = cli::FrameCounts {
-        taken: tally.processed,
-        unreadable: tally.skipped,
-        first_unreadable: tally.first_unreadable,
-        kept: tally.trajectory.len(),
-    };
-    counts.check(&dir.display().to_string(), "tracked")?;
+    tally.counts().check(dir.display(), "tracked")?;
     logged
+}
+
+/// The SE(3)-aligned ATE of `trajectory` against the sequence's ground truth, where it has one
+/// and they share stamps.
+fn ate_against(seq: &Sequence, trajectory: &Trajectory) -> Option<AteResult> {
+    let gt = seq.groundtruth()?;
+    ate(gt, trajectory, Alignment::Se3, MAX_STAMP_DIFFERENCE).ok()
 }
 
 /// Opens the sequence in `dir` with the command line's stamp limit, TUM calibration and (without
@@ -489,6 +485,10 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
     warn_of_unread_frames(dir, &seq, args.max_difference);
+    let given = [args.fx, args.fy, args.cx, args.cy]
+        .iter()
+        .all(Option::is_some);
+    cli::check_tum_intrinsics(dir, &seq, Some(given))?;
     if !dir.join("intrinsics.txt").exists() {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
@@ -579,6 +579,16 @@ struct Tally {
 }
 
 impl Tally {
+    /// The frames taken, unreadable and tracked.
+    fn counts(&self) -> cli::FrameCounts {
+        cli::FrameCounts {
+            taken: self.processed,
+            unreadable: self.skipped,
+            first_unreadable: self.first_unreadable.clone(),
+            kept: self.trajectory.len(),
+        }
+    }
+
     /// Milliseconds per frame taken: read, preprocess, track, integrate, raycast.
     fn ms_per_frame(&self) -> [f64; 5] {
         let t = &self.totals;

@@ -230,6 +230,40 @@ fn a_run_that_tracks_no_frame_fails_and_says_why() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A TUM folder of 320 × 240 frames without intrinsics would have been tracked with TUM's
+/// 640 × 480 ones: it is refused by name, and runs once they are given on the command line or in
+/// ETH3D's `calibration.txt`.
+#[test]
+fn a_folder_whose_size_tums_intrinsics_do_not_fit_is_refused_until_they_are_given() {
+    let dir = scratch("intrinsics");
+    let seq = dir.join("seq");
+    orbit(&seq, 4);
+    std::fs::remove_file(seq.join("intrinsics.txt")).unwrap();
+    let s = seq.to_str().unwrap();
+    let refused = run("rigid_slam", &[s]);
+    let stderr = text(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("320x240") && stderr.contains("--fx"),
+        "{stderr}"
+    );
+    let c = camera();
+    let k = [c.fx, c.fy, c.cx, c.cy].map(|v| v.to_string());
+    let flags = ["--fx", "--fy", "--cx", "--cy"];
+    let mut args = vec![s];
+    args.extend(flags.iter().zip(&k).flat_map(|(f, v)| [*f, v.as_str()]));
+    for (what, args) in [("flags", args), ("calibration.txt", vec![s])] {
+        if what == "calibration.txt" {
+            std::fs::write(seq.join(what), k.join(" ")).unwrap();
+        }
+        let out = run("rigid_slam", &args);
+        assert_eq!(out.status.code(), Some(0), "{what}: {}", text(&out.stderr));
+        let ate = result_json(&out)["ate_rmse"].as_f64().unwrap();
+        assert!(ate < 0.01, "{what}: ATE {ate}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn ctrl_c_writes_the_trajectory_so_far_and_exits_130() {
     let dir = scratch("ctrlc");

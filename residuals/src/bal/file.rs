@@ -60,7 +60,7 @@ pub fn write(path: impl AsRef<Path>, problem: &BalProblem) -> Result<(), BalErro
 pub fn read(path: impl AsRef<Path>) -> Result<BalProblem, BalError> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| BalError {
+    let text = crate::text::read_to_string(path).map_err(|e| BalError {
         path: name.clone(),
         line: 0,
         message: format!("cannot read: {e}"),
@@ -219,6 +219,18 @@ mod tests {
         0.1\n0.2\n0.3\n1\n2\n3\n500\n0\n0\n\
         0\n0\n0\n0\n0\n0\n400\n0.01\n0\n\
         1 2 -10\n";
+
+    #[test]
+    fn a_gzipped_problem_reads_as_its_text() {
+        use std::io::Write;
+        let path = std::env::temp_dir().join(format!("dynamap-bal-{}.txt.gz", std::process::id()));
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gz.write_all(SMALL.as_bytes()).unwrap();
+        std::fs::write(&path, gz.finish().unwrap()).unwrap();
+        let read = read(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(format(&read), format(&parse(SMALL, "small").unwrap()));
+    }
 
     #[test]
     fn a_written_problem_reads_back_the_same() {

@@ -159,13 +159,13 @@ pub fn read_with(
 ) -> Result<(PoseGraph, Vec<InformationRepair>), G2oError> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|e| G2oError {
+    let file = crate::text::open(path).map_err(|e| G2oError {
         path: name.clone(),
         line: 0,
         message: format!("cannot read: {e}"),
     })?;
     // line by line: a million-pose graph's text is never held whole
-    parse_lines(std::io::BufReader::new(file).lines(), &name, policy)
+    parse_lines(file.lines(), &name, policy)
 }
 
 fn upper<const N: usize>(values: &[f64]) -> nalgebra::SMatrix<f64, N, N> {
@@ -577,6 +577,25 @@ mod tests {
         assert!(mixed.contains("mixes dimensions"), "{mixed}");
         let short = message("VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 10 0 10 10 0\n");
         assert!(short.contains("missing field I23"), "{short}");
+    }
+
+    #[test]
+    fn a_compressed_file_reads_as_its_text() {
+        use std::io::Write;
+        let dir = std::env::temp_dir().join(format!("dynamap-g2o-z-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut bz = bzip2::write::BzEncoder::new(Vec::new(), bzip2::Compression::fast());
+        bz.write_all(GOOD3.as_bytes()).unwrap();
+        let path = dir.join("graph.g2o.bz2");
+        std::fs::write(&path, bz.finish().unwrap()).unwrap();
+        let read = read(&path).unwrap();
+        let plain = parse(GOOD3, &path.display().to_string()).unwrap();
+        assert_eq!(
+            format(&read, &read.vertices),
+            format(&plain, &plain.vertices)
+        );
+        assert_eq!(read.edges.len(), plain.edges.len());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -121,6 +121,15 @@ impl Sequence {
         }
     }
 
+    /// Where a TUM folder's intrinsics come from (`None` for the other layouts, whose folders
+    /// give theirs).
+    pub fn intrinsics_source(&self) -> Option<super::tum::IntrinsicsSource> {
+        match self {
+            Self::Tum(s) => Some(s.intrinsics),
+            _ => None,
+        }
+    }
+
     /// The intrinsics, to be set where the folder does not give them.
     pub fn camera_mut(&mut self) -> &mut Camera {
         match self {

@@ -3,7 +3,10 @@
 //! ORB-SLAM2 reads them), else by nearest timestamp as TUM's `associate.py` does (at most 0.02 s
 //! apart), depth PNGs are 16-bit with 5000 units per metre, `groundtruth.txt` is a TUM
 //! trajectory. An `intrinsics.txt` (`fx fy cx cy depth_scale`, as the project's generator writes)
-//! overrides the intrinsics known for freiburg1/2/3 sequences.
+//! overrides the intrinsics known for freiburg1/2/3 sequences, and so does a `calibration.txt`
+//! (`fx fy cx cy`, the ETH3D SLAM benchmark's, whose depth is at TUM's 5000 units per metre); the
+//! folder's [`IntrinsicsSource`] says which was used. ETH3D's `associated.txt` pairs frames as
+//! `associations.txt` does.
 
 use super::images::{read_color, read_depth};
 use super::trajectory::Trajectory;
@@ -76,6 +79,32 @@ pub struct TumSequence {
     /// Where `associations.txt` paired the frames, the lines it left out (`None` where the
     /// stamps paired them).
     pub listed: Option<LeftOut>,
+    /// Where [`Self::camera`]'s intrinsics come from.
+    pub intrinsics: IntrinsicsSource,
+}
+
+/// Where a TUM-layout folder's intrinsics come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IntrinsicsSource {
+    /// The folder's `intrinsics.txt`.
+    File,
+    /// The folder's `calibration.txt` (ETH3D's `fx fy cx cy`).
+    Eth3d,
+    /// A calibration given when the folder was opened (`with_calibration`).
+    Given,
+    /// The intrinsics TUM publishes for the sensor the folder's name names (`freiburg1`, `2`,
+    /// `3`), for its 640 × 480 images.
+    Published,
+    /// None given: TUM's default Kinect intrinsics (fx = fy = 525 at 640 × 480) are assumed.
+    Assumed,
+}
+
+impl IntrinsicsSource {
+    /// Whether the intrinsics were not read from the folder or given, but taken from TUM's
+    /// published 640 × 480 ones: they fit no other image size.
+    pub fn is_tums(self) -> bool {
+        matches!(self, Self::Published | Self::Assumed)
+    }
 }
 
 /// Reads `rgb.txt` or `depth.txt`: `timestamp filename` per line.
@@ -356,19 +385,75 @@ pub(crate) fn parse_calibration(
     Ok((c, d))
 }
 
-/// The intrinsics TUM publishes for its three sensors, chosen by the folder name.
-pub(crate) fn known_intrinsics(root: &Path) -> Camera {
+/// The intrinsics TUM publishes for its three sensors, chosen by the folder name, and whether
+/// the name chose them (else TUM's default Kinect ones).
+pub(crate) fn known_intrinsics(root: &Path) -> (Camera, IntrinsicsSource) {
     let name = root.to_string_lossy();
-    let (fx, fy, cx, cy) = if name.contains("freiburg1") {
-        (517.3, 516.5, 318.6, 255.3)
-    } else if name.contains("freiburg2") {
-        (520.9, 521.0, 325.1, 249.7)
-    } else if name.contains("freiburg3") {
-        (535.4, 539.2, 320.1, 247.6)
-    } else {
-        (525.0, 525.0, 319.5, 239.5)
+    let named = [
+        ("freiburg1", (517.3, 516.5, 318.6, 255.3)),
+        ("freiburg2", (520.9, 521.0, 325.1, 249.7)),
+        ("freiburg3", (535.4, 539.2, 320.1, 247.6)),
+    ];
+    let (source, (fx, fy, cx, cy)) = match named.iter().find(|(n, _)| name.contains(n)) {
+        Some((_, k)) => (IntrinsicsSource::Published, *k),
+        None => (IntrinsicsSource::Assumed, (525.0, 525.0, 319.5, 239.5)),
     };
-    Camera::new(fx, fy, cx, cy, 640, 480)
+    (Camera::new(fx, fy, cx, cy, 640, 480), source)
+}
+
+/// The intrinsics of a TUM-layout folder whose images are `width` × `height`: its
+/// `intrinsics.txt`, else its `calibration.txt` (ETH3D: `fx fy cx cy`, depth at 5000 units per
+/// metre), else TUM's published ones ([`known_intrinsics`]; the image size set, not scaled).
+fn folder_intrinsics(
+    root: &Path,
+    width: usize,
+    height: usize,
+) -> Result<(Camera, Distortion, IntrinsicsSource), IoError> {
+    let intr = root.join("intrinsics.txt");
+    if intr.exists() {
+        let (c, d) = read_calibration(&intr, width, height)?;
+        return Ok((c, d, IntrinsicsSource::File));
+    }
+    let eth = root.join("calibration.txt");
+    if eth.exists() {
+        let c = parse_eth3d_calibration(&read_text(&eth)?, &eth, width, height)?;
+        return Ok((c, Distortion::default(), IntrinsicsSource::Eth3d));
+    }
+    let (known, source) = known_intrinsics(root);
+    let c = Camera {
+        width,
+        height,
+        ..known
+    };
+    Ok((c, Distortion::default(), source))
+}
+
+/// Parses ETH3D's `calibration.txt`: `fx fy cx cy` on one line (the depth scale is TUM's 5000
+/// units per metre, as ETH3D's depth PNGs have); `path` names it in errors.
+fn parse_eth3d_calibration(
+    text: &str,
+    path: &Path,
+    width: usize,
+    height: usize,
+) -> Result<Camera, IoError> {
+    let (line, f) = data_lines(text)
+        .next()
+        .ok_or_else(|| IoError::file(path, "no calibration line (expected 'fx fy cx cy')"))?;
+    if f.len() != 4 {
+        return Err(IoError::line(
+            path,
+            line,
+            format!("{} numbers; expected 4 (fx fy cx cy)", f.len()),
+        ));
+    }
+    let names = ["fx", "fy", "cx", "cy"];
+    let v: Vec<f64> = (0..4)
+        .map(|k| number(path, line, &f, k, names[k]))
+        .collect::<Result<_, _>>()?;
+    if v[0] == 0.0 || v[1] == 0.0 {
+        return Err(IoError::line(path, line, "focal lengths must be non-zero"));
+    }
+    Ok(Camera::new(v[0], v[1], v[2], v[3], width, height))
 }
 
 /// The frames of the lists paired as [`TumSequence::open_with`] pairs them, and whether
@@ -380,8 +465,10 @@ fn pair_frames(
     max_difference: f64,
     pairing: Pairing,
 ) -> Result<(Associations, bool), IoError> {
-    let listed =
-        Some(root.join("associations.txt")).filter(|p| pairing == Pairing::Listed && p.exists());
+    // ETH3D's folders call the same list `associated.txt`
+    let listed = (pairing == Pairing::Listed)
+        .then(|| ["associations.txt", "associated.txt"].map(|n| root.join(n)))
+        .and_then(|names| names.into_iter().find(|p| p.exists()));
     let paired = if let Some(listed) = &listed {
         parse_associations(&read_text(listed)?, listed, rgb, depth)?
     } else {
@@ -459,17 +546,7 @@ impl TumSequence {
                 let e = first_error.expect("at least one frame was tried");
                 IoError::file(&root, format!("no depth image can be read; the first: {e}"))
             })?;
-        let intr = root.join("intrinsics.txt");
-        let (camera, distortion) = if intr.exists() {
-            read_calibration(&intr, first.width, first.height)?
-        } else {
-            let c = Camera {
-                width: first.width,
-                height: first.height,
-                ..known_intrinsics(&root)
-            };
-            (c, Distortion::default())
-        };
+        let (camera, distortion, intrinsics) = folder_intrinsics(&root, first.width, first.height)?;
         Ok(Self {
             root,
             camera,
@@ -478,6 +555,7 @@ impl TumSequence {
             frames,
             groundtruth,
             undistorter: undistorter_for(&camera, &distortion),
+            intrinsics,
         })
     }
 
@@ -505,6 +583,7 @@ impl TumSequence {
             ..camera
         };
         self.undistorter = undistorter_for(&self.camera, distortion);
+        self.intrinsics = IntrinsicsSource::Given;
         Ok(self)
     }
 
@@ -765,9 +844,19 @@ mod tests {
         assert_eq!((gt(&a), gt(&b)), (Some(2), Some(2)));
     }
 
+    /// Writes `depth` and `color` into `dir` (whose `rgb` and `depth` folders exist), listed as
+    /// depth at 0 and 0.1 s (the same image) and colour at 0.004 s.
+    fn one_image_each(dir: &Path, depth: &Image<u16>, color: &ColorImage) {
+        use super::super::images::{write_color, write_depth};
+        write_depth(dir.join("depth/0.png"), depth).unwrap();
+        write_color(dir.join("rgb/0.png"), color).unwrap();
+        let depth_list = "0.000 depth/0.png\n0.100 depth/0.png\n";
+        std::fs::write(dir.join("depth.txt"), depth_list).unwrap();
+        std::fs::write(dir.join("rgb.txt"), "0.004 rgb/0.png\n").unwrap();
+    }
+
     #[test]
     fn a_sequence_with_distortion_delivers_undistorted_frames() {
-        use super::super::images::{write_color, write_depth};
         let dir = std::env::temp_dir().join(format!("dynamap-undistort-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("rgb")).unwrap();
         std::fs::create_dir_all(dir.join("depth")).unwrap();
@@ -779,19 +868,8 @@ mod tests {
             (0..w * h).map(|k| (100 * (k % w) + k / w) as u16).collect(),
         )
         .unwrap();
-        write_depth(dir.join("depth/0.png"), &depth).unwrap();
-        write_color(
-            dir.join("rgb/0.png"),
-            &ColorImage::filled(w, h, [90, 120, 200]),
-        )
-        .unwrap();
         // a second depth frame with no colour near it is left out, and counted
-        std::fs::write(
-            dir.join("depth.txt"),
-            "0.000 depth/0.png\n0.100 depth/0.png\n",
-        )
-        .unwrap();
-        std::fs::write(dir.join("rgb.txt"), "0.004 rgb/0.png\n").unwrap();
+        one_image_each(&dir, &depth, &ColorImage::filled(w, h, [90, 120, 200]));
         std::fs::write(
             dir.join("intrinsics.txt"),
             "52.5 52.5 31.5 23.5 5000 -0.25 0.05 0.001 0.0 0.0\n",
@@ -840,6 +918,71 @@ mod tests {
             .to_string();
         assert!(e.contains("within 0.001 s"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// ETH3D's layout (`calibration.txt`, `associated.txt`) reads with its intrinsics and
+    /// pairing, a bad calibration line is named, and without any file the intrinsics are TUM's,
+    /// marked as such (published for a freiburg name, else assumed).
+    #[test]
+    fn eth3d_calibration_and_associated_list_are_read_and_tums_are_marked() {
+        let base = std::env::temp_dir().join(format!("dynamap-eth3d-{}", std::process::id()));
+        let dir = base.join("rgbd_dataset_freiburg2_desk");
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        std::fs::create_dir_all(dir.join("depth")).unwrap();
+        // the stamps would pair colour with the depth at 0; the list pairs it with the one at 0.1
+        one_image_each(
+            &dir,
+            &Image::filled(8, 6, 5000),
+            &ColorImage::filled(8, 6, [1, 2, 3]),
+        );
+        std::fs::write(
+            dir.join("associated.txt"),
+            "0.004 rgb/0.png 0.100 depth/0.png\n",
+        )
+        .unwrap();
+        let published = TumSequence::open(&dir).unwrap();
+        assert_eq!(published.intrinsics, IntrinsicsSource::Published);
+        assert!(published.intrinsics.is_tums() && published.listed.is_some());
+        assert_eq!(published.frames[0].timestamp, 0.1);
+        assert_eq!((published.camera.fx, published.camera.width), (520.9, 8));
+        std::fs::write(
+            dir.join("calibration.txt"),
+            "# fx fy cx cy\n7 7.5 3.5 2.5\n",
+        )
+        .unwrap();
+        let eth = TumSequence::open(&dir).unwrap();
+        assert_eq!(eth.intrinsics, IntrinsicsSource::Eth3d);
+        let c = eth.camera;
+        assert_eq!(
+            (c.fx, c.fy, c.cx, c.cy, c.depth_scale),
+            (7.0, 7.5, 3.5, 2.5, 5000.0)
+        );
+        assert_eq!(eth.load(0).unwrap().depth.at(3, 3), 5000);
+        std::fs::write(dir.join("calibration.txt"), "7 7.5 3.5\n").unwrap();
+        let e = TumSequence::open(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains("calibration.txt:1") && e.contains("expected 4"),
+            "{e}"
+        );
+        // intrinsics.txt wins over calibration.txt
+        std::fs::write(dir.join("intrinsics.txt"), "9 9 4 3 1000\n").unwrap();
+        let file = TumSequence::open(&dir).unwrap();
+        assert_eq!(
+            (file.intrinsics, file.camera.fx),
+            (IntrinsicsSource::File, 9.0)
+        );
+        // no file, no sensor in the name: assumed
+        let plain = base.join("desk");
+        std::fs::rename(&dir, &plain).unwrap();
+        for f in ["intrinsics.txt", "calibration.txt"] {
+            std::fs::remove_file(plain.join(f)).unwrap();
+        }
+        let assumed = TumSequence::open(&plain).unwrap();
+        assert_eq!(
+            (assumed.intrinsics, assumed.camera.fx),
+            (IntrinsicsSource::Assumed, 525.0)
+        );
+        std::fs::remove_dir_all(&base).unwrap();
     }
 
     proptest::proptest! {
