@@ -67,7 +67,7 @@ use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
     register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
-    surface_diagonal, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
+    surface_diagonal, FrameError, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
     SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION, MAX_OFF_FRACTION,
     MIN_MATCHED_FRACTION,
 };
@@ -505,8 +505,13 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         .as_deref()
         .map(|p| read_ground_truth_flow(p, &source.camera))
         .transpose()?;
-    let reg = register_frames(&source.frame(), &target.frame(), &settings)
-        .with_context(|| format!("registering {}", args.source.display()))?;
+    // frames of another size than their camera, or no depth in the mask: the input's fault
+    let input = |e: &FrameError| matches!(e, FrameError::Size { .. } | FrameError::NoPoints);
+    let reg = match register_frames(&source.frame(), &target.frame(), &settings) {
+        Err(e) if input(&e) => Err(e).bad_input(),
+        r => r.map_err(anyhow::Error::from),
+    }
+    .with_context(|| format!("registering {}", args.source.display()))?;
     let flow = reg.scene_flow(source.camera.width, source.camera.height);
     if let Some(out) = &args.output {
         let cloud = Mesh {

@@ -912,13 +912,13 @@ fn nonrigid_register_pairs_prints_each_pair_and_the_mean() {
 }
 
 /// `frames` without a mask: the object from graph nodes, the verdict and the surface distance in
-/// the JSON, and the picture; a cut nodes file is bad input naming the file, and so is a
-/// negative `--nearest-within`.
+/// the JSON, and the picture; a cut nodes file is bad input naming the file, and so are a
+/// negative `--nearest-within`, a colour image of another size and a blank source depth.
 #[test]
 fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
-    use dynamap_slam::image::Image;
+    use dynamap_slam::image::{ColorImage, Image};
     use dynamap_slam::io::deepdeform::encode_graph_nodes;
-    use dynamap_slam::io::images::{read_color, write_depth};
+    use dynamap_slam::io::images::{read_color, write_color, write_depth};
     use nalgebra::Vector3;
 
     let dir = scratch("frames_nodes");
@@ -987,6 +987,15 @@ fn nonrigid_register_frames_masks_by_nodes_and_reports_its_verdict() {
     let mut negative = args("nodes.bin");
     negative.push("--nearest-within=-0.1".to_string());
     assert_exit(&run_with(negative), 2, &["--nearest-within", "-0.1"]);
+    // a colour of another size than the depth, and a mask with no depth in it: bad input
+    write_color(path("small.png"), &ColorImage::filled(80, 60, [9, 9, 9])).unwrap();
+    let mut small = args("nodes.bin");
+    small.extend(["--color".to_string(), path("small.png")]);
+    assert_exit(&run_with(small), 2, &["80×60", "160×120"]);
+    write_depth(path("blank.png"), &Image::new(160, 120)).unwrap();
+    let mut blank = args("nodes.bin");
+    blank[1] = path("blank.png");
+    assert_exit(&run_with(blank), 2, &["no valid depth"]);
     let _ = std::fs::remove_dir_all(Path::new(&dir));
 }
 
