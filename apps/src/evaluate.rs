@@ -115,12 +115,16 @@ pub fn main() -> ExitCode {
     cli::run(run)
 }
 
-/// Both trajectories, read as bad input when they fail.
+/// Both trajectories, read as bad input when they fail or hold no pose.
 fn read_pair(gt: &std::path::Path, est: &std::path::Path) -> Result<(Trajectory, Trajectory)> {
-    Ok((
-        Trajectory::read_tum(gt).bad_input()?,
-        Trajectory::read_tum(est).bad_input()?,
-    ))
+    let read = |path: &std::path::Path| {
+        let t = Trajectory::read_tum(path).bad_input()?;
+        if t.is_empty() {
+            return Err(cli::bad_input(format!("{}: no poses", path.display())));
+        }
+        Ok(t)
+    };
+    Ok((read(gt)?, read(est)?))
 }
 
 fn run(args: Args, session: &Session) -> Result<()> {

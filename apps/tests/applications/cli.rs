@@ -214,6 +214,22 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
         2,
         &["none.txt"],
     );
+    // an empty trajectory is named, not left to a stamp search that finds nothing
+    std::fs::write(path("empty.txt"), "# timestamp tx ty tz qx qy qz qw\n").unwrap();
+    let one = path("one.txt");
+    std::fs::write(&one, "0 0 0 0 0 0 0 1\n").unwrap();
+    assert_exit(
+        &run("evaluate", &["rpe", &one, &path("empty.txt")]),
+        2,
+        &["empty.txt: no poses"],
+    );
+    // a folder of no sequence layout is named with the layouts
+    let bare = dir.to_str().unwrap();
+    assert_exit(
+        &run("rigid_slam", &[bare]),
+        2,
+        &["no sequence layout", "rgb.txt"],
+    );
     // a run that cannot write its output is a runtime failure
     let unwritable = path("no-such-folder/out.g2o");
     assert_exit(

@@ -50,11 +50,24 @@ pub enum Sequence {
     Folder(FolderSequence),
 }
 
+/// What [`Sequence::open`] takes, for the message when a folder is none of them.
+const LAYOUTS: &str = "a sequence is a folder in TUM's layout (rgb.txt, depth.txt), ICL-NUIM's \
+    (pose.txt, depth/, color/) or a plain one (depth/ and color/ with intrinsics.txt or an \
+    Open3D camera_*.json)";
+
 impl Sequence {
     /// Opens `root`, telling its layout by its files; a calibration is refused for a layout other
     /// than TUM's.
     pub fn open(root: impl AsRef<Path>, options: &OpenOptions) -> Result<Self, IoError> {
         let root = root.as_ref();
+        if !root.is_dir() {
+            let what = if root.exists() {
+                "is not a folder"
+            } else {
+                "does not exist"
+            };
+            return Err(IoError::file(root, format!("{what}: {LAYOUTS}")));
+        }
         if root.join("rgb.txt").exists() || root.join("depth.txt").exists() {
             let seq = TumSequence::open_with(root, options.max_difference, options.pairing)?;
             return Ok(Self::Tum(match &options.calibration {
@@ -73,6 +86,12 @@ impl Sequence {
             let poses = seq.poses.clone();
             let stamps = (0..poses.len()).map(|i| i as f64 / 30.0).collect();
             return Ok(Self::IclNuim(seq, Trajectory { stamps, poses }));
+        }
+        if !root.join("depth").is_dir() {
+            return Err(IoError::file(
+                root,
+                format!("no sequence layout: {LAYOUTS}"),
+            ));
         }
         Ok(Self::Folder(FolderSequence::open(
             root,
@@ -271,6 +290,19 @@ mod tests {
         assert!(err.to_string().contains("TUM-layout"), "{err}");
         // fr1's calibration is for 640x480 frames, these are 4x3
         assert!(Sequence::open(&tum, &calibrated).is_err());
+        // a file, a missing path and a folder of no layout are named as such, with the layouts
+        let file = tum.join("rgb.txt");
+        let (missing, bare) = (root.join("missing"), root.join("bare"));
+        std::fs::create_dir_all(bare.join("color")).unwrap();
+        for (path, says) in [
+            (&file, "is not a folder"),
+            (&missing, "does not exist"),
+            (&bare, "no sequence layout"),
+        ] {
+            let e = Sequence::open(path, &OpenOptions::default()).unwrap_err();
+            let e = e.to_string();
+            assert!(e.contains(says) && e.contains("rgb.txt, depth.txt"), "{e}");
+        }
         std::fs::remove_dir_all(&root).unwrap();
     }
 }
