@@ -477,6 +477,15 @@ fn read_ground_truth_flow(path: &Path, camera: &Camera) -> Result<Image<[f32; 3]
     Ok(gt)
 }
 
+/// A frame registration's error: bad input (exit code 2) for frames of another size than their
+/// camera or no depth in the mask, which are what the user gave; a runtime failure otherwise.
+fn input_or_failure(e: FrameError) -> anyhow::Error {
+    match e {
+        FrameError::Size { .. } | FrameError::NoPoints => cli::bad_input(e),
+        e => e.into(),
+    }
+}
+
 /// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &FrameArgs) -> Result<()> {
@@ -505,13 +514,9 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         .as_deref()
         .map(|p| read_ground_truth_flow(p, &source.camera))
         .transpose()?;
-    // frames of another size than their camera, or no depth in the mask: the input's fault
-    let input = |e: &FrameError| matches!(e, FrameError::Size { .. } | FrameError::NoPoints);
-    let reg = match register_frames(&source.frame(), &target.frame(), &settings) {
-        Err(e) if input(&e) => Err(e).bad_input(),
-        r => r.map_err(anyhow::Error::from),
-    }
-    .with_context(|| format!("registering {}", args.source.display()))?;
+    let reg = register_frames(&source.frame(), &target.frame(), &settings)
+        .map_err(input_or_failure)
+        .with_context(|| format!("registering {}", args.source.display()))?;
     let flow = reg.scene_flow(source.camera.width, source.camera.height);
     if let Some(out) = &args.output {
         let cloud = Mesh {
