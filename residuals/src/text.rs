@@ -94,7 +94,7 @@ mod tests {
         let twice = [gz.clone(), gz.clone()].concat();
         for (name, bytes, want) in [
             ("plain.txt", text.as_bytes().to_vec(), text.clone()),
-            ("g.txt", gz, text.clone()),
+            ("g.txt", gz.clone(), text.clone()),
             ("b.g2o", bz.clone(), text.clone()),
             ("twice.gz", twice, text.repeat(2)),
         ] {
@@ -104,10 +104,12 @@ mod tests {
             assert_eq!(lines, want.lines().count(), "{name}");
             std::fs::remove_file(path).unwrap();
         }
-        // a cut stream is an error, not a shorter text
-        let path = file("cut.bz2", &bz[..bz.len() / 2]);
-        assert!(read_to_string(&path).is_err());
-        std::fs::remove_file(path).unwrap();
+        // a cut stream is an error, not a shorter text, in either format
+        for (name, whole) in [("cut.bz2", &bz), ("cut.gz", &gz)] {
+            let path = file(name, &whole[..whole.len() / 2]);
+            assert!(read_to_string(&path).is_err(), "{name}");
+            std::fs::remove_file(path).unwrap();
+        }
     }
 
     #[test]

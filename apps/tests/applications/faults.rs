@@ -5,6 +5,8 @@
 use crate::common::{binary, result_json, run, scratch, text};
 use dynamap_slam::camera::Camera;
 use dynamap_slam::eval::{ate, Alignment, MAX_STAMP_DIFFERENCE};
+use dynamap_slam::image::Image;
+use dynamap_slam::io::images::write_depth;
 use dynamap_slam::io::trajectory::Trajectory;
 use dynamap_slam::synthetic::faults::{write_faulty, FaultPlan};
 use dynamap_slam::synthetic::motion::{self, Motion};
@@ -179,9 +181,7 @@ fn a_run_that_tracks_no_frame_fails_and_says_why() {
     }
     let unreadable = run("rigid_slam", &[seq, "--output", out, "--max-frames", "2"]);
     for path in &depth {
-        image::ImageBuffer::<image::Luma<u16>, _>::new(320, 240)
-            .save(path)
-            .unwrap();
+        write_depth(path, &Image::new(320, 240)).unwrap();
     }
     let blank = run("rigid_slam", &[seq, "--output", out]);
     let first = depth[0].display().to_string();
@@ -219,9 +219,7 @@ fn a_run_that_tracks_no_frame_fails_and_says_why() {
     );
     assert!(made.status.success(), "{}", text(&made.stderr));
     for entry in std::fs::read_dir(deforming.join("depth")).unwrap() {
-        image::ImageBuffer::<image::Luma<u16>, _>::new(640, 480)
-            .save(entry.unwrap().path())
-            .unwrap();
+        write_depth(entry.unwrap().path(), &Image::new(640, 480)).unwrap();
     }
     let fused = run("nonrigid_slam", &[deforming.to_str().unwrap()]);
     let stderr = text(&fused.stderr);

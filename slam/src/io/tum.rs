@@ -310,6 +310,64 @@ pub fn parse_intrinsics(
     Ok(camera)
 }
 
+/// The form of a calibration file's one line of numbers.
+struct NumbersLine {
+    /// What the line holds, and its fields as written, for the messages.
+    what: &'static str,
+    fields: &'static str,
+    /// The numbers' names, in order.
+    names: &'static [&'static str],
+    /// How many numbers the line may hold, and the same in words.
+    counts: &'static [usize],
+    counts_text: &'static str,
+}
+
+/// `intrinsics.txt`: `fx fy cx cy depth_scale [k1 k2 p1 p2 k3]`.
+const INTRINSICS_LINE: NumbersLine = NumbersLine {
+    what: "intrinsics",
+    fields: "fx fy cx cy depth_scale [k1 k2 p1 p2 k3]",
+    names: &[
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "depth_scale",
+        "k1",
+        "k2",
+        "p1",
+        "p2",
+        "k3",
+    ],
+    counts: &[5, 10],
+    counts_text: "5 (fx fy cx cy depth_scale) or 10 (and k1 k2 p1 p2 k3)",
+};
+
+/// ETH3D's `calibration.txt`: `fx fy cx cy`.
+const ETH3D_LINE: NumbersLine = NumbersLine {
+    what: "calibration",
+    fields: "fx fy cx cy",
+    names: &["fx", "fy", "cx", "cy"],
+    counts: &[4],
+    counts_text: "4 (fx fy cx cy)",
+};
+
+/// The first data line of `text` (`path` names it in errors) read as `form` says: its line
+/// number and its numbers.
+fn numbers_line(text: &str, path: &Path, form: &NumbersLine) -> Result<(usize, Vec<f64>), IoError> {
+    let (line, f) = data_lines(text).next().ok_or_else(|| {
+        let (what, fields) = (form.what, form.fields);
+        IoError::file(path, format!("no {what} line (expected '{fields}')"))
+    })?;
+    if !form.counts.contains(&f.len()) {
+        let message = format!("{} numbers; expected {}", f.len(), form.counts_text);
+        return Err(IoError::line(path, line, message));
+    }
+    let v = (0..f.len())
+        .map(|k| number(path, line, &f, k, form.names[k]))
+        .collect::<Result<_, _>>()?;
+    Ok((line, v))
+}
+
 /// Reads `intrinsics.txt` with optional Brown–Conrady coefficients:
 /// `fx fy cx cy depth_scale [k1 k2 p1 p2 k3]` on one line (OpenCV's order).
 pub fn read_calibration(
@@ -327,37 +385,7 @@ pub(crate) fn parse_calibration(
     width: usize,
     height: usize,
 ) -> Result<(Camera, Distortion), IoError> {
-    let (line, f) = data_lines(text).next().ok_or_else(|| {
-        IoError::file(
-            path,
-            "no intrinsics line (expected 'fx fy cx cy depth_scale [k1 k2 p1 p2 k3]')",
-        )
-    })?;
-    if f.len() != 5 && f.len() != 10 {
-        return Err(IoError::line(
-            path,
-            line,
-            format!(
-                "{} numbers; expected 5 (fx fy cx cy depth_scale) or 10 (and k1 k2 p1 p2 k3)",
-                f.len()
-            ),
-        ));
-    }
-    let names = [
-        "fx",
-        "fy",
-        "cx",
-        "cy",
-        "depth_scale",
-        "k1",
-        "k2",
-        "p1",
-        "p2",
-        "k3",
-    ];
-    let v: Vec<f64> = (0..f.len())
-        .map(|k| number(path, line, &f, k, names[k]))
-        .collect::<Result<_, _>>()?;
+    let (line, v) = numbers_line(text, path, &INTRINSICS_LINE)?;
     if v[0] == 0.0 || v[1] == 0.0 || v[4] <= 0.0 {
         return Err(IoError::line(
             path,
@@ -436,20 +464,7 @@ fn parse_eth3d_calibration(
     width: usize,
     height: usize,
 ) -> Result<Camera, IoError> {
-    let (line, f) = data_lines(text)
-        .next()
-        .ok_or_else(|| IoError::file(path, "no calibration line (expected 'fx fy cx cy')"))?;
-    if f.len() != 4 {
-        return Err(IoError::line(
-            path,
-            line,
-            format!("{} numbers; expected 4 (fx fy cx cy)", f.len()),
-        ));
-    }
-    let names = ["fx", "fy", "cx", "cy"];
-    let v: Vec<f64> = (0..4)
-        .map(|k| number(path, line, &f, k, names[k]))
-        .collect::<Result<_, _>>()?;
+    let (line, v) = numbers_line(text, path, &ETH3D_LINE)?;
     if v[0] == 0.0 || v[1] == 0.0 {
         return Err(IoError::line(path, line, "focal lengths must be non-zero"));
     }
