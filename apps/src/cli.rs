@@ -232,8 +232,18 @@ fn die_quietly_on_a_closed_pipe() {
     }
 }
 
-/// `--threads N`: rayon's global pool with N threads (0 keeps rayon's default, one per core).
+/// The most threads `--threads` may ask for: more than any machine's cores, and few enough to
+/// start at once (100 000 did not start within 30 s).
+pub const MAX_THREADS: usize = 1024;
+
+/// `--threads N`: rayon's global pool with N threads (0 keeps rayon's default, one per core; at
+/// most [`MAX_THREADS`]).
 pub fn set_threads(threads: usize) -> Result<()> {
+    if threads > MAX_THREADS {
+        return Err(bad_input(format!(
+            "--threads must be at most {MAX_THREADS}, not {threads}"
+        )));
+    }
     if threads > 0 {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)

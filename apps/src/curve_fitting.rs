@@ -154,15 +154,19 @@ fn generate(args: &Args, m: f64, c: f64) -> Result<Vec<(f64, f64)>> {
         .collect())
 }
 
+/// The most observations `--points` generates: a residual block each, a few hundred bytes; 10⁹
+/// of them were killed for memory.
+const MAX_POINTS: usize = 10_000_000;
+
 pub fn main() -> ExitCode {
     cli::run(run)
 }
 
 fn run(args: Args, session: &Session) -> Result<()> {
-    if !(0.0..1.0).contains(&args.outliers) || args.points < 2 {
-        return Err(cli::bad_input(
-            "--outliers must be in [0, 1) and --points at least 2",
-        ));
+    if !(0.0..1.0).contains(&args.outliers) || !(2..=MAX_POINTS).contains(&args.points) {
+        return Err(cli::bad_input(format!(
+            "--outliers must be in [0, 1) and --points between 2 and {MAX_POINTS}"
+        )));
     }
     let (m, c) = (0.3, 0.1);
     let data = match &args.data {

@@ -9,6 +9,7 @@
 //! the distances of the mesh's vertices to the generated scene's surface and the share off it).
 
 use crate::cli;
+use crate::flag_checks;
 use crate::preview;
 
 use anyhow::{Context, Result};
@@ -129,6 +130,7 @@ fn read_pair(gt: &std::path::Path, est: &std::path::Path) -> Result<(Trajectory,
 
 fn run(args: Args, session: &Session) -> Result<()> {
     let quiet = session.quiet;
+    check_flags(&args.metric)?;
     match args.metric {
         Metric::Ate {
             gt,
@@ -163,6 +165,21 @@ fn run(args: Args, session: &Session) -> Result<()> {
         )?,
     }
     Ok(())
+}
+
+/// Refuses a stamp limit or an RPE interval that no pair of poses can meet (NaN, negative, or
+/// an interval of zero), naming the flag, before the files are read.
+fn check_flags(metric: &Metric) -> Result<()> {
+    let max_difference = match metric {
+        Metric::Ate { max_difference, .. }
+        | Metric::Rpe { max_difference, .. }
+        | Metric::Mesh { max_difference, .. } => *max_difference,
+    };
+    flag_checks::non_negative("--max-difference", max_difference)?;
+    match metric {
+        Metric::Rpe { delta, .. } => flag_checks::positive("--delta", *delta),
+        _ => Ok(()),
+    }
 }
 
 /// `evaluate ate`: prints the statistics (unless quiet) and the JSON line; `--preview` plots.

@@ -18,6 +18,7 @@
 
 use crate::cli;
 use crate::deform_flags::{DeformMotion, SurfaceArg};
+use crate::flag_checks;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -149,6 +150,7 @@ impl SequenceFlags {
         if self.width < 8 || self.height < 8 {
             return Err(cli::bad_input("--width and --height must be at least 8"));
         }
+        flag_checks::frame_size(self.width, self.height)?;
         if !(self.fps > 0.0 && self.fps.is_finite()) || self.frames == 0 {
             return Err(cli::bad_input(
                 "--fps must be positive and --frames at least 1",

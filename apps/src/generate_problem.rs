@@ -179,6 +179,14 @@ fn run(args: Args, _session: &Session) -> Result<()> {
     Ok(())
 }
 
+/// The most cameras or points a generated BAL problem may have: beyond the largest published
+/// one (Final-13682, 4.4 million points); a problem of 10⁹ aborted on its allocation.
+const MAX_SIZE: usize = 5_000_000;
+
+/// The most poses (or wrong loops) a generated pose graph may have: four hundred times
+/// sphere2500's; ten million took 10 GB to generate.
+const MAX_POSES: usize = 1_000_000;
+
 /// `bal`: generates the problem and writes it; the summary line.
 fn write_bal(a: BalArgs) -> Result<serde_json::Value> {
     let (layout, views) = match a.layout {
@@ -189,6 +197,14 @@ fn write_bal(a: BalArgs) -> Result<serde_json::Value> {
         return Err(cli::bad_input(format!(
             "--cameras {} must be at least 2 and, on the ring, at least the largest --views count {}",
             a.cameras, views.1
+        )));
+    }
+    let points = a.cameras.checked_mul(a.points_per_camera);
+    if a.cameras > MAX_SIZE || !points.is_some_and(|p| (1..=MAX_SIZE).contains(&p)) {
+        return Err(cli::bad_input(format!(
+            "--cameras and --cameras × --points-per-camera must be at most {MAX_SIZE} (and the \
+             points at least 1), not {} and {} × {}",
+            a.cameras, a.cameras, a.points_per_camera
         )));
     }
     if !((0.0..=1.0).contains(&a.outliers) && a.pixel_noise >= 0.0 && a.pixel_noise.is_finite()) {
@@ -216,6 +232,18 @@ fn write_bal(a: BalArgs) -> Result<serde_json::Value> {
 
 /// `pose-graph`: generates (or reads) the graph, adds the wrong loops and writes it; the summary.
 fn write_pose_graph(a: PoseGraphArgs) -> Result<serde_json::Value> {
+    let poses = a.poses.unwrap_or(0).max(a.rings.saturating_mul(a.per_ring));
+    if poses > MAX_POSES || a.false_loops > MAX_POSES {
+        return Err(cli::bad_input(format!(
+            "--poses (or --rings × --per-ring) and --false-loops must be at most {MAX_POSES}"
+        )));
+    }
+    if a.poses.is_some_and(|n| n < 6) {
+        return Err(cli::bad_input(format!(
+            "--poses must be at least 6, not {}",
+            a.poses.unwrap_or(0)
+        )));
+    }
     let mut graph = match &a.from {
         Some(path) => g2o::read(path).bad_input()?,
         None => generate_pose_graph(&a)?,

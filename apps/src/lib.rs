@@ -25,6 +25,7 @@
 //!
 //! - [`cli`]: the flags every binary has (`--config`, `--print-config`, `-v`/`-q`), the progress
 //!   bar, Ctrl-C, and the exit codes (0 ok, 1 failure, 2 bad input, 130 interrupted);
+//! - [`flag_checks`]: the ranges numeric flags must lie in, checked before a run starts;
 //! - [`warp_flags`]: the warp-field flags of the two non-rigid applications; [`deform_flags`]:
 //!   the generated deforming scene's field and surface;
 //! - [`iterations`]: the solver's iteration table; [`preview`]: `--preview` pictures;
@@ -36,6 +37,7 @@
 pub mod bench;
 pub mod cli;
 pub mod deform_flags;
+pub mod flag_checks;
 pub mod iterations;
 pub mod preview;
 pub mod rerun_log;

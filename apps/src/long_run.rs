@@ -11,6 +11,7 @@
 //! that grows with the run, 64 bytes a frame, in steps as its vectors double).
 
 use crate::cli;
+use crate::flag_checks;
 use crate::preview;
 
 use anyhow::{Context, Result};
@@ -164,12 +165,22 @@ pub fn main() -> ExitCode {
     cli::run(run)
 }
 
-fn run(args: Args, session: &Session) -> Result<()> {
+/// Refuses a frame too small to track or too large to render, and counts of zero.
+fn check_flags(args: &Args) -> Result<()> {
     if args.width < 32 || args.height < 24 || args.frames == 0 || args.every == 0 {
         return Err(cli::bad_input(
             "--width at least 32, --height at least 24, --frames and --every at least 1",
         ));
     }
+    flag_checks::frame_size(args.width, args.height)?;
+    if args.max_blocks == 0 {
+        return Err(cli::bad_input("--max-blocks must be at least 1"));
+    }
+    Ok(())
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    check_flags(&args)?;
     let camera = Camera::scaled_default(args.width, args.height);
     let mut params = SlamParams::default();
     params.tsdf.max_blocks = args.max_blocks;

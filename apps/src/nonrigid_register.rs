@@ -47,6 +47,7 @@
 //! before and after.
 
 use crate::cli;
+use crate::flag_checks;
 use crate::preview::registration_picture;
 use crate::warp_flags;
 
@@ -752,8 +753,10 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         Some(p) => Some(VertexMap::read(p, sp.len(), tp.len()).bad_input()?),
         None => None,
     };
+    let passes = args.seeded_passes.unwrap_or(Seeding::default().passes);
+    flag_checks::iterations("--seeded-passes", &[passes], false)?;
     let seeding = Seeding {
-        passes: args.seeded_passes.unwrap_or(Seeding::default().passes),
+        passes,
         ..Seeding::default()
     };
     let reg = register_mesh_or_cloud(

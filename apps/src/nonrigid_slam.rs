@@ -19,6 +19,7 @@
 //! (2 when no frame could be read).
 
 use crate::cli;
+use crate::flag_checks;
 use crate::preview;
 use crate::rerun_log;
 use crate::warp_flags;
@@ -170,8 +171,14 @@ fn params(args: &Args) -> Result<FusionParams> {
             "--photometric-window and --photometric-keyframe-every must be at least 1",
         ));
     }
-    if !(p.tsdf.voxel_size > 0.0 && p.tsdf.voxel_size.is_finite()) {
-        return Err(cli::bad_input("--voxel-size must be a positive length"));
+    flag_checks::voxel("--voxel-size", p.tsdf.voxel_size, 1.0)?;
+    flag_checks::positive("--data-spacing", p.data_spacing)?;
+    let coarsest = p.preprocess.levels.saturating_sub(1);
+    if p.data_level > coarsest {
+        return Err(cli::bad_input(format!(
+            "--data-level must be at most {coarsest} (the front end's pyramid has {} levels), not {}",
+            p.preprocess.levels, p.data_level
+        )));
     }
     Ok(p)
 }

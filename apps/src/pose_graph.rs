@@ -216,6 +216,22 @@ fn solver_options(args: &Args) -> Options {
     }
 }
 
+/// Refuses flags the solver cannot run with (a NaN or negative tolerance, a damping τ that is
+/// not positive), named by the flag, before the graph is read.
+fn check_options(args: &Args) -> Result<()> {
+    match solver_options(args).check() {
+        Err(SolveError::InvalidOption { name, value, must }) => {
+            let flag = match name {
+                "initial_damping_tau" => "--tau",
+                "function_tolerance" => "--function-tolerance",
+                other => other,
+            };
+            Err(cli::bad_input(format!("{flag} {must}, not {value}")))
+        }
+        other => other.map_err(Into::into),
+    }
+}
+
 /// A solve's error, as bad input when it names vertices of the file.
 fn solve_error(e: SolveError, graph: &PoseGraph, pg: &PoseGraphProblem) -> anyhow::Error {
     match pg.describe(&e, &graph.source) {
@@ -336,6 +352,7 @@ pub fn main() -> ExitCode {
 fn run(args: Args, session: &Session) -> Result<()> {
     let quiet = session.quiet;
     cli::set_threads(args.threads)?;
+    check_options(&args)?;
     let Loaded {
         graph,
         truth,

@@ -24,6 +24,7 @@
 //! Ctrl-C stops after the current frame, writes the outputs so far and exits with code 130.
 
 use crate::cli;
+use crate::flag_checks;
 use crate::preview;
 use crate::rerun_log;
 
@@ -211,6 +212,7 @@ cli::has_common!(Args);
 
 /// The SLAM parameters the flags set, checked.
 fn params(args: &Args) -> Result<SlamParams> {
+    check_flags(args)?;
     let mut p = SlamParams::default();
     p.tsdf.voxel_size = args.voxel_size;
     p.tsdf.truncation_voxels = args.truncation;
@@ -236,17 +238,6 @@ fn params(args: &Args) -> Result<SlamParams> {
     p.relocalise.loops.loop_deviation = args.loop_deviation;
     p.relocalise.loops.odometry_drift = args.odometry_drift;
     p.relocalise.loops.tracking_spread = !args.no_tracking_spread;
-    if !(0.0..1.0).contains(&args.min_conditioning) {
-        return Err(cli::bad_input(
-            "--min-conditioning is a ratio of eigenvalues: at least 0 and below 1",
-        ));
-    }
-    let deviations = [args.loop_deviation, args.odometry_drift];
-    if !deviations.iter().all(|d| d.is_finite() && *d > 0.0) {
-        return Err(cli::bad_input(
-            "--loop-deviation and --odometry-drift must be positive",
-        ));
-    }
     if args.submaps {
         if args.no_relocalise || args.submap_frames == 0 {
             return Err(cli::bad_input(
@@ -258,24 +249,64 @@ fn params(args: &Args) -> Result<SlamParams> {
             overlap: args.submap_overlap,
         });
     }
-    let positive = p.tsdf.voxel_size.is_finite() && p.tsdf.voxel_size > 0.0;
-    if !positive || p.tsdf.truncation_voxels.is_nan() || p.tsdf.truncation_voxels < 1.0 {
-        return Err(cli::bad_input(
-            "--voxel-size must be positive and --truncation at least 1 voxel",
-        ));
+    Ok(p)
+}
+
+/// Refuses flag values outside what their settings mean ([`flag_checks`]): the map's, the
+/// tracker's, the keyframe graph's and the intrinsics'.
+fn check_flags(args: &Args) -> Result<()> {
+    use flag_checks::{iterations, non_negative, positive, voxel, within};
+    let tsdf = SlamParams::default().tsdf;
+    voxel("--voxel-size", args.voxel_size, 1.0)?;
+    // a band (truncation × voxel) wider than the depth range fused is no band
+    let widest = f64::from(tsdf.max_depth) / f64::from(args.voxel_size);
+    let band = (1.0, widest.floor());
+    within("--truncation", args.truncation, band, " voxels")?;
+    within("--max-weight", args.max_weight, (1.0, 1e6), "")?;
+    if args.max_blocks == 0 {
+        return Err(cli::bad_input("--max-blocks must be at least 1"));
     }
-    let weight_ok = p.tsdf.max_weight.is_finite() && p.tsdf.max_weight >= 1.0;
-    if p.tracker.iterations.is_empty() || !weight_ok || p.tsdf.max_blocks == 0 {
-        return Err(cli::bad_input(
-            "--iterations needs a level, --max-weight at least 1, --max-blocks at least 1",
-        ));
+    if args.iterations.is_empty() {
+        return Err(cli::bad_input("--iterations needs a level"));
     }
-    if p.tracker.strides.contains(&0) {
+    iterations("--iterations", &args.iterations, true)?;
+    if args.strides.contains(&0) {
         return Err(cli::bad_input(
             "--strides must be at least 1 on every level",
         ));
     }
-    Ok(p)
+    positive("--max-distance", args.max_distance)?;
+    positive("--max-angle", args.max_angle)?;
+    within("--max-angle", args.max_angle, (0.0, 180.0), " degrees")?;
+    non_negative("--motion-prior", args.motion_prior)?;
+    if let Some(lambda) = args.lambda {
+        non_negative("--lambda", lambda)?;
+    }
+    if let Some(kappa) = args.photometric_balance {
+        non_negative("--photometric-balance", kappa)?;
+    }
+    if !(0.0..1.0).contains(&args.min_conditioning) {
+        return Err(cli::bad_input(
+            "--min-conditioning is a ratio of eigenvalues: at least 0 and below 1",
+        ));
+    }
+    positive("--loop-deviation", args.loop_deviation)?;
+    positive("--odometry-drift", args.odometry_drift)?;
+    check_intrinsics_flags(args)
+}
+
+/// Refuses intrinsics flags that no camera has (a focal length or depth scale of zero or less,
+/// a principal point at infinity), whether or not the folder's `intrinsics.txt` overrides them.
+fn check_intrinsics_flags(args: &Args) -> Result<()> {
+    use flag_checks::{finite, positive};
+    for (flag, value) in [("--fx", args.fx), ("--fy", args.fy)] {
+        value.map_or(Ok(()), |v| positive(flag, v))?;
+    }
+    for (flag, value) in [("--cx", args.cx), ("--cy", args.cy)] {
+        value.map_or(Ok(()), |v| finite(flag, v))?;
+    }
+    args.depth_scale
+        .map_or(Ok(()), |v| positive("--depth-scale", v))
 }
 
 /// Renders the default sequence (60 frames orbiting the room, 640×480, recorded by the
@@ -485,11 +516,18 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
     warn_of_unread_frames(dir, &seq, args.max_difference);
-    let given = [args.fx, args.fy, args.cx, args.cy]
-        .iter()
-        .all(Option::is_some);
+    let flags = [args.fx, args.fy, args.cx, args.cy, args.depth_scale];
+    let given = flags[..4].iter().all(Option::is_some);
     cli::check_tum_intrinsics(dir, &seq, Some(given))?;
-    if !dir.join("intrinsics.txt").exists() {
+    if dir.join("intrinsics.txt").exists() {
+        if flags.iter().any(Option::is_some) {
+            tracing::warn!(
+                "{}: intrinsics.txt gives the intrinsics; --fx, --fy, --cx, --cy and \
+                 --depth-scale are for folders without one, and are ignored",
+                dir.display()
+            );
+        }
+    } else {
         let c = seq.camera_mut();
         c.fx = args.fx.unwrap_or(c.fx);
         c.fy = args.fy.unwrap_or(c.fy);

@@ -1,6 +1,7 @@
 //! The warp-field flags shared by `nonrigid_register` and `nonrigid_slam` (each application sets
 //! its own defaults first; a flag given overrides them).
 
+use crate::flag_checks;
 use dynamap_slam::nonrigid::{GraphParams, LinearSteps, RegisterParams};
 
 /// Settings of the deformation graph and the warp-field optimiser.
@@ -110,7 +111,7 @@ impl WarpFlags {
             })
     }
 
-    /// Overrides the settings with the flags given; a spacing must be a positive length.
+    /// Overrides the settings with the flags given, and refuses settings outside what they mean.
     pub fn apply(
         &self,
         graph: &mut GraphParams,
@@ -134,17 +135,43 @@ impl WarpFlags {
         set(&self.damping, &mut register.damping);
         set(&self.linear, &mut register.linear);
         set(&self.cover, &mut register.cover);
-        if !(register.cover >= 0.0 && register.cover.is_finite()) {
-            anyhow::bail!("--cover must be 0 or a positive number of point spacings");
-        }
-        if !(register.damping > 0.0 && register.damping.is_finite()) {
-            anyhow::bail!("--damping must be a positive number");
-        }
-        if !(graph.spacing > 0.0 && graph.spacing.is_finite()) {
-            anyhow::bail!("--spacing must be a positive length");
-        }
-        Ok(())
+        check(graph, register)
     }
+}
+
+/// Refuses settings outside what they mean ([`flag_checks`]), named by their flags.
+fn check(graph: &GraphParams, register: &RegisterParams) -> anyhow::Result<()> {
+    use flag_checks::{iterations, non_negative, positive, within};
+    if !(register.cover >= 0.0 && register.cover.is_finite()) {
+        anyhow::bail!("--cover must be 0 or a positive number of point spacings");
+    }
+    if !(register.damping > 0.0 && register.damping.is_finite()) {
+        anyhow::bail!("--damping must be a positive number");
+    }
+    if !(graph.spacing > 0.0 && graph.spacing.is_finite()) {
+        anyhow::bail!("--spacing must be a positive length");
+    }
+    for &w in &register.schedule {
+        non_negative("--schedule", w)?;
+    }
+    if register.schedule.is_empty() {
+        anyhow::bail!("--schedule needs a stage");
+    }
+    // with no round or no iteration the field never moves, and every frame would pass as met
+    iterations("--rounds", &[register.rounds], true)?;
+    iterations("--iterations", &[register.iterations], true)?;
+    iterations("--rigid-iterations", &[register.rigid_iterations], false)?;
+    positive("--max-distance", register.max_distance)?;
+    positive("--max-angle", register.max_normal_angle_deg)?;
+    within(
+        "--max-angle",
+        register.max_normal_angle_deg,
+        (0.0, 180.0),
+        " degrees",
+    )?;
+    positive("--tukey", register.tukey)?;
+    non_negative("--point-weight", register.point_weight)?;
+    non_negative("--stay-weight", register.stay_weight)
 }
 
 /// `cmd` with `text` appended to the help of its argument `id` (for defaults known only at run

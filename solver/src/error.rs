@@ -71,4 +71,15 @@ pub enum SolveError {
     /// The sparse factorisation could not be set up.
     #[error("linear solver: {0}")]
     LinearSolver(String),
+    /// An option outside the values it can take (checked before anything is evaluated, as
+    /// Ceres' `Solver::Options::IsValid` does).
+    #[error("option {name} = {value} {must}")]
+    InvalidOption {
+        /// The field of [`crate::Options`].
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// What it must be, as the end of a sentence ("must be 0 or more").
+        must: &'static str,
+    },
 }

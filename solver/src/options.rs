@@ -1,6 +1,7 @@
 //! The minimiser's settings: the method, its stopping tests, the linear solver and what the Schur
 //! solvers eliminate.
 
+use crate::error::SolveError;
 use crate::problem::VarId;
 
 /// The minimisation method.
@@ -79,6 +80,39 @@ pub struct Options {
     pub pcg_forcing: f64,
 }
 
+impl Options {
+    /// Refuses options no solve can run with: a NaN or negative tolerance or time limit, a
+    /// damping or trust radius that is not positive (as Ceres' `Solver::Options::IsValid`). An
+    /// infinite time limit is none; a tolerance of 0 never stops a solve by itself.
+    pub fn check(&self) -> Result<(), SolveError> {
+        let at_least_zero = [
+            ("max_seconds", self.max_seconds),
+            ("gradient_tolerance", self.gradient_tolerance),
+            ("step_tolerance", self.step_tolerance),
+            ("function_tolerance", self.function_tolerance),
+            ("pcg_tolerance", self.pcg_tolerance),
+            ("pcg_forcing", self.pcg_forcing),
+        ];
+        for (name, value) in at_least_zero {
+            if value.is_nan() || value < 0.0 {
+                let must = "must be 0 or more";
+                return Err(SolveError::InvalidOption { name, value, must });
+            }
+        }
+        let positive = [
+            ("initial_damping_tau", self.initial_damping_tau),
+            ("initial_trust_radius", self.initial_trust_radius),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                let must = "must be a positive number";
+                return Err(SolveError::InvalidOption { name, value, must });
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for Options {
     fn default() -> Self {
         Self {
@@ -133,5 +167,57 @@ impl LinearSolverKind {
             self,
             Self::Schur | Self::SchurDense | Self::SchurSparse | Self::SchurIterative
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn options_no_solve_can_run_with_are_named() {
+        assert_eq!(Options::default().check(), Ok(()));
+        let unlimited = Options {
+            max_seconds: f64::INFINITY,
+            function_tolerance: 0.0,
+            ..Options::default()
+        };
+        assert_eq!(unlimited.check(), Ok(()));
+        let cases = [
+            (
+                "function_tolerance",
+                Options {
+                    function_tolerance: f64::NAN,
+                    ..Options::default()
+                },
+            ),
+            (
+                "step_tolerance",
+                Options {
+                    step_tolerance: -1e-9,
+                    ..Options::default()
+                },
+            ),
+            (
+                "initial_damping_tau",
+                Options {
+                    initial_damping_tau: 0.0,
+                    ..Options::default()
+                },
+            ),
+            (
+                "initial_trust_radius",
+                Options {
+                    initial_trust_radius: f64::INFINITY,
+                    ..Options::default()
+                },
+            ),
+        ];
+        for (field, options) in cases {
+            match options.check() {
+                Err(SolveError::InvalidOption { name, .. }) => assert_eq!(name, field),
+                other => panic!("{field}: {other:?}"),
+            }
+        }
     }
 }

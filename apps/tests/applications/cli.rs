@@ -224,6 +224,66 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Flag values outside what their settings mean are refused before anything runs, naming the
+/// flag and the value. Before, a voxel of 0.01 mm or a truncation of 10⁹ voxels ran for hours,
+/// negative weights and gates ran (a negative distance gate squared into the positive one),
+/// zero iterations fused frames never registered, a frame of 100 000² pixels aborted on its
+/// allocation, 100 000 threads did not start in 30 s, and an RPE over an interval of 0 frames
+/// gave figures as if over one.
+#[test]
+fn flags_outside_their_range_are_refused_before_a_run() {
+    let cases: [(&str, &[&str], &str); 17] = [
+        ("rigid_slam", &["--voxel-size", "1e-5"], "--voxel-size"),
+        ("rigid_slam", &["--truncation", "1e9"], "--truncation"),
+        ("rigid_slam", &["--iterations", "0,0,0"], "--iterations"),
+        ("rigid_slam", &["--iterations", "1000000000"], "1000000000"),
+        ("rigid_slam", &["--lambda=-1"], "--lambda"),
+        ("rigid_slam", &["--lambda", "NaN"], "--lambda"),
+        ("rigid_slam", &["--max-distance=-0.1"], "-0.1"),
+        ("rigid_slam", &["--max-angle", "200"], "--max-angle"),
+        ("rigid_slam", &["--fx=-500"], "--fx"),
+        ("nonrigid_slam", &["--rounds", "0"], "--rounds"),
+        ("nonrigid_slam", &["--tukey", "NaN"], "--tukey"),
+        ("nonrigid_slam", &["--data-level", "99"], "--data-level"),
+        ("nonrigid_slam", &["--voxel-size", "1e-5"], "--voxel-size"),
+        ("nonrigid_slam", &["--schedule=-1,2"], "--schedule"),
+        ("pose_graph", &["--tau", "0"], "--tau"),
+        (
+            "pose_graph",
+            &["--function-tolerance", "NaN"],
+            "--function-tolerance",
+        ),
+        ("bundle_adjustment", &["--threads", "100000"], "--threads"),
+    ];
+    for (app, flags, named) in cases {
+        let started = std::time::Instant::now();
+        let out = run(app, &[flags, &["-q"]].concat());
+        assert_exit(&out, 2, &[named]);
+        // refused before the default sequence is rendered or a graph is solved
+        let seconds = started.elapsed().as_secs_f64();
+        assert!(seconds < 5.0, "{app} {flags:?}: {seconds:.1} s");
+    }
+    let dir = scratch("huge");
+    let out = dir.join("out").to_str().unwrap().to_string();
+    let huge = ["rigid", &out, "--width", "100000", "--height", "100000"];
+    assert_exit(
+        &run("generate", &[&huge[..], &["-q"]].concat()),
+        2,
+        &["--width"],
+    );
+    // an RPE over no interval, and a stamp limit no pair can meet
+    let gt = dir.join("gt.txt");
+    std::fs::write(&gt, "0 0 0 0 0 0 0 1\n0.1 0.1 0 0 0 0 0 1\n").unwrap();
+    let gt = gt.to_str().unwrap();
+    for (flags, named) in [
+        (["rpe", gt, gt, "--delta", "0"], "--delta"),
+        (["ate", gt, gt, "--max-difference=-1", "-q"], "--max-difference"),
+    ] {
+        assert_exit(&run("evaluate", &flags), 2, &[named]);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// An empty trajectory is named, not left to a stamp search that finds nothing; a folder of no
 /// sequence layout is named with the layouts it could be.
 #[test]

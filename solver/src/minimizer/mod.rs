@@ -108,6 +108,7 @@ impl Solver {
 
     /// Minimises `problem` from its current values, which are replaced by the result.
     pub fn solve(&mut self, problem: &mut Problem) -> Result<Summary, SolveError> {
+        self.options.check()?;
         let clock = Instant::now();
         let mut ws = self.prepare(problem)?;
         let result = self.run(problem, &mut ws, clock);

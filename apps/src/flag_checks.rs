@@ -1,0 +1,149 @@
+//! Checks of the numbers a flag may take. Each failure is bad input (exit code 2) that names the
+//! flag, what it must be and the value given (`--max-distance must be a positive number, not
+//! -0.1`), so that a value the pipeline would misread (a negative gate squared into a positive
+//! one, a NaN weight, a voxel so small that one frame's ray march takes hours) never starts a
+//! run.
+
+use crate::cli::bad_input;
+use anyhow::Result;
+use std::fmt::Display;
+
+/// The smallest voxel edge the volumes take, metres: 0.1 mm, below the depth resolution of any
+/// RGB-D sensor. Below it the ray march, whose steps are voxels, takes minutes a frame (at
+/// 0.01 mm, 20 frames of 320 × 240 did not finish in two minutes).
+pub const MIN_VOXEL: f64 = 1e-4;
+
+/// The most iterations a flag may ask of one solve: far beyond what any converging solve takes,
+/// and a bound on a run whose solves never converge.
+pub const MAX_ITERATIONS: usize = 1000;
+
+/// The most pixels a rendered frame may have (4096 × 4096): the renderer keeps some 100 bytes a
+/// pixel (rays, noise images, colour planes), about 1.7 GB at this size; a frame of 100 000²
+/// aborted on its allocation.
+pub const MAX_PIXELS: usize = 4096 * 4096;
+
+/// `--width` × `--height` of a frame to render is at most [`MAX_PIXELS`].
+pub fn frame_size(width: usize, height: usize) -> Result<()> {
+    if width.saturating_mul(height) <= MAX_PIXELS {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "--width × --height must be at most {MAX_PIXELS} pixels (4096 × 4096), not \
+             {width} × {height}"
+        )))
+    }
+}
+
+/// `value` is a finite number above zero.
+pub fn positive<T: Into<f64> + Copy + Display>(flag: &str, value: T) -> Result<()> {
+    let v: f64 = value.into();
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must be a positive number, not {value}"
+        )))
+    }
+}
+
+/// `value` is a finite number of zero or more.
+pub fn non_negative<T: Into<f64> + Copy + Display>(flag: &str, value: T) -> Result<()> {
+    let v: f64 = value.into();
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must be a number of 0 or more, not {value}"
+        )))
+    }
+}
+
+/// `value` is a finite number.
+pub fn finite(flag: &str, value: f64) -> Result<()> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must be a finite number, not {value}"
+        )))
+    }
+}
+
+/// `value` lies in `lo..=hi` (`unit` follows the bounds in the message: " degrees", " metres").
+pub fn within<T: Into<f64> + Copy + Display>(
+    flag: &str,
+    value: T,
+    (lo, hi): (f64, f64),
+    unit: &str,
+) -> Result<()> {
+    // compared as written: an f32 of 0.0001 widens to just below the f64 0.0001
+    let v = value.to_string().parse().unwrap_or(value.into());
+    if (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must lie between {lo} and {hi}{unit}, not {value}"
+        )))
+    }
+}
+
+/// A voxel edge, metres: at least [`MIN_VOXEL`] and at most `largest`.
+pub fn voxel<T: Into<f64> + Copy + Display>(flag: &str, value: T, largest: f64) -> Result<()> {
+    within(flag, value, (MIN_VOXEL, largest), " metres")
+}
+
+/// Iteration counts, one per level or stage: none above [`MAX_ITERATIONS`], and (when
+/// `some_needed`) at least one above zero.
+pub fn iterations(flag: &str, counts: &[usize], some_needed: bool) -> Result<()> {
+    if let Some(n) = counts.iter().find(|&&n| n > MAX_ITERATIONS) {
+        return Err(bad_input(format!(
+            "{flag} must be at most {MAX_ITERATIONS}, not {n}"
+        )));
+    }
+    if some_needed && counts.iter().all(|&n| n == 0) {
+        let somewhere = if counts.len() > 1 {
+            " on some level"
+        } else {
+            ""
+        };
+        return Err(bad_input(format!(
+            "{flag} must be at least 1{somewhere}: with none, nothing is solved"
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_check_names_the_flag_and_the_value_and_passes_the_range() {
+        let message = |r: Result<()>| r.unwrap_err().to_string();
+        assert!(positive("--a", 0.5).is_ok());
+        for v in [0.0, -0.1, f64::NAN, f64::INFINITY] {
+            let m = message(positive("--a", v));
+            assert!(m.contains("--a") && m.contains(&v.to_string()), "{m}");
+        }
+        assert!(non_negative("--b", 0.0).is_ok());
+        assert!(non_negative("--b", -1e-9).is_err());
+        assert!(non_negative("--b", f64::NAN).is_err());
+        assert!(within("--c", 180.0, (0.0, 180.0), " degrees").is_ok());
+        let m = message(within("--c", 180.5, (0.0, 180.0), " degrees"));
+        assert!(m.contains("0 and 180 degrees, not 180.5"), "{m}");
+        assert!(within("--c", f64::NAN, (0.0, 180.0), " degrees").is_err());
+        assert!(finite("--d", -3.0).is_ok());
+        assert!(finite("--d", f64::NEG_INFINITY).is_err());
+        // single precision values are named as given, not widened
+        assert!(message(positive("--e", -0.1f32)).contains("not -0.1"));
+        assert!(voxel("--v", MIN_VOXEL, 1.0).is_ok());
+        assert!(voxel("--v", MIN_VOXEL as f32, 1.0).is_ok());
+        assert!(message(voxel("--v", 1e-5, 1.0)).contains("0.0001"));
+        assert!(iterations("--i", &[0, 0, 3], true).is_ok());
+        assert!(iterations("--i", &[0, 0], false).is_ok());
+        assert!(message(iterations("--i", &[0, 0], true)).contains("at least 1"));
+        assert!(message(iterations("--i", &[2, 1001], true)).contains("1001"));
+        assert!(frame_size(4096, 4096).is_ok());
+        assert!(message(frame_size(usize::MAX, 2)).contains("--width"));
+    }
+}
