@@ -8,19 +8,12 @@ use crate::cli::bad_input;
 use anyhow::Result;
 use std::fmt::Display;
 
-/// The smallest voxel edge the volumes take, metres: 0.1 mm, below the depth resolution of any
-/// RGB-D sensor. Below it the ray march, whose steps are voxels, takes minutes a frame (at
-/// 0.01 mm, 20 frames of 320 × 240 did not finish in two minutes).
-pub const MIN_VOXEL: f64 = 1e-4;
+pub use dynamap_slam::synthetic::{MAX_FRAMES, MAX_PIXELS};
+pub use dynamap_slam::tsdf::MIN_VOXEL_SIZE as MIN_VOXEL;
 
 /// The most iterations a flag may ask of one solve: far beyond what any converging solve takes,
 /// and a bound on a run whose solves never converge.
 pub const MAX_ITERATIONS: usize = 1000;
-
-/// The most pixels a rendered frame may have (4096 × 4096): the renderer keeps some 100 bytes a
-/// pixel (rays, noise images, colour planes), about 1.7 GB at this size; a frame of 100 000²
-/// aborted on its allocation.
-pub const MAX_PIXELS: usize = 4096 * 4096;
 
 /// `--width` × `--height` of a frame to render is at most [`MAX_PIXELS`].
 pub fn frame_size(width: usize, height: usize) -> Result<()> {
@@ -30,6 +23,17 @@ pub fn frame_size(width: usize, height: usize) -> Result<()> {
         Err(bad_input(format!(
             "--width × --height must be at most {MAX_PIXELS} pixels (4096 × 4096), not \
              {width} × {height}"
+        )))
+    }
+}
+
+/// The frames of a sequence to render (`flag`) are between 1 and [`MAX_FRAMES`].
+pub fn frame_count(flag: &str, frames: usize) -> Result<()> {
+    if (1..=MAX_FRAMES).contains(&frames) {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must lie between 1 and {MAX_FRAMES}, not {frames}"
         )))
     }
 }
@@ -144,6 +148,8 @@ mod tests {
         assert!(message(iterations("--i", &[0, 0], true)).contains("at least 1"));
         assert!(message(iterations("--i", &[2, 1001], true)).contains("1001"));
         assert!(frame_size(4096, 4096).is_ok());
+        assert!(frame_count("--f", 0).is_err() && frame_count("--f", MAX_FRAMES + 1).is_err());
+        assert!(frame_count("--f", MAX_FRAMES).is_ok());
         assert!(message(frame_size(usize::MAX, 2)).contains("--width"));
     }
 }

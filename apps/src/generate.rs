@@ -151,6 +151,7 @@ impl SequenceFlags {
             return Err(cli::bad_input("--width and --height must be at least 8"));
         }
         flag_checks::frame_size(self.width, self.height)?;
+        flag_checks::frame_count("--frames", self.frames)?;
         if !(self.fps > 0.0 && self.fps.is_finite()) || self.frames == 0 {
             return Err(cli::bad_input(
                 "--fps must be positive and --frames at least 1",

@@ -173,6 +173,7 @@ fn check_flags(args: &Args) -> Result<()> {
         ));
     }
     flag_checks::frame_size(args.width, args.height)?;
+    flag_checks::frame_count("--frames", args.frames)?;
     if args.max_blocks == 0 {
         return Err(cli::bad_input("--max-blocks must be at least 1"));
     }

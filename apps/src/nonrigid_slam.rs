@@ -475,6 +475,9 @@ fn run(args: Args, session: &Session) -> Result<()> {
 
 /// The generated bending plate, or the folder of `DIR` with its masks.
 fn open_source(args: &Args) -> Result<Source> {
+    if args.dir.is_none() {
+        flag_checks::frame_count("--max-frames", args.max_frames.unwrap_or(30))?;
+    }
     Ok(match &args.dir {
         None => Source::Generated {
             scene: DeformingScene::new(

@@ -7,7 +7,7 @@ use dynamap_residuals::bal::SnavelyReprojection;
 use dynamap_residuals::icp::PointToPlane;
 use dynamap_residuals::pose_graph::{sqrt_information, Between2, Between3, Prior2, Prior3};
 use dynamap_solver::lie::{se2, se3};
-use dynamap_solver::{Jacobians, Residual as Core, Var};
+use dynamap_solver::{Jacobians, Manifold, Residual as Core, Var, SE2, SE3};
 use nalgebra::{SMatrix, Vector3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -62,6 +62,9 @@ impl Core for Shared {
     fn arity(&self) -> Option<usize> {
         self.0.arity()
     }
+    fn variable_size(&self, k: usize) -> Option<(usize, usize)> {
+        self.0.variable_size(k)
+    }
     fn evaluate(&self, vars: &[Var<'_>], r: &mut [f64], j: Option<&mut Jacobians<'_>>) {
         self.0.evaluate(vars, r, j)
     }
@@ -81,7 +84,7 @@ fn sqrt_info<const N: usize>(information: &Matrix<'_>) -> PyResult<SMatrix<f64, 
 /// `[v_x, v_y, ω]` (g2o's EDGE_SE2 order).
 #[pyfunction]
 pub fn between_se2(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult<Residual> {
-    let z = se2::from_coordinates(&to_fixed::<3>(&measurement, "measurement")?);
+    let z = se2::from_coordinates(&measurement_on::<3>(&SE2, &measurement)?);
     let u = sqrt_info::<3>(&information)?;
     Ok(Residual::new(Between2::new(z, u), "between_se2", 2))
 }
@@ -92,7 +95,7 @@ pub fn between_se2(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult
 /// tangent order `[ω; v]` (GTSAM's Pose3 order; g2o files list translation first).
 #[pyfunction]
 pub fn between_se3(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult<Residual> {
-    let z = se3::from_slice(&to_fixed::<7>(&measurement, "measurement")?);
+    let z = se3::from_slice(&measurement_on::<7>(&SE3, &measurement)?);
     let u = sqrt_info::<6>(&information)?;
     Ok(Residual::new(Between3::new(z, u), "between_se3", 2))
 }
@@ -101,7 +104,7 @@ pub fn between_se3(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult
 /// `between_se2`).
 #[pyfunction]
 pub fn prior_se2(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult<Residual> {
-    let z = se2::from_coordinates(&to_fixed::<3>(&measurement, "measurement")?);
+    let z = se2::from_coordinates(&measurement_on::<3>(&SE2, &measurement)?);
     let u = sqrt_info::<3>(&information)?;
     Ok(Residual::new(Prior2::new(z, u), "prior_se2", 1))
 }
@@ -110,7 +113,7 @@ pub fn prior_se2(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult<R
 /// `between_se3`).
 #[pyfunction]
 pub fn prior_se3(measurement: Vector<'_>, information: Matrix<'_>) -> PyResult<Residual> {
-    let z = se3::from_slice(&to_fixed::<7>(&measurement, "measurement")?);
+    let z = se3::from_slice(&measurement_on::<7>(&SE3, &measurement)?);
     let u = sqrt_info::<6>(&information)?;
     Ok(Residual::new(Prior3::new(z, u), "prior_se3", 1))
 }
@@ -132,6 +135,16 @@ pub fn bal_reprojection(u: f64, v: f64) -> PyResult<Residual> {
     ))
 }
 
+/// A measurement that is a point of `manifold` (finite, an SE(3) quaternion of non-zero norm,
+/// normalised as the variables' values are), or ValueError naming it.
+fn measurement_on<const N: usize>(manifold: &dyn Manifold, a: &Vector<'_>) -> PyResult<[f64; N]> {
+    let v = to_fixed::<N>(a, "measurement")?;
+    let valid = manifold
+        .validate(&v)
+        .map_err(|e| PyValueError::new_err(format!("measurement: {e}")))?;
+    Ok(valid.as_slice().try_into().unwrap_or(v))
+}
+
 /// Point-to-plane distance `r = nᵀ(T p − q)` on one SE(3) variable T (camera to world): `source`
 /// p in the camera frame, `target` q and its unit `normal` n in the world frame.
 #[pyfunction]
@@ -143,6 +156,11 @@ pub fn point_to_plane(
     let [p, q, n] = [("source", source), ("target", target), ("normal", normal)]
         .map(|(what, a)| to_fixed::<3>(&a, what).map(Vector3::from));
     let (p, q, n) = (p?, q?, n?);
+    if !(p.iter().chain(q.iter()).all(|x| x.is_finite())) {
+        return Err(PyValueError::new_err(
+            "point_to_plane: the source and target points must be finite",
+        ));
+    }
     let norm = n.norm();
     if !norm.is_finite() || (norm - 1.0).abs() > 1e-6 {
         return Err(PyValueError::new_err(format!(

@@ -6,7 +6,7 @@ use crate::arrays::{self, Vector};
 use crate::callback::ErrorSlot;
 use crate::manifolds;
 use crate::problem::residual_from;
-use dynamap_solver::{check_jacobians as check, Manifold, Var};
+use dynamap_solver::{check_jacobians as check, check_sizes, Manifold, Var};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -54,6 +54,14 @@ pub fn check_jacobians<'py>(
         return Err(PyValueError::new_err(format!(
             "the residual takes {expected} variables, {} values were given",
             values.len()
+        )));
+    }
+    let sizes = spaces.iter().map(|m| (m.ambient_dim(), m.tangent_dim()));
+    if let Err(e) = check_sizes(r.as_ref(), sizes) {
+        return Err(PyValueError::new_err(format!(
+            "value {}: the residual expects a variable of {} coordinates and {} tangent \
+             directions, and the value's manifold has {} and {} (give its manifold in `manifolds`)",
+            e.argument, e.expected.0, e.expected.1, e.got.0, e.got.1
         )));
     }
     let vars: Vec<Var<'_>> = points

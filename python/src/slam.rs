@@ -17,6 +17,8 @@ use dynamap_slam::synthetic::layouts::{self, Layout};
 use dynamap_slam::synthetic::motion::{self, Motion};
 use dynamap_slam::synthetic::noise::SensorNoise;
 use dynamap_slam::synthetic::sequence::{self, Sensor};
+use dynamap_slam::synthetic::{MAX_FRAMES, MAX_PIXELS};
+use dynamap_slam::tsdf::MIN_VOXEL_SIZE;
 use dynamap_solver::lie::se3;
 use dynamap_solver::{Manifold, SE3, SO3};
 use nalgebra::{Isometry3, Matrix4};
@@ -84,6 +86,12 @@ pub(crate) fn pinhole(
     if !ok || depth_scale <= 0.0 || width < 8 || height < 8 {
         return Err(PyValueError::new_err(format!(
             "the camera needs finite non-zero focal lengths, a positive depth scale and images of at least 8 x 8 (got {width} x {height})"
+        )));
+    }
+    if width.saturating_mul(height) > MAX_PIXELS {
+        return Err(PyValueError::new_err(format!(
+            "the camera's images must have at most {MAX_PIXELS} pixels (4096 x 4096), not \
+             {width} x {height}"
         )));
     }
     let mut camera = Camera::new(fx, fy, cx, cy, width, height);
@@ -200,9 +208,11 @@ impl RigidSlam {
         // no keyframe graph to place them: a lost track stays lost until relocalised
         params.relocalise.new_map_after = 0;
         if let Some(v) = voxel_size {
-            if !(v.is_finite() && v > 0.0) {
+            // compared as written: an f32 of 0.0001 widens to just below the f64 0.0001
+            let metres: f64 = v.to_string().parse().unwrap_or(f64::NAN);
+            if !(MIN_VOXEL_SIZE..=1.0).contains(&metres) {
                 return Err(PyValueError::new_err(format!(
-                    "voxel_size must be positive, got {v}"
+                    "voxel_size must lie between {MIN_VOXEL_SIZE} and 1 metres, got {v}"
                 )));
             }
             params.tsdf.voxel_size = v;
@@ -432,6 +442,12 @@ pub fn generate_sequence(
         return Err(PyValueError::new_err(
             "generate_sequence: width and height at least 8, frames at least 1, fps positive",
         ));
+    }
+    if width.saturating_mul(height) > MAX_PIXELS || frames > MAX_FRAMES {
+        return Err(PyValueError::new_err(format!(
+            "generate_sequence: width x height must be at most {MAX_PIXELS} pixels (4096 x 4096) \
+             and frames at most {MAX_FRAMES}, not {width} x {height} and {frames}"
+        )));
     }
     let m = match motion {
         "orbit" => Motion::Orbit,

@@ -220,6 +220,17 @@ def test_bad_problem_definitions_raise_clear_errors():
         p.add_residual(dynamap.between_se2([0, 0, 0], np.eye(3)), [x])
     with pytest.raises(ValueError, match="not symmetric positive definite"):
         dynamap.between_se3([0, 0, 0, 0, 0, 0, 1], -np.eye(6))
+    # a residual on variables of other sizes than it reads, a measurement that is no pose, a
+    # point that is not finite (NOTES 170)
+    a, b = p.add_variable([0.0, 0.0, 0.0]), p.add_variable([0.0, 0.0, 0.0])
+    with pytest.raises(dynamap.ProblemError, match="expects 7 and 6"):
+        p.add_residual(dynamap.between_se3([0, 0, 0, 0, 0, 0, 1], np.eye(6)), [a, b])
+    with pytest.raises(ValueError, match="measurement: quaternion has norm 0"):
+        dynamap.between_se3([0, 0, 0, 0, 0, 0, 0], np.eye(6))
+    with pytest.raises(ValueError, match="measurement: .*not finite"):
+        dynamap.prior_se2([0, math.nan, 0], np.eye(3))
+    with pytest.raises(ValueError, match="must be finite"):
+        dynamap.point_to_plane([math.nan, 0, 0], [0, 0, 0], [0, 0, 1])
     with pytest.raises(ValueError, match="Options has no field 'max_iteration'"):
         dynamap.Options(max_iteration=3)
     with pytest.raises(ValueError, match="unknown linear solver 'cg'"):
@@ -285,3 +296,6 @@ def test_check_jacobians_refuses_what_it_cannot_check():
         dynamap.check_jacobians(dynamap.prior_se3([0, 0, 0, 0, 0, 0, 1], np.eye(6)), [[0, 0, 0]], ["se3"])
     with pytest.raises(ZeroDivisionError):
         dynamap.check_jacobians(lambda x: 1 / 0, [[0.0]], dim=1)
+    # an SE(3) residual on vectors (the manifolds left at their default): a panic before NOTES 170
+    with pytest.raises(ValueError, match="value 0: the residual expects a variable of 7 coordinates and 6"):
+        dynamap.check_jacobians(dynamap.between_se3([0, 0, 0, 0, 0, 0, 1], np.eye(6)), [[0, 0, 0, 0, 0, 0, 1]] * 2)

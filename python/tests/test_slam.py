@@ -118,3 +118,10 @@ def test_malformed_frames_and_sequences_raise_clear_errors(sequence, tmp_path):
         seq.frame(99)
     with pytest.raises(ValueError, match="motion='loop'"):
         dynamap.generate_sequence(tmp_path / "x", motion="loop")
+    # a frame the renderer cannot hold, and a voxel whose ray march would take minutes a frame,
+    # are refused before anything is allocated or run (NOTES 169)
+    with pytest.raises(ValueError, match="at most 16777216 pixels"):
+        dynamap.generate_sequence(tmp_path / "y", width=100000, height=100000)
+    with pytest.raises(ValueError, match="voxel_size must lie between 0.0001 and 1"):
+        dynamap.RigidSlam(262.5, 262.5, 159.5, 119.5, 320, 240, voxel_size=1e-5)
+    dynamap.RigidSlam(262.5, 262.5, 159.5, 119.5, 320, 240, voxel_size=1e-4)

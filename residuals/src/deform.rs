@@ -12,7 +12,7 @@
 
 use crate::write_scaled;
 use dynamap_solver::lie::se3;
-use dynamap_solver::{Jacobians, Residual, Var};
+use dynamap_solver::{Jacobians, Residual, Var, SE3};
 use nalgebra::{
     DualQuaternion, Isometry3, Matrix3, Quaternion, SMatrix, Translation3, UnitQuaternion, Vector3,
 };
@@ -231,6 +231,9 @@ impl Residual for WarpedPointToPlane {
     fn dim(&self) -> usize {
         1
     }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],
@@ -275,6 +278,9 @@ pub struct WarpedPointToPoint {
 impl Residual for WarpedPointToPoint {
     fn dim(&self) -> usize {
         3
+    }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
     }
     fn evaluate(
         &self,
@@ -323,6 +329,9 @@ impl Residual for AsRigidAsPossible {
     }
     fn arity(&self) -> Option<usize> {
         Some(2)
+    }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
     }
     fn evaluate(
         &self,

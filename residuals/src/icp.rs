@@ -7,7 +7,7 @@
 //! [`dynamap_solver::check_jacobians`].
 
 use dynamap_solver::lie::se3;
-use dynamap_solver::{Jacobians, Residual, Var};
+use dynamap_solver::{Jacobians, Residual, Var, SE3};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 
 /// A rigid motion with its rotation as a matrix (and its transpose), for per-pixel use: applying it
@@ -72,6 +72,9 @@ impl Residual for PointToPlane {
     }
     fn arity(&self) -> Option<usize> {
         Some(1)
+    }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
     }
     fn evaluate(
         &self,
@@ -202,6 +205,9 @@ impl Residual for Photometric<'_> {
     }
     fn arity(&self) -> Option<usize> {
         Some(1)
+    }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
     }
     fn evaluate(
         &self,

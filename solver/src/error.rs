@@ -24,6 +24,22 @@ pub enum ProblemError {
         /// What it was given.
         got: usize,
     },
+    /// A variable of other sizes than the residual reads (an SE(3) residual given a vector).
+    #[error(
+        "variable {variable} (the residual's argument {argument}) has {} coordinates and {} tangent \
+         directions; the residual expects {} and {}",
+        got.0, got.1, expected.0, expected.1
+    )]
+    VariableSize {
+        /// The variable.
+        variable: usize,
+        /// Its position among the residual's variables.
+        argument: usize,
+        /// The sizes the residual expects, (ambient, tangent).
+        expected: (usize, usize),
+        /// The variable's.
+        got: (usize, usize),
+    },
     /// The same variable passed twice to one residual.
     #[error("variable {0} appears twice in one residual")]
     DuplicateVariable(usize),

@@ -141,7 +141,7 @@ pub use numeric::{check_jacobians, JacobianCheck, NumericDiff, DEFAULT_STEP};
 pub use options::{Algorithm, DampingKind, Elimination, LinearSolverKind, Options};
 pub use problem::{Problem, ResidualId, VarId};
 pub use real::Real;
-pub use residual::{Jacobians, Residual, Var};
+pub use residual::{check_sizes, Jacobians, Residual, SizeMismatch, Var};
 pub use robust::RobustKernel;
 pub use summary::{IterationSummary, Observer, Summary, Termination, Timing};
 pub use system::{BlockSystem, Refined};

@@ -127,12 +127,17 @@ impl Manifold for SO2 {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SE2;
 
+impl SE2 {
+    /// (ambient, tangent) sizes, for [`crate::Residual::variable_size`].
+    pub const SIZE: (usize, usize) = (3, 3);
+}
+
 impl Manifold for SE2 {
     fn ambient_dim(&self) -> usize {
-        3
+        Self::SIZE.0
     }
     fn tangent_dim(&self) -> usize {
-        3
+        Self::SIZE.1
     }
     fn plus(&self, x: &[f64], delta: &[f64], out: &mut [f64]) {
         let t = se2::from_coordinates(x) * se2::exp(&Vector3::new(delta[0], delta[1], delta[2]));
@@ -259,12 +264,17 @@ impl Manifold for SO3 {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SE3;
 
+impl SE3 {
+    /// (ambient, tangent) sizes, for [`crate::Residual::variable_size`].
+    pub const SIZE: (usize, usize) = (7, 6);
+}
+
 impl Manifold for SE3 {
     fn ambient_dim(&self) -> usize {
-        7
+        Self::SIZE.0
     }
     fn tangent_dim(&self) -> usize {
-        6
+        Self::SIZE.1
     }
     fn plus(&self, x: &[f64], delta: &[f64], out: &mut [f64]) {
         let t = se3::from_slice(x) * se3::exp(&Vector6::from_column_slice(&delta[..6]));

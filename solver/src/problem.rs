@@ -323,6 +323,8 @@ impl Problem {
                 return Err(ProblemError::DuplicateVariable(v.0));
             }
         }
+        let ids: SmallVec<[usize; 4]> = vars.iter().map(|v| v.0).collect();
+        self.check_sizes(residual.as_ref(), &ids)?;
         let cols = vars
             .iter()
             .map(|v| self.variables[v.0].manifold.tangent_dim())
@@ -330,11 +332,25 @@ impl Problem {
         self.blocks.push(ResidualBlock {
             residual,
             kernel,
-            vars: vars.iter().map(|v| v.0).collect(),
+            vars: ids,
             cols,
         });
         self.structure_version += 1;
         Ok(ResidualId(self.blocks.len() - 1))
+    }
+
+    /// Refuses variables whose sizes differ from those `residual` declares.
+    fn check_sizes(&self, residual: &dyn Residual, vars: &[usize]) -> Result<(), ProblemError> {
+        let sizes = vars.iter().map(|&v| {
+            let m = &self.variables[v].manifold;
+            (m.ambient_dim(), m.tangent_dim())
+        });
+        crate::residual::check_sizes(residual, sizes).map_err(|e| ProblemError::VariableSize {
+            variable: vars[e.argument],
+            argument: e.argument,
+            expected: e.expected,
+            got: e.got,
+        })
     }
 
     /// Replaces block `r`'s residual with another of the same size over the same variables (new
@@ -365,7 +381,8 @@ impl Problem {
                 });
             }
         }
-        block.residual = residual;
+        self.check_sizes(residual.as_ref(), &self.blocks[r.0].vars)?;
+        self.blocks[r.0].residual = residual;
         Ok(())
     }
 

@@ -54,6 +54,14 @@ pub trait Residual: Send + Sync {
     fn arity(&self) -> Option<usize> {
         None
     }
+    /// The sizes variable `k` must have, (ambient, tangent), when fixed: a residual written for
+    /// SE(3) poses reads 7 numbers and writes 6 Jacobian columns per pose, and a variable of
+    /// other sizes would be read out of bounds. Checked when the residual is added (see
+    /// [`check_sizes`]); `None` (the default) takes any.
+    fn variable_size(&self, k: usize) -> Option<(usize, usize)> {
+        let _ = k;
+        None
+    }
     /// Writes r into `residual` (length m) and, when asked, the Jacobian blocks.
     ///
     /// A residual that cannot be evaluated at a point (outside its domain) writes non-finite values;
@@ -73,6 +81,9 @@ impl<R: Residual + ?Sized> Residual for Box<R> {
     fn arity(&self) -> Option<usize> {
         (**self).arity()
     }
+    fn variable_size(&self, k: usize) -> Option<(usize, usize)> {
+        (**self).variable_size(k)
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],
@@ -81,4 +92,35 @@ impl<R: Residual + ?Sized> Residual for Box<R> {
     ) {
         (**self).evaluate(vars, residual, jacobians)
     }
+}
+
+/// A variable whose sizes differ from those its residual declares ([`Residual::variable_size`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SizeMismatch {
+    /// Which of the residual's variables (its position in the residual's list).
+    pub argument: usize,
+    /// The sizes the residual expects, (ambient, tangent).
+    pub expected: (usize, usize),
+    /// The variable's, (ambient, tangent).
+    pub got: (usize, usize),
+}
+
+/// Checks each variable's (ambient, tangent) sizes, `sizes`, against those `residual` declares.
+pub fn check_sizes(
+    residual: &dyn Residual,
+    sizes: impl IntoIterator<Item = (usize, usize)>,
+) -> Result<(), SizeMismatch> {
+    for (argument, got) in sizes.into_iter().enumerate() {
+        match residual.variable_size(argument) {
+            Some(expected) if expected != got => {
+                return Err(SizeMismatch {
+                    argument,
+                    expected,
+                    got,
+                })
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }

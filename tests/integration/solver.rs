@@ -715,3 +715,67 @@ fn a_persistently_non_finite_block_is_named_and_the_values_stay_finite() {
         assert!(!summary.termination.converged(), "{algorithm:?}");
     }
 }
+
+/// A residual written for SE(3) poses, given a variable of other sizes, is refused when it is
+/// added or swapped in (NOTES 170): before, the problem took it, and the solve read the vector as
+/// a 7-number pose and wrote 6 Jacobian columns into its 3 (a panic, through Python too).
+#[test]
+fn a_variable_of_other_sizes_than_its_residual_reads_is_refused() {
+    use dynamap::residuals::pose_graph::{Between3, Prior3};
+    use dynamap::solver::ProblemError;
+    use nalgebra::{Isometry3, Matrix6};
+    let between = || Between3::new(Isometry3::identity(), Matrix6::identity());
+    let mut p = Problem::new();
+    let identity = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    let a = p.add_variable(&identity, SE3).unwrap();
+    let b = p.add_variable(&identity, SE3).unwrap();
+    let v = p.add_variable(&[0.0; 3], Euclidean::<3>).unwrap();
+    let seven = p.add_variable(&identity, Euclidean::<7>).unwrap();
+    let err = p.add_residual(between(), &[a, v]).unwrap_err();
+    assert_eq!(
+        err,
+        ProblemError::VariableSize {
+            variable: v.index(),
+            argument: 1,
+            expected: (7, 6),
+            got: (3, 3),
+        }
+    );
+    assert!(err.to_string().contains("expects 7 and 6"), "{err}");
+    // the right number of coordinates on the wrong manifold is refused too
+    assert!(matches!(
+        p.add_residual(
+            Prior3::new(Isometry3::identity(), Matrix6::identity()),
+            &[seven]
+        ),
+        Err(ProblemError::VariableSize { argument: 0, .. })
+    ));
+    let id = p.add_residual(between(), &[a, b]).unwrap();
+    p.set_fixed(a, true).unwrap();
+    p.set_fixed(seven, true).unwrap();
+    p.set_fixed(v, true).unwrap();
+    assert!(Solver::new(Options::default()).solve(&mut p).is_ok());
+    // a replacement over the same variables is checked against them as well
+    p.replace_residual(id, Box::new(between())).unwrap();
+    let loose = p.add_residual(SixZeros, &[seven, v]).unwrap();
+    assert!(matches!(
+        p.replace_residual(loose, Box::new(between())),
+        Err(ProblemError::VariableSize { argument: 0, .. })
+    ));
+}
+
+/// Six rows of zeros over any variables, declaring no sizes.
+struct SixZeros;
+impl Residual for SixZeros {
+    fn dim(&self) -> usize {
+        6
+    }
+    fn evaluate(&self, vars: &[Var<'_>], r: &mut [f64], j: Option<&mut Jacobians<'_>>) {
+        r.fill(0.0);
+        if let Some(j) = j {
+            for k in 0..vars.len() {
+                j.block(k).fill(0.0);
+            }
+        }
+    }
+}

@@ -30,11 +30,18 @@ pub(super) struct PairArgs {
     registration: FrameFlags,
 }
 
+/// The most seeds a set may have: ten thousand, hours of pairs; 10⁹ were killed for memory at
+/// 24 GB while the set was being drawn.
+const MAX_SEEDS: u64 = 10_000;
+
 /// Registers every pair of the set and prints its row, then the mean EPE.
 pub(super) fn pair_experiment(args: &PairArgs, session: &Session) -> Result<()> {
     let settings = args.registration.settings()?;
-    if args.seeds == 0 {
-        return Err(cli::bad_input("--seeds must be at least 1"));
+    if !(1..=MAX_SEEDS).contains(&args.seeds) {
+        return Err(cli::bad_input(format!(
+            "--seeds must lie between 1 and {MAX_SEEDS}, not {}",
+            args.seeds
+        )));
     }
     let cases = match args.far {
         Some(set) => FramePairCase::far_set(set, args.wall),

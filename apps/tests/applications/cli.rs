@@ -228,11 +228,11 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
 /// flag and the value. Before, a voxel of 0.01 mm or a truncation of 10⁹ voxels ran for hours,
 /// negative weights and gates ran (a negative distance gate squared into the positive one),
 /// zero iterations fused frames never registered, a frame of 100 000² pixels aborted on its
-/// allocation, 100 000 threads did not start in 30 s, and an RPE over an interval of 0 frames
+/// allocation (and 10¹² frames through the Python binding was killed for memory), 100 000 threads did not start in 30 s, and an RPE over an interval of 0 frames
 /// gave figures as if over one.
 #[test]
 fn flags_outside_their_range_are_refused_before_a_run() {
-    let cases: [(&str, &[&str], &str); 17] = [
+    let cases: [(&str, &[&str], &str); 20] = [
         ("rigid_slam", &["--voxel-size", "1e-5"], "--voxel-size"),
         ("rigid_slam", &["--truncation", "1e9"], "--truncation"),
         ("rigid_slam", &["--iterations", "0,0,0"], "--iterations"),
@@ -247,6 +247,21 @@ fn flags_outside_their_range_are_refused_before_a_run() {
         ("nonrigid_slam", &["--data-level", "99"], "--data-level"),
         ("nonrigid_slam", &["--voxel-size", "1e-5"], "--voxel-size"),
         ("nonrigid_slam", &["--schedule=-1,2"], "--schedule"),
+        (
+            "nonrigid_slam",
+            &["--max-frames", "1000000000000"],
+            "--max-frames",
+        ),
+        (
+            "nonrigid_register",
+            &["sheets", "--columns", "100000"],
+            "--columns",
+        ),
+        (
+            "nonrigid_register",
+            &["pairs", "--seeds", "1000000000"],
+            "--seeds",
+        ),
         ("pose_graph", &["--tau", "0"], "--tau"),
         (
             "pose_graph",
@@ -271,13 +286,18 @@ fn flags_outside_their_range_are_refused_before_a_run() {
         2,
         &["--width"],
     );
+    let long = ["rigid", &out, "--frames", "1000000000000", "-q"];
+    assert_exit(&run("generate", &long), 2, &["--frames"]);
     // an RPE over no interval, and a stamp limit no pair can meet
     let gt = dir.join("gt.txt");
     std::fs::write(&gt, "0 0 0 0 0 0 0 1\n0.1 0.1 0 0 0 0 0 1\n").unwrap();
     let gt = gt.to_str().unwrap();
     for (flags, named) in [
         (["rpe", gt, gt, "--delta", "0"], "--delta"),
-        (["ate", gt, gt, "--max-difference=-1", "-q"], "--max-difference"),
+        (
+            ["ate", gt, gt, "--max-difference=-1", "-q"],
+            "--max-difference",
+        ),
     ] {
         assert_exit(&run("evaluate", &flags), 2, &[named]);
     }

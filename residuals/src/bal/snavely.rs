@@ -133,6 +133,9 @@ impl Residual for SnavelyReprojection {
     fn arity(&self) -> Option<usize> {
         Some(2)
     }
+    fn variable_size(&self, k: usize) -> Option<(usize, usize)> {
+        Some(if k == 0 { (9, 9) } else { (3, 3) })
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],

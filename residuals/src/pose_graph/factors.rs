@@ -5,7 +5,7 @@
 //! `UᵀU = Ω`.
 
 use dynamap_solver::lie::{se2, se3};
-use dynamap_solver::{Jacobians, Residual, Var};
+use dynamap_solver::{Jacobians, Residual, Var, SE2, SE3};
 use nalgebra::{Isometry2, Isometry3, Matrix3, Matrix6, SMatrix, SVector, Vector6};
 
 /// The upper-triangular U with UᵀU = Ω, or `None` when Ω is not symmetric positive definite.
@@ -93,6 +93,9 @@ impl Residual for Between2 {
     fn arity(&self) -> Option<usize> {
         Some(2)
     }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE2::SIZE)
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],
@@ -138,6 +141,9 @@ impl Residual for Between3 {
     fn arity(&self) -> Option<usize> {
         Some(2)
     }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],
@@ -182,6 +188,9 @@ impl Residual for Prior2 {
     fn arity(&self) -> Option<usize> {
         Some(1)
     }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE2::SIZE)
+    }
     fn evaluate(
         &self,
         vars: &[Var<'_>],
@@ -220,6 +229,9 @@ impl Residual for Prior3 {
     }
     fn arity(&self) -> Option<usize> {
         Some(1)
+    }
+    fn variable_size(&self, _k: usize) -> Option<(usize, usize)> {
+        Some(SE3::SIZE)
     }
     fn evaluate(
         &self,

@@ -22,6 +22,16 @@
 //!
 //! Everything is seeded and deterministic.
 
+/// The most pixels a frame to render may have (4096 × 4096): the Kinect model keeps some 100
+/// bytes a pixel (rays, noise images, colour planes), about 1.7 GB at this size; a frame of
+/// 100 000² aborted on its allocation. The applications and the Python bindings refuse larger
+/// frames.
+pub const MAX_PIXELS: usize = 4096 * 4096;
+
+/// The most frames a sequence to render may have: a million, over nine hours at 30 Hz; a
+/// trajectory of 10¹² poses was killed for memory before its first frame.
+pub const MAX_FRAMES: usize = 1_000_000;
+
 pub mod bvh;
 pub mod deform;
 pub mod faults;
