@@ -204,7 +204,9 @@ fn warn_unobserved(data: &BalProblem, name: &str) -> (usize, usize) {
     counts
 }
 
-fn run(args: Args, session: &Session) -> Result<()> {
+/// Refuses a Huber scale that is not a positive number and output paths that could not be
+/// written, before the problem is read.
+fn check_flags(args: &Args) -> Result<()> {
     if let Some(h) = args.huber {
         if !(h > 0.0 && h.is_finite()) {
             return Err(cli::bad_input(format!(
@@ -212,6 +214,12 @@ fn run(args: Args, session: &Session) -> Result<()> {
             )));
         }
     }
+    let preview = [("--preview", args.preview.as_deref())];
+    cli::check_outputs(&[("--output", args.output.as_deref())], &preview)
+}
+
+fn run(args: Args, session: &Session) -> Result<()> {
+    check_flags(&args)?;
     let kernel = args.kernel.or(args.huber.map(NamedKernel::Huber));
     cli::set_threads(args.threads)?;
     let (mut data, name) = load_problem(args.problem.as_deref())?;

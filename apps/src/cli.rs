@@ -232,6 +232,47 @@ fn die_quietly_on_a_closed_pipe() {
     }
 }
 
+/// Refuses, before a run, output paths it could not write after it (bad input, exit 2): a file
+/// flag (`files`) naming a folder, or in a folder that does not exist; a folder flag
+/// (`folders`) naming a file, or under one. Without this a run of hours failed at its end on a
+/// mistyped `--output` folder, and lost that output.
+pub fn check_outputs(
+    files: &[(&str, Option<&Path>)],
+    folders: &[(&str, Option<&Path>)],
+) -> Result<()> {
+    for (flag, path) in files.iter().filter_map(|(f, p)| p.map(|p| (f, p))) {
+        if path.is_dir() {
+            return Err(bad_input(format!(
+                "{flag} {}: is a folder; give a file name",
+                path.display()
+            )));
+        }
+        let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+        if let Some(folder) = parent.filter(|p| !p.is_dir()) {
+            return Err(bad_input(format!(
+                "{flag} {}: the folder {} does not exist",
+                path.display(),
+                folder.display()
+            )));
+        }
+    }
+    for (flag, path) in folders.iter().filter_map(|(f, p)| p.map(|p| (f, p))) {
+        // the nearest part of the path that exists must be a folder for it to be created
+        if let Some(file) = path
+            .ancestors()
+            .find(|a| a.exists())
+            .filter(|a| !a.is_dir())
+        {
+            return Err(bad_input(format!(
+                "{flag} {}: {} is a file, not a folder",
+                path.display(),
+                file.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The most threads `--threads` may ask for: more than any machine's cores, and few enough to
 /// start at once (100 000 did not start within 30 s).
 pub const MAX_THREADS: usize = 1024;

@@ -497,9 +497,22 @@ fn input_or_failure(e: FrameError) -> anyhow::Error {
     }
 }
 
+impl FrameArgs {
+    /// Refuses output paths that could not be written, before the frames are read.
+    fn check_outputs(&self) -> Result<()> {
+        let files = [
+            ("--output", self.output.as_deref()),
+            ("--flow", self.flow.as_deref()),
+            ("--picture", self.picture.as_deref()),
+        ];
+        cli::check_outputs(&files, &[])
+    }
+}
+
 /// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &FrameArgs) -> Result<()> {
+    args.check_outputs()?;
     let mut source =
         read_frame(args, &args.source, args.color.as_ref(), args.mask.as_ref()).bad_input()?;
     let target = read_frame(
@@ -512,13 +525,8 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
     let settings = args.registration.settings()?;
     if let Some(path) = &args.mask_nodes {
         let nodes = read_graph_nodes(path).bad_input()?;
-        let radius = settings.graph.spacing;
-        source.mask = Some(mask_near_nodes(
-            &source.camera,
-            &source.depth,
-            &nodes,
-            radius,
-        ));
+        let (camera, radius) = (&source.camera, settings.graph.spacing);
+        source.mask = Some(mask_near_nodes(camera, &source.depth, &nodes, radius));
     }
     let gt = args
         .flow_ground_truth
@@ -738,6 +746,7 @@ fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
 /// vertex map, and prints the JSON line.
 fn register_mesh_files(args: &MeshArgs) -> Result<()> {
+    cli::check_outputs(&[("--output", args.output.as_deref())], &[])?;
     let (source, source_winding) = read_oriented(&args.source)?;
     let (target, target_winding) = read_oriented(&args.target)?;
     let (sp, sn) = surface_points(&source, &args.source)?;

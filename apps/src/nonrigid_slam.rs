@@ -410,6 +410,11 @@ fn canonical_views(slam: &NonRigidFusion) -> Vec<Isometry3<f64>> {
 
 fn run(args: Args, session: &Session) -> Result<()> {
     let params = params(&args)?;
+    let folders = [
+        ("--output", args.output.as_deref()),
+        ("--preview", args.preview.as_deref()),
+    ];
+    cli::check_outputs(&[], &folders)?;
     let source = open_source(&args)?;
     let n = args.max_frames.unwrap_or(source.len()).min(source.len());
     if let Some(out) = &args.output {

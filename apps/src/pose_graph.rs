@@ -217,8 +217,11 @@ fn solver_options(args: &Args) -> Options {
 }
 
 /// Refuses flags the solver cannot run with (a NaN or negative tolerance, a damping τ that is
-/// not positive), named by the flag, before the graph is read.
+/// not positive), named by the flag, and output paths that could not be written, before the
+/// graph is read.
 fn check_options(args: &Args) -> Result<()> {
+    let preview = [("--preview", args.preview.as_deref())];
+    cli::check_outputs(&[("--output", args.output.as_deref())], &preview)?;
     match solver_options(args).check() {
         Err(SolveError::InvalidOption { name, value, must }) => {
             let flag = match name {

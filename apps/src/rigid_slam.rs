@@ -253,7 +253,8 @@ fn params(args: &Args) -> Result<SlamParams> {
 }
 
 /// Refuses flag values outside what their settings mean ([`flag_checks`]): the map's, the
-/// tracker's, the keyframe graph's and the intrinsics'.
+/// tracker's, the keyframe graph's and the intrinsics'; and output paths that could not be
+/// written ([`cli::check_outputs`]).
 fn check_flags(args: &Args) -> Result<()> {
     use flag_checks::{iterations, non_negative, positive, voxel, within};
     let tsdf = SlamParams::default().tsdf;
@@ -262,9 +263,11 @@ fn check_flags(args: &Args) -> Result<()> {
     let widest = f64::from(tsdf.max_depth) / f64::from(args.voxel_size);
     let band = (1.0, widest.floor());
     within("--truncation", args.truncation, band, " voxels")?;
-    within("--max-weight", args.max_weight, (1.0, 1e6), "")?;
-    if args.max_blocks == 0 {
-        return Err(cli::bad_input("--max-blocks must be at least 1"));
+    if !(args.max_weight.is_finite() && args.max_weight >= 1.0) || args.max_blocks == 0 {
+        return Err(cli::bad_input(format!(
+            "--max-weight must be a number of at least 1 (not {}) and --max-blocks at least 1",
+            args.max_weight
+        )));
     }
     if args.iterations.is_empty() {
         return Err(cli::bad_input("--iterations needs a level"));
@@ -292,7 +295,14 @@ fn check_flags(args: &Args) -> Result<()> {
     }
     positive("--loop-deviation", args.loop_deviation)?;
     positive("--odometry-drift", args.odometry_drift)?;
-    check_intrinsics_flags(args)
+    check_intrinsics_flags(args)?;
+    let files = [
+        ("--output", args.output.as_deref()),
+        ("--mesh", args.mesh.as_deref()),
+        ("--graph", args.graph.as_deref()),
+        ("--render", args.render.as_deref()),
+    ];
+    cli::check_outputs(&files, &[("--preview", args.preview.as_deref())])
 }
 
 /// Refuses intrinsics flags that no camera has (a focal length or depth scale of zero or less,

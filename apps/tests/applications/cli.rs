@@ -214,13 +214,48 @@ fn bad_input_exits_2_and_runtime_failure_exits_1() {
         2,
         &["none.txt"],
     );
-    // a run that cannot write its output is a runtime failure
-    let unwritable = path("no-such-folder/out.g2o");
+    // a run that cannot write its output when it ends (procfs takes no new file) is a runtime
+    // failure
     assert_exit(
-        &run("pose_graph", &["--output", &unwritable, "-q"]),
+        &run("pose_graph", &["--output", "/proc/dynamap-out.g2o", "-q"]),
         1,
-        &["out.g2o"],
+        &["dynamap-out.g2o"],
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An output in a folder that does not exist, or that is a folder, is refused before the run
+/// (NOTES 171): before, the run went to its end and then failed, losing that output.
+#[test]
+fn outputs_that_could_not_be_written_are_refused_before_the_run() {
+    let dir = scratch("outputs");
+    let missing = dir.join("no-such-folder/out.g2o");
+    let folder = dir.to_str().unwrap();
+    for (app, flags, named) in [
+        (
+            "pose_graph",
+            ["--output", missing.to_str().unwrap()],
+            "does not exist",
+        ),
+        ("pose_graph", ["--output", folder], "is a folder"),
+        (
+            "rigid_slam",
+            ["--mesh", missing.to_str().unwrap()],
+            "no-such-folder",
+        ),
+        ("bundle_adjustment", ["--output", folder], "is a folder"),
+    ] {
+        let started = std::time::Instant::now();
+        assert_exit(&run(app, &[&flags[..], &["-q"]].concat()), 2, &[named]);
+        // before the default sequence is rendered or the default problem solved
+        let seconds = started.elapsed().as_secs_f64();
+        assert!(seconds < 5.0, "{app} {flags:?}: {seconds:.1} s");
+    }
+    let file = dir.join("a-file");
+    std::fs::write(&file, "").unwrap();
+    let under = file.join("preview");
+    let preview = ["--preview", under.to_str().unwrap(), "-q"];
+    assert_exit(&run("rigid_slam", &preview), 2, &["is a file"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
