@@ -9,7 +9,7 @@ use anyhow::Result;
 use std::fmt::Display;
 
 pub use dynamap_slam::synthetic::{MAX_FRAMES, MAX_PIXELS};
-pub use dynamap_slam::tsdf::MIN_VOXEL_SIZE as MIN_VOXEL;
+use dynamap_slam::tsdf::{usable_voxel_size, MAX_VOXEL_SIZE, MIN_VOXEL_SIZE};
 
 /// The most iterations a flag may ask of one solve: far beyond what any converging solve takes,
 /// and a bound on a run whose solves never converge.
@@ -80,9 +80,7 @@ pub fn within<T: Into<f64> + Copy + Display>(
     (lo, hi): (f64, f64),
     unit: &str,
 ) -> Result<()> {
-    // compared as written: an f32 of 0.0001 widens to just below the f64 0.0001
-    let v = value.to_string().parse().unwrap_or(value.into());
-    if (lo..=hi).contains(&v) {
+    if (lo..=hi).contains(&value.into()) {
         Ok(())
     } else {
         Err(bad_input(format!(
@@ -91,9 +89,21 @@ pub fn within<T: Into<f64> + Copy + Display>(
     }
 }
 
-/// A voxel edge, metres: at least [`MIN_VOXEL`] and at most `largest`.
-pub fn voxel<T: Into<f64> + Copy + Display>(flag: &str, value: T, largest: f64) -> Result<()> {
-    within(flag, value, (MIN_VOXEL, largest), " metres")
+/// A voxel edge, metres, that the volumes take ([`usable_voxel_size`]).
+pub fn voxel(flag: &str, value: f32) -> Result<()> {
+    if usable_voxel_size(value) {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must lie between {MIN_VOXEL_SIZE} and {MAX_VOXEL_SIZE} metres, not {value}"
+        )))
+    }
+}
+
+/// An angle gate, degrees: above 0 and at most 180.
+pub fn angle(flag: &str, value: f64) -> Result<()> {
+    positive(flag, value)?;
+    within(flag, value, (0.0, 180.0), " degrees")
 }
 
 /// Iteration counts, one per level or stage: none above [`MAX_ITERATIONS`], and (when
@@ -140,9 +150,11 @@ mod tests {
         assert!(finite("--d", f64::NEG_INFINITY).is_err());
         // single precision values are named as given, not widened
         assert!(message(positive("--e", -0.1f32)).contains("not -0.1"));
-        assert!(voxel("--v", MIN_VOXEL, 1.0).is_ok());
-        assert!(voxel("--v", MIN_VOXEL as f32, 1.0).is_ok());
-        assert!(message(voxel("--v", 1e-5, 1.0)).contains("0.0001"));
+        assert!(voxel("--v", 0.0001).is_ok() && voxel("--v", 1.0).is_ok());
+        assert!(voxel("--v", f32::NAN).is_err() && voxel("--v", 1.5).is_err());
+        assert!(message(voxel("--v", 1e-5)).contains("0.0001"));
+        assert!(angle("--g", 180.0).is_ok());
+        assert!(angle("--g", 0.0).is_err() && angle("--g", 180.5).is_err());
         assert!(iterations("--i", &[0, 0, 3], true).is_ok());
         assert!(iterations("--i", &[0, 0], false).is_ok());
         assert!(message(iterations("--i", &[0, 0], true)).contains("at least 1"));

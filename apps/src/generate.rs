@@ -152,11 +152,7 @@ impl SequenceFlags {
         }
         flag_checks::frame_size(self.width, self.height)?;
         flag_checks::frame_count("--frames", self.frames)?;
-        if !(self.fps > 0.0 && self.fps.is_finite()) || self.frames == 0 {
-            return Err(cli::bad_input(
-                "--fps must be positive and --frames at least 1",
-            ));
-        }
+        flag_checks::positive("--fps", self.fps)?;
         Ok(Camera::scaled_default(self.width, self.height))
     }
 

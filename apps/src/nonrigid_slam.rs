@@ -147,31 +147,18 @@ fn params(args: &Args) -> Result<FusionParams> {
     p.register.chroma_weight = args.chroma_weight;
     p.register.chroma_tukey = args.chroma_tukey;
     p.colour_drift_ratio = args.colour_drift_ratio;
-    if !(p.colour_drift_ratio >= 0.0 && p.colour_drift_ratio.is_finite()) {
-        return Err(cli::bad_input("--colour-drift-ratio must be a number ≥ 0"));
-    }
+    flag_checks::non_negative("--colour-drift-ratio", p.colour_drift_ratio)?;
     let r = &p.register;
-    for (term, weight, tukey) in [
-        ("photometric", r.photometric_weight, r.photometric_tukey),
-        ("chroma", r.chroma_weight, r.chroma_tukey),
-    ] {
-        if !(weight >= 0.0 && weight.is_finite()) {
-            return Err(cli::bad_input(format!(
-                "--{term}-weight must be a number ≥ 0"
-            )));
-        }
-        if !(tukey > 0.0 && tukey.is_finite()) {
-            return Err(cli::bad_input(format!(
-                "--{term}-tukey must be a positive number"
-            )));
-        }
-    }
+    flag_checks::non_negative("--photometric-weight", r.photometric_weight)?;
+    flag_checks::positive("--photometric-tukey", r.photometric_tukey)?;
+    flag_checks::non_negative("--chroma-weight", r.chroma_weight)?;
+    flag_checks::positive("--chroma-tukey", r.chroma_tukey)?;
     if p.photometric_window == 0 || p.photometric_keyframe_every == 0 {
         return Err(cli::bad_input(
             "--photometric-window and --photometric-keyframe-every must be at least 1",
         ));
     }
-    flag_checks::voxel("--voxel-size", p.tsdf.voxel_size, 1.0)?;
+    flag_checks::voxel("--voxel-size", p.tsdf.voxel_size)?;
     flag_checks::positive("--data-spacing", p.data_spacing)?;
     let coarsest = p.preprocess.levels.saturating_sub(1);
     if p.data_level > coarsest {
@@ -480,8 +467,10 @@ fn run(args: Args, session: &Session) -> Result<()> {
 
 /// The generated bending plate, or the folder of `DIR` with its masks.
 fn open_source(args: &Args) -> Result<Source> {
+    // the generated sequence's length
+    let frames = args.max_frames.unwrap_or(30);
     if args.dir.is_none() {
-        flag_checks::frame_count("--max-frames", args.max_frames.unwrap_or(30))?;
+        flag_checks::frame_count("--max-frames", frames)?;
     }
     Ok(match &args.dir {
         None => Source::Generated {
@@ -496,7 +485,6 @@ fn open_source(args: &Args) -> Result<Source> {
                 ..SensorNoise::default()
             },
             kinect: (args.sensor == SensorKind::Kinect).then(|| {
-                let frames = args.max_frames.unwrap_or(30);
                 let model = KinectModel {
                     seed: args.seed.unwrap_or(0),
                     distortion: Distortion::default(),
@@ -504,7 +492,7 @@ fn open_source(args: &Args) -> Result<Source> {
                 };
                 Box::new((model, static_camera(frames, 30.0)))
             }),
-            frames: args.max_frames.unwrap_or(30),
+            frames,
         },
         Some(d) => {
             let seq = Sequence::open(d, &OpenOptions::default()).bad_input()?;

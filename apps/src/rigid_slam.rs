@@ -256,9 +256,9 @@ fn params(args: &Args) -> Result<SlamParams> {
 /// tracker's, the keyframe graph's and the intrinsics'; and output paths that could not be
 /// written ([`cli::check_outputs`]).
 fn check_flags(args: &Args) -> Result<()> {
-    use flag_checks::{iterations, non_negative, positive, voxel, within};
+    use flag_checks::{angle, iterations, non_negative, positive, voxel, within};
     let tsdf = SlamParams::default().tsdf;
-    voxel("--voxel-size", args.voxel_size, 1.0)?;
+    voxel("--voxel-size", args.voxel_size)?;
     // a band (truncation × voxel) wider than the depth range fused is no band
     let widest = f64::from(tsdf.max_depth) / f64::from(args.voxel_size);
     let band = (1.0, widest.floor());
@@ -279,8 +279,7 @@ fn check_flags(args: &Args) -> Result<()> {
         ));
     }
     positive("--max-distance", args.max_distance)?;
-    positive("--max-angle", args.max_angle)?;
-    within("--max-angle", args.max_angle, (0.0, 180.0), " degrees")?;
+    angle("--max-angle", args.max_angle)?;
     non_negative("--motion-prior", args.motion_prior)?;
     if let Some(lambda) = args.lambda {
         non_negative("--lambda", lambda)?;

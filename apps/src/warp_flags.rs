@@ -141,16 +141,10 @@ impl WarpFlags {
 
 /// Refuses settings outside what they mean ([`flag_checks`]), named by their flags.
 fn check(graph: &GraphParams, register: &RegisterParams) -> anyhow::Result<()> {
-    use flag_checks::{iterations, non_negative, positive, within};
-    if !(register.cover >= 0.0 && register.cover.is_finite()) {
-        anyhow::bail!("--cover must be 0 or a positive number of point spacings");
-    }
-    if !(register.damping > 0.0 && register.damping.is_finite()) {
-        anyhow::bail!("--damping must be a positive number");
-    }
-    if !(graph.spacing > 0.0 && graph.spacing.is_finite()) {
-        anyhow::bail!("--spacing must be a positive length");
-    }
+    use flag_checks::{angle, iterations, non_negative, positive};
+    non_negative("--cover", register.cover)?;
+    positive("--damping", register.damping)?;
+    positive("--spacing", graph.spacing)?;
     for &w in &register.schedule {
         non_negative("--schedule", w)?;
     }
@@ -162,13 +156,7 @@ fn check(graph: &GraphParams, register: &RegisterParams) -> anyhow::Result<()> {
     iterations("--iterations", &[register.iterations], true)?;
     iterations("--rigid-iterations", &[register.rigid_iterations], false)?;
     positive("--max-distance", register.max_distance)?;
-    positive("--max-angle", register.max_normal_angle_deg)?;
-    within(
-        "--max-angle",
-        register.max_normal_angle_deg,
-        (0.0, 180.0),
-        " degrees",
-    )?;
+    angle("--max-angle", register.max_normal_angle_deg)?;
     positive("--tukey", register.tukey)?;
     non_negative("--point-weight", register.point_weight)?;
     non_negative("--stay-weight", register.stay_weight)

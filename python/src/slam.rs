@@ -18,7 +18,7 @@ use dynamap_slam::synthetic::motion::{self, Motion};
 use dynamap_slam::synthetic::noise::SensorNoise;
 use dynamap_slam::synthetic::sequence::{self, Sensor};
 use dynamap_slam::synthetic::{MAX_FRAMES, MAX_PIXELS};
-use dynamap_slam::tsdf::MIN_VOXEL_SIZE;
+use dynamap_slam::tsdf::{usable_voxel_size, MAX_VOXEL_SIZE, MIN_VOXEL_SIZE};
 use dynamap_solver::lie::se3;
 use dynamap_solver::{Manifold, SE3, SO3};
 use nalgebra::{Isometry3, Matrix4};
@@ -208,11 +208,9 @@ impl RigidSlam {
         // no keyframe graph to place them: a lost track stays lost until relocalised
         params.relocalise.new_map_after = 0;
         if let Some(v) = voxel_size {
-            // compared as written: an f32 of 0.0001 widens to just below the f64 0.0001
-            let metres: f64 = v.to_string().parse().unwrap_or(f64::NAN);
-            if !(MIN_VOXEL_SIZE..=1.0).contains(&metres) {
+            if !usable_voxel_size(v) {
                 return Err(PyValueError::new_err(format!(
-                    "voxel_size must lie between {MIN_VOXEL_SIZE} and 1 metres, got {v}"
+                    "voxel_size must lie between {MIN_VOXEL_SIZE} and {MAX_VOXEL_SIZE} metres, got {v}"
                 )));
             }
             params.tsdf.voxel_size = v;

@@ -30,8 +30,18 @@ pub(crate) const REGION: i32 = 4;
 /// The smallest voxel edge a volume is meant to be given, metres: 0.1 mm, below the depth
 /// resolution of any RGB-D sensor. The ray march steps by voxels, so below it one frame's
 /// raycast takes minutes (at 0.01 mm, 20 frames of 320 × 240 did not finish in two minutes);
-/// the applications and the Python bindings refuse smaller voxels.
-pub const MIN_VOXEL_SIZE: f64 = 1e-4;
+/// the applications and the Python bindings refuse smaller voxels ([`usable_voxel_size`]).
+pub const MIN_VOXEL_SIZE: f32 = 1e-4;
+
+/// The largest voxel edge a volume is meant to be given, metres: a block of eight is then
+/// already twice the default depth range.
+pub const MAX_VOXEL_SIZE: f32 = 1.0;
+
+/// Whether `voxel_size` lies in [`MIN_VOXEL_SIZE`, `MAX_VOXEL_SIZE`] (compared in single
+/// precision, as [`TsdfParams::voxel_size`] is stored, so that 0.0001 as given is in).
+pub fn usable_voxel_size(voxel_size: f32) -> bool {
+    (MIN_VOXEL_SIZE..=MAX_VOXEL_SIZE).contains(&voxel_size)
+}
 
 /// Settings of the volume.
 #[derive(Clone, Copy, Debug, PartialEq)]
