@@ -29,7 +29,8 @@
 //! - [`warp_flags`]: the warp-field flags of the two non-rigid applications; [`deform_flags`]:
 //!   the generated deforming scene's field and surface;
 //! - [`iterations`]: the solver's iteration table; [`preview`]: `--preview` pictures;
-//!   [`rerun_log`]: `--rerun` logging (with the `rerun` feature); [`bench`](mod@bench): the benchmarks' setup.
+//!   [`rerun_log`]: `--rerun` logging (with the `rerun` feature); [`bench`](mod@bench): the benchmarks' setup;
+//! - [`unread_frames`]: the warnings for frames a sequence's lists name that a run will not read.
 //!
 //! The library these applications are made of is `dynamap-solver`, `dynamap-residuals` and
 //! `dynamap-slam`; nothing here is needed to use those.
@@ -41,6 +42,7 @@ pub mod flag_checks;
 pub mod iterations;
 pub mod preview;
 pub mod rerun_log;
+pub mod unread_frames;
 pub mod warp_flags;
 
 pub mod bundle_adjustment;

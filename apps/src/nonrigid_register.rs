@@ -24,7 +24,8 @@
 //! normals were turned to point the source's way (`target_normals_turned`, NOTES 140). A point
 //! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
 //! triangles after those wound against their neighbours are turned over (`faces_turned`, per
-//! mesh, with a warning; NOTES 141).
+//! mesh, with a warning; NOTES 141). A registration that did not register writes its outputs
+//! and JSON line, then exits 1 (NOTES 173).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
@@ -33,7 +34,8 @@
 //! their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow` scores it (EPE 3D).
 //! Without a mask, `--mask-nodes` takes the source's object from DeepDeform's graph nodes (its
 //! test pairs come so). The JSON gives the median distance from the source's points to the
-//! target's (inside its mask), before and after; `--picture` draws both.
+//! target's (inside its mask), before and after; `--picture` draws both. As with `meshes`, a pair
+//! that did not register exits 1 after its outputs and JSON line.
 //!
 //! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
 //! copies, alone and moved rigidly, at `--sizes` widths and `--columns` resolutions (issue 26):
@@ -561,7 +563,8 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         "inliers": m.source.len(),
     })));
     json["start"] = reg.start.name().into();
-    json["registered"] = verdict_json(reg.verdict());
+    let verdict = reg.verdict();
+    json["registered"] = verdict_json(verdict);
     json["colour_check"] = serde_json::json!(reg.colour.map(|c| serde_json::json!({
         "aligned": c.aligned,
         "off": c.off,
@@ -590,7 +593,18 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
         json["epe"] = flow_json(&scores);
     }
     println!("{json}");
-    Ok(())
+    registered_or_failure(verdict == FrameVerdict::Registered)
+}
+
+/// A registration's exit: a run that did not register has written its outputs and JSON line
+/// (with the warning saying why), and ends as a runtime failure (exit code 1) so that a script
+/// cannot take the result for a registration.
+fn registered_or_failure(registered: bool) -> Result<()> {
+    if registered {
+        Ok(())
+    } else {
+        bail!("the source was not registered onto the target (outputs and summary written)")
+    }
 }
 
 /// Whether the registration registered, as JSON; a warning when it did not.
@@ -802,7 +816,8 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         ply::write(out, &warped)?;
     }
     let mut json = summary_json(reg.graph.nodes.len(), &reg.summary, sp.len());
-    json["registered"] = surface_verdict_json(reg.verdict());
+    let verdict = reg.verdict();
+    json["registered"] = surface_verdict_json(verdict);
     json["target_normals_turned"] = reg.target_normals_turned.into();
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
@@ -822,5 +837,5 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         json["error_after"] = serde_json::json!({"mean": after.mean, "p95": after.p95});
     }
     println!("{json}");
-    Ok(())
+    registered_or_failure(verdict == SurfaceVerdict::Registered)
 }

@@ -22,6 +22,7 @@ use crate::cli;
 use crate::flag_checks;
 use crate::preview;
 use crate::rerun_log;
+use crate::unread_frames;
 use crate::warp_flags;
 
 use crate::deform_flags::{DeformMotion, SurfaceArg};
@@ -495,7 +496,9 @@ fn open_source(args: &Args) -> Result<Source> {
             frames,
         },
         Some(d) => {
-            let seq = Sequence::open(d, &OpenOptions::default()).bad_input()?;
+            let options = OpenOptions::default();
+            let seq = Sequence::open(d, &options).bad_input()?;
+            unread_frames::warn(d, &seq, options.max_difference);
             cli::check_tum_intrinsics(d, &seq, None)?;
             Source::Folder {
                 seq,

@@ -27,6 +27,7 @@ use crate::cli;
 use crate::flag_checks;
 use crate::preview;
 use crate::rerun_log;
+use crate::unread_frames;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -524,7 +525,7 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         ..OpenOptions::default()
     };
     let mut seq = Sequence::open(dir, &options).bad_input()?;
-    warn_of_unread_frames(dir, &seq, args.max_difference);
+    unread_frames::warn(dir, &seq, args.max_difference);
     let flags = [args.fx, args.fy, args.cx, args.cy, args.depth_scale];
     let given = flags[..4].iter().all(Option::is_some);
     cli::check_tum_intrinsics(dir, &seq, Some(given))?;
@@ -545,42 +546,6 @@ fn open_sequence(args: &Args, dir: &Path) -> Result<Sequence> {
         c.depth_scale = args.depth_scale.unwrap_or(c.depth_scale);
     }
     Ok(seq)
-}
-
-/// Warns of the frames the lists name that will not be read, and why (the lines of
-/// `associations.txt` left out; depth frames without a colour frame).
-fn warn_of_unread_frames(dir: &Path, seq: &Sequence, max_difference: f64) {
-    let listed = seq.listed_pairing();
-    if let Some(left) = listed.filter(|l| l.unlisted > 0) {
-        tracing::warn!(
-            "{}: associations.txt lines that name frames rgb.txt or depth.txt do not list: {}; \
-             they are left out",
-            dir.display(),
-            left.unlisted,
-        );
-    }
-    if let Some(left) = listed.filter(|l| l.far_apart > 0) {
-        tracing::warn!(
-            "{}: associations.txt lines that pair frames more than {:.3} s apart (one frame \
-             interval): {}; their colour would not show their depth's scene, so they are left out",
-            dir.display(),
-            left.limit,
-            left.far_apart,
-        );
-    }
-    let unpaired = seq.unpaired_depth();
-    if unpaired > 0 {
-        let why = if listed.is_some() {
-            "no colour frame in associations.txt".to_string()
-        } else {
-            format!("no colour frame within {max_difference} s (--max-difference sets the limit)")
-        };
-        tracing::warn!(
-            "{}: {unpaired} of {} depth frames have {why} and are not read",
-            dir.display(),
-            unpaired + seq.len(),
-        );
-    }
 }
 
 /// The ground truth's pose at the first frame when there is one (for comparable ATE plots; ATE

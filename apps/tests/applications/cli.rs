@@ -536,6 +536,58 @@ fn a_surface_that_cannot_be_oriented_is_warned_of_by_name() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A plate registered onto a third of its bent copy covers the target but most of it lies off
+/// it: the run writes its warped mesh and JSON line, says why it did not register, and exits 1, so
+/// that no script takes it for a registration.
+#[test]
+fn a_registration_that_did_not_register_writes_its_outputs_and_exits_1() {
+    use dynamap_slam::io::ply;
+    use dynamap_slam::mesh::Mesh;
+    use dynamap_slam::synthetic::plate::{flat_grid, PlateDeformation};
+    let dir = scratch("unregistered");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
+    let source = flat_grid();
+    let bent = PlateDeformation::ALL[0].deformed(&source);
+    let x = |k: usize| source.vertices[k].x;
+    let (lo, hi) = (0..source.vertices.len())
+        .map(x)
+        .fold((f32::MAX, f32::MIN), |(a, b), v| (a.min(v), b.max(v)));
+    let kept: Vec<bool> = (0..source.vertices.len())
+        .map(|k| x(k) <= lo + (hi - lo) / 3.0 + 1e-6)
+        .collect();
+    let mut index = vec![usize::MAX; kept.len()];
+    let mut part = Mesh::default();
+    for (k, _) in kept.iter().enumerate().filter(|(_, &keep)| keep) {
+        index[k] = part.vertices.len();
+        part.vertices.push(bent.vertices[k]);
+    }
+    part.faces = bent
+        .faces
+        .iter()
+        .filter(|f| f.iter().all(|&v| kept[v as usize]))
+        .map(|f| f.map(|v| index[v as usize] as u32))
+        .collect();
+    ply::write(dir.join("flat.ply"), &source).unwrap();
+    ply::write(dir.join("part.ply"), &part).unwrap();
+    let out = run(
+        "nonrigid_register",
+        &[
+            "meshes",
+            &path("flat.ply"),
+            &path("part.ply"),
+            "--output",
+            &path("warped.ply"),
+        ],
+    );
+    let says = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{says}");
+    assert_eq!(result_json(&out)["registered"], false);
+    assert!(says.contains("not registered"), "{says}");
+    let warped = ply::read(dir.join("warped.ply")).unwrap();
+    assert_eq!(warped.vertices.len(), source.vertices.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Vertices that no face uses (legal in PLY and OFF files) do not make a mesh larger: its
 /// settings and its score scale with the surface itself, so a plate with two stray vertices
 /// far off registers as the plate does. A surface with no extent, and a point cloud without
@@ -782,27 +834,7 @@ fn tum_calibrations_by_name_and_the_association_limit() {
     let listed = run("rigid_slam", &[seq, "--max-difference", "0", "-q"]);
     assert!(listed.status.success(), "{}", text(&listed.stderr));
     assert_eq!(result_json(&listed)["frames"], 3);
-    // a listed pair further apart than a frame interval is left out, with a warning
-    let list = format!("{seq}/associations.txt");
-    let lines: Vec<String> = std::fs::read_to_string(&list)
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .map(str::to_string)
-        .collect();
-    let (first, last) = (field_pair(&lines[0]), field_pair(&lines[2]));
-    let stale = format!("{}\n{}\n{} {}\n", lines[0], lines[1], first.0, last.1);
-    std::fs::write(&list, stale).unwrap();
-    let far = run("rigid_slam", &[seq]);
-    assert!(far.status.success(), "{}", text(&far.stderr));
-    assert_eq!(result_json(&far)["frames"], 2);
-    let says = text(&far.stderr);
-    assert!(
-        says.contains("associations.txt lines that pair frames more than")
-            && says.contains("): 1;"),
-        "{says}"
-    );
-    std::fs::write(&list, lines.join("\n")).unwrap();
+    odd_association_lines_are_left_out_or_warned_of(seq);
     // paired by stamps, pairs must be strictly closer than the limit (associate.py): 0 pairs
     // nothing, and says so
     let by_stamps = |limit: &str, quiet: bool| {
@@ -832,6 +864,49 @@ fn tum_calibrations_by_name_and_the_association_limit() {
         &["--gain-drift"],
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `rigid_slam` on the generated sequence `seq` with its `associations.txt` changed: a listed
+/// pair further apart than a frame interval is left out with a warning; a line repeated word for
+/// word is not warned of; a line whose stamp is not its list's is. The file is put back.
+fn odd_association_lines_are_left_out_or_warned_of(seq: &str) {
+    let list = format!("{seq}/associations.txt");
+    let lines: Vec<String> = std::fs::read_to_string(&list)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(str::to_string)
+        .collect();
+    let (first, last) = (field_pair(&lines[0]), field_pair(&lines[2]));
+    let stale = format!("{}\n{}\n{} {}\n", lines[0], lines[1], first.0, last.1);
+    std::fs::write(&list, stale).unwrap();
+    let far = run("rigid_slam", &[seq]);
+    assert!(far.status.success(), "{}", text(&far.stderr));
+    assert_eq!(result_json(&far)["frames"], 2);
+    let says = text(&far.stderr);
+    assert!(
+        says.contains("associations.txt lines that pair frames more than")
+            && says.contains("): 1;"),
+        "{says}"
+    );
+    // a line repeated word for word loses nothing and is not warned of; a line whose stamp is
+    // not its list's pairs its frames by the lists' stamps, with a warning
+    let f: Vec<&str> = lines[1].split_whitespace().collect();
+    let late: f64 = f[0].parse::<f64>().unwrap() + 0.5;
+    let restamped = format!("{late:.6} {} {} {}", f[1], f[2], f[3]);
+    let odd = format!("{}\n{}\n{restamped}\n{}\n", lines[0], lines[0], lines[2]);
+    std::fs::write(&list, odd).unwrap();
+    let out = run("rigid_slam", &[seq]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(result_json(&out)["frames"], 3);
+    let says = text(&out.stderr);
+    assert!(
+        says.contains("stamps differ from rgb.txt's or depth.txt's")
+            && says.contains(": 1 (up to 0.500 s)"),
+        "{says}"
+    );
+    assert!(!says.contains("pair a frame another line pairs"), "{says}");
+    std::fs::write(&list, lines.join("\n")).unwrap();
 }
 
 /// An `associations.txt` line's two halves, `stamp file` each, in the line's order.

@@ -196,7 +196,28 @@ pub struct LeftOut {
     pub far_apart: usize,
     /// The largest gap between a listed pair's stamps: see [`listed_pair_limit`].
     pub limit: f64,
+    /// Lines pairing a frame that another line pairs nearer in time (each frame keeps its nearest
+    /// partner, as in [`associate`]); a line repeated word for word is not counted.
+    pub contested: usize,
+    /// The paired lines whose stamps are not the lists' (the lists' are used).
+    pub restamped: Restamped,
 }
+
+/// Lines of `associations.txt` whose stamps differ from those `rgb.txt` and `depth.txt` give their
+/// files by more than [`STAMP_AGREEMENT`]: the lists were written apart from the associations
+/// (re-stamped, or another capture's), and the lists' stamps are the ones used.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Restamped {
+    /// How many lines.
+    pub count: usize,
+    /// The largest difference between a line's stamp and its list's, seconds.
+    pub largest: f64,
+}
+
+/// How far a stamp in `associations.txt` may lie from its list's for the same file, seconds:
+/// `associate.py` copies the lists' stamps as printed (TUM prints microseconds), so anything
+/// past printing's rounding, and well under a frame interval, says the files disagree.
+pub const STAMP_AGREEMENT: f64 = 1e-3;
 
 /// The largest gap, in seconds, between the stamps of a pair that `associations.txt` lists:
 /// one frame interval of the depth stream (the median gap between its stamps), and at least
@@ -220,7 +241,9 @@ pub fn listed_pair_limit(depth_stamps: &[f64]) -> f64 {
 /// reads it: `timestamp file timestamp file` per line, one file a colour frame of `rgb` and the
 /// other a depth frame of `depth` (in either order; the lists' stamps are the frames'). A frame
 /// named on two lines keeps its partner nearest in time (the other line's frames stay unpaired),
-/// as in [`associate`]. A line naming a file that neither list has is left out and counted:
+/// as in [`associate`]; such lines are counted ([`LeftOut::contested`]), and so are lines whose
+/// stamps are not the lists' ([`LeftOut::restamped`]). A line naming a file that neither list
+/// has is left out and counted:
 /// the lists say which frames the sequence has (a frame taken out of them is gone, whatever
 /// `associations.txt` still says). So is a line whose stamps are further apart than
 /// [`listed_pair_limit`] of the depth stamps.
@@ -238,6 +261,7 @@ pub fn parse_associations<'a>(
     };
     let (by_rgb, by_depth) = (index(rgb), index(depth));
     let (mut candidates, mut unlisted) = (Vec::new(), 0);
+    let mut restamped = Restamped::default();
     for (line, f) in data_lines(text) {
         if f.len() != 4 {
             return Err(IoError::line(
@@ -249,18 +273,32 @@ pub fn parse_associations<'a>(
                 ),
             ));
         }
-        number(path, line, &f, 0, "timestamp")?;
-        number(path, line, &f, 2, "timestamp")?;
+        let (sa, sb) = (
+            number(path, line, &f, 0, "timestamp")?,
+            number(path, line, &f, 2, "timestamp")?,
+        );
         let (a, b) = (f[1], f[3]);
         let listed = |f: &str| by_rgb.contains_key(f) || by_depth.contains_key(f);
-        match (
+        let pair = match (
             by_depth.get(a),
             by_rgb.get(b),
             by_rgb.get(a),
             by_depth.get(b),
         ) {
-            (Some(&d), Some(&r), _, _) | (_, _, Some(&r), Some(&d)) => candidates.push((d, r)),
-            _ if !listed(a) || !listed(b) => unlisted += 1,
+            (Some(&d), Some(&r), _, _) => Some((d, r, sa, sb)),
+            (_, _, Some(&r), Some(&d)) => Some((d, r, sb, sa)),
+            _ => None,
+        };
+        match pair {
+            Some((d, r, sd, sr)) => {
+                let off = (depth[d].0 - sd).abs().max((rgb[r].0 - sr).abs());
+                if off > STAMP_AGREEMENT {
+                    restamped.count += 1;
+                    restamped.largest = restamped.largest.max(off);
+                }
+                candidates.push((d, r));
+            }
+            None if !listed(a) || !listed(b) => unlisted += 1,
             _ => {
                 return Err(IoError::line(
                     path,
@@ -275,14 +313,21 @@ pub fn parse_associations<'a>(
     let gap = |&(d, r): &(usize, usize)| (depth[d].0 - rgb[r].0).abs();
     let listed = candidates.len();
     candidates.retain(|c| gap(c) <= limit);
+    let far_apart = listed - candidates.len();
     candidates.sort_by(|x, y| gap(x).total_cmp(&gap(y)).then(x.cmp(y)));
+    // a line repeated word for word pairs nothing new and loses nothing
+    candidates.dedup();
+    let distinct = candidates.len();
+    let pairs = one_to_one(candidates, &stamps, rgb.len());
     Ok(Associations {
         left_out: LeftOut {
             unlisted,
-            far_apart: listed - candidates.len(),
+            far_apart,
             limit,
+            contested: distinct - pairs.len(),
+            restamped,
         },
-        pairs: one_to_one(candidates, &stamps, rgb.len()),
+        pairs,
     })
 }
 
@@ -727,6 +772,26 @@ mod tests {
             parse_associations(twice, p, &rgb, &depth).unwrap().pairs,
             [(0, 0)]
         );
+        // (rgb/a is 8 ms from depth/b, 25 ms from depth/a: the line left is counted; a line
+        // repeated word for word loses nothing, and is not)
+        let contested = "0.025 rgb/a.png 0.0 depth/a.png\n0.025 rgb/a.png 0.033 depth/b.png\n";
+        let a = parse_associations(contested, p, &rgb, &depth).unwrap();
+        assert_eq!((a.pairs, a.left_out.contested), (vec![(1, 0)], 1));
+        let repeated = "0.025 rgb/a.png 0.0 depth/a.png\n0.025 rgb/a.png 0.0 depth/a.png\n";
+        let a = parse_associations(repeated, p, &rgb, &depth).unwrap();
+        assert_eq!((a.pairs, a.left_out.contested), (vec![(0, 0)], 0));
+        assert_eq!(a.left_out.restamped, Restamped::default());
+        // stamps that are not the lists' are counted, with the largest difference; the lists'
+        // stamps pair the frames (rgb/b's line stamps it 0.5 s late, depth/c's 1 µs off)
+        let restamped = "0.025 rgb/a.png 0.0 depth/a.png\n0.558 rgb/b.png 0.033 depth/b.png\n\
+                         0.091 rgb/c.png 0.066001 depth/c.png\n";
+        let a = parse_associations(restamped, p, &rgb, &depth).unwrap();
+        assert_eq!(
+            (a.pairs, a.left_out.far_apart),
+            (vec![(0, 0), (1, 1), (2, 2)], 0)
+        );
+        assert_eq!(a.left_out.restamped.count, 1);
+        assert!((a.left_out.restamped.largest - 0.5).abs() < 1e-9);
         // a frame taken out of the lists is gone, though associations.txt still names it
         let stale = "0.025 rgb/a.png 0.0 depth/a.png\n0.058 rgb/b.png 0.033 depth/gone.png\n";
         let a = parse_associations(stale, p, &rgb, &depth).unwrap();
