@@ -62,6 +62,19 @@ pub fn non_negative<T: Into<f64> + Copy + Display>(flag: &str, value: T) -> Resu
     }
 }
 
+/// `value` is a focal length, pixels: finite and not zero. A negative one is a mirrored image axis
+/// (ICL-NUIM's fy = −480), which [`dynamap_slam::camera`] carries through every formula.
+pub fn focal_length(flag: &str, value: f64) -> Result<()> {
+    if value.is_finite() && value != 0.0 {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "{flag} must be a finite non-zero focal length (negative for a mirrored axis), not \
+             {value}"
+        )))
+    }
+}
+
 /// `value` is a finite number.
 pub fn finite(flag: &str, value: f64) -> Result<()> {
     if value.is_finite() {

@@ -184,8 +184,9 @@ struct FrameArgs {
     source: PathBuf,
     /// The frame to move it onto: its depth image (.png).
     target: PathBuf,
-    /// Intrinsics of both frames: fx fy cx cy (pixels).
-    #[arg(long, required = true, num_args = 4, value_names = ["FX", "FY", "CX", "CY"])]
+    /// Intrinsics of both frames: fx fy cx cy (pixels; a negative focal length mirrors its axis).
+    #[arg(long, required = true, num_args = 4, value_names = ["FX", "FY", "CX", "CY"],
+          allow_negative_numbers = true)]
     intrinsics: Vec<f64>,
     /// Depth units per metre (e.g. 1000 for millimetres).
     #[arg(long, required = true)]
@@ -456,9 +457,11 @@ fn read_frame(
     mask: Option<&PathBuf>,
 ) -> Result<FrameFiles> {
     let (k, scale) = (&args.intrinsics, args.depth_scale);
-    if !(scale > 0.0 && scale.is_finite()) || k.iter().any(|v| !v.is_finite()) {
-        bail!("--depth-scale must be positive and the intrinsics finite");
-    }
+    flag_checks::positive("--depth-scale", scale)?;
+    flag_checks::focal_length("--intrinsics FX", k[0])?;
+    flag_checks::focal_length("--intrinsics FY", k[1])?;
+    flag_checks::finite("--intrinsics CX", k[2])?;
+    flag_checks::finite("--intrinsics CY", k[3])?;
     let raw = read_depth(depth)?;
     let mut camera = Camera::new(k[0], k[1], k[2], k[3], raw.width, raw.height);
     camera.depth_scale = scale;

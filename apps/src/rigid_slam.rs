@@ -136,17 +136,19 @@ struct Args {
     /// reported degenerate, not tracked.
     #[arg(long, default_value_t = SlamParams::default().tracker.min_conditioning)]
     min_conditioning: f64,
-    /// Focal length x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
-    #[arg(long)]
+    /// Focal length x, pixels (negative for a mirrored axis), when DIR has no intrinsics.txt
+    /// [default: TUM fr1's].
+    #[arg(long, allow_negative_numbers = true)]
     fx: Option<f64>,
-    /// Focal length y, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
-    #[arg(long)]
+    /// Focal length y, pixels (negative for a mirrored axis, as ICL-NUIM's −480), when DIR has
+    /// no intrinsics.txt [default: TUM fr1's].
+    #[arg(long, allow_negative_numbers = true)]
     fy: Option<f64>,
     /// Principal point x, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     cx: Option<f64>,
     /// Principal point y, pixels, when DIR has no intrinsics.txt [default: TUM fr1's].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     cy: Option<f64>,
     /// Depth units per metre when DIR has no intrinsics.txt [default: 5000, TUM's].
     #[arg(long)]
@@ -308,9 +310,9 @@ fn check_flags(args: &Args) -> Result<()> {
 /// Refuses intrinsics flags that no camera has (a focal length or depth scale of zero or less,
 /// a principal point at infinity), whether or not the folder's `intrinsics.txt` overrides them.
 fn check_intrinsics_flags(args: &Args) -> Result<()> {
-    use flag_checks::{finite, positive};
+    use flag_checks::{finite, focal_length, positive};
     for (flag, value) in [("--fx", args.fx), ("--fy", args.fy)] {
-        value.map_or(Ok(()), |v| positive(flag, v))?;
+        value.map_or(Ok(()), |v| focal_length(flag, v))?;
     }
     for (flag, value) in [("--cx", args.cx), ("--cy", args.cy)] {
         value.map_or(Ok(()), |v| finite(flag, v))?;

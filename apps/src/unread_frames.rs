@@ -6,7 +6,8 @@ use dynamap_slam::io::tum::{LeftOut, STAMP_AGREEMENT};
 use std::path::Path;
 
 /// Warns of the frames the lists name that will not be read, and why (the lines of
-/// `associations.txt` left out; depth frames without a colour frame), and of the lines of
+/// `associations.txt` left out; depth frames without a colour frame; frames at the stamp of an
+/// earlier one), and of the lines of
 /// `associations.txt` that pair a frame another line pairs nearer in time or give other stamps
 /// than the lists. `max_difference` is the stamp pairing's limit, for the message where the
 /// stamps paired the frames.
@@ -14,6 +15,14 @@ pub fn warn(dir: &Path, seq: &Sequence, max_difference: f64) {
     let listed = seq.listed_pairing();
     if let Some(left) = &listed {
         warn_of_listed(dir, left);
+    }
+    let repeated = seq.repeated_stamps();
+    if repeated > 0 {
+        tracing::warn!(
+            "{}: {repeated} paired frames have the depth stamp of an earlier frame (a trajectory \
+             has one pose per stamp); only the first at each stamp is read",
+            dir.display(),
+        );
     }
     let unpaired = seq.unpaired_depth();
     if unpaired > 0 {

@@ -50,9 +50,19 @@ pub fn residual_from(
             "residual: expected a dynamap.Residual or a callable",
         ));
     }
-    let dim = dim.filter(|&d| d > 0).ok_or_else(|| {
-        PyValueError::new_err("a residual written in Python needs dim (its number of rows)")
-    })?;
+    let dim = match dim {
+        Some(d) if d > 0 => d,
+        Some(_) => {
+            return Err(PyValueError::new_err(
+                "dim=0: a residual written in Python has at least one row",
+            ))
+        }
+        None => {
+            return Err(PyValueError::new_err(
+                "a residual written in Python needs dim (its number of rows)",
+            ))
+        }
+    };
     let c = Callable::new(residual.clone().unbind(), dim, block, errors.clone());
     Ok(match jacobians {
         "analytic" => Box::new(Analytic(c)),

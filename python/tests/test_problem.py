@@ -212,6 +212,8 @@ def test_bad_problem_definitions_raise_clear_errors():
         p.add_residual(lambda v: np.zeros(1), [5], dim=1, jacobians="numeric")
     with pytest.raises(ValueError, match="needs dim"):
         p.add_residual(lambda v: np.zeros(1), [x])
+    with pytest.raises(ValueError, match="dim=0: a residual written in Python has at least one row"):
+        p.add_residual(lambda v: np.zeros(0), [x], dim=0, jacobians="numeric")
     with pytest.raises(ValueError, match="unknown robust kernel 'hubber'"):
         p.add_residual(lambda v: np.zeros(1), [x], dim=1, kernel="hubber:1")
     with pytest.raises(ValueError, match="jacobians='auto'"):

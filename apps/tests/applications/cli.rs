@@ -276,7 +276,7 @@ fn flags_outside_their_range_are_refused_before_a_run() {
         ("rigid_slam", &["--lambda", "NaN"], "--lambda"),
         ("rigid_slam", &["--max-distance=-0.1"], "-0.1"),
         ("rigid_slam", &["--max-angle", "200"], "--max-angle"),
-        ("rigid_slam", &["--fx=-500"], "--fx"),
+        ("rigid_slam", &["--fx=0"], "--fx"),
         ("nonrigid_slam", &["--rounds", "0"], "--rounds"),
         ("nonrigid_slam", &["--tukey", "NaN"], "--tukey"),
         ("nonrigid_slam", &["--data-level", "99"], "--data-level"),

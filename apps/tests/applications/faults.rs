@@ -262,6 +262,60 @@ fn a_folder_whose_size_tums_intrinsics_do_not_fit_is_refused_until_they_are_give
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// An image's rows, `width` pixels each, in reverse order.
+fn upside_down<T: Copy>(data: &mut Vec<T>, width: usize) {
+    *data = data.chunks(width).rev().flatten().copied().collect();
+}
+
+/// Images stored upside down (ICL-NUIM's camera has fy = −480) are tracked when the intrinsics
+/// given on the command line say so: a negative focal length, written either way, is a mirrored
+/// axis, not bad input; a zero focal length is refused by name.
+#[test]
+fn frames_upside_down_are_tracked_with_a_negative_focal_length_given_as_flags() {
+    use dynamap_slam::io::images::{read_color, read_depth, write_color};
+    let dir = scratch("mirrored");
+    let seq = dir.join("seq");
+    orbit(&seq, 8);
+    std::fs::remove_file(seq.join("intrinsics.txt")).unwrap();
+    for f in depth_files(&seq) {
+        let mut d = read_depth(&f).unwrap();
+        upside_down(&mut d.data, d.width);
+        write_depth(&f, &d).unwrap();
+    }
+    for e in std::fs::read_dir(seq.join("rgb")).unwrap() {
+        let f = e.unwrap().path();
+        let mut c = read_color(&f).unwrap();
+        upside_down(&mut c.data, c.width);
+        write_color(&f, &c).unwrap();
+    }
+    let c = camera();
+    let cy = (c.height - 1) as f64 - c.cy;
+    let (fx, fy, cx, cy) = (
+        c.fx.to_string(),
+        (-c.fy).to_string(),
+        c.cx.to_string(),
+        cy.to_string(),
+    );
+    let s = seq.to_str().unwrap();
+    let given = |fy: &[&str]| {
+        let mut a = vec![s, "--fx", &fx, "--cx", &cx, "--cy", &cy, "-q"];
+        a.extend_from_slice(fy);
+        run("rigid_slam", &a)
+    };
+    let fy_eq = format!("--fy={fy}");
+    for fy in [vec!["--fy", fy.as_str()], vec![fy_eq.as_str()]] {
+        let out = given(&fy);
+        assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
+        let json = result_json(&out);
+        let ate = json["ate_rmse"].as_f64().unwrap();
+        assert!(ate < 0.005 && json["tracked"] == 8, "{fy:?}: {json}");
+    }
+    let zero = given(&["--fy", "0"]);
+    assert_eq!(zero.status.code(), Some(2));
+    assert!(text(&zero.stderr).contains("--fy must be a finite non-zero focal length"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn ctrl_c_writes_the_trajectory_so_far_and_exits_130() {
     let dir = scratch("ctrlc");

@@ -198,6 +198,15 @@ impl Sequence {
         }
     }
 
+    /// TUM: paired frames left out because an earlier frame has their depth stamp
+    /// ([`TumSequence::repeated_stamps`]); 0 for the other layouts, whose frames are numbered.
+    pub fn repeated_stamps(&self) -> usize {
+        match self {
+            Self::Tum(s) => s.repeated_stamps,
+            Self::IclNuim(..) | Self::Folder(_) => 0,
+        }
+    }
+
     /// The first frame's stamp, seconds (0 where the layout has no stamps).
     pub fn first_stamp(&self) -> f64 {
         match self {

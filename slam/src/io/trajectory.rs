@@ -38,10 +38,14 @@ impl Trajectory {
         Self::parse_tum(&read_text(path)?, path)
     }
 
-    /// Parses TUM text; `path` names it in errors.
+    /// Parses TUM text; `path` names it in errors. A stamp given twice with two poses is refused,
+    /// naming both lines (which of them holds is not for an evaluation to guess); a line
+    /// repeated with the same pose is kept as it is.
     pub fn parse_tum(text: &str, path: &Path) -> Result<Self, IoError> {
         let mut t = Trajectory::default();
+        let mut lines = Vec::new();
         for (line, f) in data_lines(text) {
+            lines.push(line);
             if f.len() != 8 {
                 return Err(IoError::line(
                     path,
@@ -72,7 +76,29 @@ impl Trajectory {
                 ),
             );
         }
+        t.check_repeated_stamps(&lines, path)?;
         Ok(t)
+    }
+
+    /// The error for the first stamp that two poses share, `lines` being each pose's line.
+    fn check_repeated_stamps(&self, lines: &[usize], path: &Path) -> Result<(), IoError> {
+        let mut order: Vec<usize> = (0..self.len()).collect();
+        order.sort_by(|&a, &b| self.stamps[a].total_cmp(&self.stamps[b]).then(a.cmp(&b)));
+        let clash = order.windows(2).find(|w| {
+            let (a, b) = (w[0], w[1]);
+            self.stamps[a] == self.stamps[b] && self.poses[a] != self.poses[b]
+        });
+        match clash {
+            Some(w) => Err(IoError::line(
+                path,
+                lines[w[1]],
+                format!(
+                    "timestamp {} is also on line {} with another pose",
+                    self.stamps[w[1]], lines[w[0]]
+                ),
+            )),
+            None => Ok(()),
+        }
     }
 
     /// The TUM text of this trajectory (every number at full precision).
@@ -120,6 +146,20 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "t.txt:2: fields qx qy qz qw: the quaternion is zero"
+        );
+        // a stamp repeated with another pose is refused by both lines; a line repeated is kept
+        let twice = "1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n# again\n1 0 0 0 0 0 0 1\n";
+        assert_eq!(
+            Trajectory::parse_tum(twice, Path::new("t.txt"))
+                .unwrap()
+                .len(),
+            3
+        );
+        let clash = "1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n1 9 9 9 0 0 0 1\n";
+        let e = Trajectory::parse_tum(clash, Path::new("t.txt")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t.txt:3: timestamp 1 is also on line 1 with another pose"
         );
     }
 

@@ -76,6 +76,9 @@ pub struct TumSequence {
     /// Depth frames of `depth.txt` left out for want of a colour frame (within the stamp limit,
     /// as `associate.py` leaves them out, or in `associations.txt`).
     pub unpaired_depth: usize,
+    /// Paired frames left out because an earlier frame has the same depth stamp (a trajectory
+    /// has one pose per stamp; the first frame listed at it is read).
+    pub repeated_stamps: usize,
     /// Where `associations.txt` paired the frames, the lines it left out (`None` where the
     /// stamps paired them).
     pub listed: Option<LeftOut>,
@@ -575,7 +578,7 @@ impl TumSequence {
         let depth = read_list(&root.join("depth.txt"))?;
         let (Associations { pairs, left_out }, listed) =
             pair_frames(&root, &rgb, &depth, max_difference, pairing)?;
-        let frames: Vec<FrameFiles> = pairs
+        let mut frames: Vec<FrameFiles> = pairs
             .iter()
             .map(|&(d, r)| FrameFiles {
                 timestamp: depth[d].0,
@@ -584,6 +587,9 @@ impl TumSequence {
                 rgb: root.join(&rgb[r].1),
             })
             .collect();
+        // two depth frames at one instant would give the trajectory two poses for one stamp
+        let paired = frames.len();
+        frames.dedup_by(|later, first| later.timestamp == first.timestamp);
         let gt_path = root.join("groundtruth.txt");
         let groundtruth = if gt_path.exists() {
             Some(Trajectory::read_tum(&gt_path)?)
@@ -610,7 +616,8 @@ impl TumSequence {
         Ok(Self {
             root,
             camera,
-            unpaired_depth: depth.len() - frames.len(),
+            unpaired_depth: depth.len() - paired,
+            repeated_stamps: paired - frames.len(),
             listed: listed.then_some(left_out),
             frames,
             groundtruth,
@@ -933,6 +940,30 @@ mod tests {
         let depth_list = "0.000 depth/0.png\n0.100 depth/0.png\n";
         std::fs::write(dir.join("depth.txt"), depth_list).unwrap();
         std::fs::write(dir.join("rgb.txt"), "0.004 rgb/0.png\n").unwrap();
+    }
+
+    /// Two depth frames listed at one stamp would give the trajectory two poses for it: the
+    /// first is read, the other counted. Frames at distinct stamps are all read.
+    #[test]
+    fn a_depth_stamp_listed_twice_is_read_once_and_counted() {
+        let dir = std::env::temp_dir().join(format!("dynamap-twice-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        std::fs::create_dir_all(dir.join("depth")).unwrap();
+        one_image_each(
+            &dir,
+            &Image::filled(8, 6, 5000),
+            &ColorImage::filled(8, 6, [1, 2, 3]),
+        );
+        std::fs::write(dir.join("intrinsics.txt"), "7 7 3.5 2.5 5000\n").unwrap();
+        let depth = "0.000 depth/0.png\n0.100 depth/0.png\n0.100 depth/0.png\n0.200 depth/0.png\n";
+        std::fs::write(dir.join("depth.txt"), depth).unwrap();
+        let rgb = "0.004 rgb/0.png\n0.104 rgb/0.png\n0.105 rgb/0.png\n0.204 rgb/0.png\n";
+        std::fs::write(dir.join("rgb.txt"), rgb).unwrap();
+        let seq = TumSequence::open(&dir).unwrap();
+        let stamps: Vec<f64> = seq.frames.iter().map(|f| f.timestamp).collect();
+        assert_eq!(stamps, [0.0, 0.1, 0.2]);
+        assert_eq!((seq.repeated_stamps, seq.unpaired_depth), (1, 0));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
