@@ -931,6 +931,18 @@ mod tests {
         assert_eq!((gt(&a), gt(&b)), (Some(2), Some(2)));
     }
 
+    /// `dir` with `rgb/` and `depth/` holding one plain 8 × 6 image each, listed as
+    /// [`one_image_each`] lists them.
+    fn plain_8x6_frames(dir: &Path) {
+        std::fs::create_dir_all(dir.join("rgb")).unwrap();
+        std::fs::create_dir_all(dir.join("depth")).unwrap();
+        one_image_each(
+            dir,
+            &Image::filled(8, 6, 5000),
+            &ColorImage::filled(8, 6, [1, 2, 3]),
+        );
+    }
+
     /// Writes `depth` and `color` into `dir` (whose `rgb` and `depth` folders exist), listed as
     /// depth at 0 and 0.1 s (the same image) and colour at 0.004 s.
     fn one_image_each(dir: &Path, depth: &Image<u16>, color: &ColorImage) {
@@ -947,13 +959,7 @@ mod tests {
     #[test]
     fn a_depth_stamp_listed_twice_is_read_once_and_counted() {
         let dir = std::env::temp_dir().join(format!("dynamap-twice-{}", std::process::id()));
-        std::fs::create_dir_all(dir.join("rgb")).unwrap();
-        std::fs::create_dir_all(dir.join("depth")).unwrap();
-        one_image_each(
-            &dir,
-            &Image::filled(8, 6, 5000),
-            &ColorImage::filled(8, 6, [1, 2, 3]),
-        );
+        plain_8x6_frames(&dir);
         std::fs::write(dir.join("intrinsics.txt"), "7 7 3.5 2.5 5000\n").unwrap();
         let depth = "0.000 depth/0.png\n0.100 depth/0.png\n0.100 depth/0.png\n0.200 depth/0.png\n";
         std::fs::write(dir.join("depth.txt"), depth).unwrap();
@@ -1038,14 +1044,8 @@ mod tests {
     fn eth3d_calibration_and_associated_list_are_read_and_tums_are_marked() {
         let base = std::env::temp_dir().join(format!("dynamap-eth3d-{}", std::process::id()));
         let dir = base.join("rgbd_dataset_freiburg2_desk");
-        std::fs::create_dir_all(dir.join("rgb")).unwrap();
-        std::fs::create_dir_all(dir.join("depth")).unwrap();
         // the stamps would pair colour with the depth at 0; the list pairs it with the one at 0.1
-        one_image_each(
-            &dir,
-            &Image::filled(8, 6, 5000),
-            &ColorImage::filled(8, 6, [1, 2, 3]),
-        );
+        plain_8x6_frames(&dir);
         std::fs::write(
             dir.join("associated.txt"),
             "0.004 rgb/0.png 0.100 depth/0.png\n",
