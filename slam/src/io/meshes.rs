@@ -1,5 +1,5 @@
 //! Triangle meshes in the text formats shape datasets use, OFF (Princeton shape benchmark) and
-//! Wavefront OBJ (vertices and faces only), and [`read_mesh`], which picks the reader (PLY too) by
+//! Wavefront OBJ (vertices, their colours where given, and faces), and [`read_mesh`], which picks the reader (PLY too) by
 //! extension. Polygons with more than three corners are fanned into triangles.
 
 use super::{ply, read_text, IoError};
@@ -202,17 +202,24 @@ fn off_keyword(word: &str) -> Option<Result<&str, &str>> {
 /// Parses OBJ text: `v x y z` and `f a b c …` lines (indices 1-based, negative ones relative to
 /// the vertices read so far, each possibly `v/vt/vn`); other statements are skipped. A face may
 /// name a vertex defined further down the file: indices are checked once every vertex is read.
+/// A line ending in a backslash goes on on the next (the format's continuation). Vertex colours
+/// written after the position (`v x y z r g b`, each in 0–1, as MeshLab and Open3D write them)
+/// are read when every vertex has one.
 pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
     // a byte-order mark would hide the first statement's keyword
     let text = without_bom(text);
     let mut mesh = Mesh::default();
     // every face's corners, flat, and (line, first corner) per face
     let (mut corners, mut faces) = (Vec::new(), Vec::new());
-    for (i, l) in text.lines().enumerate() {
-        let line = i + 1;
+    for (line, l) in obj_statements(text) {
         let f: Vec<&str> = l.split_whitespace().collect();
         match f.first() {
-            Some(&"v") => mesh.vertices.push(point(&f[1..], path, line)?),
+            Some(&"v") => {
+                mesh.vertices.push(point(&f[1..], path, line)?);
+                if let Some(rgb) = f.get(4..7).filter(|_| f.len() == 7) {
+                    mesh.colors.push(obj_color(rgb, path, line)?);
+                }
+            }
             Some(&"f") => {
                 faces.push((line, corners.len()));
                 let so_far = mesh.vertices.len() as i64;
@@ -228,7 +235,40 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
         let end = faces.get(k + 1).map_or(corners.len(), |f| f.1);
         push_polygon(&mut mesh, &corners[start..end], nv, path, line)?;
     }
+    if mesh.colors.len() != nv {
+        mesh.colors.clear();
+    }
     Ok(mesh)
+}
+
+/// OBJ's statements with the line each starts on: a line ending in `\` is joined to the next.
+fn obj_statements(text: &str) -> Vec<(usize, String)> {
+    let mut out: Vec<(usize, String)> = Vec::new();
+    let mut open = false;
+    for (i, l) in text.lines().enumerate() {
+        let (body, goes_on) = match l.trim_end().strip_suffix('\\') {
+            Some(b) => (b, true),
+            None => (l, false),
+        };
+        match out.last_mut().filter(|_| open) {
+            Some((_, s)) => {
+                s.push(' ');
+                s.push_str(body);
+            }
+            None => out.push((i + 1, body.to_string())),
+        }
+        open = goes_on;
+    }
+    out
+}
+
+/// A vertex colour of OBJ's `v x y z r g b`, each channel in 0–1 (clamped), as 8-bit levels.
+fn obj_color(rgb: &[&str], path: &Path, line: usize) -> Result<[u8; 3], IoError> {
+    let mut c = [0u8; 3];
+    for (c, s) in c.iter_mut().zip(rgb) {
+        *c = (number(s, path, line)?.clamp(0.0, 1.0) * 255.0).round() as u8;
+    }
+    Ok(c)
 }
 
 /// A face corner's 0-based vertex index from `v`, `v/vt`, `v//vn` or `v/vt/vn` (`so_far`
@@ -266,6 +306,28 @@ mod tests {
         .unwrap();
         assert_eq!(off.faces, vec![[0, 1, 2], [0, 2, 3]]);
         assert_eq!(off, obj);
+        // a face continued on the next line by a backslash is the same face
+        let continued = parse_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 \\\n 3 4\n", p);
+        assert_eq!(continued.unwrap(), off);
+    }
+
+    /// `v x y z r g b` gives every vertex its colour (0–1 to 8 bits); a file where only some
+    /// vertices have one keeps none, and a colour that is no number is named by line.
+    #[test]
+    fn obj_vertex_colours_are_read_when_every_vertex_has_one() {
+        let p = Path::new("c.obj");
+        let mesh = parse_obj(
+            "v 0 0 0 1 0 0\nv 1 0 0 0 0.5 0\nv 1 1 0 0 0 2\nf 1 2 3\n",
+            p,
+        );
+        assert_eq!(
+            mesh.unwrap().colors,
+            [[255, 0, 0], [0, 128, 0], [0, 0, 255]]
+        );
+        let some = parse_obj("v 0 0 0 1 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n", p).unwrap();
+        assert!(some.colors.is_empty() && some.faces.len() == 1);
+        let bad = parse_obj("v 0 0 0\nv 1 0 0 x 0 0\n", p).unwrap_err();
+        assert_eq!(bad.to_string(), "c.obj:2: 'x' is not a finite number");
     }
 
     /// The unit square of `off_and_obj_give_the_same_square`, as two triangles.
