@@ -13,7 +13,8 @@
 //! the tracked frames left out because no loop placed their map), held_apart (joins of maps that
 //! later loops contradicted, undone), unpaired_depth (TUM-layout depth frames without a colour
 //! frame in `associations.txt`, or within `--max-difference` where the folder has none; not
-//! read, and a warning names them too), the loop_events (each loop's keyframes by frame number
+//! read, and a warning names them too), repeated_stamps (TUM-layout frames at the depth stamp of
+//! an earlier one: not read, warned of), the loop_events (each loop's keyframes by frame number
 //! counted from 1 and by depth stamp, its inliers and DCS weight, null for a loop between maps
 //! held apart, which is not solved) and the ATE when the folder has a ground truth. The
 //! trajectory holds the tracked frames only.
@@ -473,6 +474,7 @@ fn run(args: Args, session: &Session) -> Result<()> {
             "failures": tally.failures, "skipped": tally.skipped, "tracked": tally.trajectory.len(),
             "relocalised": tally.relocalised, "new_maps": tally.new_maps, "held_apart": graph.held_apart(),
             "unplaced_frames": unplaced, "unpaired_depth": seq.unpaired_depth(),
+            "repeated_stamps": seq.repeated_stamps(),
             "keyframes": graph.graph().vertices.len(), "loops": graph.loop_count(),
             "loop_events": loop_events(graph, solved.as_ref(), &tally.given), "ate_tracked": ate_tracked,
             "graph_converged": solved.as_ref().map(|o| o.converged),

@@ -7,10 +7,9 @@ use std::path::Path;
 
 /// Warns of the frames the lists name that will not be read, and why (the lines of
 /// `associations.txt` left out; depth frames without a colour frame; frames at the stamp of an
-/// earlier one), and of the lines of
-/// `associations.txt` that pair a frame another line pairs nearer in time or give other stamps
-/// than the lists. `max_difference` is the stamp pairing's limit, for the message where the
-/// stamps paired the frames.
+/// earlier one), and of the lines of `associations.txt` that pair a frame another line pairs
+/// nearer in time or give other stamps than the lists. `max_difference` is the stamp pairing's
+/// limit, for the message where the stamps paired the frames.
 pub fn warn(dir: &Path, seq: &Sequence, max_difference: f64) {
     let listed = seq.listed_pairing();
     if let Some(left) = &listed {
