@@ -8,6 +8,7 @@ use crate::cli::bad_input;
 use anyhow::Result;
 use std::fmt::Display;
 
+use dynamap_slam::camera::usable_focal_length;
 pub use dynamap_slam::synthetic::{MAX_FRAMES, MAX_PIXELS};
 use dynamap_slam::tsdf::{usable_voxel_size, MAX_VOXEL_SIZE, MIN_VOXEL_SIZE};
 
@@ -62,10 +63,11 @@ pub fn non_negative<T: Into<f64> + Copy + Display>(flag: &str, value: T) -> Resu
     }
 }
 
-/// `value` is a focal length, pixels: finite and not zero. A negative one is a mirrored image axis
-/// (ICL-NUIM's fy = −480), which [`dynamap_slam::camera`] carries through every formula.
+/// `value` is a focal length, pixels ([`usable_focal_length`]: finite and not zero). A negative
+/// one is a mirrored image axis (ICL-NUIM's fy = −480), which [`dynamap_slam::camera`] carries
+/// through every formula.
 pub fn focal_length(flag: &str, value: f64) -> Result<()> {
-    if value.is_finite() && value != 0.0 {
+    if usable_focal_length(value) {
         Ok(())
     } else {
         Err(bad_input(format!(
@@ -73,6 +75,19 @@ pub fn focal_length(flag: &str, value: f64) -> Result<()> {
              {value}"
         )))
     }
+}
+
+/// Pinhole intrinsics given as flags, each `(flag, value)` and `None` where not given: fx and fy
+/// focal lengths ([`focal_length`]), cx and cy finite.
+pub fn intrinsics(given: [(&str, Option<f64>); 4]) -> Result<()> {
+    for (k, (flag, value)) in given.into_iter().enumerate() {
+        match value {
+            Some(v) if k < 2 => focal_length(flag, v)?,
+            Some(v) => finite(flag, v)?,
+            None => {}
+        }
+    }
+    Ok(())
 }
 
 /// `value` is a finite number.
@@ -166,6 +181,18 @@ mod tests {
         assert!(voxel("--v", 0.0001).is_ok() && voxel("--v", 1.0).is_ok());
         assert!(voxel("--v", f32::NAN).is_err() && voxel("--v", 1.5).is_err());
         assert!(message(voxel("--v", 1e-5)).contains("0.0001"));
+        let k = |fy: f64, cy: f64| {
+            intrinsics([
+                ("--fx", None),
+                ("--fy", Some(fy)),
+                ("--cx", None),
+                ("--cy", Some(cy)),
+            ])
+        };
+        assert!(k(-480.0, -10.0).is_ok());
+        assert!(
+            message(k(0.0, 1.0)).contains("--fy") && message(k(1.0, f64::NAN)).contains("--cy")
+        );
         assert!(angle("--g", 180.0).is_ok());
         assert!(angle("--g", 0.0).is_err() && angle("--g", 180.5).is_err());
         assert!(iterations("--i", &[0, 0, 3], true).is_ok());

@@ -457,11 +457,6 @@ fn read_frame(
     mask: Option<&PathBuf>,
 ) -> Result<FrameFiles> {
     let (k, scale) = (&args.intrinsics, args.depth_scale);
-    flag_checks::positive("--depth-scale", scale)?;
-    flag_checks::focal_length("--intrinsics FX", k[0])?;
-    flag_checks::focal_length("--intrinsics FY", k[1])?;
-    flag_checks::finite("--intrinsics CX", k[2])?;
-    flag_checks::finite("--intrinsics CY", k[3])?;
     let raw = read_depth(depth)?;
     let mut camera = Camera::new(k[0], k[1], k[2], k[3], raw.width, raw.height);
     camera.depth_scale = scale;
@@ -503,8 +498,17 @@ fn input_or_failure(e: FrameError) -> anyhow::Error {
 }
 
 impl FrameArgs {
-    /// Refuses output paths that could not be written, before the frames are read.
-    fn check_outputs(&self) -> Result<()> {
+    /// Refuses intrinsics no camera has and output paths that could not be written, before the
+    /// frames are read.
+    fn check(&self) -> Result<()> {
+        let k = &self.intrinsics;
+        flag_checks::intrinsics([
+            ("--intrinsics FX", Some(k[0])),
+            ("--intrinsics FY", Some(k[1])),
+            ("--intrinsics CX", Some(k[2])),
+            ("--intrinsics CY", Some(k[3])),
+        ])?;
+        flag_checks::positive("--depth-scale", self.depth_scale)?;
         let files = [
             ("--output", self.output.as_deref()),
             ("--flow", self.flow.as_deref()),
@@ -517,7 +521,7 @@ impl FrameArgs {
 /// Registers one RGB-D frame onto another, writes the warped points and the scene flow, scores the
 /// flow against ground truth, and prints the JSON line.
 fn register_frame_pair(args: &FrameArgs) -> Result<()> {
-    args.check_outputs()?;
+    args.check()?;
     let mut source =
         read_frame(args, &args.source, args.color.as_ref(), args.mask.as_ref()).bad_input()?;
     let target = read_frame(

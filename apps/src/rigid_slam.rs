@@ -311,15 +311,14 @@ fn check_flags(args: &Args) -> Result<()> {
 /// Refuses intrinsics flags that no camera has (a focal length or depth scale of zero or less,
 /// a principal point at infinity), whether or not the folder's `intrinsics.txt` overrides them.
 fn check_intrinsics_flags(args: &Args) -> Result<()> {
-    use flag_checks::{finite, focal_length, positive};
-    for (flag, value) in [("--fx", args.fx), ("--fy", args.fy)] {
-        value.map_or(Ok(()), |v| focal_length(flag, v))?;
-    }
-    for (flag, value) in [("--cx", args.cx), ("--cy", args.cy)] {
-        value.map_or(Ok(()), |v| finite(flag, v))?;
-    }
+    flag_checks::intrinsics([
+        ("--fx", args.fx),
+        ("--fy", args.fy),
+        ("--cx", args.cx),
+        ("--cy", args.cy),
+    ])?;
     args.depth_scale
-        .map_or(Ok(()), |v| positive("--depth-scale", v))
+        .map_or(Ok(()), |v| flag_checks::positive("--depth-scale", v))
 }
 
 /// Renders the default sequence (60 frames orbiting the room, 640×480, recorded by the

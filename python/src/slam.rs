@@ -5,7 +5,7 @@
 use crate::arrays;
 use crate::errors;
 use crate::meshes;
-use dynamap_slam::camera::Camera;
+use dynamap_slam::camera::{usable_focal_length, Camera};
 use dynamap_slam::image::{ColorImage, Image};
 use dynamap_slam::io::sequence::{OpenOptions, Sequence as Core};
 use dynamap_slam::io::trajectory::Trajectory;
@@ -82,7 +82,9 @@ pub(crate) fn pinhole(
     (width, height): (usize, usize),
     depth_scale: f64,
 ) -> PyResult<Camera> {
-    let ok = [fx, fy, cx, cy, depth_scale].iter().all(|v| v.is_finite()) && fx != 0.0 && fy != 0.0;
+    let ok = [cx, cy, depth_scale].iter().all(|v| v.is_finite())
+        && usable_focal_length(fx)
+        && usable_focal_length(fy);
     if !ok || depth_scale <= 0.0 || width < 8 || height < 8 {
         return Err(PyValueError::new_err(format!(
             "the camera needs finite non-zero focal lengths, a positive depth scale and images of at least 8 x 8 (got {width} x {height})"

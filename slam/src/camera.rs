@@ -31,6 +31,12 @@ pub struct Camera {
     pub depth_max: f64,
 }
 
+/// Whether `f` can be a focal length, pixels: finite and not zero (a negative one mirrors its
+/// axis, as above).
+pub fn usable_focal_length(f: f64) -> bool {
+    f.is_finite() && f != 0.0
+}
+
 impl Camera {
     /// A camera with the default depth scale 5000 and range 0.1–10 m.
     pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, width: usize, height: usize) -> Self {

@@ -6,6 +6,7 @@ use super::{ply, read_text, IoError};
 use crate::mesh::{Mesh, Winding};
 use dynamap_residuals::text::without_bom;
 use nalgebra::Point3;
+use std::borrow::Cow;
 use std::path::Path;
 
 /// Reads a PLY, OFF or OBJ mesh by its extension; normals are computed from the faces when the file
@@ -241,9 +242,10 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
     Ok(mesh)
 }
 
-/// OBJ's statements with the line each starts on: a line ending in `\` is joined to the next.
-fn obj_statements(text: &str) -> Vec<(usize, String)> {
-    let mut out: Vec<(usize, String)> = Vec::new();
+/// OBJ's statements with the line each starts on: a line ending in `\` is joined to the next
+/// (only such statements are copied; the others borrow their line).
+fn obj_statements(text: &str) -> Vec<(usize, Cow<'_, str>)> {
+    let mut out: Vec<(usize, Cow<'_, str>)> = Vec::new();
     let mut open = false;
     for (i, l) in text.lines().enumerate() {
         let (body, goes_on) = match l.trim_end().strip_suffix('\\') {
@@ -252,10 +254,11 @@ fn obj_statements(text: &str) -> Vec<(usize, String)> {
         };
         match out.last_mut().filter(|_| open) {
             Some((_, s)) => {
+                let s = s.to_mut();
                 s.push(' ');
                 s.push_str(body);
             }
-            None => out.push((i + 1, body.to_string())),
+            None => out.push((i + 1, Cow::Borrowed(body))),
         }
         open = goes_on;
     }

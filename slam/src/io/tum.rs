@@ -11,7 +11,7 @@
 use super::images::{read_color, read_depth};
 use super::trajectory::Trajectory;
 use super::{data_lines, number, read_text, IoError};
-use crate::camera::Camera;
+use crate::camera::{usable_focal_length, Camera};
 use crate::distortion::{Distortion, Undistorter};
 use crate::image::{ColorImage, Image};
 use std::path::{Path, PathBuf};
@@ -434,7 +434,7 @@ pub(crate) fn parse_calibration(
     height: usize,
 ) -> Result<(Camera, Distortion), IoError> {
     let (line, v) = numbers_line(text, path, &INTRINSICS_LINE)?;
-    if v[0] == 0.0 || v[1] == 0.0 || v[4] <= 0.0 {
+    if !usable_focal_length(v[0]) || !usable_focal_length(v[1]) || v[4] <= 0.0 {
         return Err(IoError::line(
             path,
             line,
@@ -513,7 +513,7 @@ fn parse_eth3d_calibration(
     height: usize,
 ) -> Result<Camera, IoError> {
     let (line, v) = numbers_line(text, path, &ETH3D_LINE)?;
-    if v[0] == 0.0 || v[1] == 0.0 {
+    if !usable_focal_length(v[0]) || !usable_focal_length(v[1]) {
         return Err(IoError::line(path, line, "focal lengths must be non-zero"));
     }
     Ok(Camera::new(v[0], v[1], v[2], v[3], width, height))
