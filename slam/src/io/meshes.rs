@@ -204,21 +204,22 @@ fn off_keyword(word: &str) -> Option<Result<&str, &str>> {
 /// the vertices read so far, each possibly `v/vt/vn`); other statements are skipped. A face may
 /// name a vertex defined further down the file: indices are checked once every vertex is read.
 /// A line ending in a backslash goes on on the next (the format's continuation). Vertex colours
-/// written after the position (`v x y z r g b`, each in 0–1, as MeshLab and Open3D write them)
-/// are read when every vertex has one.
+/// written after the position (`v x y z r g b`) are read when every vertex has one: in 0–1, as
+/// MeshLab and Open3D write them, or in 8-bit levels where any channel of the file exceeds 1.
 pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
     // a byte-order mark would hide the first statement's keyword
     let text = without_bom(text);
     let mut mesh = Mesh::default();
     // every face's corners, flat, and (line, first corner) per face
     let (mut corners, mut faces) = (Vec::new(), Vec::new());
+    let mut colors = Vec::new();
     for (line, l) in obj_statements(text) {
         let f: Vec<&str> = l.split_whitespace().collect();
         match f.first() {
             Some(&"v") => {
                 mesh.vertices.push(point(&f[1..], path, line)?);
                 if let Some(rgb) = f.get(4..7).filter(|_| f.len() == 7) {
-                    mesh.colors.push(obj_color(rgb, path, line)?);
+                    colors.push(obj_color(rgb, path, line)?);
                 }
             }
             Some(&"f") => {
@@ -236,8 +237,8 @@ pub fn parse_obj(text: &str, path: &Path) -> Result<Mesh, IoError> {
         let end = faces.get(k + 1).map_or(corners.len(), |f| f.1);
         push_polygon(&mut mesh, &corners[start..end], nv, path, line)?;
     }
-    if mesh.colors.len() != nv {
-        mesh.colors.clear();
+    if colors.len() == nv {
+        mesh.colors = obj_levels(&colors);
     }
     Ok(mesh)
 }
@@ -265,13 +266,22 @@ fn obj_statements(text: &str) -> Vec<(usize, Cow<'_, str>)> {
     out
 }
 
-/// A vertex colour of OBJ's `v x y z r g b`, each channel in 0–1 (clamped), as 8-bit levels.
-fn obj_color(rgb: &[&str], path: &Path, line: usize) -> Result<[u8; 3], IoError> {
-    let mut c = [0u8; 3];
+/// A vertex colour of OBJ's `v x y z r g b`, as written.
+fn obj_color(rgb: &[&str], path: &Path, line: usize) -> Result<[f32; 3], IoError> {
+    let mut c = [0.0; 3];
     for (c, s) in c.iter_mut().zip(rgb) {
-        *c = (number(s, path, line)?.clamp(0.0, 1.0) * 255.0).round() as u8;
+        *c = number(s, path, line)?;
     }
     Ok(c)
+}
+
+/// OBJ vertex colours as 8-bit levels: the file's channels are fractions of 1 unless one of them
+/// exceeds 1, when they are levels of 255 (some writers give those); clamped to the range.
+fn obj_levels(colors: &[[f32; 3]]) -> Vec<[u8; 3]> {
+    let levels = colors.iter().flatten().any(|&c| c > 1.0);
+    let scale = if levels { 1.0 } else { 255.0 };
+    let level = |c: f32| (c * scale).round().clamp(0.0, 255.0) as u8;
+    colors.iter().map(|c| c.map(level)).collect()
 }
 
 /// A face corner's 0-based vertex index from `v`, `v/vt`, `v//vn` or `v/vt/vn` (`so_far`
@@ -314,18 +324,25 @@ mod tests {
         assert_eq!(continued.unwrap(), off);
     }
 
-    /// `v x y z r g b` gives every vertex its colour (0–1 to 8 bits); a file where only some
+    /// `v x y z r g b` gives every vertex its colour (0–1 to 8 bits, or 8-bit levels where a
+    /// channel exceeds 1; clamped either way); a file where only some
     /// vertices have one keeps none, and a colour that is no number is named by line.
     #[test]
     fn obj_vertex_colours_are_read_when_every_vertex_has_one() {
         let p = Path::new("c.obj");
         let mesh = parse_obj(
-            "v 0 0 0 1 0 0\nv 1 0 0 0 0.5 0\nv 1 1 0 0 0 2\nf 1 2 3\n",
+            "v 0 0 0 1 0 0\nv 1 0 0 0 0.5 0\nv 1 1 0 0 -0.5 1\nf 1 2 3\n",
             p,
         );
         assert_eq!(
             mesh.unwrap().colors,
             [[255, 0, 0], [0, 128, 0], [0, 0, 255]]
+        );
+        // a writer's 8-bit levels are read as levels, not clamped to white
+        let levels = parse_obj("v 0 0 0 255 0 0\nv 1 0 0 0 128 1\nv 1 1 0 0 0 300\n", p);
+        assert_eq!(
+            levels.unwrap().colors,
+            [[255, 0, 0], [0, 128, 1], [0, 0, 255]]
         );
         let some = parse_obj("v 0 0 0 1 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n", p).unwrap();
         assert!(some.colors.is_empty() && some.faces.len() == 1);
