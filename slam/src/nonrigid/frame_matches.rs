@@ -170,6 +170,8 @@ pub(super) fn held_seeds(
         matches,
         stages: 0,
         tukey_scale: 1.0,
+        // no stage is seeded: the pinned matches are weighed as the frames' own matches
+        point_weight: 0.0,
         replace_all: false,
         iterations: 0,
         pinned,

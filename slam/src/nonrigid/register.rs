@@ -262,6 +262,11 @@ pub struct Seeds {
     /// Tukey's c in those stages, as a multiple of [`RegisterParams::tukey`]: the seeds are far
     /// from where the points start, and a narrow kernel would reject them.
     pub tukey_scale: f64,
+    /// Weight of the point-to-point term in those stages, in place of
+    /// [`RegisterParams::point_weight`]. A seed names the point itself, so all of its offset
+    /// counts; a closest-point partner is right along the normal only, its place along the
+    /// surface being wherever the warp happens to stand.
+    pub point_weight: f64,
     /// Whether the seeds replace every association in their stages (seeds found without
     /// comparing positions, which closest point cannot improve on early), not only where the
     /// two disagree by more than the gate.
@@ -513,7 +518,7 @@ impl WarpOptimiser {
             bindings,
             matches: &self.matches,
             tukey: self.params.tukey * seeded.map_or(1.0, |s| s.tukey_scale),
-            point_weight: self.params.point_weight,
+            point_weight: seeded.map_or(self.params.point_weight, |s| s.point_weight),
             edges: &self.edges,
             anchors: &self.anchors,
             stay_weight: self.params.stay_weight,
@@ -1013,6 +1018,7 @@ mod tests {
             matches: vec![at(0.0), at(0.0), at(0.0)],
             stages: 1,
             tukey_scale: 8.0,
+            point_weight: 1.0,
             replace_all: false,
             iterations: 2,
             pinned: vec![2],
