@@ -940,8 +940,8 @@ fn far_pair(name: &str, wall: bool) -> dynamap::slam::synthetic::frame_pair::Fra
         .render()
 }
 
-/// The surface of a box `size` metres, `cells` squares along each edge's side (two triangles
-/// each, wound outwards), its vertices shared between the faces that meet at them.
+/// The surface of a box `size` metres, `cells[a]` squares along axis a (two triangles each,
+/// wound outwards), its vertices shared between the faces that meet at them.
 fn box_surface(cells: [usize; 3], size: [f64; 3]) -> dynamap::slam::mesh::Mesh {
     use std::collections::HashMap;
     let mut index: HashMap<[usize; 3], u32> = HashMap::new();
