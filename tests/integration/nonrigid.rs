@@ -948,9 +948,9 @@ fn box_surface(cells: [usize; 3], size: [f64; 3]) -> dynamap::slam::mesh::Mesh {
     let mut mesh = dynamap::slam::mesh::Mesh::default();
     let mut vertex = |at: [usize; 3], mesh: &mut dynamap::slam::mesh::Mesh| {
         *index.entry(at).or_insert_with(|| {
-            let p = (0..3).map(|a| size[a] * at[a] as f64 / cells[a] as f64);
-            let p: Vec<f32> = p.map(|v| v as f32).collect();
-            mesh.vertices.push(Point3::new(p[0], p[1], p[2]));
+            let p: [f32; 3] =
+                std::array::from_fn(|a| (size[a] * at[a] as f64 / cells[a] as f64) as f32);
+            mesh.vertices.push(Point3::from(p));
             mesh.vertices.len() as u32 - 1
         })
     };

@@ -98,7 +98,7 @@ fn a_run_through_dropped_corrupt_blank_frames_a_jump_and_a_plain_wall_keeps_its_
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A 40-frame orbit at 320×240.
+/// An orbit of `frames` frames at 320×240.
 fn orbit(dir: &Path, frames: usize) {
     sequence::write_rigid(
         dir,
@@ -110,6 +110,16 @@ fn orbit(dir: &Path, frames: usize) {
         |_| {},
     )
     .unwrap();
+}
+
+/// A scratch folder for `test` and, in it, an orbit of `frames` frames without `intrinsics.txt`
+/// (so that the command line must give them): (the folder, the sequence).
+fn orbit_without_intrinsics(test: &str, frames: usize) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = scratch(test);
+    let seq = dir.join("seq");
+    orbit(&seq, frames);
+    std::fs::remove_file(seq.join("intrinsics.txt")).unwrap();
+    (dir, seq)
 }
 
 /// The depth images of the sequence in `seq`, in stamp order.
@@ -233,10 +243,7 @@ fn a_run_that_tracks_no_frame_fails_and_says_why() {
 /// ETH3D's `calibration.txt`.
 #[test]
 fn a_folder_whose_size_tums_intrinsics_do_not_fit_is_refused_until_they_are_given() {
-    let dir = scratch("intrinsics");
-    let seq = dir.join("seq");
-    orbit(&seq, 4);
-    std::fs::remove_file(seq.join("intrinsics.txt")).unwrap();
+    let (dir, seq) = orbit_without_intrinsics("intrinsics", 4);
     let s = seq.to_str().unwrap();
     let refused = run("rigid_slam", &[s]);
     let stderr = text(&refused.stderr);
@@ -273,10 +280,7 @@ fn upside_down<T: Copy>(data: &mut Vec<T>, width: usize) {
 #[test]
 fn frames_upside_down_are_tracked_with_a_negative_focal_length_given_as_flags() {
     use dynamap_slam::io::images::{read_color, read_depth, write_color};
-    let dir = scratch("mirrored");
-    let seq = dir.join("seq");
-    orbit(&seq, 8);
-    std::fs::remove_file(seq.join("intrinsics.txt")).unwrap();
+    let (dir, seq) = orbit_without_intrinsics("mirrored", 8);
     for f in depth_files(&seq) {
         let mut d = read_depth(&f).unwrap();
         upside_down(&mut d.data, d.width);
