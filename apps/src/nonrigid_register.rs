@@ -71,8 +71,8 @@ use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
     register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
     surface_diagonal, FrameError, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
-    SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION, MAX_OFF_FRACTION,
-    MIN_MATCHED_FRACTION,
+    Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION,
+    MAX_OFF_FRACTION, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -675,7 +675,29 @@ fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
             );
             false.into()
         }
+        SurfaceVerdict::Ambiguous(slip) => {
+            let v = |v: nalgebra::Vector3<f64>| format!("({:.3}, {:.3}, {:.3})", v.x, v.y, v.z);
+            tracing::warn!(
+                "not registered: the surfaces fit, but one slides along itself: its least \
+                 constrained rigid motion (rotation {} about its centroid, translation {} in \
+                 diagonals) moves it off itself by {:.1e} of its displacement (a symmetry is \
+                 under {MAX_SLIPPAGE:.0e}), so where its points lie along that motion is not known",
+                v(slip.rotation),
+                v(slip.translation),
+                slip.ratio
+            );
+            false.into()
+        }
     }
+}
+
+/// The share of each surface's least-constrained motion that leaves it (module `slippage`), as
+/// JSON.
+fn slippage_json(slippage: Option<[Slippage; 2]>) -> serde_json::Value {
+    slippage.map_or(
+        serde_json::Value::Null,
+        |[s, t]| serde_json::json!({"source": s.ratio, "target": t.ratio, "limit": MAX_SLIPPAGE}),
+    )
 }
 
 /// The flow's scores as JSON.
@@ -826,6 +848,7 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let verdict = reg.verdict();
     json["registered"] = surface_verdict_json(verdict);
     json["target_normals_turned"] = reg.target_normals_turned.into();
+    json["slippage"] = slippage_json(reg.slippage);
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,

@@ -273,8 +273,10 @@ def register_meshes(
     """The source registered onto the target with the deformation graph, as `nonrigid_register
     meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
     regulariser_cost, matched, matched_fraction, seconds, registered (bool: most of the source
-    on the target and most of the target covered, areas within 1.5x) and fit (on_target,
-    covered, area_ratio, source_area_ratio, median_distance, tolerance)."""
+    on the target and most of the target covered, areas within 1.5x, and neither mesh sliding
+    along itself), fit (on_target, covered, area_ratio, source_area_ratio, median_distance,
+    tolerance) and slippage ([source, target]: the share of each mesh's least-constrained rigid
+    motion that moves it off itself, under 1e-3 for a symmetry; None for a point cloud)."""
 
 def register_frames(
     source_depth: ArrayLike,

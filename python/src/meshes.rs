@@ -213,7 +213,11 @@ pub fn write_mesh(
 /// facing; area_ratio and
 /// source_area_ratio, the source's area warped and at rest over the target's for two meshes,
 /// within 1.5× of 1, else None; median_distance; tolerance). A source pulled onto a much smaller
-/// target ends fully matched but not registered.
+/// target ends fully matched but not registered. slippage: for two meshes, the share of each
+/// one's least-constrained rigid motion that moves it off itself (source, target); where either
+/// is under 1e-3 the surface slides along itself (a sphere, a cylinder or a torus turned about
+/// its axis), its points could lie anywhere along that motion, and registered is False. None for
+/// a point cloud.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -249,16 +253,8 @@ pub fn register_meshes<'py>(
             let (sp, sn) = mesh_points(&source);
             let (tp, tn) = mesh_points(&target);
             let (graph, params) = clean_surface_settings(surface_diagonal(&sp, &source.faces));
-            let s = SurfaceMesh {
-                points: &sp,
-                normals: &sn,
-                faces: &source.faces,
-            };
-            let t = SurfaceMesh {
-                points: &tp,
-                normals: &tn,
-                faces: &target.faces,
-            };
+            let s = SurfaceMesh::with_faces_of(&sp, &sn, &source);
+            let t = SurfaceMesh::with_faces_of(&tp, &tn, &target);
             register_mesh_or_cloud(s, t, graph, params, principal_axes, &seeding)
         })
         .map_err(|e| errors::SolveError::new_err(format!("registering the source: {e}")))?;
@@ -286,5 +282,7 @@ pub fn register_meshes<'py>(
     fit.set_item("median_distance", reg.fit.median_distance)?;
     fit.set_item("tolerance", reg.fit.tolerance)?;
     d.set_item("fit", fit)?;
+    let slippage = reg.slippage.map(|[s, t]| [s.ratio, t.ratio]);
+    d.set_item("slippage", slippage)?;
     Ok(d)
 }

@@ -62,10 +62,48 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     assert result["registered"] and tool["registered"]
     assert result["fit"] == pytest.approx(tool["fit"], rel=1e-9)
     assert result["fit"]["on_target"] == 1.0 and result["fit"]["covered"] > 0.99
+    # a flat sheet slides along itself, but its boundary holds it
+    slip = tool["slippage"]
+    assert result["slippage"] == pytest.approx([slip["source"], slip["target"]], rel=1e-9)
+    assert min(result["slippage"]) > 10 * slip["limit"], slip
     # the warped sheet lies on the bent mesh (a plain sheet may slide along itself, and the
     # points land between the target's vertices: issue 26, NOTES 84)
     before, after = off_surface(v, columns=21), off_surface(result["vertices"], columns=21)
     assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
+
+
+def sphere(rings=12, radius=0.2):
+    """A UV sphere about the origin: poles and `rings - 1` circles of `2 rings` vertices,
+    wound with its normals out."""
+    segments = 2 * rings
+    polar = np.linspace(0, np.pi, rings + 1)[1:-1]
+    azimuth = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    t, a = np.meshgrid(polar, azimuth, indexing="ij")
+    ring = np.column_stack([np.sin(t).ravel() * np.cos(a).ravel(), np.sin(t).ravel() * np.sin(a).ravel(), np.cos(t).ravel()])
+    vertices = radius * np.vstack([[0, 0, 1], ring, [0, 0, -1]])
+    at = lambda r, s: 1 + r * segments + s % segments
+    south = len(vertices) - 1
+    faces = [[0, at(0, s), at(0, s + 1)] for s in range(segments)]
+    for r in range(rings - 2):
+        for s in range(segments):
+            faces += [[at(r, s), at(r + 1, s), at(r + 1, s + 1)], [at(r, s), at(r + 1, s + 1), at(r, s + 1)]]
+    faces += [[south, at(rings - 2, s + 1), at(rings - 2, s)] for s in range(segments)]
+    return vertices, np.array(faces)
+
+
+def test_a_sphere_fits_but_is_not_registered_for_it_turns_along_itself(tmp_path):
+    v, f = sphere()
+    t = v * np.array([1.0, 0.85, 0.7]) + [0.01, 0.0, 0.0]
+    result = dynamap.register_meshes(v, t, source_faces=f, target_faces=f)
+    assert result["fit"]["on_target"] > 0.99 and result["fit"]["covered"] > 0.99, result["fit"]
+    assert not result["registered"]
+    assert result["slippage"][0] < 1e-4 < result["slippage"][1], result["slippage"]
+    dynamap.write_mesh(tmp_path / "ball.ply", v, f)
+    dynamap.write_mesh(tmp_path / "egg.ply", t, f)
+    out = subprocess.run([binary("nonrigid_register"), "meshes", str(tmp_path / "ball.ply"), str(tmp_path / "egg.ply")], capture_output=True, text=True)
+    assert out.returncode == 1, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1])["registered"] is False
+    assert "slides along itself" in out.stderr
 
 
 def test_a_point_cloud_with_normals_registers_by_closest_point():
@@ -76,6 +114,7 @@ def test_a_point_cloud_with_normals_registers_by_closest_point():
     before, after = off_surface(v, depth=0.06), off_surface(result["vertices"], depth=0.06)
     assert after.mean() < 1e-3 * before.mean() and after.max() < 1e-4, (before.mean(), after.max())
     assert result["matched"] > 0.9 * len(v)
+    assert result["slippage"] is None  # a cloud has no faces to measure
 
 
 def test_a_source_wound_against_itself_registers_as_the_consistent_one():

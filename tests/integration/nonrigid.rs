@@ -984,7 +984,7 @@ fn box_surface(cells: [usize; 3], size: [f64; 3]) -> dynamap::slam::mesh::Mesh {
 /// vertices, a strip along one edge of an end, stay about 20 % off either way (NOTES 178).
 #[test]
 fn a_plain_box_twisted_about_its_long_axis_is_registered() {
-    use dynamap::slam::nonrigid::{register_mesh_pair, Seeding};
+    use dynamap::slam::nonrigid::{register_mesh_pair, Seeding, SurfaceVerdict};
     let size = [0.6, 0.3, 0.15];
     let source = box_surface([16, 16, 16], size);
     let twist = |p: &Point3<f32>| {
@@ -1012,4 +1012,48 @@ fn a_plain_box_twisted_about_its_long_axis_is_registered() {
     eprintln!("twisted box: largest displacement {reach:.4} m, error max {max:.4}, mean {mean:.4}");
     assert!(reach > 0.04, "the twist hardly moved the box: {reach}");
     assert!(mean <= 0.015 && max <= 0.3, "max {max}, mean {mean}");
+    // a box slides nowhere along itself (NOTES 179)
+    assert_eq!(
+        reg.verdict(),
+        SurfaceVerdict::Registered,
+        "{:?}",
+        reg.slippage
+    );
+}
+
+/// A capped cylinder (the box's surface with each cross-section's square pressed onto the circle
+/// through its corners' midpoints: 64 facets round) bent about an axis across it. It fits its
+/// target, but turned about its own axis it fits as well, so where its vertices lie round that
+/// axis is not known: the registration reports itself ambiguous, naming the turn (NOTES 179).
+#[test]
+fn a_cylinder_bent_fits_but_is_reported_ambiguous_about_its_axis() {
+    use dynamap::slam::nonrigid::{register_mesh_pair, Seeding, SurfaceVerdict};
+    let (length, r) = (0.6, 0.1);
+    let mut source = box_surface([16, 8, 8], [length, 2.0 * r, 2.0 * r]);
+    for p in &mut source.vertices {
+        let (y, z) = (f64::from(p.y) - r, f64::from(p.z) - r);
+        let squeeze = y.abs().max(z.abs()) / y.hypot(z).max(1e-12);
+        (p.y, p.z) = ((y * squeeze) as f32, (z * squeeze) as f32);
+    }
+    source.compute_normals();
+    let radius = 1.0;
+    let bend = |p: &Point3<f32>| {
+        let a = (f64::from(p.x) - length / 2.0) / radius;
+        let out = radius - f64::from(p.z);
+        let (s, c) = a.sin_cos();
+        Point3::new((out * s) as f32, p.y, (radius - out * c) as f32)
+    };
+    let mut target = source.clone();
+    target.vertices = source.vertices.iter().map(bend).collect();
+    target.compute_normals();
+    let reg = register_mesh_pair(&source, &target, &Seeding::default()).unwrap();
+    assert!(
+        reg.fit.verdict() == SurfaceVerdict::Registered,
+        "{:?}",
+        reg.fit
+    );
+    let SurfaceVerdict::Ambiguous(slip) = reg.verdict() else {
+        panic!("{:?} {:?}", reg.verdict(), reg.slippage);
+    };
+    assert!(slip.rotation.normalize().x.abs() > 0.99, "{slip:?}");
 }

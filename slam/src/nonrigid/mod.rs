@@ -54,6 +54,7 @@ pub mod reference_frame;
 pub mod register;
 mod rim;
 mod rim_map;
+pub mod slippage;
 pub mod surface;
 pub mod surface_area;
 pub mod surface_fit;
@@ -85,6 +86,7 @@ pub use register::{
     principal_axes_guesses, DepthTarget, RegisterError, RegisterParams, RegisterSummary,
     RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
 };
+pub use slippage::{Slippage, MAX_SLIPPAGE};
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,
     register_mesh_pair, register_meshes, register_surfaces, surface_diagonal, Seeding,

@@ -17,6 +17,7 @@ use super::register::{
     principal_axes_guesses, RegisterError, RegisterParams, RegisterSummary, Seeds, Target,
     WarpOptimiser,
 };
+use super::slippage::{slippage, Slippage};
 use super::surface_fit::{SurfaceFit, SurfaceVerdict, MIN_SHARE};
 use super::weld::{weld, Welded};
 use crate::eval::umeyama;
@@ -59,6 +60,19 @@ pub struct SurfaceMesh<'a> {
 }
 
 impl<'a> SurfaceMesh<'a> {
+    /// `points` and `normals` ([`mesh_points`] of `mesh`) with `mesh`'s faces.
+    pub fn with_faces_of(
+        points: &'a [Vector3<f64>],
+        normals: &'a [Vector3<f64>],
+        mesh: &'a Mesh,
+    ) -> Self {
+        Self {
+            points,
+            normals,
+            faces: &mesh.faces,
+        }
+    }
+
     /// The mesh as module `orientation` takes it.
     fn oriented(&self) -> Oriented<'a> {
         (self.points, self.normals, self.faces)
@@ -122,12 +136,26 @@ pub struct SurfaceRegistration {
     /// that cannot be told, the registration with them as given did not register and this one
     /// did).
     pub target_normals_turned: bool,
+    /// The source's and the target's least-constrained rigid motions (module `slippage`), where
+    /// [`register_mesh_or_cloud`] measured them (both surfaces meshes); `None` otherwise.
+    pub slippage: Option<[Slippage; 2]>,
 }
 
 impl SurfaceRegistration {
-    /// Whether the source ended on the target and covers it ([`SurfaceFit::verdict`]).
+    /// Whether the source ended on the target and covers it ([`SurfaceFit::verdict`]), and if
+    /// so, whether either surface slides along itself ([`SurfaceVerdict::Ambiguous`]: a
+    /// registration that fits may still have its points anywhere along the slide).
     pub fn verdict(&self) -> SurfaceVerdict {
-        self.fit.verdict()
+        let verdict = self.fit.verdict();
+        let freest = self
+            .slippage
+            .and_then(|s| s.into_iter().min_by(|a, b| a.ratio.total_cmp(&b.ratio)));
+        match freest {
+            Some(s) if verdict == SurfaceVerdict::Registered && s.is_free() => {
+                SurfaceVerdict::Ambiguous(s)
+            }
+            _ => verdict,
+        }
     }
 }
 
@@ -435,6 +463,7 @@ impl Passes {
             summary,
             fit,
             target_normals_turned: false,
+            slippage: None,
         })
     }
 }
@@ -450,22 +479,24 @@ pub fn register_mesh_pair(
     let (sp, sn) = mesh_points(source);
     let (tp, tn) = mesh_points(target);
     let (graph, params) = clean_surface_settings(surface_diagonal(&sp, &source.faces));
-    register_meshes(
-        SurfaceMesh {
-            points: &sp,
-            normals: &sn,
-            faces: &source.faces,
-        },
-        SurfaceMesh {
-            points: &tp,
-            normals: &tn,
-            faces: &target.faces,
-        },
-        graph,
-        params,
-        false,
-        seeding,
-    )
+    let source = SurfaceMesh::with_faces_of(&sp, &sn, source);
+    let target = SurfaceMesh::with_faces_of(&tp, &tn, target);
+    let band = graph.spacing;
+    let reg = register_meshes(source, target, graph, params, false, seeding)?;
+    Ok(with_slippage(reg, source, target, band))
+}
+
+/// `reg` with both meshes' least-constrained motions (module `slippage`), their boundaries
+/// counted as bands `band` wide; `None` where either has none (a cloud).
+fn with_slippage(
+    mut reg: SurfaceRegistration,
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    band: f64,
+) -> SurfaceRegistration {
+    let slip = |m: &SurfaceMesh<'_>| slippage(m.points, m.normals, m.faces, band);
+    reg.slippage = slip(&source).zip(slip(&target)).map(|(s, t)| [s, t]);
+    reg
 }
 
 /// [`register_meshes`] where both surfaces have faces and `seeding.passes` > 0, else
@@ -480,23 +511,30 @@ pub fn register_mesh_or_cloud(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
-    if seeding.passes == 0 || source.faces.is_empty() || target.faces.is_empty() {
-        return facing_the_source(source, target, |target| {
+    let meshes = !source.faces.is_empty() && !target.faces.is_empty();
+    let band = graph_params.spacing;
+    let mut reg = if seeding.passes == 0 || !meshes {
+        facing_the_source(source, target, |target| {
             let (s, t) = (
                 (source.points, source.normals),
                 (target.points, target.normals),
             );
             register_surfaces(s, t, graph_params, params.clone(), principal_axes)
-        });
+        })?
+    } else {
+        register_meshes(
+            source,
+            target,
+            graph_params,
+            params,
+            principal_axes,
+            seeding,
+        )?
+    };
+    if meshes {
+        reg = with_slippage(reg, source, target, band);
     }
-    register_meshes(
-        source,
-        target,
-        graph_params,
-        params,
-        principal_axes,
-        seeding,
-    )
+    Ok(reg)
 }
 
 /// Registers by `register` onto `target` with its normals pointing the source's way: as they

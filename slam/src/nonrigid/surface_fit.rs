@@ -32,6 +32,7 @@
 
 use super::graph::DeformationGraph;
 use super::register::Target;
+use super::slippage::Slippage;
 use super::surface_area::{area, denoised_area, Denoiser};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector3;
@@ -77,6 +78,10 @@ pub enum SurfaceVerdict {
     Registered,
     /// One of those failed; the fit says which.
     NotRegistered(SurfaceFit),
+    /// The fit registered, but the source or the target slides along itself (the freer one's
+    /// motion, module `slippage`): the points may lie anywhere along that motion, and nothing in
+    /// the surfaces tells where.
+    Ambiguous(Slippage),
 }
 
 impl SurfaceFit {

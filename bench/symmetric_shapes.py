@@ -1,0 +1,124 @@
+"""Symmetric and asymmetric meshes made by Open3D, each registered onto itself bent: does
+`nonrigid_register meshes` report the symmetric ones as sliding along themselves (NOTES 179)?
+
+Usage: python bench/symmetric_shapes.py [--count 12] [--seed 20261206] [--bin target/release/nonrigid_register] [--dir /tmp/symmetric]
+(a Python with open3d 0.20, numpy and scipy).
+
+Symmetric: spheroids, capped cylinders, tori and cones of random proportions and facet counts.
+Asymmetric: ellipsoids of three axes at least 15 % apart, spheres with random low-frequency
+bumps (5–20 % of the radius), boxes of random sides, flat sheets of random aspect and
+resolution. Each is turned at random, scaled by 0.05–5 and bent along one axis (curvature 0.5
+over its diagonal); the line printed per shape is the tool's exit code, `registered`, the share
+of the fit's source on the target, the two surfaces' slippage ratios, and the largest and mean
+distance of a warped vertex from where the bend sent it (% of the largest displacement).
+"""
+import argparse
+import json
+import os
+import subprocess
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial.transform import Rotation
+
+Mesh = o3d.geometry.TriangleMesh
+
+
+def mesh(v, f):
+    return Mesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+
+
+def symmetric(rng):
+    kind = rng.integers(4)
+    if kind == 0:
+        m = Mesh.create_sphere(1, int(rng.integers(10, 40)))
+        m.vertices = o3d.utility.Vector3dVector(np.asarray(m.vertices) * [1, 1, rng.uniform(0.4, 2.5)])
+        return "spheroid", m
+    if kind == 1:
+        return "cylinder", Mesh.create_cylinder(rng.uniform(0.1, 0.5), rng.uniform(0.3, 2), int(rng.integers(12, 60)), int(rng.integers(2, 20)))
+    if kind == 2:
+        return "torus", Mesh.create_torus(1, rng.uniform(0.1, 0.5), int(rng.integers(20, 80)), int(rng.integers(8, 30)))
+    return "cone", Mesh.create_cone(rng.uniform(0.1, 0.5), rng.uniform(0.3, 2), int(rng.integers(12, 60)), int(rng.integers(2, 12)))
+
+
+def sheet(rng):
+    nx, ny = int(rng.integers(8, 60)), int(rng.integers(5, 30))
+    sx, sy = rng.uniform(0.1, 2), rng.uniform(0.05, 1)
+    xs, ys = np.meshgrid(np.linspace(0, sx, nx), np.linspace(0, sy, ny))
+    v = np.c_[xs.ravel(), ys.ravel(), np.zeros(nx * ny)]
+    cells = [y * nx + x for y in range(ny - 1) for x in range(nx - 1)]
+    f = [t for a in cells for t in ([a, a + 1, a + nx + 1], [a, a + nx + 1, a + nx])]
+    return f"sheet {nx}x{ny} {sx / sy:.1f}:1", mesh(v, np.array(f))
+
+
+def asymmetric(rng):
+    kind = rng.integers(4)
+    if kind == 0:
+        m = Mesh.create_sphere(1, 30)
+        a = np.sort(rng.uniform(0.3, 1, 3))
+        a[1] = a[0] * rng.uniform(1.15, 1.5)
+        a[2] = a[1] * rng.uniform(1.15, 1.5)
+        m.vertices = o3d.utility.Vector3dVector(np.asarray(m.vertices) * a)
+        return "ellipsoid", m
+    if kind == 1:
+        m = Mesh.create_sphere(1, 30)
+        v = np.asarray(m.vertices)
+        r = np.ones(len(v))
+        for _ in range(4):
+            r += rng.uniform(0.05, 0.2) * np.sin(v @ (rng.normal(size=3) * rng.uniform(1, 3)) + rng.uniform(0, 6))
+        m.vertices = o3d.utility.Vector3dVector(v * r[:, None])
+        return "blob", m
+    if kind == 2:
+        return "box", Mesh.create_box(*rng.uniform(0.1, 1, 3)).subdivide_midpoint(int(rng.integers(2, 5)))
+    return sheet(rng)
+
+
+def place(m, rng):
+    v = np.asarray(m.vertices)
+    turn = Rotation.random(random_state=int(rng.integers(1 << 30)))
+    return turn.apply(v - v.mean(0)) * rng.uniform(0.05, 5) + rng.normal(size=3), np.asarray(m.triangles)
+
+
+def bend(v, curvature):
+    c = v.mean(0)
+    p = v - c
+    r = np.linalg.norm(np.ptp(v, 0)) / curvature
+    a = p[:, 0] / r
+    return np.c_[(r - p[:, 2]) * np.sin(a), p[:, 1], r - (r - p[:, 2]) * np.cos(a)] + c
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--count", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=20261206)
+    ap.add_argument("--bin", default="target/release/nonrigid_register")
+    ap.add_argument("--dir", default="/tmp/symmetric")
+    ap.add_argument("--curvature", type=float, default=0.5, help="the bend's, over the diagonal")
+    a = ap.parse_args()
+    os.makedirs(a.dir, exist_ok=True)
+    rng = np.random.default_rng(a.seed)
+    for kind, make in (("symmetric", symmetric), ("asymmetric", asymmetric)):
+        for i in range(a.count):
+            name, m = make(rng)
+            m.remove_duplicated_vertices()
+            v, f = place(m, rng)
+            s, t, w = (os.path.join(a.dir, f"{kind}{i}_{k}.ply") for k in "stw")
+            bent = bend(v, a.curvature)
+            o3d.io.write_triangle_mesh(s, mesh(v, f))
+            o3d.io.write_triangle_mesh(t, mesh(bent, f))
+            r = subprocess.run([a.bin, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
+            try:
+                j = json.loads(r.stdout.strip().splitlines()[-1])
+            except (IndexError, json.JSONDecodeError):
+                print(f"{kind:10s} {name:22s} exit {r.returncode}: {r.stderr.strip()[-200:]}")
+                continue
+            slip = j["slippage"]
+            reach = np.linalg.norm(bent - v, axis=1).max()
+            e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - bent, axis=1) / reach
+            print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "
+                  f"on_target {j['fit']['on_target']:.2f} slippage {slip['source']:.1e} {slip['target']:.1e} "
+                  f"error {100 * e.max():5.1f} / {100 * e.mean():5.2f} %")
+
+
+if __name__ == "__main__":
+    main()
