@@ -74,7 +74,7 @@ use dynamap_slam::nonrigid::{
     Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION,
     MAX_OFF_FRACTION, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
 };
-use dynamap_slam::nonrigid::{AREA_FACTOR, MIN_FACING, MIN_SHARE};
+use dynamap_slam::nonrigid::{surface_area, AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
 use nalgebra::Vector3;
@@ -786,6 +786,25 @@ fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
     Ok((mesh, winding.turned))
 }
 
+/// The diagonal of the surface `points` (the mesh at `path`), which the settings scale with; a
+/// surface with no extent, or with faces none of which has area, is bad input.
+fn surface_size(points: &[Vector3<f64>], mesh: &Mesh, path: &Path) -> Result<f64> {
+    let d = surface_diagonal(points, &mesh.faces);
+    if !(d.is_finite() && d > 0.0) {
+        return Err(cli::bad_input(format_args!(
+            "{}: the surface has no extent (its vertices lie at one point)",
+            path.display()
+        )));
+    }
+    if !mesh.faces.is_empty() && surface_area::area(points, &mesh.faces) <= 0.0 {
+        return Err(cli::bad_input(format_args!(
+            "{}: its faces have no area (every triangle's corners lie on one line)",
+            path.display()
+        )));
+    }
+    Ok(d)
+}
+
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
 /// vertex map, and prints the JSON line.
 fn register_mesh_files(args: &MeshArgs) -> Result<()> {
@@ -794,20 +813,9 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let (target, target_winding) = read_oriented(&args.target)?;
     let (sp, sn) = surface_points(&source, &args.source)?;
     let (tp, tn) = surface_points(&target, &args.target)?;
-    let size = |points: &[Vector3<f64>], mesh: &Mesh, path: &Path| {
-        let d = surface_diagonal(points, &mesh.faces);
-        if d.is_finite() && d > 0.0 {
-            Ok(d)
-        } else {
-            Err(cli::bad_input(format_args!(
-                "{}: the surface has no extent (its vertices lie at one point)",
-                path.display()
-            )))
-        }
-    };
     let (source_size, target_size) = (
-        size(&sp, &source, &args.source)?,
-        size(&tp, &target, &args.target)?,
+        surface_size(&sp, &source, &args.source)?,
+        surface_size(&tp, &target, &args.target)?,
     );
     let (mut graph, mut params) = clean_surface_settings(source_size);
     args.warp.apply(&mut graph, &mut params).bad_input()?;

@@ -678,6 +678,63 @@ fn stray_vertices_leave_a_registration_as_it_was_and_a_point_sized_mesh_is_refus
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A vertex that is not a place (NaN, or infinite) made the centroid or the extent NaN or
+/// infinite, and the whole registration failed; now it is left out. A mesh whose triangles all
+/// lie on one line was registered onto as a line; now it is refused, on either side.
+#[test]
+fn a_vertex_that_is_not_finite_is_left_out_and_a_mesh_without_area_is_refused() {
+    use dynamap_slam::io::ply;
+    use dynamap_slam::synthetic::plate::{flat_grid, PlateDeformation};
+    let dir = scratch("unplaced");
+    let path = |f: &str| dir.join(f).to_str().unwrap().to_string();
+    let source = flat_grid();
+    let mut unplaced = source.clone();
+    unplaced.vertices[3] = nalgebra::Point3::new(f32::NAN, 0.0, 0.0);
+    unplaced.vertices[7] = nalgebra::Point3::new(f32::INFINITY, 0.0, 0.0);
+    unplaced.normals.clear();
+    let mut line = source.clone();
+    (line.vertices.iter_mut().enumerate()).for_each(|(k, p)| *p = [k as f32, 0.0, 0.0].into());
+    line.normals.clear();
+    let bent = PlateDeformation::ALL[0].deformed(&source);
+    for (name, mesh) in [
+        ("flat", &source),
+        ("bent", &bent),
+        ("unplaced", &unplaced),
+        ("line", &line),
+    ] {
+        ply::write(dir.join(format!("{name}.ply")), mesh).unwrap();
+    }
+    let register = |from: &str| {
+        let out = run(
+            "nonrigid_register",
+            &["meshes", &path(from), &path("bent.ply"), "-q"],
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        result_json(&out)
+    };
+    let (plain, unplaced) = (register("flat.ply"), register("unplaced.ply"));
+    let fit = |j: &serde_json::Value, key: &str| j["fit"][key].as_f64().unwrap();
+    assert_eq!(
+        fit(&plain, "tolerance"),
+        fit(&unplaced, "tolerance"),
+        "{unplaced}"
+    );
+    let median = |j: &serde_json::Value| fit(j, "median_distance");
+    assert!(
+        median(&unplaced) <= 1.5 * median(&plain),
+        "{plain}\n{unplaced}"
+    );
+    assert_eq!(unplaced["registered"], true, "{unplaced}");
+    for (source, target) in [("line.ply", "bent.ply"), ("flat.ply", "line.ply")] {
+        let refused = run(
+            "nonrigid_register",
+            &["meshes", &path(source), &path(target)],
+        );
+        assert_exit(&refused, 2, &["line.ply", "no area"]);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn a_reader_that_stops_early_ends_the_run_without_a_panic() {
     use std::process::{Command, Stdio};

@@ -42,7 +42,10 @@ pub struct MeshRef<'a> {
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum DescriptorError {
     /// Fewer vertices than anchors.
-    #[error("{0} vertices are too few for {ANCHORS} anchors")]
+    #[error(
+        "{0} vertices are too few for {ANCHORS} anchors of the seeded passes (register such a \
+         small mesh in one pass: no seeded passes)"
+    )]
     TooFewVertices(usize),
     /// A face names a vertex that does not exist.
     #[error("face {face} names vertex {vertex}, but the mesh has {vertices} vertices")]

@@ -25,16 +25,28 @@ pub fn surface_diagonal(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> f64 {
     )
 }
 
-/// The points' mean, the origin a registration turns the shape about (zero for no points).
+/// The finite points' mean, the origin a registration turns the shape about (zero for none). A
+/// vertex that is not finite is no part of the surface; in the mean it made every point's
+/// place relative to it NaN, and the registration found no point to sample nodes from.
 pub fn centroid(points: &[Vector3<f64>]) -> Vector3<f64> {
-    if points.is_empty() {
+    let (sum, count) = points
+        .iter()
+        .filter(|p| finite(p))
+        .fold((Vector3::zeros(), 0usize), |(s, n), p| (s + p, n + 1));
+    if count == 0 {
         return Vector3::zeros();
     }
-    points.iter().sum::<Vector3<f64>>() / points.len() as f64
+    sum / count as f64
 }
 
+fn finite(p: &Vector3<f64>) -> bool {
+    p.iter().all(|x| x.is_finite())
+}
+
+/// The diagonal of the finite points' bounding box (an infinite vertex made it infinite, and
+/// the surface was refused as having no extent).
 fn diagonal_of<'a>(points: impl Iterator<Item = &'a Vector3<f64>>) -> f64 {
-    let (lo, hi) = points.fold(
+    let (lo, hi) = points.filter(|p| finite(p)).fold(
         (
             Vector3::repeat(f64::INFINITY),
             Vector3::repeat(f64::NEG_INFINITY),
@@ -48,13 +60,18 @@ fn diagonal_of<'a>(points: impl Iterator<Item = &'a Vector3<f64>>) -> f64 {
 mod tests {
     use super::*;
 
-    #[test]
-    fn a_vertex_no_face_uses_does_not_make_a_mesh_larger() {
-        let mut points = vec![
+    /// The corners of a 3-4-5 right triangle.
+    fn right_triangle() -> Vec<Vector3<f64>> {
+        vec![
             Vector3::new(0.0, 0.0, 0.0),
             Vector3::new(3.0, 0.0, 0.0),
             Vector3::new(0.0, 4.0, 0.0),
-        ];
+        ]
+    }
+
+    #[test]
+    fn a_vertex_no_face_uses_does_not_make_a_mesh_larger() {
+        let mut points = right_triangle();
         let faces = [[0, 1, 2]];
         assert_eq!(surface_diagonal(&points, &faces), 5.0);
         points.push(Vector3::new(100.0, 100.0, 100.0));
@@ -64,5 +81,18 @@ mod tests {
         assert_eq!(surface_diagonal(&points, &[]), bounding_diagonal(&points));
         // an index past the points is skipped, not a panic
         assert_eq!(surface_diagonal(&points, &[[0, 1, 2], [0, 1, 9]]), 5.0);
+    }
+
+    #[test]
+    fn points_that_are_not_finite_are_no_part_of_the_extent_or_the_centroid() {
+        let mut points = right_triangle();
+        let (diagonal, centre) = (bounding_diagonal(&points), centroid(&points));
+        points.push(Vector3::new(f64::NAN, 1.0, 1.0));
+        points.push(Vector3::new(f64::INFINITY, 1.0, 1.0));
+        points.push(Vector3::new(0.0, f64::NEG_INFINITY, 1.0));
+        assert_eq!(bounding_diagonal(&points), diagonal);
+        assert_eq!(surface_diagonal(&points, &[[0, 1, 3], [2, 4, 5]]), diagonal);
+        assert_eq!(centroid(&points), centre);
+        assert_eq!(centroid(&points[3..]), Vector3::zeros());
     }
 }

@@ -18,6 +18,7 @@ use super::register::{
     WarpOptimiser,
 };
 use super::slippage::{slippage, Slippage};
+use super::surface_area::area;
 use super::surface_fit::{SurfaceFit, SurfaceVerdict, MIN_SHARE};
 use super::weld::{weld, Welded};
 use crate::eval::umeyama;
@@ -46,6 +47,20 @@ pub enum SurfaceError {
         /// Target normals given.
         normals: usize,
     },
+    /// A mesh ("source" or "target") has faces, but none of them has area.
+    #[error("the {0}'s faces have no area (every triangle's corners lie on one line)")]
+    NoArea(&'static str),
+}
+
+/// Refuses a mesh with faces none of which has area: a sheet registered onto a target whose
+/// triangles all lay on one line fitted the line and was reported registered (its area ratio
+/// cannot be formed). A cloud (no faces) is not a mesh and passes.
+fn has_area(mesh: &SurfaceMesh<'_>, which: &'static str) -> Result<(), SurfaceError> {
+    if mesh.faces.is_empty() || area(mesh.points, mesh.faces) > 0.0 {
+        Ok(())
+    } else {
+        Err(SurfaceError::NoArea(which))
+    }
 }
 
 /// A mesh with vertex normals, as [`register_meshes`] takes it.
@@ -511,6 +526,8 @@ pub fn register_mesh_or_cloud(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
+    has_area(&source, "source")?;
+    has_area(&target, "target")?;
     let meshes = !source.faces.is_empty() && !target.faces.is_empty();
     let band = graph_params.spacing;
     let mut reg = if seeding.passes == 0 || !meshes {
@@ -623,6 +640,8 @@ pub fn register_meshes(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
+    has_area(&source, "source")?;
+    has_area(&target, "target")?;
     facing_the_source(source, target, |target| {
         as_welded(source, target, |s, t| {
             let params = params.clone();
@@ -792,6 +811,24 @@ mod tests {
     use crate::mesh::Mesh;
     use crate::nonrigid::descriptors::tube;
     use nalgebra::{Point3, Vector3};
+
+    #[test]
+    fn a_mesh_whose_faces_have_no_area_is_refused() {
+        let source = crate::synthetic::plate::flat_grid();
+        let mut line = source.clone();
+        (line.vertices.iter_mut().enumerate())
+            .for_each(|(k, p)| *p = Point3::new(k as f32, 0.0, 0.0));
+        let seeding = Seeding::default();
+        let refused = |s: &Mesh, t: &Mesh| register_mesh_pair(s, t, &seeding).err();
+        assert_eq!(
+            refused(&source, &line),
+            Some(SurfaceError::NoArea("target"))
+        );
+        assert_eq!(
+            refused(&line, &source),
+            Some(SurfaceError::NoArea("source"))
+        );
+    }
 
     fn with_normals(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
         let mesh = Mesh {
