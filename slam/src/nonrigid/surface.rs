@@ -152,7 +152,8 @@ pub struct SurfaceRegistration {
     /// did).
     pub target_normals_turned: bool,
     /// The source's and the target's least-constrained rigid motions (module `slippage`), where
-    /// [`register_mesh_or_cloud`] measured them (both surfaces meshes); `None` otherwise.
+    /// [`register_mesh_or_cloud`] or [`register_mesh_pair`] measured them (both surfaces
+    /// meshes); `None` otherwise.
     pub slippage: Option<[Slippage; 2]>,
 }
 
