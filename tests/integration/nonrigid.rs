@@ -1022,7 +1022,7 @@ fn a_plain_box_twisted_about_its_long_axis_is_registered() {
 }
 
 /// A capped cylinder (the box's surface with each cross-section's square pressed onto the circle
-/// through its corners' midpoints: 64 facets round) bent about an axis across it. It fits its
+/// through its sides' midpoints: 32 facets round) bent about an axis across it. It fits its
 /// target, but turned about its own axis it fits as well, so where its vertices lie round that
 /// axis is not known: the registration reports itself ambiguous, naming the turn (NOTES 179).
 #[test]
