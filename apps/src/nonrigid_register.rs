@@ -74,7 +74,7 @@ use dynamap_slam::nonrigid::{
     Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION,
     MAX_OFF_FRACTION, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
 };
-use dynamap_slam::nonrigid::{surface_area, AREA_FACTOR, MIN_FACING, MIN_SHARE};
+use dynamap_slam::nonrigid::{MeshRole, SurfaceError, AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
 use dynamap_slam::synthetic::sheet::{self, SheetDeformation, SheetScore};
 use nalgebra::Vector3;
@@ -787,22 +787,17 @@ fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
 }
 
 /// The diagonal of the surface `points` (the mesh at `path`), which the settings scale with; a
-/// surface with no extent, or with faces none of which has area, is bad input.
+/// surface with no extent is bad input.
 fn surface_size(points: &[Vector3<f64>], mesh: &Mesh, path: &Path) -> Result<f64> {
     let d = surface_diagonal(points, &mesh.faces);
-    if !(d.is_finite() && d > 0.0) {
-        return Err(cli::bad_input(format_args!(
+    if d.is_finite() && d > 0.0 {
+        Ok(d)
+    } else {
+        Err(cli::bad_input(format_args!(
             "{}: the surface has no extent (its vertices lie at one point)",
             path.display()
-        )));
+        )))
     }
-    if !mesh.faces.is_empty() && surface_area::area(points, &mesh.faces) <= 0.0 {
-        return Err(cli::bad_input(format_args!(
-            "{}: its faces have no area (every triangle's corners lie on one line)",
-            path.display()
-        )));
-    }
-    Ok(d)
 }
 
 /// Registers one mesh onto another, writes the warped mesh, scores it against a ground-truth
@@ -830,22 +825,21 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
         ..Seeding::default()
     };
     let reg = register_mesh_or_cloud(
-        SurfaceMesh {
-            points: &sp,
-            normals: &sn,
-            faces: &source.faces,
-        },
-        SurfaceMesh {
-            points: &tp,
-            normals: &tn,
-            faces: &target.faces,
-        },
+        SurfaceMesh::with_faces_of(&sp, &sn, &source),
+        SurfaceMesh::with_faces_of(&tp, &tn, &target),
         graph,
         params,
         args.principal_axes,
         &seeding,
     )
-    .with_context(|| format!("registering {}", args.source.display()))?;
+    .map_err(|e| match e {
+        // a mesh without area is the file's fault: bad input, naming it
+        SurfaceError::NoArea(role) => {
+            let path = [&args.source, &args.target][(role == MeshRole::Target) as usize];
+            cli::bad_input(format_args!("{}: {e}", path.display()))
+        }
+        e => anyhow::Error::new(e).context(format!("registering {}", args.source.display())),
+    })?;
     if let Some(out) = &args.output {
         let mut warped = source.clone();
         warped.vertices = reg.points.iter().map(|p| p.cast::<f32>().into()).collect();

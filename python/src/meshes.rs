@@ -6,8 +6,8 @@ use crate::errors;
 use dynamap_slam::io::{meshes::read_mesh, ply};
 use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
-    clean_surface_settings, mesh_points, register_mesh_or_cloud, surface_area, surface_diagonal,
-    Seeding, SurfaceMesh, SurfaceVerdict,
+    clean_surface_settings, mesh_points, register_mesh_or_cloud, surface_diagonal, Seeding,
+    SurfaceError, SurfaceMesh, SurfaceVerdict,
 };
 use nalgebra::{Point3, Vector3};
 use numpy::{PyArrayLike2, PyReadonlyArray2};
@@ -80,12 +80,6 @@ fn mesh_of(
 ) -> PyResult<Mesh> {
     let v = triples(vertices, &format!("{what} vertices"))?;
     let faces = faces_of(faces, v.len(), &format!("{what} faces"))?;
-    let points: Vec<Vector3<f64>> = v.iter().map(|p| Vector3::from(*p)).collect();
-    if !faces.is_empty() && surface_area::area(&points, &faces) <= 0.0 {
-        return Err(PyValueError::new_err(format!(
-            "{what}: its faces have no area (every triangle's corners lie on one line)"
-        )));
-    }
     let mut mesh = Mesh {
         vertices: v
             .iter()
@@ -263,7 +257,11 @@ pub fn register_meshes<'py>(
             let t = SurfaceMesh::with_faces_of(&tp, &tn, &target);
             register_mesh_or_cloud(s, t, graph, params, principal_axes, &seeding)
         })
-        .map_err(|e| errors::SolveError::new_err(format!("registering the source: {e}")))?;
+        .map_err(|e| match e {
+            // a mesh without area is the caller's input: a ValueError, as for its other faults
+            SurfaceError::NoArea(_) => PyValueError::new_err(e.to_string()),
+            e => errors::SolveError::new_err(format!("registering the source: {e}")),
+        })?;
     let d = PyDict::new(py);
     let flat = |v: &[Vector3<f64>]| v.iter().flat_map(|p| [p.x, p.y, p.z]).collect::<Vec<f64>>();
     d.set_item("vertices", arrays::rows(py, flat(&reg.points), 3))?;

@@ -39,7 +39,8 @@ pub fn centroid(points: &[Vector3<f64>]) -> Vector3<f64> {
     sum / count as f64
 }
 
-fn finite(p: &Vector3<f64>) -> bool {
+/// Whether every coordinate of `p` is finite.
+pub(crate) fn finite(p: &Vector3<f64>) -> bool {
     p.iter().all(|x| x.is_finite())
 }
 

@@ -89,7 +89,7 @@ pub use register::{
 pub use slippage::{Slippage, MAX_SLIPPAGE};
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,
-    register_mesh_pair, register_meshes, register_surfaces, surface_diagonal, Seeding,
+    register_mesh_pair, register_meshes, register_surfaces, surface_diagonal, MeshRole, Seeding,
     SurfaceError, SurfaceMesh, SurfaceRegistration,
 };
 pub use surface_fit::{SurfaceFit, SurfaceVerdict, AREA_FACTOR, MIN_FACING, MIN_SHARE};

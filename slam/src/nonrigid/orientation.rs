@@ -95,19 +95,28 @@ fn boundary_length(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Option<f64> {
     if faces.iter().flatten().any(|&v| v as usize >= points.len()) {
         return None;
     }
-    let mut uses: FxHashMap<(u32, u32), u32> = FxHashMap::default();
-    for f in faces {
+    let boundary: f64 = (boundary_edges(faces).iter())
+        .map(|&((a, b), _)| (points[a as usize] - points[b as usize]).norm())
+        .sum();
+    boundary.is_finite().then_some(boundary)
+}
+
+/// The boundary of `faces`: each edge (its two vertices, the lower first) that one face alone
+/// has, with that face's index; edges from a vertex to itself are left out.
+pub(crate) fn boundary_edges(faces: &[[u32; 3]]) -> Vec<((u32, u32), usize)> {
+    let mut uses: FxHashMap<(u32, u32), (u32, usize)> = FxHashMap::default();
+    for (i, f) in faces.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (f[k], f[(k + 1) % 3]);
             if a != b {
-                *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+                uses.entry((a.min(b), a.max(b))).or_insert((0, i)).0 += 1;
             }
         }
     }
-    let boundary: f64 = (uses.iter().filter(|(_, &n)| n == 1))
-        .map(|(&(a, b), _)| (points[a as usize] - points[b as usize]).norm())
-        .sum();
-    boundary.is_finite().then_some(boundary)
+    (uses.into_iter())
+        .filter(|&(_, (count, _))| count == 1)
+        .map(|(edge, (_, face))| (edge, face))
+        .collect()
 }
 
 /// The area of triangle `f`.

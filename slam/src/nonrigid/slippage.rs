@@ -26,8 +26,9 @@
 //! as the registration's rim matches see it). A flat sheet thus slides nowhere, while a disc
 //! still turns about its normal.
 
+use super::extent::finite;
+use super::orientation::boundary_edges;
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
-use rustc_hash::FxHashMap;
 
 /// Below this share of a motion's displacement leaving the surface, the surface slides along
 /// itself. Measured (NOTES 179): Open3D's exactly symmetric primitives 2·10⁻⁷–8·10⁻⁵; of 42
@@ -68,7 +69,6 @@ pub fn slippage(
     faces: &[[u32; 3]],
     band: f64,
 ) -> Option<Slippage> {
-    let finite = |p: &Vector3<f64>| p.iter().all(|x| x.is_finite());
     let usable: Vec<[u32; 3]> = faces
         .iter()
         .filter(|f| {
@@ -99,7 +99,7 @@ pub fn slippage(
             c += w * constraint(&p, &n);
         }
     }
-    for (q, m, length) in boundary_edges(points, &usable) {
+    for (q, m, length) in boundary_crossings(points, &usable) {
         c += (length * band / total) * constraint(&at(&q), &m);
     }
     least_motion(c, b)
@@ -136,20 +136,12 @@ fn displacement(p: &Vector3<f64>) -> Matrix6<f64> {
 
 /// The midpoint, outward direction (in the face's plane, across the edge) and length of each
 /// edge that one face alone has.
-fn boundary_edges(
+fn boundary_crossings(
     points: &[Vector3<f64>],
     faces: &[[u32; 3]],
 ) -> Vec<(Vector3<f64>, Vector3<f64>, f64)> {
-    let mut uses: FxHashMap<(u32, u32), (u32, usize)> = FxHashMap::default();
-    for (i, f) in faces.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (f[k], f[(k + 1) % 3]);
-            uses.entry((a.min(b), a.max(b))).or_insert((0, i)).0 += 1;
-        }
-    }
-    uses.into_iter()
-        .filter(|&((a, b), (count, _))| count == 1 && a != b)
-        .filter_map(|((a, b), (_, i))| {
+    (boundary_edges(faces).into_iter())
+        .filter_map(|((a, b), i)| {
             let [p, q, r] = faces[i].map(|v| points[v as usize]);
             let normal = (q - p).cross(&(r - p));
             let (from, to) = (points[a as usize], points[b as usize]);

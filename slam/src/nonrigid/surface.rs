@@ -47,19 +47,37 @@ pub enum SurfaceError {
         /// Target normals given.
         normals: usize,
     },
-    /// A mesh ("source" or "target") has faces, but none of them has area.
+    /// A mesh has faces, but none of them has area.
     #[error("the {0}'s faces have no area (every triangle's corners lie on one line)")]
-    NoArea(&'static str),
+    NoArea(MeshRole),
+}
+
+/// Which of a registration's two surfaces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshRole {
+    /// The surface moved.
+    Source,
+    /// The surface it is moved onto.
+    Target,
+}
+
+impl std::fmt::Display for MeshRole {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Source => "source",
+            Self::Target => "target",
+        })
+    }
 }
 
 /// Refuses a mesh with faces none of which has area: a sheet registered onto a target whose
 /// triangles all lay on one line fitted the line and was reported registered (its area ratio
 /// cannot be formed). A cloud (no faces) is not a mesh and passes.
-fn has_area(mesh: &SurfaceMesh<'_>, which: &'static str) -> Result<(), SurfaceError> {
+fn has_area(mesh: &SurfaceMesh<'_>, role: MeshRole) -> Result<(), SurfaceError> {
     if mesh.faces.is_empty() || area(mesh.points, mesh.faces) > 0.0 {
         Ok(())
     } else {
-        Err(SurfaceError::NoArea(which))
+        Err(SurfaceError::NoArea(role))
     }
 }
 
@@ -527,11 +545,12 @@ pub fn register_mesh_or_cloud(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
-    has_area(&source, "source")?;
-    has_area(&target, "target")?;
     let meshes = !source.faces.is_empty() && !target.faces.is_empty();
     let band = graph_params.spacing;
     let mut reg = if seeding.passes == 0 || !meshes {
+        // register_meshes checks its meshes' area itself
+        has_area(&source, MeshRole::Source)?;
+        has_area(&target, MeshRole::Target)?;
         facing_the_source(source, target, |target| {
             let (s, t) = (
                 (source.points, source.normals),
@@ -641,8 +660,8 @@ pub fn register_meshes(
     principal_axes: bool,
     seeding: &Seeding,
 ) -> Result<SurfaceRegistration, SurfaceError> {
-    has_area(&source, "source")?;
-    has_area(&target, "target")?;
+    has_area(&source, MeshRole::Source)?;
+    has_area(&target, MeshRole::Target)?;
     facing_the_source(source, target, |target| {
         as_welded(source, target, |s, t| {
             let params = params.clone();
@@ -823,11 +842,11 @@ mod tests {
         let refused = |s: &Mesh, t: &Mesh| register_mesh_pair(s, t, &seeding).err();
         assert_eq!(
             refused(&source, &line),
-            Some(SurfaceError::NoArea("target"))
+            Some(SurfaceError::NoArea(MeshRole::Target))
         );
         assert_eq!(
             refused(&line, &source),
-            Some(SurfaceError::NoArea("source"))
+            Some(SurfaceError::NoArea(MeshRole::Source))
         );
     }
 
