@@ -786,6 +786,23 @@ fn read_oriented(path: &Path) -> Result<(Mesh, usize)> {
     Ok((mesh, winding.turned))
 }
 
+/// Says how many of the mesh's (at `path`) `points` are not finite: they are no part of the
+/// surface (a source's are written back as they were).
+fn warn_unplaced(points: &[Vector3<f64>], path: &Path) {
+    let unplaced = points
+        .iter()
+        .filter(|p| !p.iter().all(|x| x.is_finite()))
+        .count();
+    if unplaced > 0 {
+        tracing::warn!(
+            "{}: {unplaced} of {} vertices are not finite (NaN or infinite): left out of the \
+             surface",
+            path.display(),
+            points.len()
+        );
+    }
+}
+
 /// The diagonal of the surface `points` (the mesh at `path`), which the settings scale with; a
 /// surface with no extent is bad input.
 fn surface_size(points: &[Vector3<f64>], mesh: &Mesh, path: &Path) -> Result<f64> {
@@ -808,6 +825,8 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     let (target, target_winding) = read_oriented(&args.target)?;
     let (sp, sn) = surface_points(&source, &args.source)?;
     let (tp, tn) = surface_points(&target, &args.target)?;
+    warn_unplaced(&sp, &args.source);
+    warn_unplaced(&tp, &args.target);
     let (source_size, target_size) = (
         surface_size(&sp, &source, &args.source)?,
         surface_size(&tp, &target, &args.target)?,

@@ -713,6 +713,16 @@ fn a_vertex_that_is_not_finite_is_left_out_and_a_mesh_without_area_is_refused() 
         result_json(&out)
     };
     let (plain, unplaced) = (register("flat.ply"), register("unplaced.ply"));
+    // … and the run says so
+    let told = run(
+        "nonrigid_register",
+        &["meshes", &path("unplaced.ply"), &path("bent.ply")],
+    );
+    let stderr = text(&told.stderr);
+    assert!(
+        stderr.contains("2 of") && stderr.contains("not finite"),
+        "{stderr}"
+    );
     let fit = |j: &serde_json::Value, key: &str| j["fit"][key].as_f64().unwrap();
     assert_eq!(
         fit(&plain, "tolerance"),
