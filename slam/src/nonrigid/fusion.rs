@@ -110,6 +110,7 @@ impl Default for FusionParams {
             register: RegisterParams {
                 rigid_iterations: 3,
                 rigid_max_distance: 0.1,
+                rigid_points: 2048,
                 schedule: vec![30.0],
                 rounds: 1,
                 iterations: 2,
