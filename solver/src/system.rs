@@ -99,19 +99,7 @@ impl BlockSystem {
         precision: FactorPrecision,
     ) -> Result<Self, SolveError> {
         let n = sizes.len();
-        let mut columns: Vec<Vec<usize>> = (0..n).map(|j| vec![j]).collect();
-        for (i, j) in pairs {
-            if i >= n || j >= n {
-                return Err(SolveError::LinearSolver(format!(
-                    "block pair ({i}, {j}) outside a system of {n} blocks"
-                )));
-            }
-            columns[i.max(j)].push(i.min(j));
-        }
-        for c in &mut columns {
-            c.sort_unstable();
-            c.dedup();
-        }
+        let columns = block_columns(n, pairs)?;
         let h = BlockSparse::new(block_starts(sizes), &columns);
         let entry_col = (0..n)
             .flat_map(|j| std::iter::repeat_n(j, h.entry_ptr[j + 1] - h.entry_ptr[j]))
@@ -445,6 +433,57 @@ impl BlockSystem {
     }
 }
 
+/// Each block column's row blocks, ascending and without repeats, its diagonal included, from
+/// `pairs` (either order, repeats allowed): counted, placed in one array, then each column's
+/// repeats dropped and the rest sorted, so that no column grows one push at a time (a warp
+/// field's system is rebuilt from ~50,000 pairs, most of them repeats, whenever its graph
+/// grows).
+fn block_columns(
+    n: usize,
+    pairs: impl IntoIterator<Item = (usize, usize)>,
+) -> Result<Vec<Vec<usize>>, SolveError> {
+    let pairs: Vec<(usize, usize)> = pairs.into_iter().collect();
+    if let Some(&(i, j)) = pairs.iter().find(|&&(i, j)| i >= n || j >= n) {
+        return Err(SolveError::LinearSolver(format!(
+            "block pair ({i}, {j}) outside a system of {n} blocks"
+        )));
+    }
+    // column j's rows go to rows[ptr[j]..ptr[j + 1]], the diagonal first
+    let mut ptr = vec![1usize; n + 1];
+    ptr[n] = 0;
+    for &(i, j) in &pairs {
+        ptr[i.max(j)] += 1;
+    }
+    let mut total = 0;
+    for p in &mut ptr {
+        (*p, total) = (total, total + *p);
+    }
+    let mut rows = vec![0usize; total];
+    let mut cursor = ptr.clone();
+    for j in 0..n {
+        rows[cursor[j]] = j;
+        cursor[j] += 1;
+    }
+    for &(i, j) in &pairs {
+        let c = i.max(j);
+        rows[cursor[c]] = i.min(j);
+        cursor[c] += 1;
+    }
+    // repeats dropped before sorting: `seen[i] == j` once row i is in column j
+    let mut seen = vec![usize::MAX; n];
+    Ok((0..n)
+        .map(|j| {
+            let mut out: Vec<usize> = rows[ptr[j]..ptr[j + 1]]
+                .iter()
+                .filter(|&&i| std::mem::replace(&mut seen[i], j) != j)
+                .copied()
+                .collect();
+            out.sort_unstable();
+            out
+        })
+        .collect())
+}
+
 /// Whether H is small enough to factorise densely (the solver's default threshold, as on its
 /// own sparse path).
 fn is_dense(h: &BlockSparse) -> bool {
@@ -574,6 +613,17 @@ fn multiply_damped(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Pairs in either order and repeated make one entry each, beside every diagonal; a pair
+    /// outside the system is an error naming it.
+    #[test]
+    fn block_columns_are_sorted_without_repeats_and_keep_the_diagonal() {
+        let pairs = [(1, 0), (0, 1), (3, 1), (1, 3), (1, 3), (0, 3), (2, 2)];
+        let columns = block_columns(4, pairs).unwrap();
+        assert_eq!(columns, vec![vec![0], vec![0, 1], vec![2], vec![0, 1, 3]]);
+        let err = block_columns(3, [(0, 1), (3, 0)]).unwrap_err();
+        assert!(err.to_string().contains("(3, 0)"), "{err}");
+    }
 
     /// A 3-block system (sizes 2, 1, 2) coupling blocks 0-2 and 1-2, filled from a dense SPD
     /// matrix with that pattern: the solve must match the dense solution, with and without damping.

@@ -184,6 +184,15 @@ pub(crate) struct Minimised {
     pub moved: bool,
 }
 
+/// How [`WarpSystem::try_step`] costs a trial step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Costing {
+    /// The cost alone: no step follows.
+    CostOnly,
+    /// A linearisation at the trial motions, which gives the cost too: another step may follow.
+    Linearise,
+}
+
 /// What one trial step came to.
 enum Trial {
     /// The cost fell to `cost` with gain ratio `gain`; `converged` when by less than the
@@ -343,9 +352,15 @@ impl WarpSystem {
             let mut step = std::mem::take(&mut self.step);
             let solved = self.solve_step(lm.mu(), steps.linear, &mut step);
             let clock = Instant::now();
+            // a step that another may follow is costed by linearising there: the cost comes
+            // with H and g, which a taken step needs next
+            let next = match done < steps.iterations {
+                true => Costing::Linearise,
+                false => Costing::CostOnly,
+            };
             // a failed factorisation is a rejected step
             let trial = match solved {
-                Ok(predicted) => self.try_step(terms, &step, predicted, cost),
+                Ok(predicted) => self.try_step(terms, &step, (predicted, cost), next),
                 Err(_) => Trial::Rejected { negligible: false },
             };
             self.step = step;
@@ -355,11 +370,7 @@ impl WarpSystem {
                     gain,
                     converged,
                 } => {
-                    cost = if done < steps.iterations && !converged {
-                        self.linearise(terms)
-                    } else {
-                        new_cost
-                    };
+                    cost = new_cost;
                     lm.taken(gain);
                     moved = true;
                     *evaluate_seconds += clock.elapsed().as_secs_f64();
@@ -430,14 +441,15 @@ impl WarpSystem {
         )))
     }
 
-    /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`) and takes them when
-    /// the cost falls ([`Trial`]).
+    /// Costs the motions moved by `step` (the solution of `(H + μI)δ = −g`, whose model
+    /// promised `predicted` from `cost`) and takes them when the cost falls ([`Trial`]). With
+    /// [`Costing::Linearise`], H and g are left at the motions kept, taken or not.
     fn try_step(
         &mut self,
         terms: &WarpTerms<'_>,
         step: &[f64],
-        predicted: f64,
-        cost: f64,
+        (predicted, cost): (f64, f64),
+        costing: Costing,
     ) -> Trial {
         self.trial.clear();
         self.trial.extend(
@@ -452,23 +464,41 @@ impl WarpSystem {
                 .iter()
                 .map(dynamap_residuals::deform::dual_quaternion),
         );
-        let new_cost = cost_at(terms, &self.trial, &self.trial_dqs);
+        let new_cost = match costing {
+            Costing::CostOnly => cost_at(terms, &self.trial, &self.trial_dqs),
+            Costing::Linearise => {
+                self.swap_trial();
+                self.linearise(terms)
+            }
+        };
         let actual = cost - new_cost;
         let gain = actual / predicted;
         let tolerance = FUNCTION_TOLERANCE * cost.max(f64::MIN_POSITIVE);
         if !(new_cost.is_finite() && predicted > 0.0 && gain > 0.0) {
+            if costing == Costing::Linearise {
+                // back to the motions kept, and H and g with them (the same cost, to the bit)
+                self.swap_trial();
+                self.linearise(terms);
+            }
             return Trial::Rejected {
                 negligible: predicted.is_finite() && predicted.abs() < tolerance,
             };
         }
-        std::mem::swap(&mut self.motions, &mut self.trial);
-        std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
+        if costing == Costing::CostOnly {
+            self.swap_trial();
+        }
         let step_norm = step.iter().map(|d| d * d).sum::<f64>().sqrt();
         Trial::Taken {
             cost: new_cost,
             gain,
             converged: actual < tolerance || step_norm < 1e-10,
         }
+    }
+
+    /// Exchanges the current motions with the trial ones.
+    fn swap_trial(&mut self) {
+        std::mem::swap(&mut self.motions, &mut self.trial);
+        std::mem::swap(&mut self.dqs, &mut self.trial_dqs);
     }
 
     fn system(&self) -> &BlockSystem {
@@ -1232,6 +1262,55 @@ mod tests {
         ws.prepare(&graph, &bindings[..50], FactorPrecision::Double)
             .unwrap();
         assert_eq!(ws.system().num_entries(), entries);
+    }
+
+    /// A trial step costed by linearising at it leaves H and g at the motions kept: at the
+    /// trial's when taken, back at the old ones when rejected (an ascent step), bit for bit
+    /// what a fresh linearisation there gives.
+    #[test]
+    fn a_trial_costed_by_linearising_leaves_h_and_g_at_the_motions_kept() {
+        let (graph, points, bindings, matches) = scene();
+        let terms = data_only(&points, &bindings, &matches);
+        let fresh = |motions: &[Isometry3<f64>]| {
+            let mut ws = system_at(&graph, &bindings);
+            ws.set_motions(motions.iter().copied());
+            let cost = ws.linearise(&terms);
+            let h: Vec<f64> = (0..ws.system().dim())
+                .map(|r| ws.system().get(r, r))
+                .collect();
+            (cost, h, ws.system().gradient().to_vec())
+        };
+        let now = |ws: &WarpSystem| {
+            let h: Vec<f64> = (0..ws.system().dim())
+                .map(|r| ws.system().get(r, r))
+                .collect();
+            (h, ws.system().gradient().to_vec())
+        };
+        for ascent in [false, true] {
+            let mut ws = system_at(&graph, &bindings);
+            let cost = ws.linearise(&terms);
+            let start = ws.motions.clone();
+            let mut step = vec![0.0; ws.system().dim()];
+            ws.system
+                .as_mut()
+                .unwrap()
+                .solve(Damping::Identity(1e-6), &mut step)
+                .unwrap();
+            if ascent {
+                // the other way, and far: the cost rises although the model is told it falls
+                step.iter_mut().for_each(|d| *d *= -3.0);
+            }
+            let trial = ws.try_step(&terms, &step, (1.0, cost), Costing::Linearise);
+            let kept = ws.motions.clone();
+            let (fresh_cost, h, g) = fresh(&kept);
+            assert_eq!(now(&ws), (h, g), "ascent {ascent}");
+            match trial {
+                Trial::Taken { cost, .. } => {
+                    assert!(!ascent && cost == fresh_cost && kept != start, "{cost}")
+                }
+                Trial::Rejected { .. } => assert!(ascent && kept == start),
+            }
+        }
     }
 
     /// Steps by block-Jacobi conjugate gradients lower the cost about as far as factorised ones
