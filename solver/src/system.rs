@@ -18,6 +18,7 @@ use crate::error::SolveError;
 use crate::parallel::{dot, for_parts};
 use crate::schur::kernels::invert_spd;
 use crate::Options;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// H (upper triangle, block-sparse), g, and a factorisation prepared for H's structure.
 pub struct BlockSystem {
@@ -41,11 +42,16 @@ pub struct BlockSystem {
     /// [`Self::solve_block_jacobi`], and one block's worth of scratch.
     jacobi: Vec<f64>,
     jacobi_scratch: Vec<f64>,
+    /// Where each block's inverse starts in `jacobi`, with the total at the end.
+    jacobi_at: Vec<usize>,
     /// `H + μD` by full block rows in single precision, the product of
     /// [`Self::solve_block_jacobi`] in a system of [`FactorPrecision::Single`].
     rows: BlockRows,
 }
 
+/// Numbers of the diagonal blocks' inverses below which a run of them is inverted on one
+/// thread (about 230 blocks of six).
+const INVERT_SERIAL: usize = 8192;
 /// Stored numbers of H below which [`BlockSystem::set_entries`] sets a run of block columns on
 /// one thread.
 const SET_SERIAL: usize = 1 << 15;
@@ -115,6 +121,7 @@ impl BlockSystem {
             cg: Default::default(),
             jacobi: Vec::new(),
             jacobi_scratch: Vec::new(),
+            jacobi_at: Vec::new(),
             rows: BlockRows::default(),
         })
     }
@@ -403,24 +410,46 @@ impl BlockSystem {
         )
     }
 
-    /// Fills [`Self::jacobi`] with the inverse of each damped diagonal block.
+    /// Fills [`Self::jacobi`] with the inverse of each damped diagonal block, runs of blocks
+    /// in parallel. Fails naming the first block that is not positive definite.
     fn invert_diagonal_blocks(&mut self, damping: Damping) -> Result<(), SolveError> {
         let h = &self.h;
-        let len = (0..h.num_blocks()).map(|b| h.block_dim(b).pow(2)).sum();
-        self.jacobi.resize(len, 0.0);
-        let mut at = 0;
-        for b in 0..h.num_blocks() {
-            let d = h.block_dim(b);
-            let block = &mut self.jacobi[at..at + d * d];
-            h.damped_diagonal_block(b, damping, block);
-            invert_spd(block, d).map_err(|_| SolveError::RankDeficient {
+        let nb = h.num_blocks();
+        // block b's inverse is jacobi[at[b]..at[b + 1]]
+        let at = &mut self.jacobi_at;
+        at.clear();
+        at.push(0);
+        for b in 0..nb {
+            at.push(at[b] + h.block_dim(b).pow(2));
+        }
+        let at = &self.jacobi_at;
+        self.jacobi.resize(at[nb], 0.0);
+        let failed = AtomicUsize::new(usize::MAX);
+        let start = |b: usize| at[b];
+        for_parts(
+            0..nb,
+            &mut self.jacobi,
+            (&start, &start),
+            INVERT_SERIAL,
+            &|blocks, part| {
+                let base = at[blocks.start];
+                for b in blocks {
+                    let block = &mut part[at[b] - base..at[b + 1] - base];
+                    h.damped_diagonal_block(b, damping, block);
+                    if invert_spd(block, h.block_dim(b)).is_err() {
+                        failed.fetch_min(b, Ordering::Relaxed);
+                    }
+                }
+            },
+        );
+        match failed.into_inner() {
+            usize::MAX => Ok(()),
+            b => Err(SolveError::RankDeficient {
                 nullity: 1,
                 variables: vec![b],
                 message: format!("the damped diagonal block {b} is not positive definite"),
-            })?;
-            at += d * d;
+            }),
         }
-        Ok(())
     }
 
     /// The decrease `−gᵀδ − ½ δᵀHδ` the undamped quadratic model predicts for any step δ (for an
@@ -923,6 +952,41 @@ mod tests {
         s.h.values[at] = -10.0;
         match s.solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-12, 10) {
             Err(SolveError::RankDeficient { variables, .. }) => assert_eq!(variables, [3]),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// On a chain long enough for the diagonal blocks to be inverted in parallel runs, every
+    /// inverse is right (H = 2I: the step is −g / (2 + μ)), and of two blocks that are not
+    /// positive definite the error names the first, whichever run meets it first.
+    #[test]
+    fn diagonal_blocks_inverted_in_parallel_solve_and_name_the_first_bad_one() {
+        let nb = 1000;
+        let mut s = chain_structure(nb, FactorPrecision::Double);
+        let mut two = [0.0; 36];
+        (0..6).for_each(|k| two[7 * k] = 2.0);
+        for b in 0..nb {
+            let e = s.entry(b, b).unwrap();
+            s.add_to_entry(e, &two);
+        }
+        s.gradient_mut()
+            .iter_mut()
+            .enumerate()
+            .for_each(|(i, g)| *g = (i % 7) as f64 - 3.0);
+        let mut step = vec![0.0; 6 * nb];
+        let solved = s
+            .solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5)
+            .unwrap();
+        assert!(solved.converged, "{solved:?}");
+        for (i, d) in step.iter().enumerate() {
+            assert!((d + ((i % 7) as f64 - 3.0) / 2.5).abs() < 1e-12, "{i}: {d}");
+        }
+        for b in [700, 300] {
+            let at = s.h.diag_pos().nth(6 * b + 2).unwrap();
+            s.h.values[at] = -10.0;
+        }
+        match s.solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5) {
+            Err(SolveError::RankDeficient { variables, .. }) => assert_eq!(variables, [300]),
             other => panic!("{other:?}"),
         }
     }
