@@ -46,11 +46,7 @@ pub fn facing(mesh: Oriented<'_>) -> Option<Facing> {
         return None;
     }
     let boundary = boundary_length(points, faces)?;
-    let mut vertex_area = vec![0.0; points.len()];
-    for f in faces {
-        let third = triangle_area(points, f) / 3.0;
-        f.iter().for_each(|&v| vertex_area[v as usize] += third);
-    }
+    let vertex_area = vertex_areas(points, faces);
     let area: f64 = vertex_area.iter().sum();
     if !(area > 0.0 && area.is_finite() && boundary <= HOLES * area.sqrt()) {
         return None;
@@ -117,6 +113,17 @@ pub(crate) fn boundary_edges(faces: &[[u32; 3]]) -> Vec<((u32, u32), usize)> {
         .filter(|&(_, (count, _))| count == 1)
         .map(|(edge, (_, face))| (edge, face))
         .collect()
+}
+
+/// Each vertex's area: a third of the area of each face that has it (every face's vertices
+/// must lie in `points`).
+pub(crate) fn vertex_areas(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<f64> {
+    let mut areas = vec![0.0; points.len()];
+    for f in faces {
+        let third = triangle_area(points, f) / 3.0;
+        f.iter().for_each(|&v| areas[v as usize] += third);
+    }
+    areas
 }
 
 /// The area of triangle `f`.

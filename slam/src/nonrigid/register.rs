@@ -1122,6 +1122,17 @@ mod tests {
             .is_err());
     }
 
+    /// A graph sampled over `points` with nodes `spacing` apart, and the points' bindings.
+    fn graph_over(points: &[Vector3<f64>], spacing: f64) -> (DeformationGraph, Vec<Binding>) {
+        let params = crate::nonrigid::GraphParams {
+            spacing,
+            ..Default::default()
+        };
+        let graph = DeformationGraph::sample(points, params).unwrap();
+        let bindings = graph.bind_all(points);
+        (graph, bindings)
+    }
+
     /// The rigid pre-alignment fitted on every seventh point finds the motion it finds on all of
     /// them: a curved patch moved by 1.2° and 1.5 cm onto its own moved copy.
     #[test]
@@ -1131,14 +1142,10 @@ mod tests {
             for j in 0..60 {
                 let (x, y) = (i as f64 / 59.0 - 0.5, j as f64 / 59.0 - 0.5);
                 // a saddle with a bump: no motion slides it along itself
-                let z = 0.3 * x * y + 0.1 * (-(x * x + y * y) / 0.02).exp();
-                let dz = Vector3::new(
-                    0.3 * y - 10.0 * x * 0.1 * (-(x * x + y * y) / 0.02).exp(),
-                    0.3 * x - 10.0 * y * 0.1 * (-(x * x + y * y) / 0.02).exp(),
-                    0.0,
-                );
-                points.push(Vector3::new(x, y, z));
-                normals.push(Vector3::new(-dz.x, -dz.y, 1.0).normalize());
+                let bump = 0.1 * (-(x * x + y * y) / 0.02).exp();
+                let (dzx, dzy) = (0.3 * y - 100.0 * x * bump, 0.3 * x - 100.0 * y * bump);
+                points.push(Vector3::new(x, y, 0.3 * x * y + bump));
+                normals.push(Vector3::new(-dzx, -dzy, 1.0).normalize());
             }
         }
         let truth = Isometry3::new(
@@ -1153,15 +1160,7 @@ mod tests {
         let moved_normals: Vec<Vector3<f64>> = normals.iter().map(|n| truth.rotation * n).collect();
         let target = CloudTarget::new(&moved, &moved_normals);
         let fit = |rigid_points: usize| {
-            let mut graph = DeformationGraph::sample(
-                &points,
-                crate::nonrigid::GraphParams {
-                    spacing: 0.2,
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-            let bindings = graph.bind_all(&points);
+            let (mut graph, bindings) = graph_over(&points, 0.2);
             let mut optimiser = WarpOptimiser::new(RegisterParams {
                 rigid_iterations: 60,
                 rigid_points,
@@ -1216,15 +1215,7 @@ mod tests {
             vertices: &vertices,
             normals: &vnormals,
         };
-        let mut graph = DeformationGraph::sample(
-            &source,
-            crate::nonrigid::GraphParams {
-                spacing: 0.1,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let bindings = graph.bind_all(&source);
+        let (mut graph, bindings) = graph_over(&source, 0.1);
         let mut optimiser = WarpOptimiser::new(RegisterParams::default());
         let summary = optimiser
             .optimise(&mut graph, &source, &normals, &bindings, &target)

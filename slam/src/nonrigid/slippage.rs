@@ -27,7 +27,7 @@
 //! still turns about its normal.
 
 use super::extent::finite;
-use super::orientation::boundary_edges;
+use super::orientation::{boundary_edges, vertex_areas};
 use nalgebra::{Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
 
 /// Below this share of a motion's displacement leaving the surface, the surface slides along
@@ -77,7 +77,8 @@ pub fn slippage(
         })
         .copied()
         .collect();
-    let (areas, total) = vertex_areas(points, &usable);
+    let areas = vertex_areas(points, &usable);
+    let total: f64 = areas.iter().sum();
     if total.is_nan() || total <= 0.0 {
         return None;
     }
@@ -103,19 +104,6 @@ pub fn slippage(
         c += (length * band / total) * constraint(&at(&q), &m);
     }
     least_motion(c, b)
-}
-
-/// Each vertex's area (a third of its faces') and the total area.
-fn vertex_areas(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> (Vec<f64>, f64) {
-    let mut areas = vec![0.0; points.len()];
-    let mut total = 0.0;
-    for f in faces {
-        let [a, b, c] = f.map(|v| points[v as usize]);
-        let area = (b - a).cross(&(c - a)).norm() / 2.0;
-        f.iter().for_each(|&v| areas[v as usize] += area / 3.0);
-        total += area;
-    }
-    (areas, total)
 }
 
 /// r rᵀ, r = (p × n, n): what a point-to-plane term at p with normal n measures of a twist.
