@@ -32,11 +32,8 @@ pub(crate) fn candidates(
     centre: &Vector3<f64>,
     h: f64,
 ) -> Option<Candidates> {
-    let k = NonZero::new(graph.neighbours())?;
+    let (radius, nearest) = candidate_radius(graph, centre, h)?;
     let q: [f64; 3] = (*centre).into();
-    let nearest = graph.tree.nearest_n::<SquaredEuclidean>(&q, k);
-    let (first, last) = (nearest.first()?, nearest.last()?);
-    let radius = last.distance.sqrt() + 2.0 * h;
     let nodes: Vec<u32> = graph
         .tree
         .within_unsorted::<SquaredEuclidean>(&q, radius * radius)
@@ -51,8 +48,41 @@ pub(crate) fn candidates(
         nodes,
         positions,
         radius,
-        nearest: first.distance.sqrt(),
+        nearest,
     })
+}
+
+/// The candidate radius `d_K + 2h` of the cube with `centre` and half-diagonal `h`, and the
+/// centre's nearest node's distance, or `None` for a graph with no node (or K = 0).
+pub(crate) fn candidate_radius(
+    graph: &DeformationGraph,
+    centre: &Vector3<f64>,
+    h: f64,
+) -> Option<(f64, f64)> {
+    let k = NonZero::new(graph.neighbours())?;
+    let q: [f64; 3] = (*centre).into();
+    let nearest = graph.tree.nearest_n::<SquaredEuclidean>(&q, k);
+    let (first, last) = (nearest.first()?, nearest.last()?);
+    Some((last.distance.sqrt() + 2.0 * h, first.distance.sqrt()))
+}
+
+/// Inserts `(node, d2)` into `best` (sorted nearest first, as long as K) if it is nearer than
+/// the last; of equidistant nodes the one inserted first stays first. Whether it went in.
+#[inline]
+pub(crate) fn insert_nearer(best: &mut [(u32, f64)], node: u32, d2: f64) -> bool {
+    let Some(last) = best.len().checked_sub(1) else {
+        return false;
+    };
+    if d2 >= best[last].1 {
+        return false;
+    }
+    let mut i = last;
+    while i > 0 && best[i - 1].1 > d2 {
+        best[i] = best[i - 1];
+        i -= 1;
+    }
+    best[i] = (node, d2);
+    true
 }
 
 impl Candidates {
@@ -63,15 +93,7 @@ impl Candidates {
         let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
         let k = k.clamp(1, MAX_NEIGHBOURS);
         for (&c, position) in self.nodes.iter().zip(&self.positions) {
-            let d2 = (position - p).norm_squared();
-            if d2 < best[k - 1].1 {
-                let mut i = k - 1;
-                while i > 0 && best[i - 1].1 > d2 {
-                    best[i] = best[i - 1];
-                    i -= 1;
-                }
-                best[i] = (c, d2);
-            }
+            insert_nearer(&mut best[..k], c, (position - p).norm_squared());
         }
         best
     }

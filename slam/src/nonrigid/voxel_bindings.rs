@@ -11,7 +11,7 @@
 //! enter any voxel's binding. Blocks the band leaves are dropped, so memory follows the band
 //! (16 bytes of node indices and 16 of weights per voxel: 16 KiB per 8³ block).
 
-use super::cell_nearest::{candidates, Candidates};
+use super::cell_nearest::{candidate_radius, candidates, insert_nearer, Candidates};
 use super::graph::{Binding, DeformationGraph};
 use crate::tsdf::VoxelWarp;
 use dynamap_residuals::deform::{transform_point, MAX_NEIGHBOURS};
@@ -44,6 +44,8 @@ struct BlockBindings {
     /// Block centre and candidate radius `d_K + 2h`.
     centre: Vector3<f64>,
     radius: f64,
+    /// The reach ([`reach`]) they were computed with.
+    reach: f64,
     /// Empty when no voxel is within reach of a node.
     voxels: Vec<VoxelBinding>,
 }
@@ -120,6 +122,7 @@ impl VoxelBindings {
                     },
                     false,
                 ),
+                Some(b) if can_rebind(&b, graph, reach) => (rebind_block(graph, geo, c, b), true),
                 _ => (bind_block(graph, geo, c, reach), true),
             })
             .collect();
@@ -138,6 +141,7 @@ impl Default for BlockBindings {
             neighbours: 0,
             centre: Vector3::zeros(),
             radius: 0.0,
+            reach: 0.0,
             voxels: Vec::new(),
         }
     }
@@ -175,6 +179,7 @@ fn bind_block(
         neighbours: k,
         centre,
         radius: f64::INFINITY,
+        reach,
         voxels: Vec::new(),
     };
     let Some(candidates) = candidates(graph, &centre, geo.half_diagonal()) else {
@@ -206,6 +211,71 @@ fn bind_block(
     out
 }
 
+/// Whether `b`'s bindings can be brought up to `graph` by [`rebind_block`]: the same K and
+/// reach, no node removed, and some voxel bound.
+fn can_rebind(b: &BlockBindings, graph: &DeformationGraph, reach: f64) -> bool {
+    b.neighbours == graph.neighbours()
+        && b.nodes_seen <= graph.nodes.len()
+        && b.reach == reach
+        && !b.voxels.is_empty()
+}
+
+/// [`bind_block`] for a block bound before nodes were added: only a node added within the old
+/// candidate radius can be nearer a voxel than its K-th nearest, so each bound voxel's new K
+/// nearest are its old ones and those nodes merged (the same insertion as
+/// [`Candidates::nearest`]), and only voxels whose K nearest changed are weighed again. Unbound
+/// voxels search the block's candidates afresh.
+fn rebind_block(
+    graph: &DeformationGraph,
+    geo: BlockGeometry,
+    coord: [i32; 3],
+    mut b: BlockBindings,
+) -> BlockBindings {
+    let r2 = b.radius * b.radius;
+    let added: Vec<(u32, Vector3<f64>)> = (b.nodes_seen..graph.nodes.len())
+        .map(|i| (i as u32, graph.nodes[i].position))
+        .filter(|(_, q)| (q - b.centre).norm_squared() <= r2)
+        .collect();
+    let Some((radius, _)) = candidate_radius(graph, &b.centre, geo.half_diagonal()) else {
+        return bind_block(graph, geo, coord, b.reach);
+    };
+    let (k, n) = (b.neighbours.clamp(1, MAX_NEIGHBOURS), geo.block as usize);
+    let origin = geo.origin(coord);
+    let reach2 = b.reach * b.reach;
+    let mut all: Option<Candidates> = None;
+    for (i, v) in b.voxels.iter_mut().enumerate() {
+        let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+        let p = origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
+        if v.nodes[0] == NONE {
+            // every old node was beyond the reach: only an added one can bind it
+            if added.iter().any(|(_, q)| (q - p).norm_squared() <= reach2) {
+                let all = all.get_or_insert_with(|| {
+                    candidates(graph, &b.centre, geo.half_diagonal()).expect("a node is near")
+                });
+                *v = bind_voxel(graph, all, &p, k, b.reach);
+            }
+            continue;
+        }
+        let mut best = [(0u32, f64::INFINITY); MAX_NEIGHBOURS];
+        for (slot, &node) in best.iter_mut().zip(&v.nodes[..k]) {
+            *slot = (
+                node,
+                (graph.nodes[node as usize].position - p).norm_squared(),
+            );
+        }
+        let mut changed = false;
+        for (node, q) in &added {
+            changed |= insert_nearer(&mut best[..k], *node, (q - p).norm_squared());
+        }
+        if changed {
+            *v = weighed(graph, &best[..k]);
+        }
+    }
+    b.radius = radius;
+    b.nodes_seen = graph.nodes.len();
+    b
+}
+
 /// Sub-blocks along a block's edge (when it divides the edge), each with its own candidates.
 const SPLIT: usize = 2;
 
@@ -227,7 +297,12 @@ fn bind_voxel(
     if best[0].1.sqrt() > reach {
         return UNBOUND;
     }
-    let b = graph.binding(&best[..k]);
+    weighed(graph, &best[..k.clamp(1, MAX_NEIGHBOURS)])
+}
+
+/// The binding of a voxel whose K nearest nodes are `nearest` (node, squared distance).
+fn weighed(graph: &DeformationGraph, nearest: &[(u32, f64)]) -> VoxelBinding {
+    let b = graph.binding(nearest);
     let mut out = UNBOUND;
     for s in 0..b.count {
         out.nodes[s] = b.nodes[s];
@@ -325,19 +400,26 @@ mod tests {
         assert!(bound > 1000, "{bound} voxels bound");
     }
 
-    /// The cache holds the bindings a fresh K-nearest search gives, keeps them while no node is
-    /// added, recomputes only the blocks a new node can reach, and drops blocks the band left.
-    #[test]
-    fn cached_bindings_are_the_fresh_ones_across_graph_growth() {
+    /// A graph over the plane of [`plane`] from x = 0 to 0.4 (nodes 5 cm apart) and 8³ blocks of
+    /// 1 cm voxels.
+    fn plane_graph() -> (DeformationGraph, BlockGeometry) {
         let params = GraphParams {
             spacing: 0.05,
             ..GraphParams::default()
         };
-        let mut graph = DeformationGraph::sample(&plane(0.0, 0.4), params).unwrap();
+        let graph = DeformationGraph::sample(&plane(0.0, 0.4), params).unwrap();
         let geo = BlockGeometry {
             voxel: 0.01,
             block: 8,
         };
+        (graph, geo)
+    }
+
+    /// The cache holds the bindings a fresh K-nearest search gives, keeps them while no node is
+    /// added, recomputes only the blocks a new node can reach, and drops blocks the band left.
+    #[test]
+    fn cached_bindings_are_the_fresh_ones_across_graph_growth() {
+        let (mut graph, geo) = plane_graph();
         let coords: Vec<[i32; 3]> = (0..5)
             .flat_map(|x| (0..5).map(move |y| [x, y, 3]))
             .collect();
@@ -359,5 +441,35 @@ mod tests {
         assert_matches_fresh_bindings(&cache, &graph);
         cache.update(&graph, &grown[..3], geo);
         assert_eq!((cache.computed, cache.blocks.len()), (0, 3));
+    }
+
+    /// A block bound before nodes were added, brought up to the grown graph by merging the
+    /// added nodes, holds the bindings a fresh binding of the block gives, bit for bit, the
+    /// voxels that only an added node reaches included.
+    #[test]
+    fn a_block_rebound_after_growth_is_the_block_bound_afresh() {
+        let (mut graph, geo) = plane_graph();
+        let coords = [[4, 2, 3], [5, 2, 3], [3, 1, 3]];
+        let before: Vec<BlockBindings> = coords
+            .iter()
+            .map(|&c| bind_block(&graph, geo, c, reach(&graph)))
+            .collect();
+        let unbound = |b: &BlockBindings| b.voxels.iter().filter(|v| v.nodes[0] == NONE).count();
+        assert!(before.iter().any(|b| unbound(b) > 0));
+        assert!(graph.extend(&plane(0.4, 0.6)) > 0);
+        let mut rebound = 0;
+        for (&c, b) in coords.iter().zip(before) {
+            let fresh = bind_block(&graph, geo, c, reach(&graph));
+            let was_unbound = unbound(&b);
+            assert!(can_rebind(&b, &graph, reach(&graph)));
+            let merged = rebind_block(&graph, geo, c, b);
+            assert_eq!(merged.voxels, fresh.voxels, "block {c:?}");
+            assert_eq!(
+                (merged.radius, merged.nodes_seen),
+                (fresh.radius, fresh.nodes_seen)
+            );
+            rebound += usize::from(unbound(&merged) < was_unbound);
+        }
+        assert!(rebound > 0, "no voxel was bound by an added node");
     }
 }

@@ -9,6 +9,7 @@ use marching_cubes::tables::{EDGE_TABLE, TRI_TABLE};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
+use std::cell::Cell;
 
 /// Corner offsets in Bourke's numbering.
 const CORNERS: [[i32; 3]; 8] = [
@@ -81,19 +82,32 @@ impl<'a> Neighbourhood<'a> {
 
     /// The distances at every corner the block's cubes read (NaN where unobserved), and whether
     /// they change sign: a block whose observed corners all lie on one side has no surface.
+    /// Filled block by block: the block's own 8³ corners, then the one-voxel layers its
+    /// neighbours towards +x, +y and +z lend.
     fn distances(&self, out: &mut [f32; SIDE * SIDE * SIDE]) -> bool {
         let (mut below, mut above) = (false, false);
-        for (i, d) in out.iter_mut().enumerate() {
-            let l = [
-                (i % SIDE) as i32,
-                ((i / SIDE) % SIDE) as i32,
-                (i / (SIDE * SIDE)) as i32,
-            ];
-            *d = self
-                .voxel(l)
-                .map_or(f32::NAN, |(blk, v)| blk.voxels[v].tsdf);
-            below |= *d < 0.0;
-            above |= *d >= 0.0;
+        for (k, blk) in self.blocks.iter().enumerate() {
+            let d = [(k & 1) as i32, ((k >> 1) & 1) as i32, ((k >> 2) & 1) as i32];
+            // along each axis: the block's own 0..BLOCK, or the neighbour's first layer at BLOCK
+            let span = d.map(|o| if o == 0 { 0..BLOCK } else { 0..1 });
+            for z in span[2].clone() {
+                for y in span[1].clone() {
+                    for x in span[0].clone() {
+                        let at = side_index([x + d[0] * BLOCK, y + d[1] * BLOCK, z + d[2] * BLOCK]);
+                        let value = blk.map_or(f32::NAN, |b| {
+                            let v = &b.voxels[local_index(x, y, z)];
+                            if v.weight > 0.0 {
+                                v.tsdf
+                            } else {
+                                f32::NAN
+                            }
+                        });
+                        below |= value < 0.0;
+                        above |= value >= 0.0;
+                        out[at] = value;
+                    }
+                }
+            }
         }
         below && above
     }
@@ -114,33 +128,30 @@ impl TsdfVolume {
     /// between two corners both at the truncation limit (|tsdf| ≥ 1, a band edge, not a surface), are
     /// skipped.
     pub fn extract_mesh(&self) -> Mesh {
-        // Per block, in parallel: triangles as three edge keys, plus each edge's vertex.
+        // Per block, in parallel: triangles over the block's own vertices, one per edge key.
         let parts: Vec<BlockMesh> = self
             .blocks
             .par_iter()
-            .map_init(
-                || Box::new([0.0f32; SIDE * SIDE * SIDE]),
-                |dist, blk| {
-                    let mut part = BlockMesh::default();
-                    let hood = Neighbourhood::of(self, blk.coord);
-                    if !hood.distances(dist) {
-                        return part;
-                    }
-                    let base = [
-                        blk.coord[0] * BLOCK,
-                        blk.coord[1] * BLOCK,
-                        blk.coord[2] * BLOCK,
-                    ];
-                    for z in 0..BLOCK {
-                        for y in 0..BLOCK {
-                            for x in 0..BLOCK {
-                                self.march_cube((&hood, dist), base, [x, y, z], &mut part);
-                            }
+            .map_init(Scratch::new, |scratch, blk| {
+                let hood = Neighbourhood::of(self, blk.coord);
+                let base = blk.coord.map(|c| c * BLOCK);
+                let mut part = BlockMesh {
+                    base,
+                    ..BlockMesh::default()
+                };
+                if !hood.distances(&mut scratch.dist) {
+                    return part;
+                }
+                for z in 0..BLOCK {
+                    for y in 0..BLOCK {
+                        for x in 0..BLOCK {
+                            self.march_cube((&hood, &*scratch), [x, y, z], &mut part);
                         }
                     }
-                    part
-                },
-            )
+                }
+                scratch.forget(&part);
+                part
+            })
             .collect();
         weld(&parts)
     }
@@ -151,11 +162,11 @@ impl TsdfVolume {
     /// corners at the truncation limit.
     fn march_cube(
         &self,
-        (hood, dist): (&Neighbourhood<'_>, &[f32; SIDE * SIDE * SIDE]),
-        base: [i32; 3],
+        (hood, scratch): (&Neighbourhood<'_>, &Scratch),
         l: [i32; 3],
         part: &mut BlockMesh,
     ) {
+        let (dist, base) = (&scratch.dist, part.base);
         let g = [base[0] + l[0], base[1] + l[1], base[2] + l[2]];
         let mut c = [0.0f32; 8];
         let mut index = 0usize;
@@ -173,7 +184,7 @@ impl TsdfVolume {
         if mask == 0 {
             return;
         }
-        let mut keys = [([0; 3], 0u8); 12];
+        let mut keys = [0u32; 12];
         for (e, [a, b]) in EDGES.iter().enumerate() {
             if mask & (1 << e) == 0 {
                 continue;
@@ -186,10 +197,18 @@ impl TsdfVolume {
                 hood.corner([l[0] + off[0], l[1] + off[1], l[2] + off[2]])
                     .expect("observed: its distance was read")
             };
-            let (ca, cb) = (corner(*a), corner(*b));
-            let vertex = self.edge_vertex(g, (CORNERS[*a], &ca), (CORNERS[*b], &cb));
-            keys[e] = vertex.0;
-            part.verts.push(vertex);
+            let (oa, ob) = (CORNERS[*a], CORNERS[*b]);
+            let slot = &scratch.slots[edge_slot(l, oa, ob)];
+            keys[e] = match slot.get() {
+                u32::MAX => {
+                    let (ca, cb) = (corner(*a), corner(*b));
+                    let vertex = self.edge_vertex(g, (oa, &ca), (ob, &cb));
+                    part.verts.push(vertex);
+                    slot.set(part.verts.len() as u32 - 1);
+                    part.verts.len() as u32 - 1
+                }
+                known => known,
+            };
         }
         for tri in TRI_TABLE[index].chunks(3) {
             if tri[0] < 0 {
@@ -231,30 +250,88 @@ impl TsdfVolume {
     }
 }
 
-/// One block's marching-cubes output: triangles as three edge keys, and each edge's vertex.
+/// One block's marching-cubes output: each edge's vertex once, in the order the cubes first
+/// met it, and triangles as three indices into them.
 #[derive(Default)]
 struct BlockMesh {
-    tris: Vec<[EdgeKey; 3]>,
+    /// The block's first voxel (global voxel coordinates).
+    base: [i32; 3],
+    tris: Vec<[u32; 3]>,
     verts: Vec<(EdgeKey, Point3<f32>, [u8; 3])>,
+}
+
+impl BlockMesh {
+    /// Whether no other block's cubes touch the lattice edge `key`: its lower corner lies in
+    /// this block along the edge's axis, and away from the block's lower faces across it (the
+    /// cubes sharing it lie at that corner and one voxel lower on each other axis).
+    fn owns_alone(&self, (g, axis): &EdgeKey) -> bool {
+        (0..3).all(|k| {
+            let l = g[k] - self.base[k];
+            let low = if k == *axis as usize { 0 } else { 1 };
+            (low..BLOCK).contains(&l)
+        })
+    }
+}
+
+/// One thread's buffers for [`TsdfVolume::extract_mesh`]: the block's corner distances and,
+/// per lattice edge the block's cubes can touch, its vertex's index in the block's mesh
+/// (`u32::MAX`: none yet).
+struct Scratch {
+    dist: Box<[f32; SIDE * SIDE * SIDE]>,
+    slots: Vec<Cell<u32>>,
+}
+
+impl Scratch {
+    fn new() -> Self {
+        Self {
+            dist: Box::new([0.0; SIDE * SIDE * SIDE]),
+            slots: vec![Cell::new(u32::MAX); SIDE * SIDE * SIDE * 3],
+        }
+    }
+
+    /// Clears the slots `part`'s vertices took, for the next block.
+    fn forget(&mut self, part: &BlockMesh) {
+        for (key, ..) in &part.verts {
+            let l = [0, 1, 2].map(|k| key.0[k] - part.base[k]);
+            self.slots[side_index(l) * 3 + key.1 as usize].set(u32::MAX);
+        }
+    }
+}
+
+/// The slot in [`Scratch::slots`] of the edge between corners `oa` and `ob` of the cube at `l`.
+#[inline]
+fn edge_slot(l: [i32; 3], oa: [i32; 3], ob: [i32; 3]) -> usize {
+    let axis = (0..3)
+        .find(|&i| oa[i] != ob[i])
+        .expect("an edge joins two corners");
+    let lower = if oa[axis] < ob[axis] { oa } else { ob };
+    side_index([l[0] + lower[0], l[1] + lower[1], l[2] + lower[2]]) * 3 + axis
 }
 
 /// The blocks' triangles joined into one mesh: a vertex per edge key (the first block's), faces
 /// that collapsed to a line or a point dropped, normals from the faces.
 fn weld(parts: &[BlockMesh]) -> Mesh {
     let mut mesh = Mesh::default();
-    let mut index: FxHashMap<EdgeKey, u32> = FxHashMap::default();
+    // only edges on a block's lower faces or beyond its upper ones can come from two blocks
+    let mut shared: FxHashMap<EdgeKey, u32> = FxHashMap::default();
+    let mut global: Vec<u32> = Vec::new();
     for part in parts {
+        global.clear();
         for (key, p, col) in &part.verts {
-            index.entry(*key).or_insert_with(|| {
+            let mut add = || {
                 mesh.vertices.push(*p);
                 mesh.colors.push(*col);
                 (mesh.vertices.len() - 1) as u32
-            });
+            };
+            let index = if part.owns_alone(key) {
+                add()
+            } else {
+                *shared.entry(*key).or_insert_with(add)
+            };
+            global.push(index);
         }
-    }
-    for part in parts {
         for t in &part.tris {
-            let f = t.map(|k| index[&k]);
+            let f = t.map(|k| global[k as usize]);
             if f[0] != f[1] && f[1] != f[2] && f[0] != f[2] {
                 mesh.faces.push(f);
             }
@@ -262,4 +339,101 @@ fn weld(parts: &[BlockMesh]) -> Mesh {
     }
     mesh.compute_normals();
     mesh
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every lattice edge the cubes of the block at block coordinate `coord` touch.
+    fn edges_of_cubes(coord: [i32; 3]) -> Vec<EdgeKey> {
+        let base = coord.map(|c| c * BLOCK);
+        let mut keys = Vec::new();
+        for z in 0..BLOCK {
+            for y in 0..BLOCK {
+                for x in 0..BLOCK {
+                    for [a, b] in EDGES {
+                        let (oa, ob) = (CORNERS[a], CORNERS[b]);
+                        let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap();
+                        let lower = if oa[axis] < ob[axis] { oa } else { ob };
+                        let g = [0, 1, 2].map(|k| base[k] + [x, y, z][k] + lower[k]);
+                        keys.push((g, axis as u8));
+                    }
+                }
+            }
+        }
+        keys
+    }
+
+    #[test]
+    fn an_edge_a_block_owns_alone_is_touched_by_no_other_blocks_cubes() {
+        let part = BlockMesh {
+            base: [BLOCK, -2 * BLOCK, 0],
+            ..BlockMesh::default()
+        };
+        let own = edges_of_cubes([1, -2, 0]);
+        let alone: Vec<EdgeKey> = own.iter().copied().filter(|k| part.owns_alone(k)).collect();
+        // the block's interior edges, and no more: 3 · 8 · 7 · 7 lattice edges
+        let distinct: std::collections::HashSet<EdgeKey> = alone.iter().copied().collect();
+        assert_eq!(distinct.len(), 3 * 8 * 7 * 7);
+        for d in 0..27 {
+            let shift = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
+            if shift == [0, 0, 0] {
+                continue;
+            }
+            let other = edges_of_cubes([1 + shift[0], -2 + shift[1], shift[2]]);
+            assert!(
+                other.iter().all(|k| !distinct.contains(k)),
+                "the block at {shift:?} touches an edge owned alone"
+            );
+        }
+        // every other edge the block touches is on its border, shared with a neighbour
+        let shared = own.iter().filter(|k| !part.owns_alone(k)).count();
+        assert!(shared > 0);
+    }
+
+    #[test]
+    fn each_edge_gets_one_vertex_and_the_mesh_is_the_one_welded_by_key() {
+        // a ball of radius 5.3 voxels about a block corner, its distance truncated at 3 voxels
+        let mut volume = TsdfVolume::new(super::super::TsdfParams {
+            voxel_size: 1.0,
+            ..Default::default()
+        });
+        let centre = [7.5f32, 8.2, 8.9];
+        for coord in (0..27).map(|k| [k % 3, (k / 3) % 3, k / 9]) {
+            let mut block = Block::new(coord);
+            for (i, v) in block.voxels.iter_mut().enumerate() {
+                let l = [
+                    i as i32 % BLOCK,
+                    (i as i32 / BLOCK) % BLOCK,
+                    i as i32 / (BLOCK * BLOCK),
+                ];
+                let g = volume.voxel_center([0, 1, 2].map(|k| coord[k] * BLOCK + l[k]));
+                let r = (g - nalgebra::Point3::from(centre)).norm();
+                v.tsdf = ((r - 5.3) / 3.0).clamp(-1.0, 1.0);
+                v.weight = 1.0;
+            }
+            volume.blocks.push(block);
+            volume.index_block(coord);
+        }
+        let mesh = volume.extract_mesh();
+        assert!(mesh.faces.len() > 100);
+        // one vertex per place: welding by key over all blocks leaves no twins
+        let mut seen = std::collections::HashSet::new();
+        for v in &mesh.vertices {
+            assert!(
+                seen.insert([v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]),
+                "twin vertex {v:?}"
+            );
+        }
+        // closed: every edge of a face is shared by exactly two faces
+        let mut count = std::collections::HashMap::new();
+        for f in &mesh.faces {
+            for k in 0..3 {
+                let (a, b) = (f[k].min(f[(k + 1) % 3]), f[k].max(f[(k + 1) % 3]));
+                *count.entry((a, b)).or_insert(0) += 1;
+            }
+        }
+        assert!(count.values().all(|&c| c == 2));
+    }
 }
