@@ -152,7 +152,7 @@ impl DeformationGraph {
 
     /// The finite `points` farther than `√r2` from every node, in order. Neighbouring points
     /// (a mesh's, block by block) mostly share a node within reach, so the node that held the
-    /// last point is tried before the tree is searched.
+    /// last point, then its regularisation neighbours, are tried before the tree is searched.
     fn beyond_every_node<'a>(
         &'a self,
         points: &'a [Vector3<f64>],
@@ -166,8 +166,16 @@ impl DeformationGraph {
                 if self.nodes.is_empty() {
                     return true;
                 }
-                if last.is_some_and(|k| (self.nodes[k].position - **p).norm_squared() < r2) {
-                    return false;
+                let holds = |k: usize| (self.nodes[k].position - **p).norm_squared() < r2;
+                if let Some(k) = last {
+                    // the last holder, else its regularisation neighbours, before the tree
+                    let near = std::iter::once(k)
+                        .chain(self.edges[k].iter().map(|&j| j as usize))
+                        .find(|&j| holds(j));
+                    if near.is_some() {
+                        last = near;
+                        return false;
+                    }
                 }
                 let nearest = self.tree.nearest_one::<SquaredEuclidean>(&(**p).into());
                 let within = nearest.distance < r2;
