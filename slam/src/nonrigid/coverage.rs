@@ -172,17 +172,41 @@ pub(crate) fn neighbour_distances2(
 /// The median distance from a point to its nearest neighbour: the points' sampling (a mesh's
 /// edge length), 0 for fewer than two.
 pub(crate) fn sampling_spacing(points: &[Vector3<f64>]) -> f64 {
+    median_neighbour_distance(points, 1)
+}
+
+/// The median distance from a point to its [`GAP_NEIGHBOUR`]-th nearest neighbour: the
+/// points' widest sampling gap. On a mesh of long, thin triangles the nearest neighbour lies
+/// along the short edges and understates how far a point of the surface can be from every
+/// vertex; the fourth lies across the long ones (on an even mesh it is about as near as the
+/// first). 0 for too few points.
+pub(crate) fn sampling_gap(points: &[Vector3<f64>]) -> f64 {
+    median_neighbour_distance(points, GAP_NEIGHBOUR)
+}
+
+/// Which neighbour [`sampling_gap`] measures.
+const GAP_NEIGHBOUR: usize = 4;
+
+/// The median over the finite `points` of the distance to the `k`-th nearest other point, 0
+/// for `k` or fewer points.
+fn median_neighbour_distance(points: &[Vector3<f64>], k: usize) -> f64 {
     let coords: Vec<[f64; 3]> = points
         .iter()
         .filter(|p| p.iter().all(|v| v.is_finite()))
         .map(|p| (*p).into())
         .collect();
-    if coords.len() < 2 {
+    let Some(n) = std::num::NonZero::new(k + 1).filter(|n| coords.len() >= n.get()) else {
         return 0.0;
-    }
+    };
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&coords);
-    let mut d = neighbour_distances2(&tree, &coords);
-    d.iter_mut().for_each(|d| *d = d.sqrt());
+    // the first of a point's own coordinates' nearest is itself (or a point on it)
+    let mut d: Vec<f64> = coords
+        .par_iter()
+        .map(|q| {
+            let near = tree.nearest_n::<SquaredEuclidean>(q, n);
+            near.last().map_or(0.0, |m| m.distance.sqrt())
+        })
+        .collect();
     let mid = d.len() / 2;
     *d.select_nth_unstable_by(mid, f64::total_cmp).1
 }
@@ -238,5 +262,27 @@ mod tests {
         let nan = vec![Vector3::repeat(f64::NAN); 3];
         assert_eq!(c.pull((&src, &sn), (&nan, &nan), gates, &mut again), 0);
         assert_eq!(c.pull((&[], &[]), (&tgt, &tn), gates, &mut []), 0);
+    }
+
+    /// A grid of `nx` × `ny` points `dx` and `dy` apart.
+    fn grid(nx: usize, ny: usize, dx: f64, dy: f64) -> Vec<Vector3<f64>> {
+        (0..nx * ny)
+            .map(|k| Vector3::new((k % nx) as f64 * dx, (k / nx) as f64 * dy, 0.0))
+            .collect()
+    }
+
+    /// On an even grid the gap is the spacing; on a grid four times as long one way as the other
+    /// the spacing is the short side and the gap twice it (the fourth neighbour, two rows over);
+    /// too few points give 0.
+    #[test]
+    fn the_gap_of_long_thin_cells_is_wider_than_their_spacing() {
+        let even = grid(30, 30, 0.01, 0.01);
+        assert!((sampling_spacing(&even) - 0.01).abs() < 1e-12);
+        assert!((sampling_gap(&even) - 0.01).abs() < 1e-12);
+        let long = grid(30, 30, 0.04, 0.01);
+        assert!((sampling_spacing(&long) - 0.01).abs() < 1e-12);
+        assert!((sampling_gap(&long) - 0.02).abs() < 1e-12);
+        assert_eq!(sampling_gap(&long[..4]), 0.0);
+        assert!(sampling_gap(&long[..5]) > 0.0);
     }
 }

@@ -6,6 +6,7 @@
 
 use super::boundary::{rim_matches, RimMatches};
 use super::cloud_target::CloudTarget;
+use super::coverage::{sampling_gap, sampling_spacing};
 use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
 use super::extent::centroid;
 pub use super::extent::{bounding_diagonal, surface_diagonal};
@@ -737,8 +738,20 @@ fn register_welded(
     // A sheet's graph has about a node per vertex, so closest point to the target's vertices
     // would carry each node onto a vertex: where the target is meshed apart, that is up to half
     // its spacing off, along the surface. Its target is the surface itself. The camel's graph has
-    // a node per 18 vertices, and there the surface did no better (NOTES 84).
-    let target_faces = if rim.is_some() { target.faces } else { &[] };
+    // a node per 18 vertices, and there the surface did no better (NOTES 84): its poses are
+    // sampled alike, so a vertex's partner is about a vertex. A target sampled coarser than the
+    // source is matched to its surface; onto one sampled finer, the coverage distance is measured
+    // in the source's widest gaps, where the target's samples fall (NOTES 185).
+    let sampling = Sampling::of(source.points, target.points);
+    let target_faces = if rim.is_some() || sampling.target_coarser() {
+        target.faces
+    } else {
+        &[]
+    };
+    let mut params = params;
+    if sampling.target_finer() {
+        params.cover *= gap_spacings(source.points);
+    }
     let mut passes = Passes::new(
         (source.points, source.normals),
         SurfaceMesh {
@@ -762,6 +775,45 @@ fn register_welded(
         (target.points, target.faces),
     );
     Ok(done)
+}
+
+/// How the target is sampled beside the source: the ratio of their sampling spacings
+/// ([`sampling_spacing`], target over source).
+struct Sampling {
+    ratio: f64,
+}
+
+/// How far apart two samplings may be and still count as alike: the camel's poses, one mesh
+/// posed, lie within 2.3 % of each other.
+const ALIKE: f64 = 1.25;
+
+impl Sampling {
+    fn of(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Self {
+        let (s, t) = (sampling_spacing(source), sampling_spacing(target));
+        Self {
+            ratio: if s > 0.0 && t > 0.0 { t / s } else { 1.0 },
+        }
+    }
+
+    fn target_coarser(&self) -> bool {
+        self.ratio > ALIKE
+    }
+
+    fn target_finer(&self) -> bool {
+        self.ratio < 1.0 / ALIKE
+    }
+}
+
+/// The source's sampling gap ([`sampling_gap`]) in its sampling spacings
+/// ([`sampling_spacing`]), at least 1: on long, thin triangles a point of the surface can lie
+/// several nearest-neighbour distances from every vertex.
+fn gap_spacings(points: &[Vector3<f64>]) -> f64 {
+    let spacing = sampling_spacing(points);
+    if spacing > 0.0 {
+        (sampling_gap(points) / spacing).max(1.0)
+    } else {
+        1.0
+    }
 }
 
 impl Passes {
