@@ -750,7 +750,7 @@ fn register_welded(
     };
     let mut params = params;
     if sampling.target_finer() {
-        params.cover *= gap_spacings(source.points);
+        params.cover *= sampling.gap_spacings(source.points);
     }
     let mut passes = Passes::new(
         (source.points, source.normals),
@@ -777,9 +777,10 @@ fn register_welded(
     Ok(done)
 }
 
-/// How the target is sampled beside the source: the ratio of their sampling spacings
-/// ([`sampling_spacing`], target over source).
+/// How the target is sampled beside the source: the source's sampling spacing
+/// ([`sampling_spacing`]) and the target's over it.
 struct Sampling {
+    source: f64,
     ratio: f64,
 }
 
@@ -791,7 +792,19 @@ impl Sampling {
     fn of(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Self {
         let (s, t) = (sampling_spacing(source), sampling_spacing(target));
         Self {
+            source: s,
             ratio: if s > 0.0 && t > 0.0 { t / s } else { 1.0 },
+        }
+    }
+
+    /// The gap ([`sampling_gap`]) of the `source` it was measured on, in its sampling
+    /// spacings, at least 1: on long, thin triangles a point of the surface can lie several
+    /// nearest-neighbour distances from every vertex.
+    fn gap_spacings(&self, source: &[Vector3<f64>]) -> f64 {
+        if self.source > 0.0 {
+            (sampling_gap(source) / self.source).max(1.0)
+        } else {
+            1.0
         }
     }
 
@@ -801,18 +814,6 @@ impl Sampling {
 
     fn target_finer(&self) -> bool {
         self.ratio < 1.0 / ALIKE
-    }
-}
-
-/// The source's sampling gap ([`sampling_gap`]) in its sampling spacings
-/// ([`sampling_spacing`]), at least 1: on long, thin triangles a point of the surface can lie
-/// several nearest-neighbour distances from every vertex.
-fn gap_spacings(points: &[Vector3<f64>]) -> f64 {
-    let spacing = sampling_spacing(points);
-    if spacing > 0.0 {
-        (sampling_gap(points) / spacing).max(1.0)
-    } else {
-        1.0
     }
 }
 
