@@ -50,6 +50,8 @@ pub mod orientation;
 pub mod outline_check;
 pub mod outline_start;
 pub mod photometric;
+mod point_terms;
+mod prior_index;
 pub mod reference_frame;
 pub mod register;
 mod rim;

@@ -11,7 +11,7 @@
 //! H_kl = Σ_points J_kᵀ J_l = P_kᵀ (Σ_points s_k w_k s_l w_l ρ' GᵀG) P_l,   g_k = P_kᵀ Σ_points s_k w_k ρ' Gᵀr
 //! ```
 //!
-//! Each point adds one symmetric 8 × 8 matrix (36 numbers) to each of its ten node pairs, and each
+//! Each point gives one symmetric 8 × 8 matrix (36 numbers) to each of its ten node pairs, and each
 //! pair is projected once per linearisation: about a quarter of the work of forming every 1 × 6
 //! and 3 × 6 block and multiplying them out (what the generic [`dynamap_solver::Problem`] path does
 //! with [`WarpedPointToPlane`](dynamap_residuals::deform::WarpedPointToPlane) and
@@ -23,14 +23,18 @@
 //! the solver's dense path. The as-rigid-as-possible terms (eq. 4.5-4.7) and the stay prior are
 //! added as 6 × 6 blocks.
 //!
-//! Points are summed in four fixed chunks, each into its own accumulator, and the chunks are added
-//! in order, so the bits do not depend on the thread count. The block structure (node pairs that
+//! Each point's matrix and gradient are computed once, in parallel, and kept with its pairs' and
+//! nodes' scales; each entry and node then sums what its points give, in the points' order
+//! (module `point_terms`), so the bits do not depend on the thread count and no per-thread
+//! accumulator of every entry is zeroed and added up. The block structure (node pairs that
 //! share a point or an edge) is kept, with its symbolic factorisation, for as long as the points'
 //! pairs fit in it; when new pairs appear it is rebuilt as the union of old and new.
 
 use super::graph::{Binding, DeformationGraph};
 use super::linear_steps::LinearSteps;
 use super::photometric::PhotometricTarget;
+use super::point_terms::{fill_terms, project, PointTerms, TermIndex, NONE, PAIRS, SLOT_PAIRS};
+use super::prior_index::PriorIndex;
 use dynamap_residuals::deform::{
     as_rigid_as_possible, blend, right_perturbation, transform_point, transform_point_jacobian,
     MAX_NEIGHBOURS,
@@ -44,37 +48,14 @@ use nalgebra::{DualQuaternion, Isometry3, SMatrix, Vector3, Vector6};
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Node pairs (k ≤ l) of one binding.
-const PAIRS: usize = MAX_NEIGHBOURS * (MAX_NEIGHBOURS + 1) / 2;
-/// Entries of a packed symmetric 8 × 8 matrix.
-const PACKED: usize = 36;
-/// Fixed number of point chunks (and accumulators).
+/// Fixed number of point chunks the data cost is summed in.
 const CHUNKS: usize = 4;
-/// No entry.
-const NONE: u32 = u32::MAX;
 
 /// Index of (a, b), a ≤ b < 8, in a packed symmetric 8 × 8 matrix.
 #[inline(always)]
 const fn packed(a: usize, b: usize) -> usize {
     b * (b + 1) / 2 + a
 }
-
-/// Binding slots (a, b), a ≤ b, in the order of a point's ten pair entries.
-const SLOT_PAIRS: [(usize, usize); PAIRS] = {
-    let mut out = [(0, 0); PAIRS];
-    let mut k = 0;
-    let mut b = 0;
-    while b < MAX_NEIGHBOURS {
-        let mut a = 0;
-        while a <= b {
-            out[k] = (a, b);
-            k += 1;
-            a += 1;
-        }
-        b += 1;
-    }
-    out
-};
 
 /// The matches and weights one round of Levenberg-Marquardt works with.
 pub(crate) struct WarpTerms<'a> {
@@ -217,12 +198,13 @@ pub(crate) struct WarpSystem {
     edge_pairs: Vec<(u32, u32)>,
     /// Per point: the entry of each of its binding pairs ([`SLOT_PAIRS`] order).
     slots: Vec<[u32; PAIRS]>,
-    /// CHUNKS accumulators, each `entries × 36` pair sums then `nodes × 8` gradient sums.
-    acc: Vec<f64>,
-    /// The regularisers' blocks of each entry: `prior_slots[prior_ptr[e]..prior_ptr[e + 1]]`,
-    /// each `3 x + s` for block s of prior x, in the priors' order.
-    prior_ptr: Vec<u32>,
-    prior_slots: Vec<u32>,
+    /// Each point's terms at the last linearisation, and which entries and nodes read them.
+    point_terms: Vec<PointTerms>,
+    term_index: TermIndex,
+    /// The regularisers' entries, kept while the edges and the structure are the same.
+    prior_index: PriorIndex,
+    /// Counts the structures built, so that what was found for one is not read for another.
+    generation: u64,
     /// `P_k` of every node at the current motions.
     perturb: Vec<SMatrix<f64, 8, 6>>,
     /// Node motions and their dual quaternions: current and trial.
@@ -293,12 +275,14 @@ impl WarpSystem {
                 debug_assert!(ok, "every binding pair was given");
             }
             self.system = Some(system);
+            self.generation += 1;
             self.edge_pairs = edge_pairs;
             self.precision = precision;
         }
-        let stride = self.stride();
         let s = self.system.as_ref().expect("built above");
-        self.acc.resize(CHUNKS * stride, 0.0);
+        let size = (s.num_entries(), s.num_blocks());
+        self.term_index
+            .build(&self.slots, bindings, size, self.generation);
         self.step.resize(s.dim(), 0.0);
         Ok(())
     }
@@ -318,12 +302,6 @@ impl WarpSystem {
     /// The node motions.
     pub fn motions(&self) -> &[Isometry3<f64>] {
         &self.motions
-    }
-
-    /// Length of one chunk's accumulator: 36 numbers per entry, then 8 per node.
-    fn stride(&self) -> usize {
-        let s = self.system.as_ref().expect("prepared");
-        s.num_entries() * PACKED + s.num_blocks() * 8
     }
 
     /// Up to `steps.iterations` Levenberg-Marquardt iterations from the current motions (Madsen,
@@ -507,56 +485,39 @@ impl WarpSystem {
 
     /// Fills H and g at the current motions and returns the cost ½Σρ.
     pub(crate) fn linearise(&mut self, terms: &WarpTerms<'_>) -> f64 {
-        let stride = self.stride();
         let system = self.system.as_mut().expect("prepared");
-        let entries = system.num_entries();
         let n = terms.points.len();
-        let per = n.div_ceil(CHUNKS).max(1);
-        let (slots, dqs) = (&self.slots, &self.dqs);
-        let mut costs = [0.0; CHUNKS];
-        self.acc
-            .par_chunks_mut(stride)
-            .zip(costs.par_iter_mut())
-            .enumerate()
-            .for_each(|(c, (acc, cost))| {
-                acc.fill(0.0);
-                let (pairs, grads) = acc.split_at_mut(entries * PACKED);
-                let range = (c * per).min(n)..((c + 1) * per).min(n);
-                *cost = range
-                    .map(|i| data_terms(terms, i, dqs, Some((&slots[i], &mut *pairs, &mut *grads))))
-                    .sum();
-            });
-        // add the chunks in order into the first
-        let (first, rest) = self.acc.split_at_mut(stride);
-        first.par_chunks_mut(4096).enumerate().for_each(|(k, out)| {
-            for c in 0..CHUNKS - 1 {
-                let src = &rest[c * stride + k * 4096..][..out.len()];
-                for (o, s) in out.iter_mut().zip(src) {
-                    *o += s;
-                }
-            }
+        let dqs = &self.dqs;
+        // every point's terms, in parallel; the cost summed as `cost_at` sums it
+        fill_terms(&mut self.point_terms, n, |i, t| {
+            t.cost = data_terms(terms, i, dqs, Some(t));
         });
+        let points = &self.point_terms;
+        let per = n.div_ceil(CHUNKS).max(1);
+        let costs = (0..CHUNKS).map(|c| {
+            let range = (c * per).min(n)..((c + 1) * per).min(n);
+            points[range].iter().map(|t| t.cost).sum::<f64>()
+        });
+        let data: f64 = costs.sum();
         self.perturb.clear();
         self.perturb.extend(dqs.iter().map(right_perturbation));
         // the regularisers' blocks, each prior in parallel, added in their order
-        prior_terms(terms, &self.motions, system, &mut self.priors);
-        index_priors(
-            &self.priors,
-            entries,
-            &mut self.prior_ptr,
-            &mut self.prior_slots,
-        );
+        let stays = match terms.stay_weight > 0.0 {
+            true => terms.anchors.len(),
+            false => 0,
+        };
+        self.prior_index
+            .refresh(terms.edges, stays, system, self.generation);
+        prior_terms(terms, &self.motions, stays, &mut self.priors);
         // summed as `regulariser_cost` sums them, so that the two costs agree to the bit
         let priors: f64 = self.priors.iter().fold(0.0, |c, p| c + p.cost);
-        let cost = costs.iter().sum::<f64>() + priors;
-        // every entry: the pair projected, H_e = P_iᵀ A_e P_j, then the priors' blocks
-        let (pairs, grads) = first.split_at(entries * PACKED);
-        let (perturb, index) = (&self.perturb, (&self.prior_ptr, &self.prior_slots));
-        let prior = &self.priors;
+        let cost = data + priors;
+        // every entry: its points' sum projected, H_e = P_iᵀ A_e P_j, then the priors' blocks
+        let (perturb, index) = (&self.perturb, &self.prior_index);
+        let (prior, gather) = (&self.priors, &self.term_index);
         system.set_entries(|e, i, j, out| {
-            let a = unpack(&pairs[e * PACKED..(e + 1) * PACKED]);
-            out.copy_from_slice((perturb[i].transpose() * a * perturb[j]).as_slice());
-            for &x in &index.1[index.0[e] as usize..index.0[e + 1] as usize] {
+            project(&perturb[i], &gather.entry_sum(e, points), &perturb[j], out);
+            for &x in index.blocks_of(e) {
                 let b = prior[x as usize / 3].block(x as usize % 3);
                 for (o, v) in out.iter_mut().zip(b.as_slice()) {
                     *o += v;
@@ -564,10 +525,15 @@ impl WarpSystem {
             }
         });
         let gradient = system.gradient_mut();
-        for (k, p) in perturb.iter().enumerate() {
-            let g8 = SMatrix::<f64, 8, 1>::from_column_slice(&grads[k * 8..k * 8 + 8]);
-            gradient[6 * k..6 * k + 6].copy_from_slice((p.transpose() * g8).as_slice());
-        }
+        gradient
+            .par_chunks_mut(6)
+            .zip(perturb.par_iter())
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(k, (out, p))| {
+                let g8 = SMatrix::<f64, 8, 1>::from(gather.node_sum(k, points));
+                out.copy_from_slice((p.transpose() * g8).as_slice());
+            });
         for p in &self.priors {
             for (&k, g) in p.nodes.iter().zip(&p.grads) {
                 if k != NONE {
@@ -596,18 +562,6 @@ fn fill_slots(s: &BlockSystem, b: &Binding, slots: &mut [u32; PAIRS]) -> bool {
     true
 }
 
-fn unpack(p: &[f64]) -> SMatrix<f64, 8, 8> {
-    let mut a = SMatrix::<f64, 8, 8>::zeros();
-    for b in 0..8 {
-        for x in 0..=b {
-            let v = p[packed(x, b)];
-            a[(x, b)] = v;
-            a[(b, x)] = v;
-        }
-    }
-    a
-}
-
 /// The two data terms of a match at offset `d = W(v) − q` from a target point with unit normal `n`:
 /// ½ρ of point-to-plane (Tukey's c = `tukey`) plus ½ρ of point-to-point (`√pw d` under Tukey's
 /// `c √pw`), and the IRLS weights ρ' of the first and `pw ρ'` of the second.
@@ -625,15 +579,20 @@ pub(crate) fn match_terms(
     (0.5 * rho1 + 0.5 * rho2, w1, w2 * pw)
 }
 
-/// The data terms of point i: ½ρ of point-to-plane and of point-to-point, and, with `acc`, their
-/// reweighted 8 × 8 Gauss-Newton matrix and gradient added to the point's pairs and nodes.
+/// The data terms of point i: ½ρ of point-to-plane and of point-to-point, and, with `out`, their
+/// reweighted 8 × 8 Gauss-Newton matrix and gradient with the scales of the point's pairs and
+/// nodes (all 0 when the point adds nothing).
 #[inline]
 fn data_terms(
     terms: &WarpTerms<'_>,
     i: usize,
     dqs: &[DualQuaternion<f64>],
-    acc: Option<(&[u32; PAIRS], &mut [f64], &mut [f64])>,
+    mut out: Option<&mut PointTerms>,
 ) -> f64 {
+    if let Some(t) = out.as_deref_mut() {
+        t.scales = [0.0; PAIRS];
+        t.node_scales = [0.0; MAX_NEIGHBOURS];
+    }
     let Some((q, n)) = terms.matches[i] else {
         return 0.0;
     };
@@ -645,7 +604,7 @@ fn data_terms(
     }
     let (blended, signs) = blend(&nodes[..k], &b.weights[..k]);
     let v = &terms.points[i];
-    let Some((slots, pairs, grads)) = acc else {
+    let Some(out) = out else {
         let p = transform_point(&blended, v);
         return match_terms(&(p - q), &n, terms.tukey, terms.point_weight).0
             + Photometric::cost_at(terms.photometric.as_ref(), i, &p)
@@ -664,21 +623,21 @@ fn data_terms(
     }
     let r1 = n.dot(&d);
     let u = dp.transpose() * n;
-    let mut m = [0.0; PACKED];
     for y in 0..8 {
         let (uy, cy, vy, zy) = (u[y], dp.column(y), u3[y], u4[y]);
         for x in 0..=y {
-            m[packed(x, y)] =
+            out.m[packed(x, y)] =
                 w1 * u[x] * uy + w2 * dp.column(x).dot(&cy) + w3 * u3[x] * vy + w4 * u4[x] * zy;
         }
     }
     let g8 = u * (w1 * r1) + dp.transpose() * d * w2 + u3 * (w3 * r3) + u4 * (w4 * r4);
-    let mut c = [0.0; MAX_NEIGHBOURS];
-    for a in 0..k {
-        c[a] = signs[a] * b.weights[a];
+    out.g.copy_from_slice(g8.as_slice());
+    for ((c, s), w) in out.node_scales.iter_mut().zip(&signs).zip(&b.weights[..k]) {
+        *c = s * w;
     }
-    for (&slot, &(x, y)) in slots.iter().zip(&SLOT_PAIRS) {
-        if slot == NONE {
+    let c = &out.node_scales;
+    for (s, &(x, y)) in out.scales.iter_mut().zip(&SLOT_PAIRS) {
+        if y >= k {
             continue;
         }
         // the same node twice in a binding gives J_xᵀJ_y and J_yᵀJ_x in one diagonal block
@@ -687,17 +646,7 @@ fn data_terms(
         } else {
             1.0
         };
-        let s = c[x] * c[y] * twice;
-        let out = &mut pairs[slot as usize * PACKED..][..PACKED];
-        for (o, v) in out.iter_mut().zip(&m) {
-            *o += s * v;
-        }
-    }
-    for a in 0..k {
-        let out = &mut grads[b.nodes[a] as usize * 8..][..8];
-        for (o, v) in out.iter_mut().zip(g8.iter()) {
-            *o += c[a] * v;
-        }
+        *s = c[x] * c[y] * twice;
     }
     cost
 }
@@ -743,7 +692,6 @@ fn regulariser_cost(terms: &WarpTerms<'_>, motions: &[Isometry3<f64>]) -> f64 {
 #[derive(Clone, Copy)]
 struct PriorTerms {
     cost: f64,
-    entries: [u32; 3],
     jacobians: PriorJacobians,
     nodes: [u32; 2],
     grads: [[f64; 6]; 2],
@@ -775,7 +723,6 @@ impl Default for PriorTerms {
     fn default() -> Self {
         Self {
             cost: 0.0,
-            entries: [NONE; 3],
             jacobians: PriorJacobians::Stay(nalgebra::Matrix6::zeros(), 0.0),
             nodes: [NONE; 2],
             grads: [[0.0; 6]; 2],
@@ -783,51 +730,15 @@ impl Default for PriorTerms {
     }
 }
 
-/// Lists each entry's regulariser blocks, in the priors' order (a counting sort): block s of
-/// prior x as `3 x + s` in `slots[ptr[e]..ptr[e + 1]]`.
-fn index_priors(priors: &[PriorTerms], entries: usize, ptr: &mut Vec<u32>, slots: &mut Vec<u32>) {
-    ptr.clear();
-    ptr.resize(entries + 1, 0);
-    for p in priors {
-        for &e in p.entries.iter().filter(|&&e| e != NONE) {
-            ptr[e as usize + 1] += 1;
-        }
-    }
-    for e in 0..entries {
-        ptr[e + 1] += ptr[e];
-    }
-    slots.resize(ptr[entries] as usize, 0);
-    // each entry's cursor runs from its start; afterwards it stands at the next one's
-    for (x, p) in priors.iter().enumerate() {
-        for (s, &e) in p.entries.iter().enumerate().filter(|(_, &e)| e != NONE) {
-            slots[ptr[e as usize] as usize] = (3 * x + s) as u32;
-            ptr[e as usize] += 1;
-        }
-    }
-    for e in (1..=entries).rev() {
-        ptr[e] = ptr[e - 1];
-    }
-    ptr[0] = 0;
-}
-
 /// Fills `out` with the terms of every as-rigid-as-possible edge (eq. 4.5-4.7), then of every
 /// stay prior `√w Log(A₀⁻¹ A)` (when weighted), each computed in parallel.
 fn prior_terms(
     terms: &WarpTerms<'_>,
     motions: &[Isometry3<f64>],
-    s: &BlockSystem,
+    stays: usize,
     out: &mut Vec<PriorTerms>,
 ) {
-    let stays = if terms.stay_weight > 0.0 {
-        terms.anchors.len()
-    } else {
-        0
-    };
     out.resize(terms.edges.len() + stays, PriorTerms::default());
-    let entry = |i: usize, j: usize| {
-        s.entry(i, j)
-            .expect("regulariser pairs are in the structure") as u32
-    };
     out.par_iter_mut()
         .enumerate()
         .with_min_len(64)
@@ -837,7 +748,6 @@ fn prior_terms(
                 let (r, ji, jj) = as_rigid_as_possible(&motions[i], &motions[j], &gj);
                 p.cost = 0.5 * weight * r.norm_squared();
                 let (ji, jj, r) = (ji * weight.sqrt(), jj * weight.sqrt(), r * weight.sqrt());
-                p.entries = [entry(i, i), entry(j, j), entry(i.min(j), i.max(j))];
                 p.jacobians = PriorJacobians::Edge(ji, jj, i < j);
                 p.nodes = [i as u32, j as u32];
                 p.grads[0].copy_from_slice((ji.transpose() * r).as_slice());
@@ -848,7 +758,6 @@ fn prior_terms(
                 let e = se3::log(&(terms.anchors[k] * motions[k]));
                 p.cost = 0.5 * w * e.norm_squared();
                 let jac = se3::right_jacobian_inv(&e);
-                p.entries = [entry(k, k), NONE, NONE];
                 p.jacobians = PriorJacobians::Stay(jac, w);
                 p.nodes = [k as u32, NONE];
                 p.grads[0].copy_from_slice((jac.transpose() * e * w).as_slice());
@@ -1262,6 +1171,61 @@ mod tests {
         ws.prepare(&graph, &bindings[..50], FactorPrecision::Double)
             .unwrap();
         assert_eq!(ws.system().num_entries(), entries);
+    }
+
+    /// Which points add to which entry is found again when the points' pairs change under the
+    /// same structure: prepared again for fewer points, a system assembles them bit for bit as
+    /// one built for them alone.
+    #[test]
+    fn a_system_prepared_again_for_fewer_points_assembles_only_them() {
+        let (graph, points, bindings, matches) = scene();
+        let mut ws = system_at(&graph, &bindings);
+        ws.linearise(&data_only(&points, &bindings, &matches));
+        let generation = ws.generation;
+        ws.prepare(&graph, &bindings[..50], FactorPrecision::Double)
+            .unwrap();
+        assert_eq!(ws.generation, generation, "the structure is kept");
+        let few_matches: Matches = matches[..50].to_vec();
+        let few = data_only(&points[..50], &bindings[..50], &few_matches);
+        let cost = ws.linearise(&few);
+        let mut alone = system_at(&graph, &bindings[..50]);
+        assert_eq!(cost, alone.linearise(&few));
+        let dim = ws.system().dim();
+        for r in 0..dim {
+            for c in 0..dim {
+                let (got, want) = (ws.system().get(r, c), alone.system().get(r, c));
+                assert_eq!(got, want, "({r}, {c})");
+            }
+        }
+        assert_eq!(ws.system().gradient(), alone.system().gradient());
+    }
+
+    /// The regularisers' entries are found again when the edges change under the same
+    /// structure: linearised with every edge and then with every other one, a system assembles
+    /// bit for bit as one that only ever saw the second set.
+    #[test]
+    fn a_system_linearised_with_other_edges_assembles_only_them() {
+        let (graph, points, bindings, matches) = scene();
+        let (edges, anchors) = edges_and_anchors(&graph, &system_at(&graph, &bindings).motions);
+        let half: Vec<_> = edges.iter().copied().step_by(2).collect();
+        let with = |edges| WarpTerms {
+            edges,
+            anchors: &anchors,
+            stay_weight: 0.2,
+            ..data_only(&points, &bindings, &matches)
+        };
+        let mut ws = system_at(&graph, &bindings);
+        ws.linearise(&with(&edges));
+        let cost = ws.linearise(&with(&half));
+        let mut fresh = system_at(&graph, &bindings);
+        assert_eq!(cost, fresh.linearise(&with(&half)));
+        let dim = ws.system().dim();
+        for r in 0..dim {
+            for c in 0..dim {
+                let (got, want) = (ws.system().get(r, c), fresh.system().get(r, c));
+                assert_eq!(got, want, "({r}, {c})");
+            }
+        }
     }
 
     /// A trial step costed by linearising at it leaves H and g at the motions kept: at the
