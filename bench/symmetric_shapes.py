@@ -2,7 +2,9 @@
 `nonrigid_register meshes` report the symmetric ones as sliding along themselves (NOTES 179)?
 
 Usage: python bench/symmetric_shapes.py [--count 12] [--seed 20261206] [--bin target/release/nonrigid_register] [--dir /tmp/symmetric]
-(a Python with open3d 0.20, numpy and scipy).
+[--curvature 0.5] [--stretch S]
+(a Python with open3d 0.20, numpy and scipy). With --stretch, each shape is stretched by 1 + S along
+its longest principal axis instead of bent (NOTES 187).
 
 Symmetric: spheroids, capped cylinders, tori and cones of random proportions and facet counts.
 Asymmetric: ellipsoids of three axes at least 15 % apart, spheres with random low-frequency
@@ -87,6 +89,12 @@ def bend(v, curvature):
     return np.c_[(r - p[:, 2]) * np.sin(a), p[:, 1], r - (r - p[:, 2]) * np.cos(a)] + c
 
 
+def stretch(v, amount):
+    c = v.mean(0)
+    axis = np.linalg.svd(v - c, full_matrices=False)[2][0]
+    return v + amount * np.outer((v - c) @ axis, axis)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--count", type=int, default=12)
@@ -94,6 +102,7 @@ def main():
     ap.add_argument("--bin", default="target/release/nonrigid_register")
     ap.add_argument("--dir", default="/tmp/symmetric")
     ap.add_argument("--curvature", type=float, default=0.5, help="the bend's, over the diagonal")
+    ap.add_argument("--stretch", type=float, default=None, help="stretch by 1 + S along the longest axis instead")
     a = ap.parse_args()
     os.makedirs(a.dir, exist_ok=True)
     rng = np.random.default_rng(a.seed)
@@ -103,7 +112,7 @@ def main():
             m.remove_duplicated_vertices()
             v, f = place(m, rng)
             s, t, w = (os.path.join(a.dir, f"{kind}{i}_{k}.ply") for k in "stw")
-            bent = bend(v, a.curvature)
+            bent = bend(v, a.curvature) if a.stretch is None else stretch(v, a.stretch)
             o3d.io.write_triangle_mesh(s, mesh(v, f))
             o3d.io.write_triangle_mesh(t, mesh(bent, f))
             r = subprocess.run([a.bin, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
