@@ -12,7 +12,7 @@ bumps (5–20 % of the radius), boxes of random sides, flat sheets of random asp
 resolution. Each is turned at random, scaled by 0.05–5 and bent along one axis (curvature 0.5
 over its diagonal); the line printed per shape is the tool's exit code, `registered`, the share
 of the fit's source on the target, the two surfaces' slippage ratios, and the largest and mean
-distance of a warped vertex from where the bend sent it (% of the largest displacement).
+distance of a warped vertex from where the bend (or stretch) sent it (% of the largest displacement).
 """
 import argparse
 import json
@@ -112,9 +112,9 @@ def main():
             m.remove_duplicated_vertices()
             v, f = place(m, rng)
             s, t, w = (os.path.join(a.dir, f"{kind}{i}_{k}.ply") for k in "stw")
-            bent = bend(v, a.curvature) if a.stretch is None else stretch(v, a.stretch)
+            moved = bend(v, a.curvature) if a.stretch is None else stretch(v, a.stretch)
             o3d.io.write_triangle_mesh(s, mesh(v, f))
-            o3d.io.write_triangle_mesh(t, mesh(bent, f))
+            o3d.io.write_triangle_mesh(t, mesh(moved, f))
             r = subprocess.run([a.bin, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
             try:
                 j = json.loads(r.stdout.strip().splitlines()[-1])
@@ -122,8 +122,8 @@ def main():
                 print(f"{kind:10s} {name:22s} exit {r.returncode}: {r.stderr.strip()[-200:]}")
                 continue
             slip = j["slippage"]
-            reach = np.linalg.norm(bent - v, axis=1).max()
-            e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - bent, axis=1) / reach
+            reach = np.linalg.norm(moved - v, axis=1).max()
+            e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - moved, axis=1) / reach
             print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "
                   f"on_target {j['fit']['on_target']:.2f} slippage {slip['source']:.1e} {slip['target']:.1e} "
                   f"error {100 * e.max():5.1f} / {100 * e.mean():5.2f} %")

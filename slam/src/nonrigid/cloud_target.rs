@@ -35,7 +35,7 @@ impl CloudTarget {
         let coords: Vec<[f64; 3]> = points.iter().map(|p| (*p).into()).collect();
         let tree = ImmutableKdTree::new_from_slice(&coords);
         // half the distance, squared; a margin of 10⁻⁹ keeps rounding from deciding
-        let mut keep = neighbour_distances2(&tree, &coords);
+        let mut keep = neighbour_distances2(&tree, &coords, 1);
         keep.iter_mut().for_each(|d| *d *= 0.25 * (1.0 - 1e-9));
         Self {
             tree,

@@ -151,20 +151,21 @@ impl Coverage {
     }
 }
 
-/// The squared distance from each of `coords` (the points of `tree`) to its nearest other
-/// point, 0 where another point lies on it or there is none.
+/// The squared distance from each of `coords` (the points of `tree`) to its `k`-th nearest other
+/// point (k ≥ 1), 0 where it has fewer others (or another point lies on it and k = 1).
 pub(crate) fn neighbour_distances2(
     tree: &ImmutableKdTree<f64, 3>,
     coords: &[[f64; 3]],
+    k: usize,
 ) -> Vec<f64> {
-    let two = std::num::NonZero::new(2).expect("2 is not 0");
-    // the second nearest of a point's own coordinates is its nearest neighbour (the first, at
-    // 0, is itself or a point on it)
+    let n = std::num::NonZero::new(k + 1).expect("k + 1 is not 0");
+    // the first of a point's own coordinates' nearest is itself (or a point on it), so its k-th
+    // other is the (k + 1)-th found
     coords
         .par_iter()
         .map(|q| {
-            let near = tree.nearest_n::<SquaredEuclidean>(q, two);
-            near.get(1).map_or(0.0, |n| n.distance)
+            let near = tree.nearest_n::<SquaredEuclidean>(q, n);
+            near.get(k).map_or(0.0, |m| m.distance)
         })
         .collect()
 }
@@ -195,20 +196,13 @@ fn median_neighbour_distance(points: &[Vector3<f64>], k: usize) -> f64 {
         .filter(|p| p.iter().all(|v| v.is_finite()))
         .map(|p| (*p).into())
         .collect();
-    let Some(n) = std::num::NonZero::new(k + 1).filter(|n| coords.len() >= n.get()) else {
+    if coords.len() <= k {
         return 0.0;
-    };
+    }
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&coords);
-    // the first of a point's own coordinates' nearest is itself (or a point on it)
-    let mut d: Vec<f64> = coords
-        .par_iter()
-        .map(|q| {
-            let near = tree.nearest_n::<SquaredEuclidean>(q, n);
-            near.last().map_or(0.0, |m| m.distance.sqrt())
-        })
-        .collect();
+    let mut d = neighbour_distances2(&tree, &coords, k);
     let mid = d.len() / 2;
-    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+    d.select_nth_unstable_by(mid, f64::total_cmp).1.sqrt()
 }
 
 #[cfg(test)]

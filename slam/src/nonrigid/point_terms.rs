@@ -20,6 +20,12 @@ pub(crate) const PACKED: usize = 36;
 /// No entry.
 pub(crate) const NONE: u32 = u32::MAX;
 
+/// Index of (a, b), a ≤ b < 8, in a packed symmetric 8 × 8 matrix ([`PointTerms::m`]).
+#[inline(always)]
+pub(crate) const fn packed(a: usize, b: usize) -> usize {
+    b * (b + 1) / 2 + a
+}
+
 /// Binding slots (a, b), a ≤ b, in the order of a point's ten pair entries.
 pub(crate) const SLOT_PAIRS: [(usize, usize); PAIRS] = {
     let mut out = [(0, 0); PAIRS];
@@ -40,7 +46,7 @@ pub(crate) const SLOT_PAIRS: [(usize, usize); PAIRS] = {
 /// One point's reweighted Gauss-Newton terms in the blend's coordinates.
 #[derive(Clone, Copy)]
 pub(crate) struct PointTerms {
-    /// `Σ ρ' GᵀG` over the point's rows, packed (column b's rows a ≤ b at `b(b+1)/2 + a`).
+    /// `Σ ρ' GᵀG` over the point's rows, packed ([`packed`]).
     pub m: [f64; PACKED],
     /// `Σ ρ' Gᵀr` over the point's rows.
     pub g: [f64; 8],
@@ -54,7 +60,7 @@ pub(crate) struct PointTerms {
 
 impl PointTerms {
     /// A point that adds nothing.
-    pub const NONE: PointTerms = PointTerms {
+    pub const EMPTY: PointTerms = PointTerms {
         m: [0.0; PACKED],
         g: [0.0; 8],
         scales: [0.0; PAIRS],
@@ -154,7 +160,7 @@ pub(crate) fn project(pi: &NodeJacobian, a: &[f64; PACKED], pj: &NodeJacobian, o
     let mut full = [[0.0; 8]; 8];
     for b in 0..8 {
         for x in 0..=b {
-            let v = a[b * (b + 1) / 2 + x];
+            let v = a[packed(x, b)];
             full[x][b] = v;
             full[b][x] = v;
         }
@@ -221,7 +227,7 @@ pub(crate) fn fill_terms(
     n: usize,
     term: impl Fn(usize, &mut PointTerms) + Sync,
 ) {
-    out.resize(n, PointTerms::NONE);
+    out.resize(n, PointTerms::EMPTY);
     out.par_iter_mut()
         .enumerate()
         .with_min_len(256)
@@ -251,8 +257,8 @@ mod tests {
         let mut a = SMatrix::<f64, 8, 8>::zeros();
         for b in 0..8 {
             for x in 0..=b {
-                a[(x, b)] = packed[b * (b + 1) / 2 + x];
-                a[(b, x)] = packed[b * (b + 1) / 2 + x];
+                a[(x, b)] = packed[super::packed(x, b)];
+                a[(b, x)] = packed[super::packed(x, b)];
             }
         }
         // the zero block the projection skips
@@ -296,7 +302,7 @@ mod tests {
             .collect();
         let mut points = Vec::new();
         fill_terms(&mut points, 3, |i, t| {
-            *t = PointTerms::NONE;
+            *t = PointTerms::EMPTY;
             for (x, m) in t.m.iter_mut().enumerate() {
                 *m = (i * 100 + x) as f64;
             }

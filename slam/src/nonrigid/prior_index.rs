@@ -18,8 +18,6 @@ pub(crate) struct PriorIndex {
     generation: u64,
     pairs: Vec<(u32, u32)>,
     stays: usize,
-    /// Prior x's entries (unused [`NONE`]): an edge's blocks 0, 1, 2, a stay prior's block 0.
-    entries: Vec<[u32; 3]>,
     /// Entry e's blocks `3 x + s` (block s of prior x): `slots[ptr[e]..ptr[e + 1]]`.
     ptr: Vec<u32>,
     slots: Vec<u32>,
@@ -51,15 +49,14 @@ impl PriorIndex {
         self.stays = stays;
         self.pairs.clear();
         self.pairs.extend(edges.iter().map(|e| (e.0, e.1)));
-        self.entries.clear();
-        self.entries.extend(self.pairs.iter().map(|&(i, j)| {
+        // prior x's entries (unused NONE): an edge's blocks 0, 1, 2, a stay prior's block 0
+        let edge_entries = self.pairs.iter().map(|&(i, j)| {
             let (i, j) = (i as usize, j as usize);
             [entry(i, i), entry(j, j), entry(i.min(j), i.max(j))]
-        }));
-        self.entries
-            .extend((0..stays).map(|k| [entry(k, k), NONE, NONE]));
-        let blocks = self
-            .entries
+        });
+        let stay_entries = (0..stays).map(|k| [entry(k, k), NONE, NONE]);
+        let entries: Vec<[u32; 3]> = edge_entries.chain(stay_entries).collect();
+        let blocks = entries
             .iter()
             .enumerate()
             .flat_map(|(x, es)| es.iter().enumerate().map(move |(s, &e)| (e, 3 * x + s)));

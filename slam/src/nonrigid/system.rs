@@ -33,7 +33,9 @@
 use super::graph::{Binding, DeformationGraph};
 use super::linear_steps::LinearSteps;
 use super::photometric::PhotometricTarget;
-use super::point_terms::{fill_terms, project, PointTerms, TermIndex, NONE, PAIRS, SLOT_PAIRS};
+use super::point_terms::{
+    fill_terms, packed, project, PointTerms, TermIndex, NONE, PAIRS, SLOT_PAIRS,
+};
 use super::prior_index::PriorIndex;
 use dynamap_residuals::deform::{
     as_rigid_as_possible, blend, right_perturbation, transform_point, transform_point_jacobian,
@@ -50,12 +52,6 @@ use std::time::Instant;
 
 /// Fixed number of point chunks the data cost is summed in.
 const CHUNKS: usize = 4;
-
-/// Index of (a, b), a ≤ b < 8, in a packed symmetric 8 × 8 matrix.
-#[inline(always)]
-const fn packed(a: usize, b: usize) -> usize {
-    b * (b + 1) / 2 + a
-}
 
 /// The matches and weights one round of Levenberg-Marquardt works with.
 pub(crate) struct WarpTerms<'a> {

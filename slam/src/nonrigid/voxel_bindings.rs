@@ -70,6 +70,11 @@ impl BlockGeometry {
         self.origin(coord) + Vector3::repeat(0.5 * self.voxel * (self.block - 1) as f64)
     }
 
+    /// The centre of voxel (x, y, z) of the block whose first voxel's centre is `origin`.
+    fn voxel_at(&self, origin: &Vector3<f64>, [x, y, z]: [usize; 3]) -> Vector3<f64> {
+        origin + Vector3::new(x as f64, y as f64, z as f64) * self.voxel
+    }
+
     fn half_diagonal(&self) -> f64 {
         0.5 * self.voxel * self.block as f64 * 3f64.sqrt()
     }
@@ -198,9 +203,7 @@ fn bind_block(
     let h = 0.5 * geo.voxel * s.saturating_sub(1) as f64 * 3f64.sqrt();
     let mut sub = Candidates::default();
     out.voxels = vec![UNBOUND; geo.voxels()];
-    let at = |x: usize, y: usize, z: usize| {
-        origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel
-    };
+    let at = |x: usize, y: usize, z: usize| geo.voxel_at(&origin, [x, y, z]);
     for (sx, sy, sz) in cube(b / s).map(|(x, y, z)| (x * s, y * s, z * s)) {
         let sub_centre = at(sx, sy, sz) + Vector3::repeat(0.5 * geo.voxel * (s - 1) as f64);
         candidates.narrow(&sub_centre, h, k, &mut sub);
@@ -244,8 +247,7 @@ fn rebind_block(
     let reach2 = b.reach * b.reach;
     let mut all: Option<Candidates> = None;
     for (i, v) in b.voxels.iter_mut().enumerate() {
-        let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
-        let p = origin + Vector3::new(x as f64, y as f64, z as f64) * geo.voxel;
+        let p = geo.voxel_at(&origin, [i % n, (i / n) % n, i / (n * n)]);
         if v.nodes[0] == NONE {
             // every old node was beyond the reach: only an added one can bind it
             if added.iter().any(|(_, q)| (q - p).norm_squared() <= reach2) {

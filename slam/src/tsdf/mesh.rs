@@ -41,6 +41,29 @@ const EDGES: [[usize; 2]; 12] = [
 /// A lattice edge: its lower global voxel corner and axis (0, 1, 2).
 type EdgeKey = ([i32; 3], u8);
 
+/// Each edge of [`EDGES`] as its lower corner's offset in the cube and its axis.
+const EDGE_LOWER: [([i32; 3], u8); 12] = {
+    let mut out = [([0; 3], 0); 12];
+    let mut e = 0;
+    while e < 12 {
+        let (a, b) = (CORNERS[EDGES[e][0]], CORNERS[EDGES[e][1]]);
+        let mut axis = 0;
+        while a[axis] == b[axis] {
+            axis += 1;
+        }
+        out[e] = (if a[axis] < b[axis] { a } else { b }, axis as u8);
+        e += 1;
+    }
+    out
+};
+
+/// Edge `e` of the cube whose lower corner is at `at` (voxel coordinates).
+#[inline]
+fn edge_at(at: [i32; 3], e: usize) -> EdgeKey {
+    let (lower, axis) = EDGE_LOWER[e];
+    ([at[0] + lower[0], at[1] + lower[1], at[2] + lower[2]], axis)
+}
+
 struct Corner {
     tsdf: f32,
     color: [u8; 3],
@@ -69,7 +92,7 @@ impl<'a> Neighbourhood<'a> {
         let (bx, by, bz) = (l[0] / BLOCK, l[1] / BLOCK, l[2] / BLOCK);
         let blk = self.blocks[(bx + 2 * by + 4 * bz) as usize]?;
         let i = local_index(l[0] - bx * BLOCK, l[1] - by * BLOCK, l[2] - bz * BLOCK);
-        (blk.voxels[i].weight > 0.0).then_some((blk, i))
+        blk.voxels[i].observed().map(|_| (blk, i))
     }
 
     /// The voxel at `l`'s distance and colour, if observed.
@@ -94,14 +117,9 @@ impl<'a> Neighbourhood<'a> {
                 for y in span[1].clone() {
                     for x in span[0].clone() {
                         let at = side_index([x + d[0] * BLOCK, y + d[1] * BLOCK, z + d[2] * BLOCK]);
-                        let value = blk.map_or(f32::NAN, |b| {
-                            let v = &b.voxels[local_index(x, y, z)];
-                            if v.weight > 0.0 {
-                                v.tsdf
-                            } else {
-                                f32::NAN
-                            }
-                        });
+                        let value = blk
+                            .and_then(|b| b.voxels[local_index(x, y, z)].observed())
+                            .unwrap_or(f32::NAN);
                         below |= value < 0.0;
                         above |= value >= 0.0;
                         out[at] = value;
@@ -198,11 +216,11 @@ impl TsdfVolume {
                     .expect("observed: its distance was read")
             };
             let (oa, ob) = (CORNERS[*a], CORNERS[*b]);
-            let slot = &scratch.slots[edge_slot(l, oa, ob)];
+            let slot = &scratch.slots[edge_slot(l, e)];
             keys[e] = match slot.get() {
                 u32::MAX => {
                     let (ca, cb) = (corner(*a), corner(*b));
-                    let vertex = self.edge_vertex(g, (oa, &ca), (ob, &cb));
+                    let vertex = self.edge_vertex(g, edge_at(g, e), (oa, &ca), (ob, &cb));
                     part.verts.push(vertex);
                     slot.set(part.verts.len() as u32 - 1);
                     part.verts.len() as u32 - 1
@@ -224,21 +242,15 @@ impl TsdfVolume {
         }
     }
 
-    /// The crossing on the edge between corners `a` and `b` (offsets from voxel `g`): its key (the
-    /// lower corner and the axis), and its point and colour interpolated linearly in the distance.
+    /// The crossing on the edge `key` between corners `a` and `b` (offsets from voxel `g`): the
+    /// key, and its point and colour interpolated linearly in the distance.
     fn edge_vertex(
         &self,
         g: [i32; 3],
+        key: EdgeKey,
         (oa, ca): ([i32; 3], &Corner),
         (ob, cb): ([i32; 3], &Corner),
     ) -> (EdgeKey, Point3<f32>, [u8; 3]) {
-        let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap() as u8;
-        let lower = if oa[axis as usize] < ob[axis as usize] {
-            oa
-        } else {
-            ob
-        };
-        let key = ([g[0] + lower[0], g[1] + lower[1], g[2] + lower[2]], axis);
         let t = ca.tsdf / (ca.tsdf - cb.tsdf);
         let pa = self.voxel_center([g[0] + oa[0], g[1] + oa[1], g[2] + oa[2]]);
         let pb = self.voxel_center([g[0] + ob[0], g[1] + ob[1], g[2] + ob[2]]);
@@ -298,14 +310,11 @@ impl Scratch {
     }
 }
 
-/// The slot in [`Scratch::slots`] of the edge between corners `oa` and `ob` of the cube at `l`.
+/// The slot in [`Scratch::slots`] of edge `e` of the cube at `l` (from the block's first voxel).
 #[inline]
-fn edge_slot(l: [i32; 3], oa: [i32; 3], ob: [i32; 3]) -> usize {
-    let axis = (0..3)
-        .find(|&i| oa[i] != ob[i])
-        .expect("an edge joins two corners");
-    let lower = if oa[axis] < ob[axis] { oa } else { ob };
-    side_index([l[0] + lower[0], l[1] + lower[1], l[2] + lower[2]]) * 3 + axis
+fn edge_slot(l: [i32; 3], e: usize) -> usize {
+    let (lower, axis) = edge_at(l, e);
+    side_index(lower) * 3 + axis as usize
 }
 
 /// The blocks' triangles joined into one mesh: a vertex per edge key (the first block's), faces
@@ -352,17 +361,24 @@ mod tests {
         for z in 0..BLOCK {
             for y in 0..BLOCK {
                 for x in 0..BLOCK {
-                    for [a, b] in EDGES {
-                        let (oa, ob) = (CORNERS[a], CORNERS[b]);
-                        let axis = (0..3).find(|&i| oa[i] != ob[i]).unwrap();
-                        let lower = if oa[axis] < ob[axis] { oa } else { ob };
-                        let g = [0, 1, 2].map(|k| base[k] + [x, y, z][k] + lower[k]);
-                        keys.push((g, axis as u8));
-                    }
+                    let at = [0, 1, 2].map(|k| base[k] + [x, y, z][k]);
+                    keys.extend((0..12).map(|e| edge_at(at, e)));
                 }
             }
         }
         keys
+    }
+
+    /// Each edge's lower corner and axis: its two corners differ along the axis alone, by one,
+    /// the lower one first.
+    #[test]
+    fn the_edge_table_gives_each_edge_its_lower_corner_and_axis() {
+        for (e, [a, b]) in EDGES.iter().enumerate() {
+            let (lower, axis) = EDGE_LOWER[e];
+            let upper = std::array::from_fn(|k| lower[k] + i32::from(k == axis as usize));
+            let ends = [CORNERS[*a], CORNERS[*b]];
+            assert!(ends == [lower, upper] || ends == [upper, lower], "edge {e}");
+        }
     }
 
     #[test]

@@ -94,6 +94,14 @@ pub struct Voxel {
     pub weight: f32,
 }
 
+impl Voxel {
+    /// The distance, if the voxel was observed (its weight is positive).
+    #[inline]
+    pub fn observed(&self) -> Option<f32> {
+        (self.weight > 0.0).then_some(self.tsdf)
+    }
+}
+
 /// A block of 8³ voxels (voxel hashing's unit of allocation).
 #[derive(Clone, Debug)]
 pub struct Block {

@@ -93,8 +93,7 @@ impl TsdfVolume {
     ) -> Option<f32> {
         let blk = cache.get(self, b)?;
         let l = |k: usize| floor_i32(q[k]) - b[k] * BLOCK;
-        let vox = blk.voxels[super::local_index(l(0), l(1), l(2))];
-        (vox.weight > 0.0).then_some(vox.tsdf)
+        blk.voxels[super::local_index(l(0), l(1), l(2))].observed()
     }
 
     /// Marches one ray from `origin` along the unit `dir` between `t_min` and `t_max`. Free space
