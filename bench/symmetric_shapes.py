@@ -11,8 +11,9 @@ Asymmetric: ellipsoids of three axes at least 15 % apart, spheres with random lo
 bumps (5–20 % of the radius), boxes of random sides, flat sheets of random aspect and
 resolution. Each is turned at random, scaled by 0.05–5 and bent along one axis (curvature 0.5
 over its diagonal); the line printed per shape is the tool's exit code, `registered`, the share
-of the fit's source on the target, the two surfaces' slippage ratios, and the largest and mean
-distance of a warped vertex from where the bend (or stretch) sent it (% of the largest displacement).
+of the fit's source on the target, the two surfaces' slippage ratios, the round trip's ratio
+(NOTES 188; – where it was not run), and the largest and mean distance of a warped vertex
+from where the bend (or stretch) sent it (% of the largest displacement).
 """
 import argparse
 import json
@@ -122,10 +123,13 @@ def main():
                 print(f"{kind:10s} {name:22s} exit {r.returncode}: {r.stderr.strip()[-200:]}")
                 continue
             slip = j["slippage"]
+            trip = j.get("round_trip")
+            trip = "  –  " if trip is None else f"{trip['ratio']:.3f}"
             reach = np.linalg.norm(moved - v, axis=1).max()
             e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - moved, axis=1) / reach
             print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "
                   f"on_target {j['fit']['on_target']:.2f} slippage {slip['source']:.1e} {slip['target']:.1e} "
+                  f"round trip {trip} "
                   f"error {100 * e.max():5.1f} / {100 * e.mean():5.2f} %")
 
 

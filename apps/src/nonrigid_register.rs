@@ -21,7 +21,12 @@
 //! a node spacing of the target and of the target covered, at least half each, the share of the
 //! former facing the target's way, at least 0.8, and the source's area at rest and warped over
 //! the target's, each within 1.5× of 1; a warning says which failed), and whether the target's
-//! normals were turned to point the source's way (`target_normals_turned`, NOTES 140). A point
+//! normals were turned to point the source's way (`target_normals_turned`, NOTES 140). Where the
+//! fit registered and neither mesh slides along itself (`slippage`, NOTES 179), the target is
+//! registered back onto the source at the same time, and `round_trip` gives the mean distance
+//! at which a source point comes back (`error`), how far it moved (`moved`) and their `ratio`:
+//! over 0.35 the surfaces do not fix where the points go, and it is not registered (module
+//! `round_trip`, NOTES 188); `seconds` counts both ways. A point
 //! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
 //! triangles after those wound against their neighbours are turned over (`faces_turned`, per
 //! mesh, with a warning; NOTES 141). A registration that did not register writes its outputs
@@ -70,9 +75,9 @@ use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
     register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
-    surface_diagonal, FrameError, FrameSettings, FrameVerdict, FrameView, RegisterSummary, Seeding,
-    Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict, MAX_FLUSH_FRACTION,
-    MAX_OFF_FRACTION, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
+    surface_diagonal, FrameError, FrameSettings, FrameVerdict, FrameView, RegisterSummary,
+    RoundTrip, Seeding, Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict,
+    MAX_FLUSH_FRACTION, MAX_OFF_FRACTION, MAX_ROUND_TRIP, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{MeshRole, SurfaceError, AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -688,7 +693,28 @@ fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
             );
             false.into()
         }
+        SurfaceVerdict::Inconsistent(trip) => {
+            tracing::warn!(
+                "not registered: the surfaces fit, but the target registered back onto the \
+                 source brings its points back {:.3e} from where they started on average, {:.0} \
+                 % of the {:.3e} they moved (at most {:.0} % may): the surfaces do not fix where \
+                 the points go",
+                trip.mean,
+                100.0 * trip.ratio(),
+                trip.moved,
+                100.0 * MAX_ROUND_TRIP
+            );
+            false.into()
+        }
     }
+}
+
+/// The round trip's error, the displacement claimed, their ratio and its limit, as JSON (module
+/// `round_trip`); null where it was not run.
+fn round_trip_json(trip: Option<RoundTrip>) -> serde_json::Value {
+    trip.map_or(serde_json::Value::Null, |t| {
+        serde_json::json!({"error": t.mean, "moved": t.moved, "ratio": t.ratio(), "points": t.points, "limit": MAX_ROUND_TRIP})
+    })
 }
 
 /// The share of each surface's least-constrained motion that leaves it (module `slippage`), as
@@ -870,6 +896,7 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     json["registered"] = surface_verdict_json(verdict);
     json["target_normals_turned"] = reg.target_normals_turned.into();
     json["slippage"] = slippage_json(reg.slippage);
+    json["round_trip"] = round_trip_json(reg.round_trip);
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,

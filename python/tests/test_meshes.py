@@ -66,6 +66,10 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     slip = tool["slippage"]
     assert result["slippage"] == pytest.approx([slip["source"], slip["target"]], rel=1e-9)
     assert min(result["slippage"]) > 10 * slip["limit"], slip
+    # the sheet registered back comes back where it started, the same way in both
+    trip = tool["round_trip"]
+    assert result["round_trip"] == pytest.approx({k: trip[k] for k in ("error", "moved", "ratio")}, rel=1e-9)
+    assert result["round_trip"]["ratio"] < trip["limit"], trip
     # the warped sheet lies on the bent mesh (a plain sheet may slide along itself, and the
     # points land between the target's vertices: issue 26, NOTES 84)
     before, after = off_surface(v, columns=21), off_surface(result["vertices"], columns=21)

@@ -56,6 +56,7 @@ pub mod reference_frame;
 pub mod register;
 mod rim;
 mod rim_map;
+pub mod round_trip;
 pub mod slippage;
 pub mod surface;
 pub mod surface_area;
@@ -88,6 +89,7 @@ pub use register::{
     principal_axes_guesses, DepthTarget, RegisterError, RegisterParams, RegisterSummary,
     RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
 };
+pub use round_trip::{RoundTrip, MAX_ROUND_TRIP};
 pub use slippage::{Slippage, MAX_SLIPPAGE};
 pub use surface::{
     bounding_diagonal, clean_surface_settings, mesh_points, register_mesh_or_cloud,

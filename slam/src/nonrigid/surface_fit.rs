@@ -28,10 +28,14 @@
 //! nearly all of it faces the target's way ([`MIN_FACING`]), and, for meshes, the areas agree
 //! within [`AREA_FACTOR`]. The camel's 30 maps end with
 //! 99.8–100 % on the target and 85–100 % covered. Necessary, not sufficient: a symmetric shape
-//! turned over fits as closely as the right way up.
+//! turned over fits as closely as the right way up, a shape that slides along itself fits in
+//! every place along the slide (module `slippage`), and a featureless shape stretched fits with
+//! its points anywhere along it (module `round_trip`);
+//! [`SurfaceRegistration::verdict`](super::SurfaceRegistration::verdict) adds those checks.
 
 use super::graph::DeformationGraph;
 use super::register::Target;
+use super::round_trip::RoundTrip;
 use super::slippage::Slippage;
 use super::surface_area::{area, denoised_area, Denoiser};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -82,6 +86,10 @@ pub enum SurfaceVerdict {
     /// motion, module `slippage`): the points may lie anywhere along that motion, and nothing in
     /// the surfaces tells where.
     Ambiguous(Slippage),
+    /// The fit registered, but the target registered back onto the source does not bring the
+    /// source's points back where they started (module `round_trip`): the surfaces do not fix
+    /// where the points go, and the two directions chose differently.
+    Inconsistent(RoundTrip),
 }
 
 impl SurfaceFit {
