@@ -221,7 +221,9 @@ pub fn write_mesh(
 /// registered back onto the source carries each source point back (error, the mean distance it
 /// ends from where it started; moved, the mean distance the registration moved it; their ratio);
 /// a ratio over 0.35 means the surfaces do not fix where the points go, and registered is False.
-/// None where it was not run. seconds counts both ways.
+/// None where it was not run. seconds counts both ways. placed_back: whether the vertices are
+/// where the way back placed the source (it registered, and the way back lay closer to its
+/// target).
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -300,5 +302,6 @@ pub fn register_meshes<'py>(
         Ok::<_, PyErr>(trip)
     });
     d.set_item("round_trip", trip.transpose()?)?;
+    d.set_item("placed_back", reg.placed_back)?;
     Ok(d)
 }

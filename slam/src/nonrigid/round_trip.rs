@@ -94,7 +94,7 @@ impl RoundTrip {
                 }
                 let (mut sum, mut weights) = (Vector3::zeros(), 0.0);
                 for n in &near {
-                    let w = 1.0 / n.distance.sqrt().max(f64::MIN_POSITIVE);
+                    let w = inverse_distance(n.distance, tolerance);
                     let i = n.item as usize;
                     sum += w * (backward[i] - target[i]);
                     weights += w;
@@ -129,6 +129,49 @@ impl RoundTrip {
     pub fn holds(&self) -> bool {
         self.mean <= self.floor || self.ratio() <= MAX_ROUND_TRIP
     }
+}
+
+/// The weight `1 / (d + 10⁻⁹ tolerance)` of a neighbour at squared distance `d2`: finite where a
+/// point lies on a neighbour (as a vertex of the same meshing does), and never so large that a
+/// sum of weighted coordinates overflows.
+fn inverse_distance(d2: f64, tolerance: f64) -> f64 {
+    1.0 / (d2.sqrt() + 1e-9 * tolerance)
+}
+
+/// Where the way back places each of `source`'s points: `backward` holds the target's points
+/// (`target.0`, normals `target.1`) warped onto the source, so a source point takes the target
+/// positions and normals of the [`NEIGHBOURS`] warped points nearest it, blended by inverse
+/// distance. `None` where the nearest lies farther than `tolerance` (the way back did not reach
+/// there) or `backward` holds no point.
+pub fn placed_back(
+    source: &[Vector3<f64>],
+    target: (&[Vector3<f64>], &[Vector3<f64>]),
+    backward: &[Vector3<f64>],
+    tolerance: f64,
+) -> Vec<Option<(Vector3<f64>, Vector3<f64>)>> {
+    let coords: Vec<[f64; 3]> = backward.iter().map(|&p| p.into()).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let Some(k) = NonZero::new(NEIGHBOURS.min(backward.len())) else {
+        return vec![None; source.len()];
+    };
+    source
+        .par_iter()
+        .map(|p| {
+            let near = tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
+            if near.first()?.distance > tolerance * tolerance {
+                return None;
+            }
+            let (mut at, mut normal, mut weights) = (Vector3::zeros(), Vector3::zeros(), 0.0);
+            for n in &near {
+                let w = inverse_distance(n.distance, tolerance);
+                let i = n.item as usize;
+                at += w * target.0[i];
+                normal += w * target.1[i];
+                weights += w;
+            }
+            Some((at / weights, normal.try_normalize(0.0).unwrap_or(normal)))
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -205,6 +248,30 @@ mod tests {
             (noisy.floor - 7e-3).abs() < 1e-15 && noisy.holds(),
             "{noisy:?}"
         );
+    }
+
+    /// A way back that undoes the move places each source point where the move took it, with the
+    /// target's normal; source points the way back does not reach are left unplaced.
+    #[test]
+    fn the_way_back_places_the_points_where_it_reached() {
+        let source = grid();
+        let t = Vector3::new(0.3, -0.1, 0.2);
+        let target = shifted(&source, t);
+        let normals = vec![Vector3::z(); target.len()];
+        let mut backward = shifted(&target, -t);
+        backward[0].z += 1.0;
+        let placed = placed_back(&source, (&target, &normals), &backward, 0.01);
+        assert!(placed[0].is_none());
+        for (p, q) in source.iter().zip(&placed).skip(1) {
+            let (q, n) = q.unwrap();
+            assert!(
+                (q - (p + t)).norm() < 1e-9 && n == Vector3::z(),
+                "{p} {q} {n}"
+            );
+        }
+        assert!(placed_back(&source, (&[], &[]), &[], 0.01)
+            .iter()
+            .all(Option::is_none));
     }
 
     /// Points that land farther than the tolerance from every target point are not measured;

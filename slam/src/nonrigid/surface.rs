@@ -18,7 +18,7 @@ use super::register::{
     principal_axes_guesses, RegisterError, RegisterParams, RegisterSummary, Seeds, Target,
     WarpOptimiser,
 };
-use super::round_trip::RoundTrip;
+use super::round_trip::{placed_back, RoundTrip};
 use super::slippage::{slippage, Slippage};
 use super::surface_area::area;
 use super::surface_fit::{SurfaceFit, SurfaceVerdict, MIN_SHARE};
@@ -179,6 +179,10 @@ pub struct SurfaceRegistration {
     /// [`register_mesh_or_cloud`] or [`register_mesh_pair`] ran it (the registration fitted and
     /// neither surface slides); `None` otherwise.
     pub round_trip: Option<RoundTrip>,
+    /// Whether [`Self::points`] and [`Self::normals`] are where the round trip's way back placed
+    /// the source (it lay closer to its target than the way out did; the graph and the fit are
+    /// still the way out's).
+    pub placed_back: bool,
 }
 
 impl SurfaceRegistration {
@@ -508,6 +512,7 @@ impl Passes {
             target_normals_turned: false,
             slippage: None,
             round_trip: None,
+            placed_back: false,
         })
     }
 }
@@ -587,8 +592,44 @@ fn both_ways(
         (target.points, &backward.points),
         (reg.fit.tolerance, reg.fit.median_distance),
     );
+    if reg.verdict() == SurfaceVerdict::Registered && back_fits_closer(&reg, &backward) {
+        take_the_way_back(&mut reg, source, target, &backward.points);
+        reg.placed_back = true;
+    }
     reg.summary.seconds = start.elapsed().as_secs_f64();
     Ok(reg)
+}
+
+/// Whether the way back (`backward`, the target registered onto the source) lies closer to its
+/// target than the way out (`reg`) does: its data cost per point is lower. Each direction's
+/// regulariser pulls its answer its own way, and the one that fits closer was the better map on
+/// the camel: the 30 maps' mean error went 0.872 → 0.610 % (none over 2 %), and on the 38 chained
+/// pairs, held out, 1.109 → 0.815 % (3 → 0 over 2 %; NOTES 189).
+fn back_fits_closer(reg: &SurfaceRegistration, backward: &SurfaceRegistration) -> bool {
+    let per_point = |r: &SurfaceRegistration| r.summary.data_cost / r.points.len().max(1) as f64;
+    per_point(backward) < per_point(reg)
+}
+
+/// Moves `reg`'s points and normals to where the way back places them ([`placed_back`]), where
+/// it reaches; elsewhere they stay the way out's. The graph and the fit stay the way out's.
+fn take_the_way_back(
+    reg: &mut SurfaceRegistration,
+    source: SurfaceMesh<'_>,
+    target: SurfaceMesh<'_>,
+    backward: &[Vector3<f64>],
+) {
+    let back = placed_back(
+        source.points,
+        (target.points, target.normals),
+        backward,
+        reg.fit.tolerance,
+    );
+    let flip = if reg.target_normals_turned { -1.0 } else { 1.0 };
+    for ((p, n), b) in reg.points.iter_mut().zip(&mut reg.normals).zip(back) {
+        if let Some((q, m)) = b {
+            (*p, *n) = (q, flip * m);
+        }
+    }
 }
 
 /// `reg` with both meshes' least-constrained motions (module `slippage`), their boundaries
