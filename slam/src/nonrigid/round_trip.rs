@@ -70,9 +70,9 @@ impl RoundTrip {
     /// one unit of length. The way back at a point is the backward displacement of its
     /// [`NEIGHBOURS`] nearest target points, weighted by their inverse distances: the backward
     /// registration's result as it stands, whatever binding of points to nodes it used. Only
-    /// points within `tolerance` of a target point count. `None` when none is (nothing came near the target, which the fit reports).
-    /// `median` is the forward fit's median distance to the target (for the floor; ignored when
-    /// not finite).
+    /// points within `tolerance` of a target point count; `None` when none is (nothing came
+    /// near the target, which the fit reports). `median` is the forward fit's median distance
+    /// to the target (for the floor; ignored when not finite).
     pub fn measure(
         source: &[Vector3<f64>],
         forward: &[Vector3<f64>],
