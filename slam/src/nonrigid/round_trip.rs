@@ -79,26 +79,14 @@ impl RoundTrip {
         (target, backward): (&[Vector3<f64>], &[Vector3<f64>]),
         (tolerance, median): (f64, f64),
     ) -> Option<Self> {
-        let coords: Vec<[f64; 3]> = target.iter().map(|&p| p.into()).collect();
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
-        let k = NonZero::new(NEIGHBOURS.min(target.len()))?;
+        let blend = Blend::over(target, tolerance);
         let finite = |q: &Vector3<f64>| q.iter().all(|x| x.is_finite());
         let (back, moved, points) = source
             .par_iter()
             .zip(forward)
             .filter(|(_, q)| finite(q))
             .filter_map(|(p, q)| {
-                let near = tree.nearest_n::<SquaredEuclidean>(&(*q).into(), k);
-                if near.first()?.distance > tolerance * tolerance {
-                    return None;
-                }
-                let (mut sum, mut weights) = (Vector3::zeros(), 0.0);
-                for n in &near {
-                    let w = inverse_distance(n.distance, tolerance);
-                    let i = n.item as usize;
-                    sum += w * (backward[i] - target[i]);
-                    weights += w;
-                }
+                let ([sum], weights) = blend.sums(q, |i| [backward[i] - target[i]])?;
                 let returned = q + sum / weights;
                 Some(((returned - p).norm(), (q - p).norm(), 1usize))
             })
@@ -131,11 +119,49 @@ impl RoundTrip {
     }
 }
 
-/// The weight `1 / (d + 10⁻⁹ tolerance)` of a neighbour at squared distance `d2`: finite where a
-/// point lies on a neighbour (as a vertex of the same meshing does), and never so large that a
-/// sum of weighted coordinates overflows.
-fn inverse_distance(d2: f64, tolerance: f64) -> f64 {
-    1.0 / (d2.sqrt() + 1e-9 * tolerance)
+/// Inverse-distance blending over a set of points: the [`NEIGHBOURS`] nearest a query, each
+/// weighed `1 / (d + 10⁻⁹ tolerance)` (finite where the query lies on a point, as a vertex of
+/// the same meshing does, and never so large that a sum of weighted coordinates overflows),
+/// where the nearest lies within `tolerance`.
+struct Blend {
+    tree: ImmutableKdTree<f64, 3>,
+    neighbours: Option<NonZero<usize>>,
+    tolerance: f64,
+}
+
+impl Blend {
+    fn over(points: &[Vector3<f64>], tolerance: f64) -> Self {
+        let coords: Vec<[f64; 3]> = points.iter().map(|&p| p.into()).collect();
+        Self {
+            tree: ImmutableKdTree::new_from_slice(&coords),
+            neighbours: NonZero::new(NEIGHBOURS.min(points.len())),
+            tolerance,
+        }
+    }
+
+    /// `Σ w_i f(i)` for each of the `N` quantities `f` gives, and `Σ w_i`, over the neighbours
+    /// of `q`; `None` where there are no points or the nearest lies farther than the tolerance.
+    fn sums<const N: usize>(
+        &self,
+        q: &Vector3<f64>,
+        f: impl Fn(usize) -> [Vector3<f64>; N],
+    ) -> Option<([Vector3<f64>; N], f64)> {
+        let near = self
+            .tree
+            .nearest_n::<SquaredEuclidean>(&(*q).into(), self.neighbours?);
+        if near.first()?.distance > self.tolerance * self.tolerance {
+            return None;
+        }
+        let (mut sums, mut weights) = ([Vector3::zeros(); N], 0.0);
+        for n in &near {
+            let w = 1.0 / (n.distance.sqrt() + 1e-9 * self.tolerance);
+            for (sum, x) in sums.iter_mut().zip(f(n.item as usize)) {
+                *sum += w * x;
+            }
+            weights += w;
+        }
+        Some((sums, weights))
+    }
 }
 
 /// Where the way back places each of `source`'s points: `backward` holds the target's points
@@ -149,26 +175,11 @@ pub fn placed_back(
     backward: &[Vector3<f64>],
     tolerance: f64,
 ) -> Vec<Option<(Vector3<f64>, Vector3<f64>)>> {
-    let coords: Vec<[f64; 3]> = backward.iter().map(|&p| p.into()).collect();
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
-    let Some(k) = NonZero::new(NEIGHBOURS.min(backward.len())) else {
-        return vec![None; source.len()];
-    };
+    let blend = Blend::over(backward, tolerance);
     source
         .par_iter()
         .map(|p| {
-            let near = tree.nearest_n::<SquaredEuclidean>(&(*p).into(), k);
-            if near.first()?.distance > tolerance * tolerance {
-                return None;
-            }
-            let (mut at, mut normal, mut weights) = (Vector3::zeros(), Vector3::zeros(), 0.0);
-            for n in &near {
-                let w = inverse_distance(n.distance, tolerance);
-                let i = n.item as usize;
-                at += w * target.0[i];
-                normal += w * target.1[i];
-                weights += w;
-            }
+            let ([at, normal], weights) = blend.sums(p, |i| [target.0[i], target.1[i]])?;
             Some((at / weights, normal.try_normalize(0.0).unwrap_or(normal)))
         })
         .collect()
