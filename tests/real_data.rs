@@ -542,6 +542,7 @@ fn deepdeform_shirt_scene_flow_is_within_one_and_a_half_centimetres() {
             }
         }
         assert!(ours.len() > 50_000, "{} scored pixels", ours.len());
+        lies_as_close_as_the_ground_truth(&reg, &gt, &FrameView::new(&camera, &d1, None, None));
         let zero = epe3d(&vec![Vector3::zeros(); truth.len()], &truth, None);
         let epe = epe3d(&ours, &truth, None);
         let start = reg.start.name();
@@ -564,6 +565,27 @@ fn deepdeform_shirt_scene_flow_is_within_one_and_a_half_centimetres() {
         };
         assert_eq!(start, expected);
     }
+}
+
+/// The registered shirt lies on the target's surface (median distance to its nearest point) no
+/// farther than the source moved by DeepDeform's ground-truth flow does, with a tenth of a
+/// millimetre to spare for rounding: the data's own answer is the floor that depth noise leaves
+/// (2.53 mm seen, ours 2.39 mm), and it is why issue 26's 1 mm is out of reach on this pair.
+fn lies_as_close_as_the_ground_truth(
+    reg: &dynamap::slam::nonrigid::FrameRegistration,
+    gt: &dynamap::slam::image::Image<[f32; 3]>,
+    target: &dynamap::slam::nonrigid::FrameView<'_>,
+) {
+    use dynamap::slam::nonrigid::{frame_points, median_distance};
+    let truth = reg.points_moved_by(gt);
+    let surface = frame_points(target);
+    let ours = median_distance(&reg.warped, &surface).unwrap();
+    let floor = median_distance(&truth, &surface).unwrap();
+    println!("median distance to the target: {ours} m (ground truth {floor} m)");
+    assert!(
+        ours <= floor + 1e-4,
+        "{ours} m against the ground truth's {floor} m"
+    );
 }
 
 /// DeepDeform's test pair seq017 (300 → 600; a plain shirt lifted about 45 cm, no mask, the

@@ -41,7 +41,8 @@
 //! their scene flow in DeepDeform's format, and `--flow-ground-truth GT.sflow` scores it (EPE 3D).
 //! Without a mask, `--mask-nodes` takes the source's object from DeepDeform's graph nodes (its
 //! test pairs come so). The JSON gives the median distance from the source's points to the
-//! target's (inside its mask), before and after; `--picture` draws both. As with `meshes`, a pair
+//! target's (inside its mask), before and after, and with `--flow-ground-truth` after the true
+//! flow (`ground_truth`: the floor the depth's noise leaves); `--picture` draws both. As with `meshes`, a pair
 //! that did not register exits 1 after its outputs and JSON line.
 //!
 //! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
@@ -605,6 +606,8 @@ fn register_frame_pair(args: &FrameArgs) -> Result<()> {
             ))
         })?;
         json["epe"] = flow_json(&scores);
+        json["surface_distance"]["ground_truth"] =
+            median_distance(&reg.points_moved_by(gt), &surface).into();
     }
     println!("{json}");
     registered_or_failure(verdict == FrameVerdict::Registered)

@@ -144,7 +144,7 @@ pub use real::Real;
 pub use residual::{check_sizes, Jacobians, Residual, SizeMismatch, Var};
 pub use robust::RobustKernel;
 pub use summary::{IterationSummary, Observer, Summary, Termination, Timing};
-pub use system::{BlockSystem, Refined};
+pub use system::{BlockSystem, CgStart, Refined};
 
 #[doc = include_str!("../../docs/solver_guide.md")]
 pub mod guide {

@@ -363,9 +363,14 @@ impl BlockSystem {
             },
             gradient: &self.gradient,
         };
-        cg.solve(&mut self.cg, step, tolerance, max_iterations, |z| {
-            cholesky.solve(z)
-        })
+        cg.solve(
+            &mut self.cg,
+            step,
+            tolerance,
+            max_iterations,
+            |z| cholesky.solve(z),
+            CgStart::Zero,
+        )
     }
 
     /// Solves `(H + μD) δ = −g` by conjugate gradients preconditioned with the inverses of the
@@ -378,15 +383,17 @@ impl BlockSystem {
     /// step solves the copy's system, whose entries are H's rounded to 24 bits (6·10⁻⁸
     /// relative); in one of [`FactorPrecision::Double`] on H itself. Stops at
     /// `‖r‖ ≤ tolerance ‖g‖` or after `max_iterations`; each iterate lowers the quadratic model it
-    /// solves from δ = 0, so `−gᵀδ > 0` and a truncated solve is still a descent direction
-    /// ([`Self::model_decrease`] gives its decrease on H). Fails when a damped diagonal block is
-    /// not positive definite.
+    /// solves below its value at δ = 0, so `−gᵀδ > 0` and a truncated solve is still a descent
+    /// direction ([`Self::model_decrease`] gives its decrease on H). `start` says whether to
+    /// begin at 0 or at the guess `step` holds ([`CgStart`]). Fails when a damped diagonal block
+    /// is not positive definite.
     pub fn solve_block_jacobi(
         &mut self,
         damping: Damping,
         step: &mut [f64],
         tolerance: f64,
         max_iterations: usize,
+        start: CgStart,
     ) -> Result<Refined, SolveError> {
         assert_eq!(step.len(), self.dim(), "step length");
         self.invert_diagonal_blocks(damping)?;
@@ -403,11 +410,15 @@ impl BlockSystem {
             },
             gradient: &self.gradient,
         };
-        Ok(
-            cg.solve(&mut self.cg, step, tolerance, max_iterations, |z| {
-                apply_block_inverses(h, jacobi, z, scratch)
-            }),
-        )
+        let precondition = |z: &mut [f64]| apply_block_inverses(h, jacobi, z, scratch);
+        Ok(cg.solve(
+            &mut self.cg,
+            step,
+            tolerance,
+            max_iterations,
+            precondition,
+            start,
+        ))
     }
 
     /// Fills [`Self::jacobi`] with the inverse of each damped diagonal block, runs of blocks
@@ -519,6 +530,18 @@ fn is_dense(h: &BlockSparse) -> bool {
     h.dim() <= Options::default().dense_threshold
 }
 
+/// Where conjugate gradients start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CgStart {
+    /// From δ = 0: every iterate lowers the quadratic model below its value at 0, so even a
+    /// truncated solve is a descent direction.
+    Zero,
+    /// From the δ the step buffer holds (a nearby system's solution: the last frame's step of
+    /// a tracker), when the quadratic model is lower there than at 0, which keeps every iterate
+    /// a descent direction; from 0 otherwise. It costs one more product.
+    Guess,
+}
+
 /// The damped system a conjugate-gradient solve works on: its product `y = (H + μD) x` (given
 /// a scratch vector) and g.
 struct CgSystem<'a, P> {
@@ -527,9 +550,23 @@ struct CgSystem<'a, P> {
 }
 
 impl<P: Fn(&[f64], &mut [f64], &mut Vec<f64>)> CgSystem<'_, P> {
-    /// Preconditioned conjugate gradients from δ = 0 on `(H + μD) δ = −g` (Hestenes & Stiefel
-    /// 1952; Saad 2003, alg. 9.1), `precondition` replacing r by M⁻¹ r in place; `buffers` are
-    /// the residual, preconditioned residual, direction, product and the product's second half.
+    /// Whether conjugate gradients may start at the guess `x`: the quadratic model
+    /// `m(x) = gᵀx + ½ xᵀ(H + μD)x` is below m(0) = 0 there, i.e. x lies nearer the solution
+    /// than 0 does in the energy norm (`m(x) = ½‖x − δ*‖² − ½‖δ*‖²`). Leaves the residual
+    /// `r = −g − (H + μD)x` in `r` (`q` and `half` are scratch).
+    fn start_at_guess(&self, x: &[f64], r: &mut [f64], q: &mut [f64], half: &mut Vec<f64>) -> bool {
+        (self.product)(x, q, half);
+        let model = dot(self.gradient, x) + 0.5 * dot(x, q);
+        for ((r, g), q) in r.iter_mut().zip(self.gradient).zip(&*q) {
+            *r = -g - q;
+        }
+        model < 0.0
+    }
+
+    /// Preconditioned conjugate gradients on `(H + μD) δ = −g` from δ = 0 or a guess
+    /// ([`CgStart`]) (Hestenes & Stiefel 1952; Saad 2003, alg. 9.1), `precondition` replacing
+    /// r by M⁻¹ r in place; `buffers` are the residual, preconditioned residual, direction,
+    /// product and the product's second half. Stops at `‖r‖ ≤ tolerance ‖g‖` wherever it began.
     fn solve(
         &self,
         buffers: &mut [Vec<f64>; 5],
@@ -537,8 +574,8 @@ impl<P: Fn(&[f64], &mut [f64], &mut Vec<f64>)> CgSystem<'_, P> {
         tolerance: f64,
         max_iterations: usize,
         mut precondition: impl FnMut(&mut [f64]),
+        start: CgStart,
     ) -> Refined {
-        step.fill(0.0);
         let n = step.len();
         let [r, z, p, q, half] = buffers;
         for v in [&mut *r, &mut *z, &mut *p, &mut *q] {
@@ -548,11 +585,19 @@ impl<P: Fn(&[f64], &mut [f64], &mut Vec<f64>)> CgSystem<'_, P> {
             iterations: 0,
             converged: false,
         };
-        for (r, g) in r.iter_mut().zip(self.gradient) {
-            *r = -g;
-        }
-        let bound = tolerance * dot(r, r).sqrt();
+        let bound = tolerance * dot(self.gradient, self.gradient).sqrt();
         if bound == 0.0 {
+            step.fill(0.0);
+            out.converged = true;
+            return out;
+        }
+        if !(start == CgStart::Guess && self.start_at_guess(step, r, q, half)) {
+            step.fill(0.0);
+            for (r, g) in r.iter_mut().zip(self.gradient) {
+                *r = -g;
+            }
+        }
+        if dot(r, r).sqrt() <= bound {
             out.converged = true;
             return out;
         }
@@ -642,6 +687,16 @@ fn multiply_damped(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Block-Jacobi conjugate gradients from 0 at damping 0.25.
+    fn solve_cold(
+        s: &mut BlockSystem,
+        step: &mut [f64],
+        tolerance: f64,
+        cap: usize,
+    ) -> Result<Refined, SolveError> {
+        s.solve_block_jacobi(Damping::Identity(0.25), step, tolerance, cap, CgStart::Zero)
+    }
 
     /// Pairs in either order and repeated make one entry each, beside every diagonal; a pair
     /// outside the system is an error naming it.
@@ -886,9 +941,7 @@ mod tests {
         let single = chain_structure(dense.nrows() / 6, FactorPrecision::Single);
         let mut s = chain_system(Some(single), &dense, &g);
         let mut step = vec![0.0; dense.nrows()];
-        let solved = s
-            .solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-9, 1000)
-            .unwrap();
+        let solved = solve_cold(&mut s, &mut step, 1e-9, 1000).unwrap();
         assert!(solved.converged, "{solved:?}");
         let expect = dense_step(&dense, &g, 0.25);
         let err = (nalgebra::DVector::from_column_slice(&step) - &expect).amax();
@@ -896,8 +949,7 @@ mod tests {
         assert!(err > 0.0, "the copy is rounded");
         let mut last = 0.0;
         for cap in 1..6 {
-            s.solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-12, cap)
-                .unwrap();
+            solve_cold(&mut s, &mut step, 1e-12, cap).unwrap();
             let decrease = s.model_decrease(&step);
             assert!(decrease > last, "{cap}: {decrease} {last}");
             last = decrease;
@@ -908,9 +960,7 @@ mod tests {
         other.reuse_buffers(s);
         let mut other = chain_system(Some(other), &dense2, &g2);
         let mut step2 = vec![0.0; dense2.nrows()];
-        other
-            .solve_block_jacobi(Damping::Identity(0.25), &mut step2, 1e-9, 1000)
-            .unwrap();
+        solve_cold(&mut other, &mut step2, 1e-9, 1000).unwrap();
         let expect2 = dense_step(&dense2, &g2, 0.25);
         let err2 = (nalgebra::DVector::from_column_slice(&step2) - &expect2).amax();
         assert!(err2 < 1e-5 * (1.0 + expect2.amax()), "{err2}");
@@ -925,9 +975,7 @@ mod tests {
         let (dense, g) = chain_matrix(60, 11);
         let mut s = chain_system(None, &dense, &g);
         let mut step = vec![0.0; dense.nrows()];
-        let solved = s
-            .solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-12, 1000)
-            .unwrap();
+        let solved = solve_cold(&mut s, &mut step, 1e-12, 1000).unwrap();
         assert!(solved.converged && solved.iterations < 200, "{solved:?}");
         assert!(!s.has_factorisation() && s.cholesky.is_none());
         let expect = dense_step(&dense, &g, 0.25);
@@ -936,9 +984,7 @@ mod tests {
         let exact = s.model_decrease(&step);
         let mut last = 0.0;
         for cap in 1..6 {
-            let truncated = s
-                .solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-12, cap)
-                .unwrap();
+            let truncated = solve_cold(&mut s, &mut step, 1e-12, cap).unwrap();
             assert_eq!((truncated.iterations, truncated.converged), (cap, false));
             let decrease = s.model_decrease(&step);
             assert!(
@@ -950,9 +996,53 @@ mod tests {
         // block 3's first unknown made negative beyond what the damping restores
         let at = s.h.diag_pos().nth(18).unwrap();
         s.h.values[at] = -10.0;
-        match s.solve_block_jacobi(Damping::Identity(0.25), &mut step, 1e-12, 10) {
+        match solve_cold(&mut s, &mut step, 1e-12, 10) {
             Err(SolveError::RankDeficient { variables, .. }) => assert_eq!(variables, [3]),
             other => panic!("{other:?}"),
+        }
+    }
+
+    /// Started at a guess, block-Jacobi steps reach the same solution: at the solution itself
+    /// at once, from a nearby one in fewer iterations than from 0, truncated still descending;
+    /// a guess the quadratic model rates worse than 0 (the solution reversed, or not finite)
+    /// is not used, and the solve is the one from 0, iteration for iteration.
+    #[test]
+    fn block_jacobi_steps_started_at_a_guess_reach_the_solution_or_start_from_zero() {
+        let (dense, g) = chain_matrix(60, 11);
+        let mut s = chain_system(None, &dense, &g);
+        let damping = Damping::Identity(0.25);
+        let expect = dense_step(&dense, &g, 0.25);
+        let mut solve = |guess: &[f64], tolerance: f64, cap: usize| {
+            let mut step = guess.to_vec();
+            let solved = s
+                .solve_block_jacobi(damping, &mut step, tolerance, cap, CgStart::Guess)
+                .unwrap();
+            let decrease = s.model_decrease(&step);
+            (step, solved, decrease)
+        };
+        let zero = vec![0.0; dense.nrows()];
+        let (_, cold, _) = solve(&zero, 1e-10, 1000);
+        let (_, at, _) = solve(expect.as_slice(), 1e-6, 1000);
+        assert!(at.converged && at.iterations == 0, "{at:?}");
+        let near: Vec<f64> = expect.iter().map(|x| 0.9 * x + 1e-3).collect();
+        let (step, warm, _) = solve(&near, 1e-10, 1000);
+        let err = (nalgebra::DVector::from_column_slice(&step) - &expect).amax();
+        assert!(
+            warm.converged && err < 1e-7 * (1.0 + expect.amax()),
+            "{err}"
+        );
+        assert!(warm.iterations < cold.iterations, "{warm:?} {cold:?}");
+        for cap in 1..4 {
+            let (_, _, decrease) = solve(&near, 1e-12, cap);
+            assert!(decrease > 0.0, "{cap}: {decrease}");
+        }
+        let reversed: Vec<f64> = expect.iter().map(|x| -x).collect();
+        let mut nan = near.clone();
+        nan[7] = f64::NAN;
+        for bad in [&reversed, &nan] {
+            let (step, solved, _) = solve(bad, 1e-10, 1000);
+            assert_eq!(solved.iterations, cold.iterations);
+            assert!(step.iter().all(|x| x.is_finite()));
         }
     }
 
@@ -975,7 +1065,7 @@ mod tests {
             .for_each(|(i, g)| *g = (i % 7) as f64 - 3.0);
         let mut step = vec![0.0; 6 * nb];
         let solved = s
-            .solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5)
+            .solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5, CgStart::Zero)
             .unwrap();
         assert!(solved.converged, "{solved:?}");
         for (i, d) in step.iter().enumerate() {
@@ -985,7 +1075,7 @@ mod tests {
             let at = s.h.diag_pos().nth(6 * b + 2).unwrap();
             s.h.values[at] = -10.0;
         }
-        match s.solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5) {
+        match s.solve_block_jacobi(Damping::Identity(0.5), &mut step, 1e-12, 5, CgStart::Zero) {
             Err(SolveError::RankDeficient { variables, .. }) => assert_eq!(variables, [300]),
             other => panic!("{other:?}"),
         }

@@ -564,6 +564,17 @@ fn a_frame_pair_with_a_large_motion_gets_its_scene_flow() {
         epe.stats.mean,
         epe.within_5cm
     );
+    // the registration's own flow moves its points to where it warped them; pixels without a
+    // finite flow are left out (the ground-truth floor of `nonrigid_register frames`)
+    let camera = case.render().camera;
+    let mut flow = reg.scene_flow(camera.width, camera.height);
+    let moved = reg.points_moved_by(&flow);
+    assert_eq!(moved.len(), reg.warped.len());
+    for (m, q) in moved.iter().zip(&reg.warped) {
+        assert!((m - q).norm() < 1e-5, "{m} against {q}");
+    }
+    flow.data[reg.pixels[0]][1] = f32::NAN;
+    assert_eq!(reg.points_moved_by(&flow).len(), reg.warped.len() - 1);
 }
 
 /// A rippling ball before a wall, seen from cameras 9 cm and 8° apart: its outline moves over

@@ -287,6 +287,23 @@ impl FrameRegistration {
         }
         flow
     }
+
+    /// The source's points moved by another per-pixel scene flow (a ground truth's), those
+    /// whose pixel has a finite one. Their median distance to the target's surface is what the
+    /// flow's own answer leaves: with a ground truth, the floor that the depth's noise and the
+    /// truth's own error set for any registration.
+    pub fn points_moved_by(&self, flow: &Image<[f32; 3]>) -> Vec<Vector3<f64>> {
+        self.pixels
+            .iter()
+            .zip(&self.points)
+            .filter_map(|(&i, p)| {
+                let f = flow.data.get(i)?;
+                f.iter()
+                    .all(|v| v.is_finite())
+                    .then(|| p + Vector3::from(*f).cast::<f64>())
+            })
+            .collect()
+    }
 }
 
 fn check(what: &'static str, size: (usize, usize), camera: &Camera) -> Result<(), FrameError> {

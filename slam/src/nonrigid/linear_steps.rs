@@ -15,9 +15,11 @@ pub enum LinearSteps {
     /// Conjugate gradients preconditioned by the inverses of H's 6 × 6 diagonal blocks, up to
     /// this many iterations (fewer once the relative residual reaches 10⁻³); nothing is ever
     /// factorised, so a graph that grew costs no new symbolic analysis. The products with H are
-    /// taken on a single-precision copy of it (half the memory read). Tracking, which starts
-    /// each frame at the last one's field, uses it, as real-time non-rigid systems do
-    /// (DynamicFusion, VolumeDeform).
+    /// taken on a single-precision copy of it (half the memory read). Each iteration starts at
+    /// the step the same iteration solved in the last minimisation (the last frame's), where
+    /// the quadratic model rates it better than 0. Tracking, which starts each frame at the
+    /// last one's field, uses it, as real-time non-rigid systems do (DynamicFusion,
+    /// VolumeDeform).
     BlockJacobi(usize),
 }
 

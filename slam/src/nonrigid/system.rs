@@ -44,7 +44,7 @@ use dynamap_residuals::deform::{
 use dynamap_solver::lie::se3;
 use dynamap_solver::robust::Tukey;
 use dynamap_solver::{
-    BlockSystem, Damping, FactorPrecision, LevenbergDamping, RobustKernel, SolveError,
+    BlockSystem, CgStart, Damping, FactorPrecision, LevenbergDamping, RobustKernel, SolveError,
 };
 use nalgebra::{DualQuaternion, Isometry3, SMatrix, Vector3, Vector6};
 use rayon::prelude::*;
@@ -209,6 +209,9 @@ pub(crate) struct WarpSystem {
     trial: Vec<Isometry3<f64>>,
     trial_dqs: Vec<DualQuaternion<f64>>,
     step: Vec<f64>,
+    /// The step each Levenberg-Marquardt iteration of the last minimisation solved: where the
+    /// same iteration's conjugate gradients start in the next (block-Jacobi steps only).
+    last_steps: Vec<Vec<f64>>,
     /// The regularisers' terms of the last linearisation.
     priors: Vec<PriorTerms>,
 }
@@ -324,7 +327,11 @@ impl WarpSystem {
         while done < steps.iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
-            let solved = self.solve_step(lm.mu(), steps.linear, &mut step);
+            let start = self.start_at_last(done - 1, steps.linear, &mut step);
+            let solved = self.solve_step(lm.mu(), steps.linear, &mut step, start);
+            if solved.is_ok() && start == CgStart::Guess {
+                self.last_steps[done - 1].clone_from(&step);
+            }
             let clock = Instant::now();
             // a step that another may follow is costed by linearising there: the cost comes
             // with H and g, which a taken step needs next
@@ -366,6 +373,28 @@ impl WarpSystem {
         })
     }
 
+    /// Where iteration `k`'s block-Jacobi step starts ([`CgStart`]): at the step iteration `k`
+    /// of the last minimisation solved, written into `step`, its nodes in the graph's order
+    /// and nodes added since starting at 0 (a tracker's next frame moves much as its last did;
+    /// the solver drops a guess worse than 0). Other linear steps start at 0.
+    fn start_at_last(&mut self, k: usize, linear: LinearSteps, step: &mut [f64]) -> CgStart {
+        if !matches!(linear, LinearSteps::BlockJacobi(_)) {
+            return CgStart::Zero;
+        }
+        if self.last_steps.len() <= k {
+            self.last_steps.resize_with(k + 1, Vec::new);
+        }
+        let last = &self.last_steps[k];
+        if last.is_empty() || last.len() > step.len() {
+            step.fill(0.0);
+        } else {
+            let (kept, added) = step.split_at_mut(last.len());
+            kept.copy_from_slice(last);
+            added.fill(0.0);
+        }
+        CgStart::Guess
+    }
+
     /// Writes the step solving `(H + μI)δ = −g` into `step` and returns the decrease the
     /// quadratic model predicts for it, as `linear` says ([`LinearSteps`]). A refined step is
     /// taken when conjugate gradients on the last factorisation reach [`REFINE_TOLERANCE`],
@@ -376,6 +405,7 @@ impl WarpSystem {
         mu: f64,
         linear: LinearSteps,
         step: &mut [f64],
+        start: CgStart,
     ) -> Result<f64, SolveError> {
         let system = self.system.as_mut().expect("prepared");
         let damping = Damping::Identity(mu);
@@ -386,7 +416,8 @@ impl WarpSystem {
                 return Ok(damping.predicted_decrease(step, system.gradient(), std::iter::empty()));
             }
             LinearSteps::BlockJacobi(n) => {
-                let solved = system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n)?;
+                let solved =
+                    system.solve_block_jacobi(damping, step, REFINE_TOLERANCE, n, start)?;
                 if !solved.converged {
                     tracing::debug!(
                         iterations = n,
@@ -1311,6 +1342,42 @@ mod tests {
             "{exact} {jacobi}"
         );
         assert!(single < before, "{before} -> {single}");
+    }
+
+    /// A block-Jacobi minimisation run again from where the first began starts each iteration's
+    /// conjugate gradients at the step that iteration solved before, and lands where the first
+    /// did; a graph grown by nodes keeps the old nodes' steps and starts the new ones at 0; a
+    /// factorised step starts nowhere but 0.
+    #[test]
+    fn block_jacobi_steps_start_where_the_last_minimisation_solved() {
+        let (graph, points, bindings, matches) = scene();
+        let terms = data_only(&points, &bindings, &matches);
+        let steps = Steps {
+            linear: LinearSteps::BlockJacobi(100),
+            ..exact_steps(3)
+        };
+        let mut ws = system_at(&graph, &bindings);
+        let start: Vec<Isometry3<f64>> = ws.motions.clone();
+        ws.minimise(&terms, steps, &mut 0.0).unwrap();
+        let (first, solved) = (ws.motions.clone(), ws.last_steps.clone());
+        assert!(solved.len() >= 2 && solved.iter().all(|s| s.iter().any(|&x| x != 0.0)));
+        ws.set_motions(start.into_iter());
+        let mut step = vec![7.0; solved[1].len()];
+        assert_eq!(ws.start_at_last(1, steps.linear, &mut step), CgStart::Guess);
+        assert_eq!(step, solved[1]);
+        ws.minimise(&terms, steps, &mut 0.0).unwrap();
+        for (a, b) in first.iter().zip(&ws.motions) {
+            assert!((a.translation.vector - b.translation.vector).norm() < 1e-9);
+        }
+        let mut grown = vec![7.0; solved[0].len() + 6];
+        ws.start_at_last(0, steps.linear, &mut grown);
+        let (kept, added) = grown.split_at(solved[0].len());
+        assert_eq!((kept, added), (&ws.last_steps[0][..], &[0.0; 6][..]));
+        let mut fewer = vec![7.0; 6];
+        ws.start_at_last(0, steps.linear, &mut fewer);
+        assert_eq!(fewer, [0.0; 6]);
+        let factorised = ws.start_at_last(0, LinearSteps::Factorise, &mut fewer);
+        assert_eq!(factorised, CgStart::Zero);
     }
 
     /// At the optimum (every match where its point already lands) no step lowers the cost; the
