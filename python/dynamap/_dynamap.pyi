@@ -272,11 +272,15 @@ def register_meshes(
 ) -> Dict[str, Any]:
     """The source registered onto the target with the deformation graph, as `nonrigid_register
     meshes` does: vertices and normals warped (source order), nodes, iterations, data_cost,
-    regulariser_cost, matched, matched_fraction, seconds, registered (bool: most of the source
-    on the target and most of the target covered, areas within 1.5x, and neither mesh sliding
-    along itself), fit (on_target, covered, area_ratio, source_area_ratio, median_distance,
-    tolerance) and slippage ([source, target]: the share of each mesh's least-constrained rigid
-    motion that moves it off itself, under 1e-3 for a symmetry; None for a point cloud)."""
+    regulariser_cost, matched, matched_fraction, seconds (both ways), registered (bool: most of
+    the source on the target and most of the target covered, facing its way, areas within 1.5x,
+    neither mesh sliding along itself, and the round trip coming back), target_normals_turned,
+    fit (on_target, covered, facing, area_ratio, source_area_ratio, median_distance, tolerance),
+    slippage ([source, target]: the share of each mesh's least-constrained rigid motion that
+    moves it off itself, under 1e-3 for a symmetry; None for a point cloud), round_trip (the
+    target registered back onto the source: error, moved and their ratio; not
+    registered over 0.35; None where it was not run) and placed_back (whether the vertices are
+    where the way back placed them)."""
 
 def register_frames(
     source_depth: ArrayLike,
