@@ -13,7 +13,7 @@ pub enum LinearSteps {
     /// frame's), up to this many iterations, before the system is factorised anew.
     Refine(usize),
     /// Conjugate gradients preconditioned by the inverses of H's 6 × 6 diagonal blocks, up to
-    /// this many iterations (fewer once the relative residual reaches 10⁻³); nothing is ever
+    /// this many iterations (fewer once the relative residual reaches 3·10⁻³); nothing is ever
     /// factorised, so a graph that grew costs no new symbolic analysis. The products with H are
     /// taken on a single-precision copy of it (half the memory read). Each iteration starts at
     /// the step the same iteration solved in the last minimisation (the last frame's), where
