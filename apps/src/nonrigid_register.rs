@@ -42,8 +42,8 @@
 //! Without a mask, `--mask-nodes` takes the source's object from DeepDeform's graph nodes (its
 //! test pairs come so). The JSON gives the median distance from the source's points to the
 //! target's (inside its mask), before and after, and with `--flow-ground-truth` after the true
-//! flow (`ground_truth`: the floor the depth's noise leaves); `--picture` draws both. As with `meshes`, a pair
-//! that did not register exits 1 after its outputs and JSON line.
+//! flow (`ground_truth`: the floor the depth's noise leaves); `--picture` draws both. As with
+//! `meshes`, a pair that did not register exits 1 after its outputs and JSON line.
 //!
 //! `sheets`: plain sheets, no correspondence given, onto bent, rolled, folded, twisted and saddled
 //! copies, alone and moved rigidly, at `--sizes` widths and `--columns` resolutions (issue 26):
