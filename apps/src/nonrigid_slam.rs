@@ -13,7 +13,9 @@
 //! field (`warp.txt`: one node per line, position, radius and unit dual quaternion
 //! `w x y z` real then dual). One JSON line last: frames, seconds, fps, failures (frames not
 //! fused), skipped (frames that could not be read), nodes, per-stage
-//! seconds per frame and, for the generated sequence, the tracking error: over every canonical
+//! seconds per frame, the block-Jacobi linear steps (`linear_steps`: how many, their mean
+//! conjugate-gradient iterations, and how many stopped at their cap short of the tolerance)
+//! and, for the generated sequence, the tracking error: over every canonical
 //! sample, over the samples the camera sees, and the worst seen error of a frame reported tracked
 //! (NOTES 132). A run that fused no frame at all exits with code 1 after its outputs and JSON line
 //! (2 when no frame could be read).
@@ -38,7 +40,9 @@ use dynamap_slam::io::sequence::{OpenOptions, Sequence};
 use dynamap_slam::io::trajectory::Trajectory;
 use dynamap_slam::io::{ply, write_atomic};
 use dynamap_slam::mesh::Mesh;
-use dynamap_slam::nonrigid::{FusionParams, FusionTimes, NonRigidFusion, RegisterTimes};
+use dynamap_slam::nonrigid::{
+    FusionParams, FusionTimes, LinearEffort, NonRigidFusion, RegisterTimes,
+};
 use dynamap_slam::synthetic::deform::{distances, surface, DeformingScene};
 use dynamap_slam::synthetic::kinect::KinectModel;
 use dynamap_slam::synthetic::noise::SensorNoise;
@@ -514,6 +518,8 @@ struct Tally {
     /// Stage times summed over the frames, and the optimiser's over the frames it ran on.
     totals: FusionTimes,
     stages: RegisterTimes,
+    /// The optimiser's block-Jacobi steps over the frames it ran on.
+    linear: LinearEffort,
     /// Frames the optimiser ran on.
     optimised: usize,
     /// Frames not fused, frames that could not be read, frames processed.
@@ -543,6 +549,7 @@ fn process_frame(
     tally.totals.add(&report.times);
     if let Some(s) = &report.summary {
         tally.stages.add(&s.times);
+        tally.linear.add(&s.linear);
         tally.optimised += 1;
     }
     if let Some(why) = &report.failure {
@@ -639,6 +646,19 @@ fn error_fields(errors: &[FrameError]) -> String {
     )
 }
 
+/// The block-Jacobi steps as JSON: their count, mean conjugate-gradient iterations (null
+/// without a step) and how many were truncated at their cap.
+fn linear_json(e: &LinearEffort) -> String {
+    let mean = match e.steps {
+        0 => "null".to_string(),
+        n => format!("{:.2}", e.iterations as f64 / n as f64),
+    };
+    format!(
+        "{{\"steps\": {}, \"iterations_per_step\": {mean}, \"truncated\": {}}}",
+        e.steps, e.truncated
+    )
+}
+
 /// The JSON line printed last.
 fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> String {
     let per_frame = |s: f64| s / tally.processed.max(1) as f64;
@@ -654,8 +674,9 @@ fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> 
         ms(st.linear)
     );
     let totals = &tally.totals;
+    let linear = linear_json(&tally.linear);
     format!(
-        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {}, \"skipped\": {}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}{}}}",
+        "{{\"frames\": {n}, \"seconds\": {seconds:.3}, \"fps\": {:.2}, \"failures\": {}, \"skipped\": {}, \"nodes\": {}, \"preprocess\": {:.4}, \"optimise\": {:.4}, \"fuse\": {:.4}, \"surface\": {:.4}, \"optimise_ms\": {stages}, \"linear_steps\": {linear}{}}}",
         if tally.processing > 0.0 {
             tally.processed as f64 / tally.processing
         } else {
@@ -675,6 +696,24 @@ fn result_line(n: usize, seconds: f64, tally: &Tally, slam: &NonRigidFusion) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The linear steps' JSON: their mean iterations, null without a step (never a zero that
+    /// would read as steps that cost nothing), and the truncated ones counted.
+    #[test]
+    fn linear_steps_are_counted_and_a_run_without_any_gives_no_mean() {
+        let parse = |e: &LinearEffort| serde_json::from_str::<serde_json::Value>(&linear_json(e));
+        let none = parse(&LinearEffort::default()).unwrap();
+        assert_eq!(none["steps"], 0);
+        assert!(none["iterations_per_step"].is_null());
+        let some = LinearEffort {
+            steps: 4,
+            iterations: 50,
+            truncated: 1,
+        };
+        let some = parse(&some).unwrap();
+        assert_eq!(some["iterations_per_step"].as_f64(), Some(12.5));
+        assert_eq!(some["truncated"], 1);
+    }
 
     /// Frames the camera saw nothing of, or none fused: those statistics are null, never a zero
     /// that would read as no error; the others are over the frames that count.

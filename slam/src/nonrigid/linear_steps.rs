@@ -23,6 +23,29 @@ pub enum LinearSteps {
     BlockJacobi(usize),
 }
 
+/// What an optimisation's block-Jacobi steps cost and whether they converged: the steps
+/// solved, their conjugate-gradient iterations in all, and how many stopped at their iteration
+/// cap short of the tolerance (each still a descent direction, but not the step the damped
+/// system asks for). Factorised and refined steps are not counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinearEffort {
+    /// Block-Jacobi steps solved.
+    pub steps: usize,
+    /// Their conjugate-gradient iterations (products with H), in all.
+    pub iterations: usize,
+    /// Steps that reached the iteration cap before the tolerance.
+    pub truncated: usize,
+}
+
+impl LinearEffort {
+    /// Adds another optimisation's effort.
+    pub fn add(&mut self, o: &LinearEffort) {
+        self.steps += o.steps;
+        self.iterations += o.iterations;
+        self.truncated += o.truncated;
+    }
+}
+
 impl fmt::Display for LinearSteps {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {

@@ -79,7 +79,7 @@ pub use frames::{
 };
 pub use fusion::{FusionFailure, FusionParams, FusionReport, FusionTimes, NonRigidFusion};
 pub use graph::{Binding, DeformationGraph, GraphError, GraphParams, Node};
-pub use linear_steps::{LinearSteps, LinearStepsError};
+pub use linear_steps::{LinearEffort, LinearSteps, LinearStepsError};
 pub use mesh_point::MeshPoint;
 pub use mesh_target::MeshTarget;
 pub use outline_check::{OutlineCheck, MAX_FLUSH_FRACTION};

@@ -18,7 +18,7 @@
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
 use super::extent::centroid;
 use super::graph::{Binding, DeformationGraph};
-use super::linear_steps::LinearSteps;
+use super::linear_steps::{LinearEffort, LinearSteps};
 use super::photometric::{PhotometricFit, PhotometricTarget};
 use super::system::{match_terms, Minimised, Photometric, Steps, WarpSystem, WarpTerms};
 use crate::camera::Camera;
@@ -301,6 +301,8 @@ pub struct RegisterSummary {
     pub seconds: f64,
     /// Where they went.
     pub times: RegisterTimes,
+    /// The block-Jacobi steps' conjugate gradients, over all rounds.
+    pub linear: LinearEffort,
     /// The rigid pre-alignment's motion, applied to every node before the warp was optimised
     /// (identity when none was found).
     pub prealigned: Isometry3<f64>,
@@ -318,6 +320,7 @@ impl RegisterSummary {
         self.iterations += first.iterations;
         self.seconds += first.seconds;
         self.times.add(&first.times);
+        self.linear.add(&first.linear);
         self.prealigned *= first.prealigned;
     }
 }
@@ -449,7 +452,7 @@ impl WarpOptimiser {
         let prealigned = self.prealign(graph, points, normals, bindings, target, guesses);
         lap(&mut times.prealign);
         self.start_system(graph, bindings)?;
-        let mut iterations = 0;
+        let (mut iterations, mut linear) = (0, LinearEffort::default());
         let mut lambda = 0.0;
         for stage in 0..self.params.schedule.len() {
             lambda = self.params.schedule[stage];
@@ -469,6 +472,7 @@ impl WarpOptimiser {
                 let mut evaluate = 0.0;
                 let done = self.minimise_round(points, bindings, seeded, colour, &mut evaluate)?;
                 iterations += done.iterations;
+                linear.add(&done.linear);
                 lap(&mut times.linear);
                 // the round's wall time went to `linear`; its assembly belongs to `evaluate`
                 times.evaluate += evaluate;
@@ -486,15 +490,7 @@ impl WarpOptimiser {
         self.associate(graph, points, normals, bindings, target);
         lap(&mut times.associate);
         let (data_cost, matched) = self.data_cost();
-        let [photometric, chroma] = colour.map(|term| {
-            term.map(|ph| {
-                PhotometricFit::measure(
-                    &ph.target,
-                    &self.warped,
-                    self.matches.iter().map(Option::is_some),
-                )
-            })
-        });
+        let [photometric, chroma] = colour.map(|term| term.map(|ph| self.colour_fit(&ph)));
         Ok(RegisterSummary {
             iterations,
             data_cost,
@@ -502,10 +498,20 @@ impl WarpOptimiser {
             matched,
             seconds: start.elapsed().as_secs_f64(),
             times,
+            linear,
             prealigned,
             photometric,
             chroma,
         })
+    }
+
+    /// How well a colour term is met by the warped points matched at the last association.
+    fn colour_fit(&self, term: &Photometric<'_>) -> PhotometricFit {
+        PhotometricFit::measure(
+            &term.target,
+            &self.warped,
+            self.matches.iter().map(Option::is_some),
+        )
     }
 
     /// One round's Levenberg-Marquardt iterations on the current association (with `seeded`'s
@@ -997,6 +1003,11 @@ mod tests {
                 linear: seconds,
                 ..RegisterTimes::default()
             },
+            linear: LinearEffort {
+                steps: iterations,
+                iterations: 10 * iterations,
+                truncated: 1,
+            },
             prealigned,
             photometric: None,
             chroma: None,
@@ -1009,6 +1020,12 @@ mod tests {
             (last.iterations, last.seconds, last.times.linear),
             (12, 0.75, 0.75)
         );
+        let effort = LinearEffort {
+            steps: 12,
+            iterations: 120,
+            truncated: 2,
+        };
+        assert_eq!(last.linear, effort);
         let p = Point3::new(0.3, -0.2, 1.0);
         assert!((last.prealigned * p - b * (a * p)).norm() < 1e-12);
         assert_eq!(

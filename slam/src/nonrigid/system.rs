@@ -31,7 +31,7 @@
 //! pairs fit in it; when new pairs appear it is rebuilt as the union of old and new.
 
 use super::graph::{Binding, DeformationGraph};
-use super::linear_steps::LinearSteps;
+use super::linear_steps::{LinearEffort, LinearSteps};
 use super::photometric::PhotometricTarget;
 use super::point_terms::{
     fill_terms, packed, project, PointTerms, TermIndex, NONE, PAIRS, SLOT_PAIRS,
@@ -166,6 +166,8 @@ pub(crate) struct Minimised {
     pub iterations: usize,
     /// Whether any step was taken: if not, the motions are as they were.
     pub moved: bool,
+    /// The block-Jacobi steps' conjugate gradients.
+    pub linear: LinearEffort,
 }
 
 /// How [`WarpSystem::try_step`] costs a trial step.
@@ -219,6 +221,8 @@ pub(crate) struct WarpSystem {
     /// The step each Levenberg-Marquardt iteration of the last minimisation solved: where the
     /// same iteration's conjugate gradients start in the next (block-Jacobi steps only).
     last_steps: Vec<Vec<f64>>,
+    /// The block-Jacobi steps of the current minimisation.
+    effort: LinearEffort,
     /// The regularisers' terms of the last linearisation.
     priors: Vec<PriorTerms>,
 }
@@ -331,6 +335,7 @@ impl WarpSystem {
             0.0,
         );
         let (mut done, mut moved) = (0, false);
+        self.effort = LinearEffort::default();
         while done < steps.iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
@@ -377,6 +382,7 @@ impl WarpSystem {
         Ok(Minimised {
             iterations: done,
             moved,
+            linear: self.effort,
         })
     }
 
@@ -425,6 +431,9 @@ impl WarpSystem {
             LinearSteps::BlockJacobi(n) => {
                 let solved =
                     system.solve_block_jacobi(damping, step, BLOCK_JACOBI_TOLERANCE, n, start)?;
+                self.effort.steps += 1;
+                self.effort.iterations += solved.iterations;
+                self.effort.truncated += usize::from(!solved.converged);
                 if !solved.converged {
                     tracing::debug!(
                         iterations = n,
@@ -1335,6 +1344,23 @@ mod tests {
             };
             let taken = ws.minimise(&terms, steps, &mut 0.0).unwrap();
             assert!(taken.moved, "{linear}");
+            // block-Jacobi steps are counted, those capped at one iteration as truncated
+            let effort = taken.linear;
+            match linear {
+                LinearSteps::BlockJacobi(1) => {
+                    assert!(
+                        effort.steps > 0 && effort.truncated == effort.steps,
+                        "{effort:?}"
+                    )
+                }
+                LinearSteps::BlockJacobi(_) => assert!(
+                    effort.steps > 0
+                        && effort.iterations > effort.steps
+                        && effort.truncated < effort.steps,
+                    "{effort:?}"
+                ),
+                _ => assert_eq!(effort, LinearEffort::default()),
+            }
             if linear != LinearSteps::Factorise {
                 assert!(!ws.system().has_factorisation(), "{linear}");
             }
