@@ -221,8 +221,6 @@ pub(crate) struct WarpSystem {
     /// The step each Levenberg-Marquardt iteration of the last minimisation solved: where the
     /// same iteration's conjugate gradients start in the next (block-Jacobi steps only).
     last_steps: Vec<Vec<f64>>,
-    /// The block-Jacobi steps of the current minimisation.
-    effort: LinearEffort,
     /// The regularisers' terms of the last linearisation.
     priors: Vec<PriorTerms>,
 }
@@ -334,14 +332,13 @@ impl WarpSystem {
             steps.damping * self.system().max_diagonal().max(f64::MIN_POSITIVE),
             0.0,
         );
-        let (mut done, mut moved) = (0, false);
-        self.effort = LinearEffort::default();
+        let (mut done, mut moved, mut effort) = (0, false, LinearEffort::default());
         while done < steps.iterations {
             done += 1;
             let mut step = std::mem::take(&mut self.step);
             let start = self.start_at_last(done - 1, steps.linear, &mut step);
-            let solved = self.solve_step(lm.mu(), steps.linear, &mut step, start);
-            if solved.is_ok() && start == CgStart::Guess {
+            let solved = self.solve_step(lm.mu(), steps.linear, &mut step, (start, &mut effort));
+            if solved.is_ok() && matches!(steps.linear, LinearSteps::BlockJacobi(_)) {
                 self.last_steps[done - 1].clone_from(&step);
             }
             let clock = Instant::now();
@@ -382,14 +379,15 @@ impl WarpSystem {
         Ok(Minimised {
             iterations: done,
             moved,
-            linear: self.effort,
+            linear: effort,
         })
     }
 
     /// Where iteration `k`'s block-Jacobi step starts ([`CgStart`]): at the step iteration `k`
     /// of the last minimisation solved, written into `step`, its nodes in the graph's order
     /// and nodes added since starting at 0 (a tracker's next frame moves much as its last did;
-    /// the solver drops a guess worse than 0). Other linear steps start at 0.
+    /// the solver drops a guess worse than 0). Other linear steps start at 0, and so does an
+    /// iteration without a last step that fits (the first frame's, or a graph grown smaller).
     fn start_at_last(&mut self, k: usize, linear: LinearSteps, step: &mut [f64]) -> CgStart {
         if !matches!(linear, LinearSteps::BlockJacobi(_)) {
             return CgStart::Zero;
@@ -399,12 +397,12 @@ impl WarpSystem {
         }
         let last = &self.last_steps[k];
         if last.is_empty() || last.len() > step.len() {
-            step.fill(0.0);
-        } else {
-            let (kept, added) = step.split_at_mut(last.len());
-            kept.copy_from_slice(last);
-            added.fill(0.0);
+            // no guess: the solver would take one product to find 0 no worse
+            return CgStart::Zero;
         }
+        let (kept, added) = step.split_at_mut(last.len());
+        kept.copy_from_slice(last);
+        added.fill(0.0);
         CgStart::Guess
     }
 
@@ -418,7 +416,7 @@ impl WarpSystem {
         mu: f64,
         linear: LinearSteps,
         step: &mut [f64],
-        start: CgStart,
+        (start, effort): (CgStart, &mut LinearEffort),
     ) -> Result<f64, SolveError> {
         let system = self.system.as_mut().expect("prepared");
         let damping = Damping::Identity(mu);
@@ -431,9 +429,9 @@ impl WarpSystem {
             LinearSteps::BlockJacobi(n) => {
                 let solved =
                     system.solve_block_jacobi(damping, step, BLOCK_JACOBI_TOLERANCE, n, start)?;
-                self.effort.steps += 1;
-                self.effort.iterations += solved.iterations;
-                self.effort.truncated += usize::from(!solved.converged);
+                effort.steps += 1;
+                effort.iterations += solved.iterations;
+                effort.truncated += usize::from(!solved.converged);
                 if !solved.converged {
                     tracing::debug!(
                         iterations = n,
@@ -1406,9 +1404,8 @@ mod tests {
         ws.start_at_last(0, steps.linear, &mut grown);
         let (kept, added) = grown.split_at(solved[0].len());
         assert_eq!((kept, added), (&ws.last_steps[0][..], &[0.0; 6][..]));
-        let mut fewer = vec![7.0; 6];
-        ws.start_at_last(0, steps.linear, &mut fewer);
-        assert_eq!(fewer, [0.0; 6]);
+        let mut fewer = vec![0.0; 6];
+        assert_eq!(ws.start_at_last(0, steps.linear, &mut fewer), CgStart::Zero);
         let factorised = ws.start_at_last(0, LinearSteps::Factorise, &mut fewer);
         assert_eq!(factorised, CgStart::Zero);
     }
