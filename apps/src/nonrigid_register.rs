@@ -28,7 +28,10 @@
 //! over 0.35 the surfaces do not fix where the points go, and it is not registered (module
 //! `round_trip`, NOTES 188); `seconds` counts both ways. Where it registered and the way back
 //! lies closer to its target (data cost per point), WARPED holds the source where the way back
-//! placed it (`placed_back`, NOTES 189). A point
+//! placed it (`placed_back`, NOTES 189). Where both meshes are closed, it registered, and a
+//! global affine map (no direction stretched more than twice) lays the source on the target at
+//! least as closely as the warp, WARPED holds the source carried by that map and the round trip
+//! is not run (`placed_affine`, NOTES 195). A point
 //! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
 //! triangles after those wound against their neighbours are turned over (`faces_turned`, per
 //! mesh, with a warning; NOTES 141). A registration that did not register writes its outputs
@@ -903,6 +906,7 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     json["slippage"] = slippage_json(reg.slippage);
     json["round_trip"] = round_trip_json(reg.round_trip);
     json["placed_back"] = reg.placed_back.into();
+    json["placed_affine"] = reg.placed_affine.into();
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,

@@ -279,8 +279,10 @@ def register_meshes(
     slippage ([source, target]: the share of each mesh's least-constrained rigid motion that
     moves it off itself, under 1e-3 for a symmetry; None for a point cloud), round_trip (the
     target registered back onto the source: error, moved and their ratio; not
-    registered over 0.35; None where it was not run) and placed_back (whether the vertices are
-    where the way back placed them)."""
+    registered over 0.35; None where it was not run), placed_back (whether the vertices are
+    where the way back placed them) and placed_affine (whether they are the source carried by a
+    global affine map that lays it on the target as closely as the warp did; round_trip is then
+    None)."""
 
 def register_frames(
     source_depth: ArrayLike,

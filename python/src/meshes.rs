@@ -223,7 +223,9 @@ pub fn write_mesh(
 /// a ratio over 0.35 means the surfaces do not fix where the points go, and registered is False.
 /// None where it was not run. seconds counts both ways. placed_back: whether the vertices are
 /// where the way back placed the source (it registered, and the way back lay closer to its
-/// target).
+/// target). placed_affine: whether the vertices are the source carried by a global affine map
+/// (one that stretches no direction more than twice and lays the source on the target as
+/// closely as the warp did; round_trip is then None).
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -303,5 +305,6 @@ pub fn register_meshes<'py>(
     });
     d.set_item("round_trip", trip.transpose()?)?;
     d.set_item("placed_back", reg.placed_back)?;
+    d.set_item("placed_affine", reg.placed_affine)?;
     Ok(d)
 }

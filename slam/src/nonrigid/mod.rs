@@ -26,6 +26,7 @@
 //!   graph's nodes, and the median distance from a registered source to the target's surface;
 //!   [`colour_check`]: whether the colour agrees with a frame registration, patch by patch.
 
+pub mod affine_fit;
 mod band;
 pub mod boundary;
 mod cell_nearest;
