@@ -129,22 +129,19 @@ fn solve_round(
         t.nearest_one::<SquaredEuclidean>(q).item as usize
     };
     let moved_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(moved);
-    let forward = (0..source.len())
-        .into_par_iter()
-        .map(|i| (source[i], target[nearest(tree, &moved[i])]));
-    let backward = (0..target.len())
-        .into_par_iter()
-        .map(|k| (source[nearest(&moved_tree, &target[k].into())], target[k]));
-    let zero = || (Matrix4::zeros(), Matrix4x3::zeros());
-    let (mut m, mut c) = forward
-        .chain(backward)
-        .fold(zero, |(mut m, mut c), (x, y)| {
-            let u = Vector4::new(x.x - centre.x, x.y - centre.y, x.z - centre.z, 1.0);
-            m += u * u.transpose();
-            c += u * y.transpose();
-            (m, c)
-        })
-        .reduce(zero, |a, b| (a.0 + b.0, a.1 + b.1));
+    // the partners in parallel, summed in their order: the bits do not hang on the schedule
+    let forward: Vec<usize> = moved.par_iter().map(|q| nearest(tree, q)).collect();
+    let backward: Vec<usize> = (target.par_iter())
+        .map(|t| nearest(&moved_tree, &(*t).into()))
+        .collect();
+    let pairs = (source.iter().zip(forward.iter().map(|&k| &target[k])))
+        .chain(backward.iter().map(|&i| &source[i]).zip(target));
+    let (mut m, mut c) = (Matrix4::zeros(), Matrix4x3::zeros());
+    for (x, y) in pairs {
+        let u = Vector4::new(x.x - centre.x, x.y - centre.y, x.z - centre.z, 1.0);
+        m += u * u.transpose();
+        c += u * y.transpose();
+    }
     let mu = TIKHONOV * (m[(0, 0)] + m[(1, 1)] + m[(2, 2)]);
     for k in 0..3 {
         m[(k, k)] += mu;
