@@ -51,10 +51,9 @@ impl AffineMap {
         self.linear * (p - self.centre) + self.moved_centre
     }
 
-    /// A unit normal carried by the map (`A⁻ᵀ n`, normalised); `None` where A is singular.
-    pub fn normal(&self, n: &Vector3<f64>) -> Option<Vector3<f64>> {
-        let inverse = self.linear.try_inverse()?;
-        (inverse.transpose() * n).try_normalize(0.0)
+    /// `A⁻ᵀ`, which carries normals (each to be normalised after); `None` where A is singular.
+    pub fn normal_transform(&self) -> Option<Matrix3<f64>> {
+        Some(self.linear.try_inverse()?.transpose())
     }
 
     /// Whether the map keeps orientation and stretches no direction by more than
@@ -91,12 +90,14 @@ pub fn fit_affine(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Af
     let coords: Vec<[f64; 3]> = target.iter().map(|&p| p.into()).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
     let mut moved = vec![[0.0; 3]; source.len()];
+    let mut partners = (vec![0; source.len()], vec![0; target.len()]);
     for _ in 0..ROUNDS {
         moved
             .par_iter_mut()
             .zip(&source)
             .for_each(|(m, p)| *m = map.apply(p).into());
-        let next = solve_round(&source, &target, (&tree, &moved), centre)?;
+        pair(&target, (&tree, &moved), &mut partners);
+        let next = solve_round(&source, &target, &partners, centre)?;
         let change = (next.linear - map.linear).norm() * extent
             + (next.moved_centre - map.moved_centre).norm();
         map = next;
@@ -117,23 +118,30 @@ fn evenly(points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
     finite.into_iter().step_by(step).collect()
 }
 
-/// One round: the pairs both ways at the map that moved the source to `moved`, and the map
-/// that fits them best.
-fn solve_round(
-    source: &[Vector3<f64>],
+/// Each moved source point's nearest target point (`partners.0`) and each target point's
+/// nearest moved source point (`partners.1`), found in parallel into the buffers.
+fn pair(
     target: &[Vector3<f64>],
     (tree, moved): (&ImmutableKdTree<f64, 3>, &[[f64; 3]]),
-    centre: Vector3<f64>,
-) -> Option<AffineMap> {
+    partners: &mut (Vec<usize>, Vec<usize>),
+) {
     let nearest = |t: &ImmutableKdTree<f64, 3>, q: &[f64; 3]| {
         t.nearest_one::<SquaredEuclidean>(q).item as usize
     };
     let moved_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(moved);
-    // the partners in parallel, summed in their order: the bits do not hang on the schedule
-    let forward: Vec<usize> = moved.par_iter().map(|q| nearest(tree, q)).collect();
-    let backward: Vec<usize> = (target.par_iter())
-        .map(|t| nearest(&moved_tree, &(*t).into()))
-        .collect();
+    (partners.0.par_iter_mut().zip(moved)).for_each(|(k, q)| *k = nearest(tree, q));
+    (partners.1.par_iter_mut().zip(target))
+        .for_each(|(i, t)| *i = nearest(&moved_tree, &(*t).into()));
+}
+
+/// The map that fits the pairs of [`pair`] best, summed in their order (the bits do not hang
+/// on the schedule that found them).
+fn solve_round(
+    source: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+    (forward, backward): &(Vec<usize>, Vec<usize>),
+    centre: Vector3<f64>,
+) -> Option<AffineMap> {
     let pairs = (source.iter().zip(forward.iter().map(|&k| &target[k])))
         .chain(backward.iter().map(|&i| &source[i]).zip(target));
     let (mut m, mut c) = (Matrix4::zeros(), Matrix4x3::zeros());
@@ -155,26 +163,50 @@ fn solve_round(
     })
 }
 
-/// The median of every point's distance to the nearest point of the other set, both ways: how
-/// closely two point sets lie on each other, whichever of them is larger. Infinite where either
-/// has no finite point.
-pub fn two_way_median(points: &[Vector3<f64>], other: &[Vector3<f64>]) -> f64 {
-    let finite = |p: &&Vector3<f64>| p.iter().all(|v| v.is_finite());
-    let a: Vec<[f64; 3]> = points.iter().filter(finite).map(|&p| p.into()).collect();
-    let b: Vec<[f64; 3]> = other.iter().filter(finite).map(|&p| p.into()).collect();
-    if a.is_empty() || b.is_empty() {
-        return f64::INFINITY;
+/// The finite points of a set with a tree over them, for [`Self::two_way_median`]s against
+/// other sets.
+pub struct PointSet {
+    coords: Vec<[f64; 3]>,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl PointSet {
+    /// The finite ones of `points`.
+    pub fn new(points: &[Vector3<f64>]) -> Self {
+        let coords: Vec<[f64; 3]> = finite_coords(points);
+        let tree = ImmutableKdTree::new_from_slice(&coords);
+        Self { coords, tree }
     }
-    let distances = |from: &[[f64; 3]], to: &[[f64; 3]]| {
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(to);
-        from.par_iter()
-            .map(|q| tree.nearest_one::<SquaredEuclidean>(q).distance.sqrt())
-            .collect::<Vec<f64>>()
-    };
-    let mut all = distances(&a, &b);
-    all.extend(distances(&b, &a));
-    let mid = all.len() / 2;
-    *all.select_nth_unstable_by(mid, f64::total_cmp).1
+
+    /// The median of every point's distance to the nearest point of the other set, both ways
+    /// (`points` to this set, this set to `points`): how closely two point sets lie on each
+    /// other, whichever of them is larger. Infinite where either has no finite point.
+    pub fn two_way_median(&self, points: &[Vector3<f64>]) -> f64 {
+        let points = finite_coords(points);
+        if points.is_empty() || self.coords.is_empty() {
+            return f64::INFINITY;
+        }
+        let distances = |from: &[[f64; 3]], tree: &ImmutableKdTree<f64, 3>| {
+            from.par_iter()
+                .map(|q| tree.nearest_one::<SquaredEuclidean>(q).distance.sqrt())
+                .collect::<Vec<f64>>()
+        };
+        let mut all = distances(&points, &self.tree);
+        all.extend(distances(
+            &self.coords,
+            &ImmutableKdTree::new_from_slice(&points),
+        ));
+        let mid = all.len() / 2;
+        *all.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+}
+
+/// The finite points of `points` as coordinates.
+fn finite_coords(points: &[Vector3<f64>]) -> Vec<[f64; 3]> {
+    (points.iter())
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .map(|&p| p.into())
+        .collect()
 }
 
 #[cfg(test)]
@@ -227,11 +259,11 @@ mod tests {
         assert!(worst < 1e-6, "{worst} {map:?}");
         assert!(map.is_moderate());
         let moved: Vec<Vector3<f64>> = source.iter().map(|p| map.apply(p)).collect();
-        assert!(two_way_median(&moved, &target) < 1e-6);
+        assert!(PointSet::new(&target).two_way_median(&moved) < 1e-6);
         // a normal of the stretched surface is A⁻ᵀ n: orthogonal to the stretched tangents
         let (p, q) = (source[100], source[101]);
         let n = (p - source[160]).cross(&(q - p)).normalize();
-        let m = map.normal(&n).unwrap();
+        let m = map.normal_transform().unwrap() * n;
         assert!(m.dot(&(map.apply(&q) - map.apply(&p))).abs() < 1e-9);
     }
 
@@ -271,6 +303,13 @@ mod tests {
         let nan = [Vector3::repeat(f64::NAN)];
         assert!(fit_affine(&nan, &ellipsoid()).is_none());
         assert!(fit_affine(&ellipsoid(), &[]).is_none());
-        assert_eq!(two_way_median(&nan, &ellipsoid()), f64::INFINITY);
+        assert_eq!(
+            PointSet::new(&ellipsoid()).two_way_median(&nan),
+            f64::INFINITY
+        );
+        assert_eq!(
+            PointSet::new(&nan).two_way_median(&ellipsoid()),
+            f64::INFINITY
+        );
     }
 }

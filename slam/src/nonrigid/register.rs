@@ -554,7 +554,8 @@ impl WarpOptimiser {
         bindings: &[Binding],
     ) -> Result<(), RegisterError> {
         // steps that iterate on a factorisation take it in single precision, and block-Jacobi
-        // steps their products (stopped at a relative residual of 10⁻³ or 3·10⁻³, they do not see it)
+        // steps their products (stopped at a relative residual of 10⁻³ or 3·10⁻³, they do not
+        // see it)
         let precision = match self.params.linear {
             LinearSteps::Refine(_) | LinearSteps::BlockJacobi(_) => FactorPrecision::Single,
             LinearSteps::Factorise => FactorPrecision::Double,

@@ -4,7 +4,7 @@
 //! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
-use super::affine_fit::{fit_affine, two_way_median, AffineMap};
+use super::affine_fit::{fit_affine, AffineMap, PointSet};
 use super::boundary::{rim_matches, RimMatches};
 use super::cloud_target::CloudTarget;
 use super::coverage::{sampling_gap, sampling_spacing};
@@ -631,8 +631,9 @@ fn back_fits_closer(reg: &SurfaceRegistration, backward: &SurfaceRegistration) -
     per_point(backward) < per_point(reg)
 }
 
-/// Whether both meshes are closed, `map` is moderate ([`AffineMap::is_moderate`]) and it lays
-/// the source on the target at least as closely as the warp laid it ([`two_way_median`]). A
+/// Whether `map` (fitted only where both meshes are closed) is moderate
+/// ([`AffineMap::is_moderate`]) and lays the source on the target at least as closely as the
+/// warp laid it ([`PointSet::two_way_median`]). A
 /// featureless closed shape stretched lies on its target under many warps; the affine map
 /// nearest the identity is the stretch, where the warp had slid the surface along itself by
 /// 17–117 % of the displacement (NOTES 195). Bent shapes, the camel's poses and noisy targets
@@ -645,11 +646,12 @@ fn explains_as_closely(
     source: SurfaceMesh<'_>,
     target: SurfaceMesh<'_>,
 ) -> bool {
-    if !(is_closed(source) && is_closed(target) && map.is_moderate()) {
+    if !map.is_moderate() {
         return false;
     }
     let moved: Vec<Vector3<f64>> = source.points.iter().map(|p| map.apply(p)).collect();
-    two_way_median(&moved, target.points) <= two_way_median(&reg.points, target.points)
+    let target = PointSet::new(target.points);
+    target.two_way_median(&moved) <= target.two_way_median(&reg.points)
 }
 
 /// Whether `mesh` has faces and no boundary edge.
@@ -657,13 +659,17 @@ fn is_closed(mesh: SurfaceMesh<'_>) -> bool {
     !mesh.faces.is_empty() && boundary_edges(mesh.faces).is_empty()
 }
 
-/// Moves `reg`'s points and normals to where `map` carries the source's.
+/// Moves `reg`'s points and normals to where `map` carries the source's (a normal the map
+/// cannot carry, A singular or the normal sent to 0, is left as the source's).
 fn take_the_affine_map(reg: &mut SurfaceRegistration, source: SurfaceMesh<'_>, map: &AffineMap) {
+    let normals = map.normal_transform();
     for ((p, n), (q, m)) in
         (reg.points.iter_mut().zip(&mut reg.normals)).zip(source.points.iter().zip(source.normals))
     {
         *p = map.apply(q);
-        *n = map.normal(m).unwrap_or(*m);
+        *n = normals
+            .and_then(|a| (a * m).try_normalize(0.0))
+            .unwrap_or(*m);
     }
     reg.round_trip = None;
     reg.placed_affine = true;
