@@ -19,18 +19,15 @@ import open3d as o3d
 DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "nonrigid", "camel_gallop")
 
 
-def read_off(path):
-    lines = [l for l in open(path).read().split("\n") if l.strip() and not l.startswith("#")]
-    n, f, _ = map(int, lines[1].split())
-    v = np.array([list(map(float, l.split()[:3])) for l in lines[2:2 + n]])
-    return v, [l.split()[1:4] for l in lines[2 + n:2 + n + f]]
+def read_mesh(path):
+    """Vertices (in the file's order, which the ground-truth maps index) and the mesh."""
+    m = o3d.io.read_triangle_mesh(path)
+    return np.asarray(m.vertices).copy(), m
 
 
-def write_off(path, v, f):
-    with open(path, "w") as o:
-        o.write(f"OFF\n{len(v)} {len(f)} 0\n")
-        o.writelines(f"{a} {b} {c}\n" for a, b, c in v)
-        o.writelines(f"3 {' '.join(t)}\n" for t in f)
+def write_mesh(path, v, m):
+    out = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), m.triangles)
+    o3d.io.write_triangle_mesh(path, out)
 
 
 def stretch(rng, lo, hi):
@@ -52,9 +49,9 @@ def affine(rng, case):
 
 
 def register(binary, source, target, tmp):
-    s, t, w = (os.path.join(tmp, n) for n in ("s.off", "t.off", "w.ply"))
-    write_off(s, *source)
-    write_off(t, *target)
+    s, t, w = (os.path.join(tmp, n) for n in ("s.ply", "t.ply", "w.ply"))
+    write_mesh(s, *source)
+    write_mesh(t, *target)
     r = subprocess.run([binary, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
     j = json.loads(r.stdout.strip().splitlines()[-1])
     return j, np.asarray(o3d.io.read_triangle_mesh(w).vertices)
@@ -67,7 +64,7 @@ def flags(j):
 def same(a, rng, tmp):
     for case in range(a.count):
         i = int(rng.integers(1, 11))
-        v, f = read_off(os.path.join(DATA, f"camel-gallop-{i:02d}.off"))
+        v, f = read_mesh(os.path.join(DATA, f"camel-gallop-{i:02d}.off"))
         kind, m = affine(rng, case)
         c, diag = v.mean(0), np.linalg.norm(np.ptp(v, 0))
         t = (v - c) @ m.T + c + rng.normal(size=3) * 0.02 * diag
@@ -82,8 +79,8 @@ def pairs(a, rng, tmp):
     maps = sorted(os.listdir(os.path.join(DATA, "maps")))
     for name in rng.choice(maps, a.count, replace=False):
         i, k = map(int, name.split("_to_"))
-        v, f = read_off(os.path.join(DATA, f"camel-gallop-{i:02d}.off"))
-        u, g = read_off(os.path.join(DATA, f"camel-gallop-{k:02d}.off"))
+        v, f = read_mesh(os.path.join(DATA, f"camel-gallop-{i:02d}.off"))
+        u, g = read_mesh(os.path.join(DATA, f"camel-gallop-{k:02d}.off"))
         truth = np.loadtxt(os.path.join(DATA, "maps", name), dtype=int)
         m = stretch(rng, 0.15, 0.3)
         c = u.mean(0)

@@ -16,6 +16,7 @@
 //! only fixes directions the pairs leave free (a flat sheet's normal), where A keeps the
 //! identity.
 
+use super::extent::{centroid, finite};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, Matrix4, Matrix4x3, Vector3, Vector4};
 use rayon::prelude::*;
@@ -76,7 +77,6 @@ pub fn fit_affine(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Af
     if source.is_empty() || target.is_empty() {
         return None;
     }
-    let centroid = |ps: &[Vector3<f64>]| ps.iter().sum::<Vector3<f64>>() / ps.len() as f64;
     let centre = centroid(&source);
     let mut map = AffineMap {
         linear: Matrix3::identity(),
@@ -87,8 +87,7 @@ pub fn fit_affine(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Af
         .iter()
         .map(|p| (p - centre).norm())
         .fold(0.0, f64::max);
-    let coords: Vec<[f64; 3]> = target.iter().map(|&p| p.into()).collect();
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&coords);
+    let target_set = PointSet::new(&target);
     let mut moved = vec![[0.0; 3]; source.len()];
     let mut partners = (vec![0; source.len()], vec![0; target.len()]);
     for _ in 0..ROUNDS {
@@ -96,7 +95,7 @@ pub fn fit_affine(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Af
             .par_iter_mut()
             .zip(&source)
             .for_each(|(m, p)| *m = map.apply(p).into());
-        pair(&target, (&tree, &moved), &mut partners);
+        pair(&target, (&target_set.tree, &moved), &mut partners);
         let next = solve_round(&source, &target, &partners, centre)?;
         let change = (next.linear - map.linear).norm() * extent
             + (next.moved_centre - map.moved_centre).norm();
@@ -110,12 +109,9 @@ pub fn fit_affine(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Option<Af
 
 /// The finite points of `points`, at most about [`MAX_POINTS`], taken evenly through them.
 fn evenly(points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    let finite: Vec<Vector3<f64>> = (points.iter())
-        .filter(|p| p.iter().all(|v| v.is_finite()))
-        .copied()
-        .collect();
-    let step = finite.len().div_ceil(MAX_POINTS).max(1);
-    finite.into_iter().step_by(step).collect()
+    let kept: Vec<Vector3<f64>> = points.iter().filter(|p| finite(p)).copied().collect();
+    let step = kept.len().div_ceil(MAX_POINTS).max(1);
+    kept.into_iter().step_by(step).collect()
 }
 
 /// Each moved source point's nearest target point (`partners.0`) and each target point's
@@ -203,8 +199,9 @@ impl PointSet {
 
 /// The finite points of `points` as coordinates.
 fn finite_coords(points: &[Vector3<f64>]) -> Vec<[f64; 3]> {
-    (points.iter())
-        .filter(|p| p.iter().all(|v| v.is_finite()))
+    points
+        .iter()
+        .filter(|p| finite(p))
         .map(|&p| p.into())
         .collect()
 }

@@ -1675,9 +1675,8 @@ mod tests {
     fn closed_mesh(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Mesh {
         let mut mesh = Mesh {
             vertices: points.iter().map(|p| p.cast::<f32>().into()).collect(),
-            normals: Vec::new(),
-            colors: Vec::new(),
             faces: faces.to_vec(),
+            ..Mesh::default()
         };
         mesh.compute_normals();
         mesh
@@ -1702,12 +1701,11 @@ mod tests {
             .iter()
             .map(|p| p + axis * (0.25 * p.dot(&axis)))
             .collect();
-        let reg = register_mesh_pair(
-            &closed_mesh(&source, &faces),
-            &closed_mesh(&stretched, &faces),
-            &Seeding::default(),
-        )
-        .unwrap();
+        let onto = |target: &[Vector3<f64>]| {
+            let (from, to) = (closed_mesh(&source, &faces), closed_mesh(target, &faces));
+            register_mesh_pair(&from, &to, &Seeding::default()).unwrap()
+        };
+        let reg = onto(&stretched);
         assert_eq!(reg.verdict(), SurfaceVerdict::Registered);
         assert!(reg.placed_affine && reg.round_trip.is_none());
         let reach = (source.iter().zip(&stretched))
@@ -1728,12 +1726,7 @@ mod tests {
                 )
             })
             .collect();
-        let reg = register_mesh_pair(
-            &closed_mesh(&source, &faces),
-            &closed_mesh(&bent, &faces),
-            &Seeding::default(),
-        )
-        .unwrap();
+        let reg = onto(&bent);
         assert!(!reg.placed_affine, "{:?}", reg.fit);
     }
 }
