@@ -2,9 +2,10 @@
 `nonrigid_register meshes` report the symmetric ones as sliding along themselves (NOTES 179)?
 
 Usage: python bench/symmetric_shapes.py [--count 12] [--seed 20261206] [--bin target/release/nonrigid_register] [--dir /tmp/symmetric]
-[--curvature 0.5] [--stretch S]
+[--curvature 0.5] [--stretch S] [--turn DEG] [--only asymmetric]
 (a Python with open3d 0.20, numpy and scipy). With --stretch, each shape is stretched by 1 + S along
-its longest principal axis instead of bent (NOTES 187).
+its longest principal axis instead of bent (NOTES 187). With --turn, each target is then turned by
+DEG degrees about a random axis and moved by 4.3 % of its diagonal (NOTES 196–197).
 
 Symmetric: spheroids, capped cylinders, tori and cones of random proportions and facet counts.
 Asymmetric: ellipsoids of three axes at least 15 % apart, spheres with random low-frequency
@@ -96,6 +97,15 @@ def stretch(v, amount):
     return v + amount * np.outer((v - c) @ axis, axis)
 
 
+def turn(v, degrees, rng):
+    """`v` turned by `degrees` about a random axis through its centroid and moved by 4.3 % of
+    its bounding-box diagonal in a random direction."""
+    c = v.mean(0)
+    axis, away = (d / np.linalg.norm(d) for d in rng.normal(size=(2, 3)))
+    r = Rotation.from_rotvec(np.radians(degrees) * axis)
+    return r.apply(v - c) + c + 0.043 * np.linalg.norm(np.ptp(v, 0)) * away
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--count", type=int, default=12)
@@ -104,9 +114,14 @@ def main():
     ap.add_argument("--dir", default="/tmp/symmetric")
     ap.add_argument("--curvature", type=float, default=0.5, help="the bend's, over the diagonal")
     ap.add_argument("--stretch", type=float, default=None, help="stretch by 1 + S along the longest axis instead")
+    ap.add_argument("--only", choices=("symmetric", "asymmetric"), default=None,
+                    help="register only these (the shapes made are the same)")
+    ap.add_argument("--turn", type=float, default=0.0,
+                    help="then turn the target by this many degrees about a random axis and move it by 4.3 %% of its diagonal")
     a = ap.parse_args()
     os.makedirs(a.dir, exist_ok=True)
     rng = np.random.default_rng(a.seed)
+    turns = np.random.default_rng([a.seed, 1])  # its own stream: the shapes stay those without --turn
     for kind, make in (("symmetric", symmetric), ("asymmetric", asymmetric)):
         for i in range(a.count):
             name, m = make(rng)
@@ -114,6 +129,10 @@ def main():
             v, f = place(m, rng)
             s, t, w = (os.path.join(a.dir, f"{kind}{i}_{k}.ply") for k in "stw")
             moved = bend(v, a.curvature) if a.stretch is None else stretch(v, a.stretch)
+            if a.turn:
+                moved = turn(moved, a.turn, turns)
+            if a.only not in (None, kind):
+                continue
             o3d.io.write_triangle_mesh(s, mesh(v, f))
             o3d.io.write_triangle_mesh(t, mesh(moved, f))
             r = subprocess.run([a.bin, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
@@ -123,12 +142,17 @@ def main():
                 print(f"{kind:10s} {name:22s} exit {r.returncode}: {r.stderr.strip()[-200:]}")
                 continue
             slip = j["slippage"]
+            aff = j.get("affine_slippage") or {}
+            nan = float("nan")
+            aff = {k: aff.get(k) if aff.get(k) is not None else nan for k in ("source", "target", "departure_from_rigid", "rigid_limit")}
             trip = j.get("round_trip")
             trip = "  –  " if trip is None else f"{trip['ratio']:.3f}"
             reach = np.linalg.norm(moved - v, axis=1).max()
             e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - moved, axis=1) / reach
             print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "
                   f"on_target {j['fit']['on_target']:.2f} slippage {slip['source']:.1e} {slip['target']:.1e} "
+                  f"affine {aff['source']:.1e} {aff['target']:.1e} departure {aff['departure_from_rigid']:.1e} (rigid under {aff['rigid_limit']:.1e}) "
+                  f"placed_affine {j.get('placed_affine')!s:5s} placed_rigid {j.get('placed_rigid')!s:5s} "
                   f"round trip {trip} "
                   f"error {100 * e.max():5.1f} / {100 * e.mean():5.2f} %")
 

@@ -28,10 +28,16 @@
 //! over 0.35 the surfaces do not fix where the points go, and it is not registered (module
 //! `round_trip`, NOTES 188); `seconds` counts both ways. Where it registered and the way back
 //! lies closer to its target (data cost per point), WARPED holds the source where the way back
-//! placed it (`placed_back`, NOTES 189). Where both meshes are closed, it registered, and a
-//! global affine map (no direction stretched more than twice) lays the source on the target at
-//! least as closely as the warp, WARPED holds the source carried by that map and the round trip
-//! is not run (`placed_affine`, NOTES 195). A point
+//! placed it (`placed_back`, NOTES 189). Where both meshes are closed and it registered, a
+//! rigid motion or else a global affine map (no direction stretched more than twice), each
+//! fitted by point-to-plane closest point, that lays the source on the target at least as
+//! closely as the warp is taken: WARPED holds the source carried by it and the round trip is not
+//! run (`placed_rigid`, `placed_affine`, NOTES 195 and 197). `affine_slippage` gives the share of
+//! each mesh's least-constrained affine motion that moves it off itself and the answer's
+//! `departure_from_rigid` (root mean square, in the meshes' unit): where a mesh slides along
+//! itself under a stretch (under 1e-3: an ellipsoid, a stretched torus) and the answer departs
+//! from rigid by more than `rigid_limit` (a tenth of the node spacing), the same answer
+//! stretched along the surface fits as well, and it is not registered (NOTES 197). A point
 //! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
 //! triangles after those wound against their neighbours are turned over (`faces_turned`, per
 //! mesh, with a warning; NOTES 141). A registration that did not register writes its outputs
@@ -81,9 +87,10 @@ use dynamap_slam::mesh::Mesh;
 use dynamap_slam::nonrigid::{
     clean_surface_settings, frame_points, mask_near_nodes, median_distance, mesh_points,
     register_frames, register_mesh_or_cloud, register_mesh_pair, register_surfaces,
-    surface_diagonal, FrameError, FrameSettings, FrameVerdict, FrameView, RegisterSummary,
-    RoundTrip, Seeding, Slippage, SurfaceMesh, SurfaceRegistration, SurfaceVerdict,
-    MAX_FLUSH_FRACTION, MAX_OFF_FRACTION, MAX_ROUND_TRIP, MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
+    surface_diagonal, AffineSlide, FrameError, FrameSettings, FrameVerdict, FrameView,
+    RegisterSummary, RoundTrip, Seeding, Slippage, SurfaceMesh, SurfaceRegistration,
+    SurfaceVerdict, MAX_AFFINE_SLIPPAGE, MAX_FLUSH_FRACTION, MAX_OFF_FRACTION, MAX_ROUND_TRIP,
+    MAX_SLIPPAGE, MIN_MATCHED_FRACTION,
 };
 use dynamap_slam::nonrigid::{MeshRole, SurfaceError, AREA_FACTOR, MIN_FACING, MIN_SHARE};
 use dynamap_slam::synthetic::plate;
@@ -701,6 +708,19 @@ fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
             );
             false.into()
         }
+        SurfaceVerdict::AffineAmbiguous(slide) => {
+            tracing::warn!(
+                "not registered: the surfaces fit, but one slides along itself under a stretch \
+                 or shear (affine slippage {:.1e} and {:.1e}, under {MAX_AFFINE_SLIPPAGE:.0e}: \
+                 an ellipsoid, say) and the answer departs from rigid by {:.3e} (at most {:.3e} \
+                 counts as rigid), so the same answer stretched along the surface fits as well",
+                slide.ratios[0],
+                slide.ratios[1],
+                slide.departure,
+                slide.limit
+            );
+            false.into()
+        }
         SurfaceVerdict::Inconsistent(trip) => {
             tracing::warn!(
                 "not registered: the surfaces fit, but the target registered back onto the \
@@ -732,6 +752,16 @@ fn slippage_json(slippage: Option<[Slippage; 2]>) -> serde_json::Value {
         serde_json::Value::Null,
         |[s, t]| serde_json::json!({"source": s.ratio, "target": t.ratio, "limit": MAX_SLIPPAGE}),
     )
+}
+
+/// The share of each surface's least-constrained affine motion that leaves it and the answer's
+/// departure from rigid with its limit (module `affine_slippage`), as JSON.
+fn affine_slippage_json(slide: Option<AffineSlide>) -> serde_json::Value {
+    slide.map_or(serde_json::Value::Null, |a| {
+        let departure = a.departure.is_finite().then_some(a.departure);
+        serde_json::json!({"source": a.ratios[0], "target": a.ratios[1], "limit": MAX_AFFINE_SLIPPAGE,
+            "departure_from_rigid": departure, "rigid_limit": a.limit})
+    })
 }
 
 /// The flow's scores as JSON.
@@ -904,9 +934,11 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     json["registered"] = surface_verdict_json(verdict);
     json["target_normals_turned"] = reg.target_normals_turned.into();
     json["slippage"] = slippage_json(reg.slippage);
+    json["affine_slippage"] = affine_slippage_json(reg.affine_slide());
     json["round_trip"] = round_trip_json(reg.round_trip);
     json["placed_back"] = reg.placed_back.into();
     json["placed_affine"] = reg.placed_affine.into();
+    json["placed_rigid"] = reg.placed_rigid.into();
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,

@@ -280,9 +280,13 @@ def register_meshes(
     moves it off itself, under 1e-3 for a symmetry; None for a point cloud), round_trip (the
     target registered back onto the source: error, moved and their ratio; not
     registered over 0.35; None where it was not run), placed_back (whether the vertices are
-    where the way back placed them) and placed_affine (whether they are the source carried by a
-    global affine map that lays it on the target as closely as the warp did; round_trip is then
-    None)."""
+    where the way back placed them), placed_rigid and placed_affine (whether they are the source
+    carried by a rigid motion, or else a global affine map, that lays it on the target as closely
+    as the warp did; two closed meshes; round_trip is then None), affine_slippage ([source,
+    target]: the share of each mesh's least-constrained affine motion that moves it off itself;
+    under 1e-3, an ellipsoid, registered is False unless the vertices are rigid) and
+    departure_from_rigid (the vertices' root-mean-square distance from the source's nearest
+    rigid motion; None where not measured)."""
 
 def register_frames(
     source_depth: ArrayLike,

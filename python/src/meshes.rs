@@ -223,9 +223,14 @@ pub fn write_mesh(
 /// a ratio over 0.35 means the surfaces do not fix where the points go, and registered is False.
 /// None where it was not run. seconds counts both ways. placed_back: whether the vertices are
 /// where the way back placed the source (it registered, and the way back lay closer to its
-/// target). placed_affine: whether the vertices are the source carried by a global affine map
-/// (one that stretches no direction more than twice and lays the source on the target as
-/// closely as the warp did; round_trip is then None).
+/// target). placed_rigid and placed_affine: whether the vertices are the source carried by a
+/// rigid motion, or else by a global affine map (one that stretches no direction more than
+/// twice), that lays the source on the target as closely as the warp did (two closed meshes;
+/// round_trip is then None). affine_slippage: for two meshes, the share of each one's
+/// least-constrained affine motion that moves it off itself (source, target); where either is
+/// under 1e-3 (an ellipsoid) and the vertices depart from a rigid motion of the source by more
+/// than a tenth of the node spacing (departure_from_rigid, root mean square), registered is
+/// False.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -306,5 +311,8 @@ pub fn register_meshes<'py>(
     d.set_item("round_trip", trip.transpose()?)?;
     d.set_item("placed_back", reg.placed_back)?;
     d.set_item("placed_affine", reg.placed_affine)?;
+    d.set_item("placed_rigid", reg.placed_rigid)?;
+    d.set_item("affine_slippage", reg.affine_slippage)?;
+    d.set_item("departure_from_rigid", reg.departure_from_rigid)?;
     Ok(d)
 }

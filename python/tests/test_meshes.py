@@ -70,8 +70,14 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     trip = tool["round_trip"]
     assert result["round_trip"] == pytest.approx({k: trip[k] for k in ("error", "moved", "ratio")}, rel=1e-9)
     assert result["round_trip"]["ratio"] < trip["limit"], trip
-    # an open sheet is never laid by an affine map (NOTES 195); both say so
+    # an open sheet is never laid by an affine map or a rigid motion (NOTES 195, 197); both say so
     assert result["placed_affine"] is False and tool["placed_affine"] is False
+    assert result["placed_rigid"] is False and tool["placed_rigid"] is False
+    # nor does it slide under a stretch: both give the same affine slippage, far above its limit
+    affine = tool["affine_slippage"]
+    assert result["affine_slippage"] == pytest.approx([affine["source"], affine["target"]], rel=1e-9)
+    assert min(result["affine_slippage"]) > 10 * affine["limit"], affine
+    assert result["departure_from_rigid"] == pytest.approx(affine["departure_from_rigid"], rel=1e-9)
     # the warped sheet lies on the bent mesh (a plain sheet may slide along itself, and the
     # points land between the target's vertices: issue 26, NOTES 84)
     before, after = off_surface(v, columns=21), off_surface(result["vertices"], columns=21)

@@ -27,6 +27,7 @@
 //!   [`colour_check`]: whether the colour agrees with a frame registration, patch by patch.
 
 pub mod affine_fit;
+pub mod affine_slippage;
 mod band;
 pub mod boundary;
 mod cell_nearest;
@@ -66,6 +67,7 @@ mod system;
 mod voxel_bindings;
 mod weld;
 
+pub use affine_slippage::{AffineSlide, MAX_AFFINE_SLIPPAGE};
 pub use boundary::{rim_matches, RimMatches};
 pub use chroma::{chromaticity, ChromaImage, ChromaReferences};
 pub use cloud_target::CloudTarget;

@@ -28,7 +28,7 @@
 
 use super::extent::finite;
 use super::orientation::{boundary_edges, vertex_areas};
-use nalgebra::{Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
+use nalgebra::{Matrix3, Matrix3x6, Matrix6, SMatrix, Vector3, Vector6};
 
 /// Below this share of a motion's displacement leaving the surface, the surface slides along
 /// itself. Measured (NOTES 179): Open3D's exactly symmetric primitives 2·10⁻⁷–8·10⁻⁵; of 42
@@ -69,41 +69,86 @@ pub fn slippage(
     faces: &[[u32; 3]],
     band: f64,
 ) -> Option<Slippage> {
-    let usable: Vec<[u32; 3]> = faces
-        .iter()
-        .filter(|f| {
-            f.iter()
-                .all(|&v| points.get(v as usize).is_some_and(finite))
-        })
-        .copied()
-        .collect();
-    let areas = vertex_areas(points, &usable);
-    let total: f64 = areas.iter().sum();
-    if total.is_nan() || total <= 0.0 {
-        return None;
-    }
-    // the area-weighted centroid: each vertex once, by its third of its faces' area
-    let centre = (areas.iter().zip(points))
-        .filter(|(&a, _)| a > 0.0)
-        .map(|(&a, p)| a * p)
-        .sum::<Vector3<f64>>()
-        / total;
-    let scale = super::extent::surface_diagonal(points, &usable);
-    let at = |p: &Vector3<f64>| (p - centre) / scale;
-    let (mut c, mut b) = (Matrix6::zeros(), Matrix6::zeros());
-    for (k, a) in areas.iter().enumerate().filter(|(_, &a)| a > 0.0) {
-        let p = at(&points[k]);
-        let w = a / total;
-        b += w * displacement(&p);
-        let normal = normals.get(k).filter(|n| finite(n));
-        if let Some(n) = normal.and_then(|n| n.try_normalize(0.0)) {
-            c += w * constraint(&p, &n);
-        }
-    }
-    for (q, m, length) in boundary_crossings(points, &usable) {
-        c += (length * band / total) * constraint(&at(&q), &m);
-    }
+    let (c, b) = Samples::new(points, normals, faces, band)?.sums(constraint, displacement);
     least_motion(c, b)
+}
+
+/// A mesh's vertices and boundary crossings as the measures of slippage weigh them: points
+/// about the area-weighted centroid in units of the surface's diagonal, each vertex with its
+/// share of the area (and its unit normal where it has a usable one), each boundary edge's
+/// midpoint with its outward direction and the band's share `ℓ h / A` (module docs).
+pub(super) struct Samples {
+    /// (p, n, a_k / A) per vertex of positive area.
+    pub surface: Vec<(Vector3<f64>, Option<Vector3<f64>>, f64)>,
+    /// (q, m, ℓ h / A) per boundary edge.
+    pub rim: Vec<(Vector3<f64>, Vector3<f64>, f64)>,
+}
+
+impl Samples {
+    /// The samples of the mesh `faces` over `points` with the vertex `normals` and a boundary
+    /// band `band` wide; `None` where the mesh has no area. Faces that refer past `points` or
+    /// touch a non-finite point are left out, and so are normals that are missing, zero or
+    /// not finite.
+    pub fn new(
+        points: &[Vector3<f64>],
+        normals: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+        band: f64,
+    ) -> Option<Self> {
+        let usable: Vec<[u32; 3]> = faces
+            .iter()
+            .filter(|f| {
+                f.iter()
+                    .all(|&v| points.get(v as usize).is_some_and(finite))
+            })
+            .copied()
+            .collect();
+        let areas = vertex_areas(points, &usable);
+        let total: f64 = areas.iter().sum();
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        // the area-weighted centroid: each vertex once, by its third of its faces' area
+        let centre = (areas.iter().zip(points))
+            .filter(|(&a, _)| a > 0.0)
+            .map(|(&a, p)| a * p)
+            .sum::<Vector3<f64>>()
+            / total;
+        let scale = super::extent::surface_diagonal(points, &usable);
+        let at = |p: &Vector3<f64>| (p - centre) / scale;
+        let surface = (areas.iter().enumerate())
+            .filter(|(_, &a)| a > 0.0)
+            .map(|(k, a)| {
+                let normal = normals.get(k).filter(|n| finite(n));
+                let n = normal.and_then(|n| n.try_normalize(0.0));
+                (at(&points[k]), n, a / total)
+            })
+            .collect();
+        let rim = (boundary_crossings(points, &usable).into_iter())
+            .map(|(q, m, length)| (at(&q), m, length * band / total))
+            .collect();
+        Some(Self { surface, rim })
+    }
+
+    /// C = Σ w `constraint`(p, n) over the vertices with a normal and the boundary crossings,
+    /// and B = Σ w `displacement`(p) over the vertices (module docs), for motions of N unknowns.
+    pub fn sums<const N: usize>(
+        &self,
+        constraint: impl Fn(&Vector3<f64>, &Vector3<f64>) -> SMatrix<f64, N, N>,
+        displacement: impl Fn(&Vector3<f64>) -> SMatrix<f64, N, N>,
+    ) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+        let (mut c, mut b) = (SMatrix::zeros(), SMatrix::zeros());
+        for (p, n, w) in &self.surface {
+            b += *w * displacement(p);
+            if let Some(n) = n {
+                c += *w * constraint(p, n);
+            }
+        }
+        for (q, m, w) in &self.rim {
+            c += *w * constraint(q, m);
+        }
+        (c, b)
+    }
 }
 
 /// r rᵀ, r = (p × n, n): what a point-to-plane term at p with normal n measures of a twist.
@@ -160,12 +205,12 @@ fn least_motion(c: Matrix6<f64>, b: Matrix6<f64>) -> Option<Slippage> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::nonrigid::orientation::tests::sphere;
 
     /// Outward unit normals of a mesh: its vertices' summed face normals.
-    fn normals(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
+    pub(crate) fn normals(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
         let mut n = vec![Vector3::zeros(); points.len()];
         for f in faces {
             let [a, b, c] = f.map(|v| points[v as usize]);

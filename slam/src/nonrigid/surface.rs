@@ -4,7 +4,8 @@
 //! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
-use super::affine_fit::{fit_affine, AffineMap, PointSet};
+use super::affine_fit::{fit_affine, fit_rigid, AffineMap, PointSet};
+use super::affine_slippage::{affine_slippage, departure_from_rigid, AffineSlide, RIGID_SHARE};
 use super::boundary::{rim_matches, RimMatches};
 use super::cloud_target::CloudTarget;
 use super::coverage::{sampling_gap, sampling_spacing};
@@ -176,6 +177,12 @@ pub struct SurfaceRegistration {
     /// [`register_mesh_or_cloud`] or [`register_mesh_pair`] measured them (both surfaces
     /// meshes); `None` otherwise.
     pub slippage: Option<[Slippage; 2]>,
+    /// The source's and the target's least affine slippage ratios (module `affine_slippage`),
+    /// where the rigid ones were measured.
+    pub affine_slippage: Option<[f64; 2]>,
+    /// How far [`Self::points`] are from a rigid motion of the source
+    /// (`affine_slippage::departure_from_rigid`), where the affine slippage was measured.
+    pub departure_from_rigid: Option<f64>,
     /// The round trip (module `round_trip`): the target registered back onto the source, where
     /// [`register_mesh_or_cloud`] or [`register_mesh_pair`] ran it (the registration fitted and
     /// neither surface slides); `None` otherwise.
@@ -189,14 +196,32 @@ pub struct SurfaceRegistration {
     /// closely as the warp did. The graph and the fit are still the warp's, and the round trip
     /// is not run.
     pub placed_affine: bool,
+    /// Whether [`Self::points`] and [`Self::normals`] are the source carried by a rigid motion
+    /// (module `affine_fit`) that lays it on the target at least as closely as the warp did:
+    /// of the answers that fit, the one that deforms nothing (NOTES 197). The graph and the fit
+    /// are still the warp's, and the round trip is not run.
+    pub placed_rigid: bool,
 }
 
 impl SurfaceRegistration {
     /// Whether the source ended on the target and covers it ([`SurfaceFit::verdict`]), and if
     /// so, whether either surface slides along itself ([`SurfaceVerdict::Ambiguous`]: a
-    /// registration that fits may still have its points anywhere along the slide), and whether
-    /// the round trip brings the points back ([`SurfaceVerdict::Inconsistent`]).
+    /// registration that fits may still have its points anywhere along the slide), whether
+    /// the round trip brings the points back ([`SurfaceVerdict::Inconsistent`]), and whether
+    /// either surface slides under a stretch while the answer is not rigid
+    /// ([`SurfaceVerdict::AffineAmbiguous`], module `affine_slippage`).
     pub fn verdict(&self) -> SurfaceVerdict {
+        match (self.verdict_of_the_fit(), self.affine_slide()) {
+            (SurfaceVerdict::Registered, Some(a)) if a.is_free() => {
+                SurfaceVerdict::AffineAmbiguous(a)
+            }
+            (verdict, _) => verdict,
+        }
+    }
+
+    /// [`Self::verdict`] before the affine slide is judged: the fit, the rigid slippage and the
+    /// round trip.
+    fn verdict_of_the_fit(&self) -> SurfaceVerdict {
         let verdict = self.fit.verdict();
         let freest = self
             .slippage
@@ -209,6 +234,17 @@ impl SurfaceRegistration {
             (_, Some(r)) if !r.holds() => SurfaceVerdict::Inconsistent(r),
             _ => verdict,
         }
+    }
+
+    /// Both surfaces' affine slippage beside the answer's departure from rigid (module
+    /// `affine_slippage`), where the slippage was measured; a departure not measured is NaN,
+    /// which [`AffineSlide::is_free`] counts as not rigid.
+    pub fn affine_slide(&self) -> Option<AffineSlide> {
+        self.affine_slippage.map(|ratios| AffineSlide {
+            ratios,
+            departure: self.departure_from_rigid.unwrap_or(f64::NAN),
+            limit: RIGID_SHARE * self.fit.tolerance,
+        })
     }
 }
 
@@ -517,9 +553,12 @@ impl Passes {
             fit,
             target_normals_turned: false,
             slippage: None,
+            affine_slippage: None,
+            departure_from_rigid: None,
             round_trip: None,
             placed_back: false,
             placed_affine: false,
+            placed_rigid: false,
         })
     }
 }
@@ -570,15 +609,16 @@ fn for_the_way_back(
 }
 
 /// Registers `source` onto `target` by `there` and, beside it, `target` back onto `source` by
-/// `back` (the same procedure with the roles swapped), then measures the slippage (meshes:
-/// `band` given) and, where the verdict is then [`SurfaceVerdict::Registered`], the round trip
-/// (module `round_trip`). Where the verdict is still registered after it and the way back lies
-/// closer to its target ([`back_fits_closer`]), the points are where the way back placed them
-/// ([`SurfaceRegistration::placed_back`]). The two directions run at once (`rayon::join`): each
-/// one's parallel loops leave part of the cores idle, and the pair took 1.0–1.4 times one
-/// direction's time on the camel against 2 times one after the other (NOTES 188). The
-/// summary's seconds are the wall time of both. An error on the way back is returned where the check is needed: a check
-/// that could not run must not pass.
+/// `back` (the same procedure with the roles swapped) and, where both meshes are closed, fits a
+/// rigid motion and an affine map of the source onto the target (module `affine_fit`). Then
+/// measures the slippage, rigid and affine (meshes: `band` given), and, where the fit registers
+/// and nothing slides rigidly, places the source ([`place`]: by a map, or by the warp judged by
+/// the round trip); last, the answer's departure from rigid, which the verdict weighs against
+/// the affine slippage ([`SurfaceRegistration::verdict`]). The directions and the maps run at
+/// once (`rayon::join`): each one's parallel loops leave part of the cores idle, and the pair
+/// took 1.0–1.4 times one direction's time on the camel against 2 times one after the other
+/// (NOTES 188). The summary's seconds are the wall time of all. An error on the way back is
+/// returned where the check is needed: a check that could not run must not pass.
 fn both_ways(
     (source, target): (SurfaceMesh<'_>, SurfaceMesh<'_>),
     there: impl FnOnce() -> Result<SurfaceRegistration, SurfaceError> + Send,
@@ -588,23 +628,52 @@ fn both_ways(
     let start = std::time::Instant::now();
     // fitted only where it may be taken (explains_as_closely)
     let closed = is_closed(source) && is_closed(target);
-    let affine = || {
-        closed
-            .then(|| fit_affine(source.points, target.points))
-            .flatten()
+    let target_surface = (target.points, target.normals);
+    let maps = || {
+        let rigid = || fit_rigid(source.points, target_surface, None);
+        let affine = || fit_affine(source.points, target_surface);
+        closed.then(|| rayon::join(rigid, affine).into())
     };
-    let (reg, (backward, affine)) = rayon::join(there, || rayon::join(back, affine));
+    let (reg, (backward, maps)) = rayon::join(there, || rayon::join(back, maps));
     let mut reg = reg?;
     if let Some(band) = band {
         reg = with_slippage(reg, source, target, band);
     }
-    if reg.verdict() != SurfaceVerdict::Registered {
-        return Ok(reg);
+    if reg.verdict_of_the_fit() == SurfaceVerdict::Registered {
+        place(
+            &mut reg,
+            (source, target),
+            maps.unwrap_or_default(),
+            backward,
+        )?;
     }
-    if let Some(map) = affine.filter(|m| explains_as_closely(m, &reg, source, target)) {
-        take_the_affine_map(&mut reg, source, &map);
-        reg.summary.seconds = start.elapsed().as_secs_f64();
-        return Ok(reg);
+    if reg.affine_slippage.is_some() {
+        reg.departure_from_rigid = departure_from_rigid(source.points, &reg.points);
+    }
+    reg.summary.seconds = start.elapsed().as_secs_f64();
+    Ok(reg)
+}
+
+/// Where a registration that fits places the source, the least deformed first (NOTES 197): a
+/// `rigid` motion, or else a global `affine` map (both fitted beside the registrations, closed
+/// meshes alone), that lays it on the target at least as closely as the warp
+/// ([`explains_as_closely`]); else the warp's points, judged by the round trip against
+/// `backward` and moved to the way back's where that lies closer.
+fn place(
+    reg: &mut SurfaceRegistration,
+    (source, target): (SurfaceMesh<'_>, SurfaceMesh<'_>),
+    [rigid, affine]: [Option<AffineMap>; 2],
+    backward: Result<SurfaceRegistration, SurfaceError>,
+) -> Result<(), SurfaceError> {
+    if let Some(map) = rigid.filter(|m| explains_as_closely(m, reg, source, target)) {
+        take_the_map(reg, source, &map);
+        reg.placed_rigid = true;
+        return Ok(());
+    }
+    if let Some(map) = affine.filter(|m| explains_as_closely(m, reg, source, target)) {
+        take_the_map(reg, source, &map);
+        reg.placed_affine = true;
+        return Ok(());
     }
     let backward = backward?;
     reg.round_trip = RoundTrip::measure(
@@ -613,12 +682,11 @@ fn both_ways(
         (target.points, &backward.points),
         (reg.fit.tolerance, reg.fit.median_distance),
     );
-    if reg.verdict() == SurfaceVerdict::Registered && back_fits_closer(&reg, &backward) {
-        take_the_way_back(&mut reg, source, target, &backward.points);
+    if reg.verdict_of_the_fit() == SurfaceVerdict::Registered && back_fits_closer(reg, &backward) {
+        take_the_way_back(reg, source, target, &backward.points);
         reg.placed_back = true;
     }
-    reg.summary.seconds = start.elapsed().as_secs_f64();
-    Ok(reg)
+    Ok(())
 }
 
 /// Whether the way back (`backward`, the target registered onto the source) lies closer to its
@@ -633,7 +701,7 @@ fn back_fits_closer(reg: &SurfaceRegistration, backward: &SurfaceRegistration) -
 
 /// Whether `map` (fitted only where both meshes are closed) is moderate
 /// ([`AffineMap::is_moderate`]) and lays the source on the target at least as closely as the
-/// warp laid it ([`PointSet::two_way_median`]). A
+/// warp laid it ([`PointSet::two_way_median`], within a millionth of the fit's tolerance). A
 /// featureless closed shape stretched lies on its target under many warps; the affine map
 /// nearest the identity is the stretch, where the warp had slid the surface along itself by
 /// 17–117 % of the displacement (NOTES 195). Bent shapes, the camel's poses and noisy targets
@@ -651,7 +719,9 @@ fn explains_as_closely(
     }
     let moved: Vec<Vector3<f64>> = source.points.iter().map(|p| map.apply(p)).collect();
     let target = PointSet::new(target.points);
-    target.two_way_median(&moved) <= target.two_way_median(&reg.points)
+    // a millionth of the fit's tolerance: both at rounding's level are ties
+    let tie = 1e-6 * reg.fit.tolerance;
+    target.two_way_median(&moved) <= target.two_way_median(&reg.points) + tie
 }
 
 /// Whether `mesh` has faces and no boundary edge.
@@ -661,7 +731,7 @@ fn is_closed(mesh: SurfaceMesh<'_>) -> bool {
 
 /// Moves `reg`'s points and normals to where `map` carries the source's (a normal the map
 /// cannot carry, A singular or the normal sent to 0, is left as the source's).
-fn take_the_affine_map(reg: &mut SurfaceRegistration, source: SurfaceMesh<'_>, map: &AffineMap) {
+fn take_the_map(reg: &mut SurfaceRegistration, source: SurfaceMesh<'_>, map: &AffineMap) {
     let normals = map.normal_transform();
     for ((p, n), (q, m)) in
         (reg.points.iter_mut().zip(&mut reg.normals)).zip(source.points.iter().zip(source.normals))
@@ -672,7 +742,6 @@ fn take_the_affine_map(reg: &mut SurfaceRegistration, source: SurfaceMesh<'_>, m
             .unwrap_or(*m);
     }
     reg.round_trip = None;
-    reg.placed_affine = true;
 }
 
 /// Moves `reg`'s points and normals to where the way back places them ([`placed_back`]), where
@@ -707,6 +776,8 @@ fn with_slippage(
 ) -> SurfaceRegistration {
     let slip = |m: &SurfaceMesh<'_>| slippage(m.points, m.normals, m.faces, band);
     reg.slippage = slip(&source).zip(slip(&target)).map(|(s, t)| [s, t]);
+    let affine = |m: &SurfaceMesh<'_>| affine_slippage(m.points, m.normals, m.faces, band);
+    reg.affine_slippage = affine(&source).zip(affine(&target)).map(|(s, t)| [s, t]);
     reg
 }
 
@@ -1682,39 +1753,84 @@ mod tests {
         mesh
     }
 
-    /// An ellipsoid (axes 0.3, 0.21, 0.14 m, turned) stretched by 1.25 along its long axis lies
-    /// on its target under many warps, and the warp's regulariser slides it (NOTES 195); the
-    /// affine map that lays it on the target is the stretch, and is taken: every vertex within
-    /// 1 % of the largest displacement. Bent, it keeps the warp.
-    #[test]
-    fn a_stretched_ellipsoid_is_placed_by_its_affine_map_and_a_bent_one_by_the_warp() {
+    /// A sphere mesh made an ellipsoid (axes 0.3, 0.21, 0.14 m, turned), its radius first
+    /// modulated by `bumps` (a function of the unit sphere's point), with its faces and its
+    /// long axis.
+    fn egg(
+        bumps: impl Fn(&Vector3<f64>) -> f64,
+    ) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>, Vector3<f64>) {
         use crate::nonrigid::orientation::tests::sphere;
-        use nalgebra::Rotation3;
         let (unit, faces) = sphere(1.0, Vector3::zeros(), 16);
-        let turn = Rotation3::from_euler_angles(0.4, -0.7, 1.1);
-        let source: Vec<Vector3<f64>> = unit
-            .iter()
-            .map(|p| turn * Vector3::new(0.3 * p.x, 0.21 * p.y, 0.14 * p.z))
+        let turn = nalgebra::Rotation3::from_euler_angles(0.4, -0.7, 1.1);
+        let points = (unit.iter())
+            .map(|p| turn * (bumps(p) * p).component_mul(&Vector3::new(0.3, 0.21, 0.14)))
             .collect();
-        let axis = turn * Vector3::x();
-        let stretched: Vec<Vector3<f64>> = source
-            .iter()
-            .map(|p| p + axis * (0.25 * p.dot(&axis)))
-            .collect();
-        let onto = |target: &[Vector3<f64>]| {
-            let (from, to) = (closed_mesh(&source, &faces), closed_mesh(target, &faces));
-            register_mesh_pair(&from, &to, &Seeding::default()).unwrap()
-        };
-        let reg = onto(&stretched);
-        assert_eq!(reg.verdict(), SurfaceVerdict::Registered);
-        assert!(reg.placed_affine && reg.round_trip.is_none());
-        let reach = (source.iter().zip(&stretched))
+        (points, faces, turn * Vector3::x())
+    }
+
+    /// `source` onto `target` (both closed, over `faces`) by `register_mesh_pair`, and the
+    /// largest distance of a result from its target point over the largest displacement.
+    fn registered_onto(
+        source: &[Vector3<f64>],
+        target: &[Vector3<f64>],
+        faces: &[[u32; 3]],
+    ) -> (SurfaceRegistration, f64) {
+        let (from, to) = (closed_mesh(source, faces), closed_mesh(target, faces));
+        let reg = register_mesh_pair(&from, &to, &Seeding::default()).unwrap();
+        let reach = (source.iter().zip(target))
             .map(|(p, q)| (q - p).norm())
             .fold(0.0, f64::max);
-        let worst = (reg.points.iter().zip(&stretched))
+        let worst = (reg.points.iter().zip(target))
             .map(|(p, q)| (p - q).norm())
             .fold(0.0, f64::max);
-        assert!(worst < 0.01 * reach, "{worst} of {reach}");
+        (reg, worst / reach)
+    }
+
+    /// A bumpy egg stretched by 1.25 along its long axis lies on its target under many warps,
+    /// and the warp's regulariser slides it (NOTES 195); the affine map that lays it on the
+    /// target is the stretch, and is taken: every vertex within 1 % of the largest
+    /// displacement. A plain ellipsoid has a family of such maps (module `affine_slippage`), and
+    /// stretched it is reported ambiguous whichever the registration chose (NOTES 197); moved
+    /// rigidly, it is placed by the rigid motion; bent, by neither map.
+    #[test]
+    fn a_stretched_egg_is_placed_by_its_affine_map_and_a_stretched_ellipsoid_is_ambiguous() {
+        let bumps = |p: &Vector3<f64>| {
+            1.0 + 0.15 * (4.0 * p.x + 1.0).sin() + 0.1 * (5.0 * p.y - 2.0 * p.z).sin()
+        };
+        let stretch = |(points, faces, axis): (Vec<Vector3<f64>>, Vec<[u32; 3]>, Vector3<f64>)| {
+            let moved: Vec<Vector3<f64>> = (points.iter())
+                .map(|p| p + axis * (0.25 * p.dot(&axis)))
+                .collect();
+            (points, moved, faces)
+        };
+        let (source, target, faces) = stretch(egg(bumps));
+        let (reg, worst) = registered_onto(&source, &target, &faces);
+        assert_eq!(reg.verdict(), SurfaceVerdict::Registered);
+        assert!(reg.placed_affine && reg.round_trip.is_none());
+        assert!(worst < 0.01, "{worst}");
+        let (source, target, faces) = stretch(egg(|_| 1.0));
+        let (reg, _) = registered_onto(&source, &target, &faces);
+        let SurfaceVerdict::AffineAmbiguous(slide) = reg.verdict() else {
+            panic!("{:?} {:?}", reg.verdict(), reg.affine_slide());
+        };
+        assert!(
+            slide.ratios[0] < 1e-4 && slide.departure > 10.0 * slide.limit,
+            "{slide:?}"
+        );
+        // moved and turned, it is placed by the rigid motion: of the answers that fit, the one
+        // that deforms nothing (the warp alone slid it along itself, NOTES 197)
+        let turn = nalgebra::Rotation3::from_euler_angles(0.3, 0.2, -0.5);
+        let moved: Vec<Vector3<f64>> = (source.iter())
+            .map(|p| turn * p + Vector3::new(0.02, 0.0, 0.01))
+            .collect();
+        let (reg, worst) = registered_onto(&source, &moved, &faces);
+        assert_eq!(
+            reg.verdict(),
+            SurfaceVerdict::Registered,
+            "{:?}",
+            reg.affine_slide()
+        );
+        assert!(reg.placed_rigid && worst < 1e-3, "{worst}");
         let bent: Vec<Vector3<f64>> = source
             .iter()
             .map(|p| {
@@ -1726,7 +1842,7 @@ mod tests {
                 )
             })
             .collect();
-        let reg = onto(&bent);
-        assert!(!reg.placed_affine, "{:?}", reg.fit);
+        let (reg, _) = registered_onto(&source, &bent, &faces);
+        assert!(!reg.placed_affine && !reg.placed_rigid, "{:?}", reg.fit);
     }
 }

@@ -33,6 +33,7 @@
 //! its points anywhere along it (module `round_trip`);
 //! [`SurfaceRegistration::verdict`](super::SurfaceRegistration::verdict) adds those checks.
 
+use super::affine_slippage::AffineSlide;
 use super::graph::DeformationGraph;
 use super::register::Target;
 use super::round_trip::RoundTrip;
@@ -90,6 +91,11 @@ pub enum SurfaceVerdict {
     /// source's points back where they started (module `round_trip`): the surfaces do not fix
     /// where the points go, and the two directions chose differently.
     Inconsistent(RoundTrip),
+    /// The fit registered and neither surface slides rigidly, but one of them slides along
+    /// itself under a stretch or shear (module `affine_slippage`: an ellipsoid, a stretched
+    /// torus) and the answer is not rigid: the same answer composed with that motion fits as
+    /// well, and only the regulariser chose among them.
+    AffineAmbiguous(AffineSlide),
 }
 
 impl SurfaceFit {
