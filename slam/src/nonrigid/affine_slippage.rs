@@ -31,9 +31,11 @@ type Matrix12 = SMatrix<f64, 12, 12>;
 type Vector12 = SVector<f64, 12>;
 
 /// Below this share of an affine motion's displacement leaving the surface, the surface slides
-/// along itself under a stretch or shear (NOTES 197: ellipsoids and stretched tori, cones,
-/// cylinders and spheroids 10⁻¹⁵–5·10⁻⁴; bumpy blobs, boxes, sheets and the camel
-/// 5·10⁻³ and over). The rigid measure's limit, [`super::slippage::MAX_SLIPPAGE`].
+/// along itself under a stretch or shear. Measured (NOTES 197): ellipsoids 2–3·10⁻⁷; the
+/// targets of stretched tori, cones, cylinders and spheroids 10⁻¹⁵–1.3·10⁻³ (they slide
+/// rigidly as well); bumpy blobs from 7.5·10⁻⁴ up (the flattest are nearly ellipsoids); sheets
+/// 2.8·10⁻³, boxes 2·10⁻² and the camel 0.094 and over. The rigid measure's limit,
+/// [`super::slippage::MAX_SLIPPAGE`].
 pub const MAX_AFFINE_SLIPPAGE: f64 = 1e-3;
 
 /// The share of the fit's tolerance (the node spacing) by which an answer may depart from a
@@ -69,7 +71,7 @@ impl AffineSlide {
 
 /// The root mean square distance of `placed` (an answer, in the source's order) from `source`
 /// carried by the rigid motion that fits them best ([`AffineMap::nearest_rigid`]), over the
-/// pairs where both are finite; `None` where that motion is.
+/// pairs where both are finite; `None` where that motion is `None`.
 pub fn departure_from_rigid(source: &[Vector3<f64>], placed: &[Vector3<f64>]) -> Option<f64> {
     let motion = AffineMap::nearest_rigid(source, placed)?;
     let (sum, count) = (source.iter().zip(placed))
