@@ -21,6 +21,7 @@
 //! a stretch of 1.3 turned 45° with it (NOTES 197).
 
 use super::extent::{centroid, finite};
+use super::slippage::rigid_row;
 use crate::eval::umeyama;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, Point3, Rotation3, SMatrix, SVector, Vector3};
@@ -96,18 +97,16 @@ pub fn fit_affine(
     source: &[Vector3<f64>],
     (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
 ) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Affine, None)
+    fit(source, (target, normals), Model::Affine)
 }
 
-/// The rigid motion that lays `source` on `target` by the same rounds with a rigid step,
-/// started at `start` (its linear part a rotation) or, without one, at the translation between
-/// the centroids; `None` as for [`fit_affine`].
+/// The rigid motion that lays `source` on `target` by the same rounds with a rigid step, from
+/// the same start; `None` as for [`fit_affine`].
 pub fn fit_rigid(
     source: &[Vector3<f64>],
     (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
-    start: Option<AffineMap>,
 ) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Rigid, start)
+    fit(source, (target, normals), Model::Rigid)
 }
 
 /// The maps a fit may take.
@@ -117,13 +116,12 @@ enum Model {
     Affine,
 }
 
-/// [`fit_affine`] or [`fit_rigid`]: rounds of pairing and stepping from `start`, re-centred on
-/// the sampled source's centroid.
+/// [`fit_affine`] or [`fit_rigid`]: rounds of pairing and stepping from the translation between
+/// the sampled points' centroids.
 fn fit(
     source: &[Vector3<f64>],
     target: (&[Vector3<f64>], &[Vector3<f64>]),
     model: Model,
-    start: Option<AffineMap>,
 ) -> Option<AffineMap> {
     let source: Vec<Vector3<f64>> = evenly(source, &[]).into_iter().map(|(p, _)| p).collect();
     let (target, normals): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) =
@@ -132,17 +130,10 @@ fn fit(
         return None;
     }
     let centre = centroid(&source);
-    let mut map = match start {
-        Some(m) => AffineMap {
-            linear: m.linear,
-            centre,
-            moved_centre: m.apply(&centre),
-        },
-        None => AffineMap {
-            linear: Matrix3::identity(),
-            centre,
-            moved_centre: centroid(&target),
-        },
+    let mut map = AffineMap {
+        linear: Matrix3::identity(),
+        centre,
+        moved_centre: centroid(&target),
     };
     let extent = source
         .iter()
@@ -197,19 +188,23 @@ fn step<const N: usize>(
     x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
-/// One affine step: the row (n₁ qᵀ, n₂ qᵀ, n₃ qᵀ, nᵀ) for δA q + t, q = p − d.
+/// r = (n₁ qᵀ, n₂ qᵀ, n₃ qᵀ, nᵀ): what a point-to-plane term at q with normal n measures of an
+/// affine motion δA q + t, ξ = (δA row by row, t), n · (δA q + t) = r · ξ.
+pub(super) fn affine_row(q: &Vector3<f64>, n: &Vector3<f64>) -> SVector<f64, 12> {
+    let mut r = SVector::<f64, 12>::zeros();
+    for i in 0..3 {
+        r.fixed_rows_mut::<3>(3 * i).copy_from(&(n[i] * q));
+    }
+    r.fixed_rows_mut::<3>(9).copy_from(n);
+    r
+}
+
+/// One affine step, rows [`affine_row`] at q = p − d.
 fn affine_step(
     pairs: impl Iterator<Item = (Vector3<f64>, Vector3<f64>, Vector3<f64>)>,
     map: &AffineMap,
 ) -> Option<AffineMap> {
-    let x = step::<12>(pairs, map.moved_centre, |q, n| {
-        let mut r = SVector::<f64, 12>::zeros();
-        for i in 0..3 {
-            r.fixed_rows_mut::<3>(3 * i).copy_from(&(n[i] * q));
-        }
-        r.fixed_rows_mut::<3>(9).copy_from(n);
-        r
-    })?;
+    let x = step(pairs, map.moved_centre, affine_row)?;
     let grow = Matrix3::identity() + Matrix3::from_row_slice(&x.as_slice()[..9]);
     Some(AffineMap {
         linear: grow * map.linear,
@@ -218,15 +213,13 @@ fn affine_step(
     })
 }
 
-/// One rigid step: the row (q × n, n) for ω × q + t, q = p − d; the rotation taken exactly.
+/// One rigid step, rows [`rigid_row`] (q × n, n) for ω × q + t at q = p − d; the rotation
+/// taken exactly.
 fn rigid_step(
     pairs: impl Iterator<Item = (Vector3<f64>, Vector3<f64>, Vector3<f64>)>,
     map: &AffineMap,
 ) -> Option<AffineMap> {
-    let x = step::<6>(pairs, map.moved_centre, |q, n| {
-        let c = q.cross(n);
-        SVector::<f64, 6>::new(c.x, c.y, c.z, n.x, n.y, n.z)
-    })?;
+    let x = step(pairs, map.moved_centre, rigid_row)?;
     let turn = Rotation3::new(x.fixed_rows::<3>(0).into_owned());
     Some(AffineMap {
         linear: turn.matrix() * map.linear,
@@ -317,7 +310,7 @@ fn finite_coords(points: &[Vector3<f64>]) -> Vec<[f64; 3]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nonrigid::orientation::tests::sphere;
+    use crate::nonrigid::orientation::tests::{bumps, sphere};
     use crate::nonrigid::slippage::tests::normals;
     use nalgebra::Unit;
 
@@ -325,9 +318,6 @@ mod tests {
     /// fifth of it at most, or plain; with its faces.
     fn egg(bumpy: bool) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
         let (unit, faces) = sphere(1.0, Vector3::zeros(), 24);
-        let bumps = |p: &Vector3<f64>| {
-            1.0 + 0.15 * (4.0 * p.x + 1.0).sin() + 0.1 * (5.0 * p.y - 2.0 * p.z).sin()
-        };
         let points = (unit.iter())
             .map(|p| {
                 (if bumpy { bumps(p) } else { 1.0 } * p)
@@ -412,7 +402,7 @@ mod tests {
         let map = fit_affine(&sheet, (&target, &up)).unwrap();
         // point-to-plane pairs see only the normal direction: within the plane and along the
         // normal the map keeps the identity (why open meshes are not judged by it,
-        // `surface::explains_as_closely`)
+        // `surface::Closeness::explained_by`)
         assert!((map.linear - Matrix3::identity()).norm() < 1e-6, "{map:?}");
         let flat = AffineMap {
             linear: Matrix3::from_diagonal(&Vector3::new(1.2, 1.0, 0.3)),
@@ -427,26 +417,24 @@ mod tests {
     }
 
     #[test]
-    fn a_turned_bumpy_egg_is_laid_back_by_its_rigid_motion_from_the_centroid_or_a_rough_start() {
+    fn a_turned_bumpy_egg_is_laid_back_by_its_rigid_motion() {
         let (source, faces) = egg(true);
-        let turn = Rotation3::from_euler_angles(0.2, -0.1, 0.25);
-        let target = carried(&source, turn.into_inner(), Vector3::new(0.1, -0.05, 0.02));
-        let n = normals(&target, &faces);
-        let rough = AffineMap {
-            linear: Rotation3::from_euler_angles(0.1, 0.0, 0.15).into_inner(),
-            centre: Vector3::zeros(),
-            moved_centre: Vector3::zeros(),
-        };
-        for start in [None, Some(rough)] {
-            let map = fit_rigid(&source, (&target, &n), start).unwrap();
+        let axis = Unit::new_normalize(Vector3::new(-0.4, 0.7, 0.2));
+        let turns = [
+            Rotation3::from_euler_angles(0.2, -0.1, 0.25),
+            Rotation3::from_axis_angle(&axis, 0.7),
+        ];
+        for turn in turns {
+            let target = carried(&source, turn.into_inner(), Vector3::new(0.1, -0.05, 0.02));
+            let map = fit_rigid(&source, (&target, &normals(&target, &faces))).unwrap();
             let off = worst(&map, &source, &target);
             assert!(off < 1e-6, "{off} {map:?}");
             assert!((map.linear.determinant() - 1.0).abs() < 1e-9);
+            // the motion nearest an answer is that answer's where the answer is rigid
+            let near = AffineMap::nearest_rigid(&source, &target).unwrap();
+            assert!((near.linear - turn.into_inner()).norm() < 1e-9, "{near:?}");
+            assert!(worst(&near, &source, &target) < 1e-9);
         }
-        // the motion nearest an answer is that answer's where the answer is rigid
-        let near = AffineMap::nearest_rigid(&source, &target).unwrap();
-        assert!((near.linear - turn.into_inner()).norm() < 1e-9, "{near:?}");
-        assert!(worst(&near, &source, &target) < 1e-9);
     }
 
     #[test]
@@ -456,10 +444,10 @@ mod tests {
         let nan = [Vector3::repeat(f64::NAN)];
         assert!(fit_affine(&nan, (&e, &n)).is_none());
         assert!(fit_affine(&e, (&[], &[])).is_none());
-        assert!(fit_rigid(&e, (&nan, &n), None).is_none());
+        assert!(fit_rigid(&e, (&nan, &n)).is_none());
         // without the target's normals the pairs see nothing, and no map is made up
         assert!(fit_affine(&e, (&e, &[])).is_none());
-        assert!(fit_rigid(&e, (&e, &vec![Vector3::zeros(); e.len()]), None).is_none());
+        assert!(fit_rigid(&e, (&e, &vec![Vector3::zeros(); e.len()])).is_none());
         assert_eq!(PointSet::new(&e).two_way_median(&nan), f64::INFINITY);
         assert_eq!(PointSet::new(&nan).two_way_median(&e), f64::INFINITY);
     }

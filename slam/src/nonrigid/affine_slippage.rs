@@ -22,13 +22,12 @@
 //! B is singular for a flat surface (δA applied along the normal moves nothing); the measure is
 //! taken over the motions that move the surface (B's range).
 
-use super::affine_fit::AffineMap;
+use super::affine_fit::{affine_row, AffineMap};
 use super::extent::finite;
 use super::slippage::Samples;
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::{SMatrix, Vector3};
 
 type Matrix12 = SMatrix<f64, 12, 12>;
-type Vector12 = SVector<f64, 12>;
 
 /// Below this share of an affine motion's displacement leaving the surface, the surface slides
 /// along itself under a stretch or shear. Measured (NOTES 197): ellipsoids 2–3·10⁻⁷; the
@@ -95,14 +94,10 @@ pub fn affine_slippage(
     least_ratio(&c, &b)
 }
 
-/// r rᵀ, r = (n₁ pᵀ, n₂ pᵀ, n₃ pᵀ, nᵀ): what a point-to-plane term at p with normal n measures
-/// of an affine motion.
+/// r rᵀ, r = (n₁ pᵀ, n₂ pᵀ, n₃ pᵀ, nᵀ) ([`affine_row`]): what a point-to-plane term at p with
+/// normal n measures of an affine motion, squared.
 fn constraint(p: &Vector3<f64>, n: &Vector3<f64>) -> Matrix12 {
-    let mut r = Vector12::zeros();
-    for i in 0..3 {
-        r.fixed_rows_mut::<3>(3 * i).copy_from(&(n[i] * p));
-    }
-    r.fixed_rows_mut::<3>(9).copy_from(n);
+    let r = affine_row(p, n);
     r * r.transpose()
 }
 
@@ -140,7 +135,7 @@ fn least_ratio(c: &Matrix12, b: &Matrix12) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nonrigid::orientation::tests::sphere;
+    use crate::nonrigid::orientation::tests::{bumps, sphere};
     use crate::nonrigid::slippage::slippage;
     use crate::nonrigid::slippage::tests::normals;
 
@@ -164,18 +159,15 @@ mod tests {
         // it turns about no axis, yet stretches along itself
         assert!(rigid > 0.01 && affine < 1e-4, "{rigid} {affine}");
         // bumps of a fifth of the radius pin it
-        let bumps = |p: &Vector3<f64>| {
-            let r = 1.0 + 0.15 * (4.0 * p.x + 1.0).sin() + 0.1 * (5.0 * p.y - 2.0 * p.z).sin();
-            (r * p).component_mul(&axes)
-        };
-        let (_, bumpy) = both(&shaped(bumps), 0.0);
-        assert!(bumpy > MAX_AFFINE_SLIPPAGE, "{bumpy}");
+        let bumpy = |p: &Vector3<f64>| (bumps(p) * p).component_mul(&axes);
+        let (_, pinned) = both(&shaped(bumpy), 0.0);
+        assert!(pinned > MAX_AFFINE_SLIPPAGE, "{pinned}");
         // a rounded cube (a sphere pushed out to the sup-norm ball, halfway)
         let boxy = |p: &Vector3<f64>| 0.5 * (p + p / p.amax());
         let (_, cube) = both(&shaped(boxy), 0.0);
         assert!(cube > MAX_AFFINE_SLIPPAGE, "{cube}");
         // never above the rigid ratio
-        let (rigid, affine) = both(&shaped(bumps), 0.0);
+        let (rigid, affine) = both(&shaped(bumpy), 0.0);
         assert!(affine <= rigid + 1e-12, "{rigid} {affine}");
     }
 
@@ -212,8 +204,8 @@ mod tests {
     fn the_measure_is_unit_free_and_a_flat_sheet_is_measured_within_its_plane() {
         let ellipsoid = |s: f64| shaped(move |p| s * p.component_mul(&Vector3::new(1.0, 0.7, 0.4)));
         let turn = nalgebra::Rotation3::from_euler_angles(0.4, 0.1, -0.7);
-        let bumps = |s: f64| shaped(move |p| s * (turn * p) * (1.0 + 0.1 * (3.0 * p.x).sin()));
-        let (a, b) = (both(&bumps(0.01), 0.0).1, both(&bumps(100.0), 0.0).1);
+        let lumpy = |s: f64| shaped(move |p| s * (turn * p) * (1.0 + 0.1 * (3.0 * p.x).sin()));
+        let (a, b) = (both(&lumpy(0.01), 0.0).1, both(&lumpy(100.0), 0.0).1);
         assert!((a - b).abs() <= 1e-6 * a, "{a} {b}");
         assert!(both(&ellipsoid(0.01), 0.0).1 < 1e-4);
         // a flat grid: B is singular along the normal, and the band holds the rest

@@ -136,6 +136,13 @@ fn triangle_area(points: &[Vector3<f64>], f: &[u32; 3]) -> f64 {
 pub(crate) mod tests {
     use super::*;
 
+    /// A radius factor for a point `p` of the unit sphere: low bumps of up to a quarter of the
+    /// radius, which pin a shape against every rigid and affine slide (modules `slippage`,
+    /// `affine_slippage`).
+    pub(crate) fn bumps(p: &Vector3<f64>) -> f64 {
+        1.0 + 0.15 * (4.0 * p.x + 1.0).sin() + 0.1 * (5.0 * p.y - 2.0 * p.z).sin()
+    }
+
     /// A UV sphere of radius `r` about `o`, `rings` × `2 rings` cells, wound so that its face
     /// normals point out.
     pub(crate) fn sphere(

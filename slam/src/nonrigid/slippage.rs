@@ -151,9 +151,15 @@ impl Samples {
     }
 }
 
-/// r rᵀ, r = (p × n, n): what a point-to-plane term at p with normal n measures of a twist.
+/// r = (p × n, n): what a point-to-plane term at p with normal n measures of a twist ξ = (ω, t),
+/// n · (ω × p + t) = r · ξ.
+pub(super) fn rigid_row(p: &Vector3<f64>, n: &Vector3<f64>) -> Vector6<f64> {
+    Vector6::from_iterator(p.cross(n).iter().chain(n.iter()).copied())
+}
+
+/// r rᵀ, r = [`rigid_row`]: what a point-to-plane term measures of a twist, squared.
 fn constraint(p: &Vector3<f64>, n: &Vector3<f64>) -> Matrix6<f64> {
-    let r = Vector6::from_iterator(p.cross(n).iter().chain(n.iter()).copied());
+    let r = rigid_row(p, n);
     r * r.transpose()
 }
 

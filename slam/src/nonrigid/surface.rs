@@ -626,11 +626,11 @@ fn both_ways(
     band: Option<f64>,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let start = std::time::Instant::now();
-    // fitted only where it may be taken (explains_as_closely)
+    // fitted only where it may be taken (Closeness::explained_by)
     let closed = is_closed(source) && is_closed(target);
     let target_surface = (target.points, target.normals);
     let maps = || {
-        let rigid = || fit_rigid(source.points, target_surface, None);
+        let rigid = || fit_rigid(source.points, target_surface);
         let affine = || fit_affine(source.points, target_surface);
         closed.then(|| rayon::join(rigid, affine).into())
     };
@@ -657,7 +657,7 @@ fn both_ways(
 /// Where a registration that fits places the source, the least deformed first (NOTES 197): a
 /// `rigid` motion, or else a global `affine` map (both fitted beside the registrations, closed
 /// meshes alone), that lays it on the target at least as closely as the warp
-/// ([`explains_as_closely`]); else the warp's points, judged by the round trip against
+/// ([`Closeness::explained_by`]); else the warp's points, judged by the round trip against
 /// `backward` and moved to the way back's where that lies closer.
 fn place(
     reg: &mut SurfaceRegistration,
@@ -665,15 +665,18 @@ fn place(
     [rigid, affine]: [Option<AffineMap>; 2],
     backward: Result<SurfaceRegistration, SurfaceError>,
 ) -> Result<(), SurfaceError> {
-    if let Some(map) = rigid.filter(|m| explains_as_closely(m, reg, source, target)) {
-        take_the_map(reg, source, &map);
-        reg.placed_rigid = true;
-        return Ok(());
-    }
-    if let Some(map) = affine.filter(|m| explains_as_closely(m, reg, source, target)) {
-        take_the_map(reg, source, &map);
-        reg.placed_affine = true;
-        return Ok(());
+    if rigid.is_some() || affine.is_some() {
+        let closeness = Closeness::of(reg, source, target);
+        if let Some(map) = rigid.filter(|m| closeness.explained_by(m)) {
+            take_the_map(reg, source, &map);
+            reg.placed_rigid = true;
+            return Ok(());
+        }
+        if let Some(map) = affine.filter(|m| closeness.explained_by(m)) {
+            take_the_map(reg, source, &map);
+            reg.placed_affine = true;
+            return Ok(());
+        }
     }
     let backward = backward?;
     reg.round_trip = RoundTrip::measure(
@@ -699,29 +702,43 @@ fn back_fits_closer(reg: &SurfaceRegistration, backward: &SurfaceRegistration) -
     per_point(backward) < per_point(reg)
 }
 
-/// Whether `map` (fitted only where both meshes are closed) is moderate
-/// ([`AffineMap::is_moderate`]) and lays the source on the target at least as closely as the
-/// warp laid it ([`PointSet::two_way_median`], within a millionth of the fit's tolerance). A
-/// featureless closed shape stretched lies on its target under many warps; the affine map
-/// nearest the identity is the stretch, where the warp had slid the surface along itself by
-/// 17–117 % of the displacement (NOTES 195). Bent shapes, the camel's poses and noisy targets
-/// are laid closer by the warp, which stays. An open sheet is not judged: a wrong stretch
-/// within its plane lies as flush as the right one (one of seed 31's was taken 14.6 % off),
-/// where a closed surface's curvature pins the map.
-fn explains_as_closely(
-    map: &AffineMap,
-    reg: &SurfaceRegistration,
-    source: SurfaceMesh<'_>,
-    target: SurfaceMesh<'_>,
-) -> bool {
-    if !map.is_moderate() {
-        return false;
+/// How closely the warp laid the source on the target, against which a global map is judged.
+struct Closeness<'a> {
+    target: PointSet,
+    warp: f64,
+    tie: f64,
+    source: SurfaceMesh<'a>,
+}
+
+impl<'a> Closeness<'a> {
+    /// The target's points with the warp's two-way median distance to them
+    /// ([`PointSet::two_way_median`]), ties within a millionth of the fit's tolerance (both at
+    /// rounding's level).
+    fn of(reg: &SurfaceRegistration, source: SurfaceMesh<'a>, target: SurfaceMesh<'_>) -> Self {
+        let set = PointSet::new(target.points);
+        Self {
+            warp: set.two_way_median(&reg.points),
+            target: set,
+            tie: 1e-6 * reg.fit.tolerance,
+            source,
+        }
     }
-    let moved: Vec<Vector3<f64>> = source.points.iter().map(|p| map.apply(p)).collect();
-    let target = PointSet::new(target.points);
-    // a millionth of the fit's tolerance: both at rounding's level are ties
-    let tie = 1e-6 * reg.fit.tolerance;
-    target.two_way_median(&moved) <= target.two_way_median(&reg.points) + tie
+
+    /// Whether `map` (fitted only where both meshes are closed) is moderate
+    /// ([`AffineMap::is_moderate`]) and lays the source on the target at least as closely as
+    /// the warp. A featureless closed shape stretched lies on its target under many warps; the
+    /// affine map nearest the identity is the stretch, where the warp had slid the surface
+    /// along itself by 17–117 % of the displacement (NOTES 195). Bent shapes, the camel's poses
+    /// and noisy targets are laid closer by the warp, which stays. An open sheet is not judged:
+    /// a wrong stretch within its plane lies as flush as the right one (one of seed 31's was
+    /// taken 14.6 % off), where a closed surface's curvature pins the map.
+    fn explained_by(&self, map: &AffineMap) -> bool {
+        if !map.is_moderate() {
+            return false;
+        }
+        let moved: Vec<Vector3<f64>> = self.source.points.iter().map(|p| map.apply(p)).collect();
+        self.target.two_way_median(&moved) <= self.warp + self.tie
+    }
 }
 
 /// Whether `mesh` has faces and no boundary edge.
@@ -1794,9 +1811,7 @@ mod tests {
     /// rigidly, it is placed by the rigid motion; bent, by neither map.
     #[test]
     fn a_stretched_egg_is_placed_by_its_affine_map_and_a_stretched_ellipsoid_is_ambiguous() {
-        let bumps = |p: &Vector3<f64>| {
-            1.0 + 0.15 * (4.0 * p.x + 1.0).sin() + 0.1 * (5.0 * p.y - 2.0 * p.z).sin()
-        };
+        use crate::nonrigid::orientation::tests::bumps;
         let stretch = |(points, faces, axis): (Vec<Vector3<f64>>, Vec<[u32; 3]>, Vector3<f64>)| {
             let moved: Vec<Vector3<f64>> = (points.iter())
                 .map(|p| p + axis * (0.25 * p.dot(&axis)))
