@@ -147,13 +147,15 @@ def main():
             aff = {k: aff.get(k) if aff.get(k) is not None else nan for k in ("source", "target", "departure_from_rigid", "rigid_limit")}
             trip = j.get("round_trip")
             trip = "  –  " if trip is None else f"{trip['ratio']:.3f}"
+            apart = j.get("maps_apart")
+            apart = "–" if apart is None else f"{apart['apart']:.1e} (one under {apart['limit']:.1e})"
             reach = np.linalg.norm(moved - v, axis=1).max()
             e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - moved, axis=1) / reach
             print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "
                   f"on_target {j['fit']['on_target']:.2f} slippage {slip['source']:.1e} {slip['target']:.1e} "
                   f"affine {aff['source']:.1e} {aff['target']:.1e} departure {aff['departure_from_rigid']:.1e} (rigid under {aff['rigid_limit']:.1e}) "
                   f"placed_affine {j.get('placed_affine')!s:5s} placed_rigid {j.get('placed_rigid')!s:5s} "
-                  f"round trip {trip} "
+                  f"maps apart {apart} round trip {trip} "
                   f"error {100 * e.max():5.1f} / {100 * e.mean():5.2f} %")
 
 

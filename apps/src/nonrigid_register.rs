@@ -28,8 +28,8 @@
 //! over 0.35 the surfaces do not fix where the points go, and it is not registered (module
 //! `round_trip`, NOTES 188); `seconds` counts both ways. Where it registered and the way back
 //! lies closer to its target (data cost per point), WARPED holds the source where the way back
-//! placed it (`placed_back`, NOTES 189). Where both meshes are closed and it registered, a
-//! rigid motion or else a global affine map (no direction stretched more than twice), each
+//! placed it (`placed_back`, NOTES 189). Where it registered, a rigid motion or else (both
+//! meshes closed) a global affine map (no direction stretched more than twice), each
 //! fitted by point-to-plane closest point, that lays the source on the target at least as
 //! closely as the warp is taken: WARPED holds the source carried by it and the round trip is not
 //! run (`placed_rigid`, `placed_affine`, NOTES 195 and 197). `affine_slippage` gives the share of
@@ -37,11 +37,18 @@
 //! `departure_from_rigid` (root mean square, in the meshes' unit): where a mesh slides along
 //! itself under a stretch (under 1e-3: an ellipsoid, a stretched torus) and the answer departs
 //! from rigid by more than `rigid_limit` (a tenth of the node spacing), the same answer
-//! stretched along the surface fits as well, and it is not registered (NOTES 197). A point
-//! cloud (no faces) must carry its normals. A mesh without normals has them computed from its
-//! triangles after those wound against their neighbours are turned over (`faces_turned`, per
-//! mesh, with a warning; NOTES 141). A registration that did not register writes its outputs
-//! and JSON line, then exits 1 (NOTES 173).
+//! stretched along the surface fits as well, and it is not registered (NOTES 197). The rigid
+//! motion is fitted from five starts (the centroids, and the four turns that put the source's
+//! principal axes onto the target's) and the affine map from six (the centroids, and each rigid
+//! motion); where more than one of the kind taken lays the source as closely as the warp,
+//! `maps_apart` gives how far apart they carry it (`apart`, root mean square) and the `limit` (a
+//! tenth of the node spacing) within which they are one map: further apart, as a box or an
+//! ellipsoid turned onto itself is, or a box whose faces a stretch exchanges, none is taken and
+//! it is not registered (NOTES 198). A point cloud (no faces) must carry its normals. A mesh
+//! without normals has them computed from its triangles after those wound against their
+//! neighbours are turned over (`faces_turned`, per mesh, with a warning; NOTES 141). A
+//! registration that did not register writes its outputs and JSON line, then exits 1 (NOTES
+//! 173).
 //!
 //! `frames`: two RGB-D frames, each a depth PNG read with `--intrinsics fx fy cx cy --depth-scale
 //! S`, its object selected by `--mask M.png` (source) and `--target-mask M.png`, its colour given
@@ -721,6 +728,18 @@ fn surface_verdict_json(verdict: SurfaceVerdict) -> serde_json::Value {
             );
             false.into()
         }
+        SurfaceVerdict::MapsDisagree(maps) => {
+            tracing::warn!(
+                "not registered: the surfaces fit, and two rigid motions or two affine maps \
+                 fitted from different starts each lay the source on the target as closely as \
+                 the warp, but carry it {:.3e} apart (at most {:.3e} counts as one map): the \
+                 surfaces fit both (a box turned onto itself, or its faces exchanged by a \
+                 stretch), and nothing tells which is right",
+                maps.apart,
+                maps.limit
+            );
+            false.into()
+        }
         SurfaceVerdict::Inconsistent(trip) => {
             tracing::warn!(
                 "not registered: the surfaces fit, but the target registered back onto the \
@@ -939,6 +958,10 @@ fn register_mesh_files(args: &MeshArgs) -> Result<()> {
     json["placed_back"] = reg.placed_back.into();
     json["placed_affine"] = reg.placed_affine.into();
     json["placed_rigid"] = reg.placed_rigid.into();
+    json["maps_apart"] = reg.maps_apart.map_or(
+        serde_json::Value::Null,
+        |m| serde_json::json!({"apart": m.apart, "limit": m.limit}),
+    );
     json["faces_turned"] = serde_json::json!({"source": source_winding, "target": target_winding});
     json["fit"] = serde_json::json!({
         "on_target": reg.fit.on_target,

@@ -282,11 +282,15 @@ def register_meshes(
     registered over 0.35; None where it was not run), placed_back (whether the vertices are
     where the way back placed them), placed_rigid and placed_affine (whether they are the source
     carried by a rigid motion, or else a global affine map, that lays it on the target as closely
-    as the warp did; two closed meshes; round_trip is then None), affine_slippage ([source,
+    as the warp did; the affine map for two closed meshes only; round_trip is then None), affine_slippage ([source,
     target]: the share of each mesh's least-constrained affine motion that moves it off itself;
     under 1e-3, an ellipsoid, registered is False unless the vertices are rigid) and
     departure_from_rigid (the vertices' root-mean-square distance from the source's nearest
-    rigid motion; None where not measured)."""
+    rigid motion; None where not measured), maps_apart ([apart, limit]: where several rigid
+    motions, or else affine maps, fitted from different starts lay the source as closely as the
+    warp, how far apart they carry it and the tenth of the node spacing within which they are
+    one; further apart, as for a box or an ellipsoid turned onto itself, registered is False;
+    None otherwise)."""
 
 def register_frames(
     source_depth: ArrayLike,

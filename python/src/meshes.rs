@@ -225,12 +225,17 @@ pub fn write_mesh(
 /// where the way back placed the source (it registered, and the way back lay closer to its
 /// target). placed_rigid and placed_affine: whether the vertices are the source carried by a
 /// rigid motion, or else by a global affine map (one that stretches no direction more than
-/// twice), that lays the source on the target as closely as the warp did (two closed meshes;
-/// round_trip is then None). affine_slippage: for two meshes, the share of each one's
+/// twice; two closed meshes only), that lays the source on the target as closely as the warp
+/// did (round_trip is then None). affine_slippage: for two meshes, the share of each one's
 /// least-constrained affine motion that moves it off itself (source, target); where either is
 /// under 1e-3 (an ellipsoid) and the vertices depart from a rigid motion of the source by more
 /// than a tenth of the node spacing (departure_from_rigid, root mean square), registered is
-/// False.
+/// False. maps_apart: where more than one rigid motion (fitted from five starts: the
+/// centroids and the principal axes) or, none fitting, affine map (from six) lays the source
+/// as closely as the warp, [apart, limit]: how far apart (root mean square) they carry the
+/// source, and the tenth of the node spacing within which they count as one; further apart (a
+/// box or an ellipsoid turned onto itself, a box's faces exchanged), none is taken and
+/// registered is False. None otherwise.
 #[pyfunction]
 #[pyo3(signature = (source_vertices, target_vertices, source_faces = None, target_faces = None, source_normals = None, target_normals = None, seeded_passes = None, principal_axes = false))]
 #[allow(clippy::too_many_arguments)]
@@ -314,5 +319,6 @@ pub fn register_meshes<'py>(
     d.set_item("placed_rigid", reg.placed_rigid)?;
     d.set_item("affine_slippage", reg.affine_slippage)?;
     d.set_item("departure_from_rigid", reg.departure_from_rigid)?;
+    d.set_item("maps_apart", reg.maps_apart.map(|m| [m.apart, m.limit]))?;
     Ok(d)
 }

@@ -73,6 +73,7 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     # an open sheet is never laid by an affine map or a rigid motion (NOTES 195, 197); both say so
     assert result["placed_affine"] is False and tool["placed_affine"] is False
     assert result["placed_rigid"] is False and tool["placed_rigid"] is False
+    assert result["maps_apart"] is None and tool["maps_apart"] is None
     # nor does it slide under a stretch: both give the same affine slippage, far above its limit
     affine = tool["affine_slippage"]
     assert result["affine_slippage"] == pytest.approx([affine["source"], affine["target"]], rel=1e-9)

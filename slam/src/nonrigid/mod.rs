@@ -44,6 +44,7 @@ pub mod frame_surface;
 pub mod frame_target;
 pub mod frames;
 pub mod fusion;
+pub mod global_maps;
 pub mod graph;
 pub mod linear_steps;
 pub mod mesh_point;

@@ -177,6 +177,50 @@ pub(crate) mod tests {
         (points, faces)
     }
 
+    /// The surface of the cube [−1, 1]³, each face an `n` × `n` grid of squares cut in two,
+    /// wound so that its face normals point out. Its vertices are the lattice points on the
+    /// surface, so every turn of the cube onto itself carries them onto each other.
+    pub(crate) fn cube(n: u32) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+        let mut index = std::collections::HashMap::new();
+        let mut points = Vec::new();
+        let mut at = |c: [u32; 3]| {
+            *index.entry(c).or_insert_with(|| {
+                points.push(c.map(|x| 2.0 * x as f64 / n as f64 - 1.0).into());
+                points.len() as u32 - 1
+            })
+        };
+        let mut faces = Vec::new();
+        for (axis, side) in (0..3).flat_map(|a| [(a, 0), (a, n)]) {
+            // (u, v) along the two other axes in cyclic order: u × v along +axis
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            for (i, j) in (0..n).flat_map(|i| (0..n).map(move |j| (i, j))) {
+                let corner = |di: u32, dj: u32| {
+                    let mut c = [side; 3];
+                    (c[u], c[v]) = (i + di, j + dj);
+                    c
+                };
+                let [a, b, c, d] = [(0, 0), (1, 0), (1, 1), (0, 1)].map(|(x, y)| at(corner(x, y)));
+                if side == n {
+                    faces.extend([[a, b, c], [a, c, d]]);
+                } else {
+                    faces.extend([[a, c, b], [a, d, c]]);
+                }
+            }
+        }
+        (points, faces)
+    }
+
+    /// The cube's faces point out, and each vertex is on its surface.
+    #[test]
+    fn the_test_cube_is_closed_and_faces_out() {
+        let (p, f) = cube(4);
+        assert_eq!(p.len(), 6 * 16 + 2);
+        assert!(boundary_edges(&f).is_empty());
+        let n = normals_of(&p, &f);
+        assert_eq!(facing(mesh(&p, &n, &f)), Some(Facing::Outward));
+        assert!(p.iter().all(|q| (q.amax() - 1.0).abs() < 1e-12));
+    }
+
     fn normals_of(points: &[Vector3<f64>], faces: &[[u32; 3]]) -> Vec<Vector3<f64>> {
         let mut n = vec![Vector3::zeros(); points.len()];
         for f in faces {

@@ -4,7 +4,7 @@
 //! descriptors ([`register_meshes`]). The source's points keep their order in the result,
 //! so anyone can score them.
 
-use super::affine_fit::{fit_affine, fit_rigid, AffineMap, PointSet};
+use super::affine_fit::AffineMap;
 use super::affine_slippage::{affine_slippage, departure_from_rigid, AffineSlide, RIGID_SHARE};
 use super::boundary::{rim_matches, RimMatches};
 use super::cloud_target::CloudTarget;
@@ -12,6 +12,7 @@ use super::coverage::{sampling_gap, sampling_spacing};
 use super::descriptors::{DescriptorError, DescriptorPair, MeshRef};
 use super::extent::centroid;
 pub use super::extent::{bounding_diagonal, surface_diagonal};
+use super::global_maps::{fit_maps, Choice, Closeness, MapKind, Maps, MapsApart};
 use super::graph::{Binding, DeformationGraph, GraphError, GraphParams};
 use super::mesh_point::MeshPoint;
 use super::mesh_target::MeshTarget;
@@ -201,6 +202,11 @@ pub struct SurfaceRegistration {
     /// of the answers that fit, the one that deforms nothing (NOTES 197). The graph and the fit
     /// are still the warp's, and the round trip is not run.
     pub placed_rigid: bool,
+    /// Where more than one map of the kind taken (or refused) lays the source on the target at
+    /// least as closely as the warp (module `global_maps`): how far apart they carry it. Where
+    /// they disagree ([`MapsApart::disagree`]), none is taken, the points are the warp's, and
+    /// the verdict is [`SurfaceVerdict::MapsDisagree`].
+    pub maps_apart: Option<MapsApart>,
 }
 
 impl SurfaceRegistration {
@@ -209,12 +215,17 @@ impl SurfaceRegistration {
     /// registration that fits may still have its points anywhere along the slide), whether
     /// the round trip brings the points back ([`SurfaceVerdict::Inconsistent`]), and whether
     /// either surface slides under a stretch while the answer is not rigid
-    /// ([`SurfaceVerdict::AffineAmbiguous`], module `affine_slippage`).
+    /// ([`SurfaceVerdict::AffineAmbiguous`], module `affine_slippage`), and last whether two
+    /// affine maps that each fit carry the source apart ([`SurfaceVerdict::MapsDisagree`]).
     pub fn verdict(&self) -> SurfaceVerdict {
         match (self.verdict_of_the_fit(), self.affine_slide()) {
             (SurfaceVerdict::Registered, Some(a)) if a.is_free() => {
                 SurfaceVerdict::AffineAmbiguous(a)
             }
+            (SurfaceVerdict::Registered, _) => match self.maps_apart {
+                Some(m) if m.disagree() => SurfaceVerdict::MapsDisagree(m),
+                _ => SurfaceVerdict::Registered,
+            },
             (verdict, _) => verdict,
         }
     }
@@ -559,6 +570,7 @@ impl Passes {
             placed_back: false,
             placed_affine: false,
             placed_rigid: false,
+            maps_apart: None,
         })
     }
 }
@@ -609,8 +621,9 @@ fn for_the_way_back(
 }
 
 /// Registers `source` onto `target` by `there` and, beside it, `target` back onto `source` by
-/// `back` (the same procedure with the roles swapped) and, where both meshes are closed, fits a
-/// rigid motion and an affine map of the source onto the target (module `affine_fit`). Then
+/// `back` (the same procedure with the roles swapped) and, for two meshes, fits rigid motions of
+/// the source onto the target, and affine maps too where both are closed (module
+/// `global_maps`). Then
 /// measures the slippage, rigid and affine (meshes: `band` given), and, where the fit registers
 /// and nothing slides rigidly, places the source ([`place`]: by a map, or by the warp judged by
 /// the round trip); last, the answer's departure from rigid, which the verdict weighs against
@@ -626,26 +639,18 @@ fn both_ways(
     band: Option<f64>,
 ) -> Result<SurfaceRegistration, SurfaceError> {
     let start = std::time::Instant::now();
-    // fitted only where it may be taken (Closeness::explained_by)
+    // affine maps fitted only where they may be taken (global_maps::fit_maps)
     let closed = is_closed(source) && is_closed(target);
     let target_surface = (target.points, target.normals);
-    let maps = || {
-        let rigid = || fit_rigid(source.points, target_surface);
-        let affine = || fit_affine(source.points, target_surface);
-        closed.then(|| rayon::join(rigid, affine).into())
-    };
+    let meshes = !source.faces.is_empty() && !target.faces.is_empty();
+    let maps = || meshes.then(|| fit_maps(source.points, target_surface, closed));
     let (reg, (backward, maps)) = rayon::join(there, || rayon::join(back, maps));
     let mut reg = reg?;
     if let Some(band) = band {
         reg = with_slippage(reg, source, target, band);
     }
     if reg.verdict_of_the_fit() == SurfaceVerdict::Registered {
-        place(
-            &mut reg,
-            (source, target),
-            maps.unwrap_or_default(),
-            backward,
-        )?;
+        place(&mut reg, (source, target), maps, backward)?;
     }
     if reg.affine_slippage.is_some() {
         reg.departure_from_rigid = departure_from_rigid(source.points, &reg.points);
@@ -654,28 +659,34 @@ fn both_ways(
     Ok(reg)
 }
 
-/// Where a registration that fits places the source, the least deformed first (NOTES 197): a
-/// `rigid` motion, or else a global `affine` map (both fitted beside the registrations, closed
-/// meshes alone), that lays it on the target at least as closely as the warp
-/// ([`Closeness::explained_by`]); else the warp's points, judged by the round trip against
+/// Where a registration that fits places the source, the least deformed first (module
+/// `global_maps`, fitted beside the registrations for meshes): a rigid motion, or else an
+/// affine map (closed meshes), that lays it on the target at least as closely as the warp, where all of its
+/// kind that do agree; where they carry the source apart, none, and the verdict says so
+/// (`maps_apart`, NOTES 198); else the warp's points, judged by the round trip against
 /// `backward` and moved to the way back's where that lies closer.
 fn place(
     reg: &mut SurfaceRegistration,
     (source, target): (SurfaceMesh<'_>, SurfaceMesh<'_>),
-    [rigid, affine]: [Option<AffineMap>; 2],
+    maps: Option<Maps>,
     backward: Result<SurfaceRegistration, SurfaceError>,
 ) -> Result<(), SurfaceError> {
-    if rigid.is_some() || affine.is_some() {
-        let closeness = Closeness::of(reg, source, target);
-        if let Some(map) = rigid.filter(|m| closeness.explained_by(m)) {
-            take_the_map(reg, source, &map);
-            reg.placed_rigid = true;
-            return Ok(());
-        }
-        if let Some(map) = affine.filter(|m| closeness.explained_by(m)) {
-            take_the_map(reg, source, &map);
-            reg.placed_affine = true;
-            return Ok(());
+    if let Some(maps) = maps {
+        let tolerance = reg.fit.tolerance;
+        let closeness = Closeness::new(maps, source.points, &reg.points, tolerance);
+        match closeness.choose(RIGID_SHARE * tolerance) {
+            Choice::Disagree(apart) => {
+                reg.maps_apart = Some(apart);
+                return Ok(());
+            }
+            Choice::Map { kind, map, apart } => {
+                take_the_map(reg, source, &map);
+                reg.maps_apart = apart;
+                reg.placed_rigid = kind == MapKind::Rigid;
+                reg.placed_affine = kind == MapKind::Affine;
+                return Ok(());
+            }
+            Choice::Warp => {}
         }
     }
     let backward = backward?;
@@ -700,45 +711,6 @@ fn place(
 fn back_fits_closer(reg: &SurfaceRegistration, backward: &SurfaceRegistration) -> bool {
     let per_point = |r: &SurfaceRegistration| r.summary.data_cost / r.points.len().max(1) as f64;
     per_point(backward) < per_point(reg)
-}
-
-/// How closely the warp laid the source on the target, against which a global map is judged.
-struct Closeness<'a> {
-    target: PointSet,
-    warp: f64,
-    tie: f64,
-    source: SurfaceMesh<'a>,
-}
-
-impl<'a> Closeness<'a> {
-    /// The target's points with the warp's two-way median distance to them
-    /// ([`PointSet::two_way_median`]), ties within a millionth of the fit's tolerance (both at
-    /// rounding's level).
-    fn of(reg: &SurfaceRegistration, source: SurfaceMesh<'a>, target: SurfaceMesh<'_>) -> Self {
-        let set = PointSet::new(target.points);
-        Self {
-            warp: set.two_way_median(&reg.points),
-            target: set,
-            tie: 1e-6 * reg.fit.tolerance,
-            source,
-        }
-    }
-
-    /// Whether `map` (fitted only where both meshes are closed) is moderate
-    /// ([`AffineMap::is_moderate`]) and lays the source on the target at least as closely as
-    /// the warp. A featureless closed shape stretched lies on its target under many warps; the
-    /// affine map nearest the identity is the stretch, where the warp had slid the surface
-    /// along itself by 17–117 % of the displacement (NOTES 195). Bent shapes, the camel's poses
-    /// and noisy targets are laid closer by the warp, which stays. An open sheet is not judged:
-    /// a wrong stretch within its plane lies as flush as the right one (one of seed 31's was
-    /// taken 14.6 % off), where a closed surface's curvature pins the map.
-    fn explained_by(&self, map: &AffineMap) -> bool {
-        if !map.is_moderate() {
-            return false;
-        }
-        let moved: Vec<Vector3<f64>> = self.source.points.iter().map(|p| map.apply(p)).collect();
-        self.target.two_way_median(&moved) <= self.warp + self.tie
-    }
 }
 
 /// Whether `mesh` has faces and no boundary edge.
@@ -1807,8 +1779,9 @@ mod tests {
     /// and the warp's regulariser slides it (NOTES 195); the affine map that lays it on the
     /// target is the stretch, and is taken: every vertex within 1 % of the largest
     /// displacement. A plain ellipsoid has a family of such maps (module `affine_slippage`), and
-    /// stretched it is reported ambiguous whichever the registration chose (NOTES 197); moved
-    /// rigidly, it is placed by the rigid motion; bent, by neither map.
+    /// stretched it is reported ambiguous whichever the registration chose (NOTES 197); turned,
+    /// it is refused (its half turns lay it as exactly), and the bumpy egg turned is placed by
+    /// its rigid motion; bent, neither is placed by a map.
     #[test]
     fn a_stretched_egg_is_placed_by_its_affine_map_and_a_stretched_ellipsoid_is_ambiguous() {
         use crate::nonrigid::orientation::tests::bumps;
@@ -1832,20 +1805,34 @@ mod tests {
             slide.ratios[0] < 1e-4 && slide.departure > 10.0 * slide.limit,
             "{slide:?}"
         );
-        // moved and turned, it is placed by the rigid motion: of the answers that fit, the one
-        // that deforms nothing (the warp alone slid it along itself, NOTES 197)
+        // moved and turned, it lies as exactly on its target under the turn after each of its
+        // half turns about its axes: the maps disagree, none is taken, and it is not
+        // registered (the warp alone slid it along itself, NOTES 197–198)
         let turn = nalgebra::Rotation3::from_euler_angles(0.3, 0.2, -0.5);
         let moved: Vec<Vector3<f64>> = (source.iter())
             .map(|p| turn * p + Vector3::new(0.02, 0.0, 0.01))
             .collect();
-        let (reg, worst) = registered_onto(&source, &moved, &faces);
-        assert_eq!(
-            reg.verdict(),
-            SurfaceVerdict::Registered,
-            "{:?}",
-            reg.affine_slide()
-        );
-        assert!(reg.placed_rigid && worst < 1e-3, "{worst}");
+        let (reg, _) = registered_onto(&source, &moved, &faces);
+        assert_ne!(reg.verdict(), SurfaceVerdict::Registered);
+        let apart = reg.maps_apart.unwrap();
+        assert!(apart.apart > 10.0 * apart.limit, "{apart:?}");
+        assert!(!reg.placed_rigid && !reg.placed_affine);
+        // the bumpy egg has no such turn, and is placed by its rigid motion; turned 150° too,
+        // where the motion from the centroids alone stops short (NOTES 198)
+        let (bumpy, _, _) = egg(bumps);
+        for (angle, axis) in [
+            (30.0, Vector3::z()),
+            (150f64, Vector3::new(0.4, -0.5, 0.75)),
+        ] {
+            let axis = nalgebra::Unit::new_normalize(axis);
+            let turn = nalgebra::Rotation3::from_axis_angle(&axis, angle.to_radians());
+            let moved: Vec<Vector3<f64>> = (bumpy.iter())
+                .map(|p| turn * p + Vector3::new(0.02, 0.0, 0.01))
+                .collect();
+            let (reg, worst) = registered_onto(&bumpy, &moved, &faces);
+            assert_eq!(reg.verdict(), SurfaceVerdict::Registered, "{angle}°");
+            assert!(reg.placed_rigid && worst < 1e-3, "{angle}° {worst}");
+        }
         let bent: Vec<Vector3<f64>> = source
             .iter()
             .map(|p| {
@@ -1859,5 +1846,26 @@ mod tests {
             .collect();
         let (reg, _) = registered_onto(&source, &bent, &faces);
         assert!(!reg.placed_affine && !reg.placed_rigid, "{:?}", reg.fit);
+    }
+
+    /// A flat rectangle lies on itself after half a turn about its normal. Turned 150° about
+    /// it, the warp laid it exactly at that half turn's member, 52–56 % off, and it was
+    /// reported registered (NOTES 198); the rigid motions from its principal axes lay it as
+    /// exactly at both, and it is refused.
+    #[test]
+    fn a_flat_sheet_turned_150_degrees_is_refused_where_its_half_turn_fits_as_well() {
+        use crate::synthetic::sheet::flat_sheet;
+        let sheet = flat_sheet(21, 13, 0.5);
+        let (points, _) = mesh_points(&sheet);
+        let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 150f64.to_radians());
+        let moved: Vec<Vector3<f64>> = (points.iter())
+            .map(|p| turn * p + Vector3::new(0.01, -0.02, 0.005))
+            .collect();
+        let (reg, _) = registered_onto(&points, &moved, &sheet.faces);
+        let SurfaceVerdict::MapsDisagree(apart) = reg.verdict() else {
+            panic!("{:?} {:?}", reg.verdict(), reg.maps_apart);
+        };
+        assert!(apart.apart > 10.0 * apart.limit, "{apart:?}");
+        assert!(!reg.placed_rigid && !reg.placed_affine);
     }
 }

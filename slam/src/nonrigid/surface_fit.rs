@@ -34,6 +34,7 @@
 //! [`SurfaceRegistration::verdict`](super::SurfaceRegistration::verdict) adds those checks.
 
 use super::affine_slippage::AffineSlide;
+use super::global_maps::MapsApart;
 use super::graph::DeformationGraph;
 use super::register::Target;
 use super::round_trip::RoundTrip;
@@ -96,6 +97,11 @@ pub enum SurfaceVerdict {
     /// torus) and the answer is not rigid: the same answer composed with that motion fits as
     /// well, and only the regulariser chose among them.
     AffineAmbiguous(AffineSlide),
+    /// The fit registered, and two moderate affine maps fitted from different starts each lay
+    /// the source on the target as closely as the warp, but carry it to different places (a
+    /// box's faces exchanged, module `affine_fit`): the surfaces fit both, and nothing tells
+    /// which is right.
+    MapsDisagree(MapsApart),
 }
 
 impl SurfaceFit {
