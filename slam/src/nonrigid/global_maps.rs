@@ -4,11 +4,11 @@
 //! A rigid motion is fitted from five starts: the centroids' translation and the four proper
 //! rotations that put the source's principal axes onto the target's
 //! ([`principal_axes_guesses`]); where both meshes are closed, an affine map from six: the
-//! centroids' translation and each of those rigid motions. From the closest rigid motion alone,
-//! a stretched box was laid exactly by a wrong map (its faces exchanged), 59 % off, where the
-//! map from the other starts would have disagreed (NOTES 198). Of the maps that lay the source on the target at least as
-//! closely as the warp (`Closeness::explained_by`), the least deformed kind is taken, rigid
-//! before affine, where all of that kind carry the source to one place. Where two of them lay
+//! centroids' translation and each of those rigid motions (from the closest rigid motion alone,
+//! a stretched box was laid exactly by a wrong map, its faces exchanged, 59 % off, where the maps
+//! from the other starts would have disagreed; NOTES 198). Of the maps that lay the source on
+//! the target at least as closely as the warp (`Closeness::explained_by`), the least deformed
+//! kind is taken, rigid before affine, where all of that kind carry the source to one place. Where two of them lay
 //! it as closely and carry it apart, the surfaces fit both, and nothing tells which is right:
 //! a box or an ellipsoid turned onto itself (a rigid symmetry, which the principal axes' starts
 //! find), or a box whose faces an affine map exchanges, each stretched onto the other. Then no
@@ -274,5 +274,27 @@ mod tests {
             ),
             "{taken:?}"
         );
+    }
+
+    /// A source point that is not a number is left out of the principal axes and of the fits:
+    /// every start and every map is finite.
+    #[test]
+    fn a_point_that_is_not_finite_is_left_out_of_the_starts_and_the_fits() {
+        let (points, faces) = cube(4);
+        let normals = crate::nonrigid::slippage::tests::normals(&points, &faces);
+        let mut source = points.clone();
+        source.push(Vector3::repeat(f64::NAN));
+        let starts = principal_axes_guesses(&source, &points);
+        assert_eq!(starts.len(), 5);
+        let finite = |m: &AffineMap| {
+            m.linear
+                .iter()
+                .chain(&m.moved_centre)
+                .all(|v| v.is_finite())
+        };
+        assert!(starts.iter().all(|s| finite(&AffineMap::of_motion(s))));
+        let maps = fit_maps(&source, (&points, &normals), true);
+        assert_eq!((maps.rigid.len(), maps.affine.len()), (5, 6));
+        assert!(maps.rigid.iter().chain(&maps.affine).all(finite));
     }
 }

@@ -16,7 +16,7 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
-use super::extent::centroid;
+use super::extent::{centroid, finite};
 use super::graph::{Binding, DeformationGraph};
 use super::linear_steps::{LinearEffort, LinearSteps};
 use super::photometric::{PhotometricFit, PhotometricTarget};
@@ -800,11 +800,16 @@ pub fn regulariser_cost(graph: &DeformationGraph, lambda: f64) -> f64 {
 
 /// Starting motions for registering one whole shape onto another: the identity, and the four
 /// proper rotations that put the source's principal axes (eigenvectors of its covariance) onto the
-/// target's, each moving centroid onto centroid.
+/// target's, each moving centroid onto centroid; over the finite points alone (one that is not
+/// would leave the covariance without a number), the identity alone with fewer than three.
 pub fn principal_axes_guesses(
     source: &[Vector3<f64>],
     target: &[Vector3<f64>],
 ) -> Vec<Isometry3<f64>> {
+    let finite_only = |pts: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
+        pts.iter().filter(|p| finite(p)).copied().collect()
+    };
+    let (source, target) = (finite_only(source), finite_only(target));
     let frame = |pts: &[Vector3<f64>]| {
         let n = pts.len().max(1) as f64;
         let c = centroid(pts);
@@ -829,7 +834,7 @@ pub fn principal_axes_guesses(
     if source.len() < 3 || target.len() < 3 {
         return out;
     }
-    let ((cs, a), (ct, b)) = (frame(source), frame(target));
+    let ((cs, a), (ct, b)) = (frame(&source), frame(&target));
     for flip in [
         [1.0, 1.0, 1.0],
         [1.0, -1.0, -1.0],
