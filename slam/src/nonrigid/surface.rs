@@ -193,12 +193,12 @@ pub struct SurfaceRegistration {
     /// still the way out's).
     pub placed_back: bool,
     /// Whether [`Self::points`] and [`Self::normals`] are the source carried by a global affine
-    /// map (module `affine_fit`): a moderate one that lays the source on the target at least as
+    /// map (module `global_maps`): a moderate one that lays the source on the target at least as
     /// closely as the warp did. The graph and the fit are still the warp's, and the round trip
     /// is not run.
     pub placed_affine: bool,
     /// Whether [`Self::points`] and [`Self::normals`] are the source carried by a rigid motion
-    /// (module `affine_fit`) that lays it on the target at least as closely as the warp did:
+    /// (module `global_maps`) that lays it on the target at least as closely as the warp did:
     /// of the answers that fit, the one that deforms nothing (NOTES 197). The graph and the fit
     /// are still the warp's, and the round trip is not run.
     pub placed_rigid: bool,
@@ -216,7 +216,8 @@ impl SurfaceRegistration {
     /// the round trip brings the points back ([`SurfaceVerdict::Inconsistent`]), and whether
     /// either surface slides under a stretch while the answer is not rigid
     /// ([`SurfaceVerdict::AffineAmbiguous`], module `affine_slippage`), and last whether two
-    /// affine maps that each fit carry the source apart ([`SurfaceVerdict::MapsDisagree`]).
+    /// maps of one kind that each fit carry the source apart ([`SurfaceVerdict::MapsDisagree`],
+    /// module `global_maps`).
     pub fn verdict(&self) -> SurfaceVerdict {
         match (self.verdict_of_the_fit(), self.affine_slide()) {
             (SurfaceVerdict::Registered, Some(a)) if a.is_free() => {
@@ -623,8 +624,7 @@ fn for_the_way_back(
 /// Registers `source` onto `target` by `there` and, beside it, `target` back onto `source` by
 /// `back` (the same procedure with the roles swapped) and, for two meshes, fits rigid motions of
 /// the source onto the target, and affine maps too where both are closed (module
-/// `global_maps`). Then
-/// measures the slippage, rigid and affine (meshes: `band` given), and, where the fit registers
+/// `global_maps`). Then measures the slippage, rigid and affine (meshes: `band` given), and, where the fit registers
 /// and nothing slides rigidly, places the source ([`place`]: by a map, or by the warp judged by
 /// the round trip); last, the answer's departure from rigid, which the verdict weighs against
 /// the affine slippage ([`SurfaceRegistration::verdict`]). The directions and the maps run at
@@ -661,9 +661,9 @@ fn both_ways(
 
 /// Where a registration that fits places the source, the least deformed first (module
 /// `global_maps`, fitted beside the registrations for meshes): a rigid motion, or else an
-/// affine map (closed meshes), that lays it on the target at least as closely as the warp, where all of its
-/// kind that do agree; where they carry the source apart, none, and the verdict says so
-/// (`maps_apart`, NOTES 198); else the warp's points, judged by the round trip against
+/// affine map (closed meshes), that lays it on the target at least as closely as the warp,
+/// where all of its kind that do agree; where they carry the source apart, none, and the
+/// verdict says so (`maps_apart`, NOTES 198); else the warp's points, judged by the round trip against
 /// `backward` and moved to the way back's where that lies closer.
 fn place(
     reg: &mut SurfaceRegistration,

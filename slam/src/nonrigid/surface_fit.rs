@@ -97,10 +97,11 @@ pub enum SurfaceVerdict {
     /// torus) and the answer is not rigid: the same answer composed with that motion fits as
     /// well, and only the regulariser chose among them.
     AffineAmbiguous(AffineSlide),
-    /// The fit registered, and two moderate affine maps fitted from different starts each lay
-    /// the source on the target as closely as the warp, but carry it to different places (a
-    /// box's faces exchanged, module `affine_fit`): the surfaces fit both, and nothing tells
-    /// which is right.
+    /// The fit registered, and two rigid motions, or two moderate affine maps, fitted from
+    /// different starts each lay the source on the target as closely as the warp, but carry it
+    /// to different places (a box or an ellipsoid after a half turn, a box's faces exchanged by
+    /// a stretch; module `global_maps`): the surfaces fit both, and nothing tells which is
+    /// right.
     MapsDisagree(MapsApart),
 }
 
