@@ -30,7 +30,8 @@ use rayon::prelude::*;
 /// Rounds of pairing and solving at most. Point-to-plane steps reach an exact fit in far
 /// fewer, and a pair that no map fits (the camel's poses) runs them all in each of its eleven
 /// fits (module `global_maps`): at 100 rounds, the 30 camel maps took 73.7 s against 58.1 s at
-/// 30, every verdict and placement on four sets of shapes the same (NOTES 198).
+/// 30, every verdict, placement and error on three sets of shapes and on those maps the same
+/// (NOTES 198).
 const ROUNDS: usize = 30;
 /// A round that moves the map by less than this share of the source's extent ends the fit.
 const CONVERGED: f64 = 1e-10;
