@@ -112,44 +112,26 @@ impl AffineMap {
 
 /// The affine map that lays `source` on `target` (module docs; `normals` the target's, by
 /// vertex), fitted to at most about 2,048 finite points of each (`MAX_POINTS`) and started at
-/// the translation between their centroids; `None` without finite points on either side or
-/// where a round's system cannot be solved.
+/// `start`, or else at the translation between their centroids; `None` without finite points
+/// on either side or where a round's system cannot be solved. A box has discrete affine maps
+/// onto itself (its faces exchanged, each stretched onto the other), and a start far from the
+/// right map can end on one of them exactly (NOTES 198).
 pub fn fit_affine(
     source: &[Vector3<f64>],
     (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
+    start: Option<&AffineMap>,
 ) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Affine, None)
-}
-
-/// The affine map that lays `source` on `target` by the rounds of [`fit_affine`], started at
-/// `start` instead of the centroids' translation. A box has discrete affine maps onto itself
-/// (its faces exchanged, each stretched onto the other), and a start far from the right map
-/// can end on one of them exactly (NOTES 198); a second start shows it where the two end apart.
-pub fn fit_affine_from(
-    source: &[Vector3<f64>],
-    (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
-    start: &AffineMap,
-) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Affine, Some(start))
+    fit(source, (target, normals), Model::Affine, start)
 }
 
 /// The rigid motion that lays `source` on `target` by the same rounds with a rigid step, from
-/// the same start; `None` as for [`fit_affine`].
+/// `start` (a rigid motion) or else the centroids; `None` as for [`fit_affine`].
 pub fn fit_rigid(
     source: &[Vector3<f64>],
     (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
+    start: Option<&AffineMap>,
 ) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Rigid, None)
-}
-
-/// The rigid motion that lays `source` on `target` by the rounds of [`fit_rigid`], started at
-/// `start` (a rigid motion) instead of the centroids' translation.
-pub fn fit_rigid_from(
-    source: &[Vector3<f64>],
-    (target, normals): (&[Vector3<f64>], &[Vector3<f64>]),
-    start: &AffineMap,
-) -> Option<AffineMap> {
-    fit(source, (target, normals), Model::Rigid, Some(start))
+    fit(source, (target, normals), Model::Rigid, start)
 }
 
 /// The maps a fit may take.
@@ -418,7 +400,7 @@ mod tests {
             turn.matrix() * stretch,
             Vector3::new(0.1, -0.05, 0.02),
         );
-        let map = fit_affine(&source, (&target, &normals(&target, &faces))).unwrap();
+        let map = fit_affine(&source, (&target, &normals(&target, &faces)), None).unwrap();
         let off = worst(&map, &source, &target);
         assert!(off < 1e-6, "{off} {map:?}");
         assert!(map.is_moderate());
@@ -438,7 +420,7 @@ mod tests {
         let axis = Unit::new_normalize(Vector3::new(0.2, 0.9, 0.1));
         let stretch = Matrix3::identity() + 0.25 * axis.as_ref() * axis.transpose();
         let target = carried(&source, stretch, Vector3::new(2.0, -1.0, 0.5));
-        let map = fit_affine(&source, (&target, &normals(&target, &faces))).unwrap();
+        let map = fit_affine(&source, (&target, &normals(&target, &faces)), None).unwrap();
         let moved: Vec<Vector3<f64>> = source.iter().map(|p| map.apply(p)).collect();
         let median = PointSet::new(&target).two_way_median(&moved);
         assert!(median < 0.01, "{median} {map:?}");
@@ -456,7 +438,7 @@ mod tests {
             Matrix3::from_diagonal(&Vector3::new(1.3, 1.0, 1.0)),
             Vector3::zeros(),
         );
-        let map = fit_affine(&sheet, (&target, &up)).unwrap();
+        let map = fit_affine(&sheet, (&target, &up), None).unwrap();
         // point-to-plane pairs see only the normal direction: within the plane and along the
         // normal the map keeps the identity (why open meshes are not judged by it,
         // `surface::Closeness::explained_by`)
@@ -483,7 +465,7 @@ mod tests {
         ];
         for turn in turns {
             let target = carried(&source, turn.into_inner(), Vector3::new(0.1, -0.05, 0.02));
-            let map = fit_rigid(&source, (&target, &normals(&target, &faces))).unwrap();
+            let map = fit_rigid(&source, (&target, &normals(&target, &faces)), None).unwrap();
             let off = worst(&map, &source, &target);
             assert!(off < 1e-6, "{off} {map:?}");
             assert!((map.linear.determinant() - 1.0).abs() < 1e-9);
@@ -511,7 +493,7 @@ mod tests {
                 centre: centroid(&points),
                 moved_centre: centroid(&target),
             };
-            fit_affine_from(&points, (&target, &normals), &start).unwrap()
+            fit_affine(&points, (&target, &normals), Some(&start)).unwrap()
         };
         let right = from(0.3);
         assert!(worst(&right, &points, &target) < 1e-6, "{right:?}");
@@ -532,12 +514,12 @@ mod tests {
         let (e, faces) = egg(false);
         let n = normals(&e, &faces);
         let nan = [Vector3::repeat(f64::NAN)];
-        assert!(fit_affine(&nan, (&e, &n)).is_none());
-        assert!(fit_affine(&e, (&[], &[])).is_none());
-        assert!(fit_rigid(&e, (&nan, &n)).is_none());
+        assert!(fit_affine(&nan, (&e, &n), None).is_none());
+        assert!(fit_affine(&e, (&[], &[]), None).is_none());
+        assert!(fit_rigid(&e, (&nan, &n), None).is_none());
         // without the target's normals the pairs see nothing, and no map is made up
-        assert!(fit_affine(&e, (&e, &[])).is_none());
-        assert!(fit_rigid(&e, (&e, &vec![Vector3::zeros(); e.len()])).is_none());
+        assert!(fit_affine(&e, (&e, &[]), None).is_none());
+        assert!(fit_rigid(&e, (&e, &vec![Vector3::zeros(); e.len()]), None).is_none());
         assert_eq!(PointSet::new(&e).two_way_median(&nan), f64::INFINITY);
         assert_eq!(PointSet::new(&nan).two_way_median(&e), f64::INFINITY);
     }

@@ -8,17 +8,17 @@
 //! a stretched box was laid exactly by a wrong map, its faces exchanged, 59 % off, where the maps
 //! from the other starts would have disagreed; NOTES 198). Of the maps that lay the source on
 //! the target at least as closely as the warp (`Closeness::explained_by`), the least deformed
-//! kind is taken, rigid before affine, where all of that kind carry the source to one place. Where two of them lay
-//! it as closely and carry it apart, the surfaces fit both, and nothing tells which is right:
+//! kind is taken, rigid before affine, where all of that kind carry the source to one place
+//! (within `affine_slippage::RIGID_SHARE` of the fit's tolerance). Where two of them lay it as
+//! closely and carry it apart, the surfaces fit both, and nothing tells which is right:
 //! a box or an ellipsoid turned onto itself (a rigid symmetry, which the principal axes' starts
 //! find), or a box whose faces an affine map exchanges, each stretched onto the other. Then no
 //! map is taken, and the verdict says so (`SurfaceVerdict::MapsDisagree`). The principal axes'
 //! starts also reach a shape turned far: from the centroids alone, the rigid fit stops short of
 //! a bumpy egg turned 150°.
 
-use super::affine_fit::{
-    fit_affine, fit_affine_from, fit_rigid, fit_rigid_from, AffineMap, PointSet,
-};
+use super::affine_fit::{fit_affine, fit_rigid, AffineMap, PointSet};
+use super::affine_slippage::RIGID_SHARE;
 use super::register::principal_axes_guesses;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -41,29 +41,32 @@ pub fn fit_maps(
     target: (&[Vector3<f64>], &[Vector3<f64>]),
     affine: bool,
 ) -> Maps {
-    let starts = principal_axes_guesses(source, target.0);
-    let rigid_from = |k: usize| match k {
-        0 => fit_rigid(source, target),
-        k => fit_rigid_from(source, target, &AffineMap::of_motion(&starts[k])),
-    };
-    let from_centroids = || affine.then(|| fit_affine(source, target)).flatten();
-    let (rigid, (from_centroids, set)) = rayon::join(
-        || {
-            (0..starts.len())
-                .into_par_iter()
-                .filter_map(rigid_from)
-                .collect::<Vec<_>>()
-        },
-        || rayon::join(from_centroids, || PointSet::new(target.0)),
-    );
-    let from_rigid: Vec<AffineMap> = (rigid.par_iter().filter(|_| affine))
-        .filter_map(|m| fit_affine_from(source, target, m))
+    let turns: Vec<AffineMap> = (principal_axes_guesses(source, target.0).iter())
+        .skip(1) // the identity: the centroids' start stands for it
+        .map(AffineMap::of_motion)
         .collect();
+    let rigid = fitted(&turns, |s| fit_rigid(source, target, s));
+    let affine = match affine {
+        true => fitted(&rigid, |s| fit_affine(source, target, s)),
+        false => Vec::new(),
+    };
     Maps {
         rigid,
-        affine: from_centroids.into_iter().chain(from_rigid).collect(),
-        target: set,
+        affine,
+        target: PointSet::new(target.0),
     }
+}
+
+/// `fit` from the centroids and from each of `starts`, in parallel and in that order, the fits
+/// that fail left out.
+fn fitted(
+    starts: &[AffineMap],
+    fit: impl Fn(Option<&AffineMap>) -> Option<AffineMap> + Sync,
+) -> Vec<AffineMap> {
+    let starts: Vec<Option<&AffineMap>> = std::iter::once(None)
+        .chain(starts.iter().map(Some))
+        .collect();
+    starts.into_par_iter().filter_map(&fit).collect()
 }
 
 /// `points` carried by `map`.
@@ -123,7 +126,7 @@ pub enum Choice {
 pub struct Closeness<'a> {
     maps: Maps,
     warp: f64,
-    tie: f64,
+    tolerance: f64,
     source: &'a [Vector3<f64>],
 }
 
@@ -139,13 +142,20 @@ impl<'a> Closeness<'a> {
         warped: &[Vector3<f64>],
         tolerance: f64,
     ) -> Self {
-        let rounding = 4.0 * f64::from(f32::EPSILON) * maps.target.largest_coordinate();
         Self {
             warp: maps.target.two_way_median(warped),
-            tie: 1e-6 * tolerance + rounding,
+            tolerance,
             maps,
             source,
         }
+    }
+
+    /// The margin within which a map lays the source as closely as the warp (the constructor's
+    /// docs): a millionth of the tolerance and four `f32` roundings of the target's largest
+    /// absolute coordinate.
+    fn tie(&self) -> f64 {
+        1e-6 * self.tolerance
+            + 4.0 * f64::from(f32::EPSILON) * self.maps.target.largest_coordinate()
     }
 
     /// Whether `map` is moderate ([`AffineMap::is_moderate`]) and lays the source on the
@@ -160,11 +170,13 @@ impl<'a> Closeness<'a> {
     /// half turn, 52–56 % off and reported registered (NOTES 198).
     fn explained_by(&self, map: &AffineMap) -> bool {
         map.is_moderate()
-            && self.maps.target.two_way_median(&carried(map, self.source)) <= self.warp + self.tie
+            && self.maps.target.two_way_median(&carried(map, self.source)) <= self.warp + self.tie()
     }
 
-    /// The map to take (module docs), maps within `limit` of each other counting as one.
-    pub fn choose(&self, limit: f64) -> Choice {
+    /// The map to take (module docs), maps within [`RIGID_SHARE`] of the tolerance of each other
+    /// counting as one.
+    pub fn choose(&self) -> Choice {
+        let limit = RIGID_SHARE * self.tolerance;
         let kinds = [
             (MapKind::Rigid, &self.maps.rigid),
             (MapKind::Affine, &self.maps.affine),
@@ -209,7 +221,7 @@ mod tests {
     }
 
     /// The choice among `rigid` and `affine` maps of `source` onto `target`, the warp's points
-    /// `target` with every other one moved by 10⁻³ along x; tolerance 0.1, limit 0.01.
+    /// `target` with every other one moved by 10⁻³ along x; tolerance 0.1, so limit 0.01.
     fn choice(
         (source, target): (&[Vector3<f64>], &[Vector3<f64>]),
         rigid: &[Matrix3<f64>],
@@ -223,7 +235,7 @@ mod tests {
         let warped: Vec<Vector3<f64>> = (target.iter().enumerate())
             .map(|(k, p)| p + 1e-3 * (k % 2) as f64 * Vector3::x())
             .collect();
-        Closeness::new(maps, source, &warped, 0.1).choose(0.01)
+        Closeness::new(maps, source, &warped, 0.1).choose()
     }
 
     /// A cube lies exactly on its stretch under the stretch and under the stretch after a
@@ -244,7 +256,10 @@ mod tests {
         let Choice::Disagree(apart) = choice(pair, &[], &[stretch, stretch * quarter]) else {
             panic!("the faces exchanged were taken");
         };
-        assert!(apart.apart > 0.8 && apart.limit == 0.01, "{apart:?}");
+        assert!(
+            apart.apart > 0.8 && (apart.limit - 0.01).abs() < 1e-15,
+            "{apart:?}"
+        );
         let taken = choice(pair, &[i], &[stretch, stretch]);
         let Choice::Map { kind, map, apart } = taken else {
             panic!("{taken:?}");

@@ -624,8 +624,8 @@ fn for_the_way_back(
 /// Registers `source` onto `target` by `there` and, beside it, `target` back onto `source` by
 /// `back` (the same procedure with the roles swapped) and, for two meshes, fits rigid motions of
 /// the source onto the target, and affine maps too where both are closed (module
-/// `global_maps`). Then measures the slippage, rigid and affine (meshes: `band` given), and, where the fit registers
-/// and nothing slides rigidly, places the source ([`place`]: by a map, or by the warp judged by
+/// `global_maps`). Then measures the slippage, rigid and affine (meshes: `band` given), and,
+/// where the fit registers and nothing slides rigidly, places the source ([`place`]: by a map, or by the warp judged by
 /// the round trip); last, the answer's departure from rigid, which the verdict weighs against
 /// the affine slippage ([`SurfaceRegistration::verdict`]). The directions and the maps run at
 /// once (`rayon::join`): each one's parallel loops leave part of the cores idle, and the pair
@@ -663,8 +663,8 @@ fn both_ways(
 /// `global_maps`, fitted beside the registrations for meshes): a rigid motion, or else an
 /// affine map (closed meshes), that lays it on the target at least as closely as the warp,
 /// where all of its kind that do agree; where they carry the source apart, none, and the
-/// verdict says so (`maps_apart`, NOTES 198); else the warp's points, judged by the round trip against
-/// `backward` and moved to the way back's where that lies closer.
+/// verdict says so (`maps_apart`, NOTES 198); else the warp's points, judged by the round
+/// trip against `backward` and moved to the way back's where that lies closer.
 fn place(
     reg: &mut SurfaceRegistration,
     (source, target): (SurfaceMesh<'_>, SurfaceMesh<'_>),
@@ -672,9 +672,8 @@ fn place(
     backward: Result<SurfaceRegistration, SurfaceError>,
 ) -> Result<(), SurfaceError> {
     if let Some(maps) = maps {
-        let tolerance = reg.fit.tolerance;
-        let closeness = Closeness::new(maps, source.points, &reg.points, tolerance);
-        match closeness.choose(RIGID_SHARE * tolerance) {
+        let closeness = Closeness::new(maps, source.points, &reg.points, reg.fit.tolerance);
+        match closeness.choose() {
             Choice::Disagree(apart) => {
                 reg.maps_apart = Some(apart);
                 return Ok(());
