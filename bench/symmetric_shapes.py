@@ -106,6 +106,23 @@ def turn(v, degrees, rng):
     return r.apply(v - c) + c + 0.043 * np.linalg.norm(np.ptp(v, 0)) * away
 
 
+def register(binary, s, t, w, label):
+    """`nonrigid_register meshes S T --output W -q`: the finished process and its JSON line, or
+    None for the JSON (printed with `label` and the tool's error) where it gave none."""
+    r = subprocess.run([binary, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
+    try:
+        return r, json.loads(r.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        print(f"{label} exit {r.returncode}: {r.stderr.strip()[-200:]}")
+        return r, None
+
+
+def maps_apart(j):
+    """The JSON's `maps_apart` as text: the distance and its limit, or – without it."""
+    apart = j.get("maps_apart")
+    return "–" if apart is None else f"{apart['apart']:.1e} (one under {apart['limit']:.1e})"
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--count", type=int, default=12)
@@ -135,11 +152,8 @@ def main():
                 continue
             o3d.io.write_triangle_mesh(s, mesh(v, f))
             o3d.io.write_triangle_mesh(t, mesh(moved, f))
-            r = subprocess.run([a.bin, "meshes", s, t, "--output", w, "-q"], capture_output=True, text=True)
-            try:
-                j = json.loads(r.stdout.strip().splitlines()[-1])
-            except (IndexError, json.JSONDecodeError):
-                print(f"{kind:10s} {name:22s} exit {r.returncode}: {r.stderr.strip()[-200:]}")
+            r, j = register(a.bin, s, t, w, f"{kind:10s} {name:22s}")
+            if j is None:
                 continue
             slip = j["slippage"]
             aff = j.get("affine_slippage") or {}
@@ -147,8 +161,7 @@ def main():
             aff = {k: aff.get(k) if aff.get(k) is not None else nan for k in ("source", "target", "departure_from_rigid", "rigid_limit")}
             trip = j.get("round_trip")
             trip = "  –  " if trip is None else f"{trip['ratio']:.3f}"
-            apart = j.get("maps_apart")
-            apart = "–" if apart is None else f"{apart['apart']:.1e} (one under {apart['limit']:.1e})"
+            apart = maps_apart(j)
             reach = np.linalg.norm(moved - v, axis=1).max()
             e = np.linalg.norm(np.asarray(o3d.io.read_triangle_mesh(w).vertices) - moved, axis=1) / reach
             print(f"{kind:10s} {name:22s} exit {r.returncode} registered {j['registered']!s:5s} "

@@ -28,23 +28,26 @@
 //! over 0.35 the surfaces do not fix where the points go, and it is not registered (module
 //! `round_trip`, NOTES 188); `seconds` counts both ways. Where it registered and the way back
 //! lies closer to its target (data cost per point), WARPED holds the source where the way back
-//! placed it (`placed_back`, NOTES 189). Where it registered, a rigid motion or else (both
-//! meshes closed) a global affine map (no direction stretched more than twice), each
-//! fitted by point-to-plane closest point, that lays the source on the target at least as
-//! closely as the warp is taken: WARPED holds the source carried by it and the round trip is not
-//! run (`placed_rigid`, `placed_affine`, NOTES 195 and 197). `affine_slippage` gives the share of
-//! each mesh's least-constrained affine motion that moves it off itself and the answer's
-//! `departure_from_rigid` (root mean square, in the meshes' unit): where a mesh slides along
-//! itself under a stretch (under 1e-3: an ellipsoid, a stretched torus) and the answer departs
-//! from rigid by more than `rigid_limit` (a tenth of the node spacing), the same answer
-//! stretched along the surface fits as well, and it is not registered (NOTES 197). The rigid
-//! motion is fitted from five starts (the centroids, and the four turns that put the source's
-//! principal axes onto the target's) and the affine map from six (the centroids, and each rigid
-//! motion); where more than one of the kind taken lays the source as closely as the warp,
-//! `maps_apart` gives how far apart they carry it (`apart`, root mean square) and the `limit` (a
-//! tenth of the node spacing) within which they are one map: further apart, as a box or an
-//! ellipsoid turned onto itself is, or a box whose faces a stretch exchanges, none is taken and
-//! it is not registered (NOTES 198). A point cloud (no faces) must carry its normals. A mesh
+//! placed it (`placed_back`, NOTES 189). Where it registered, a rigid motion or else a global
+//! affine map (no direction stretched more than twice; for an open mesh, only one that lays every
+//! vertex within a tenth of the node spacing, NOTES 199), each fitted by point-to-plane closest
+//! point, that lays the source on the target at least as closely as the warp is taken: WARPED holds
+//! the source carried by it and the round trip is not run (`placed_rigid`, `placed_affine`, NOTES
+//! 195 and 197). `affine_slippage` gives the share of each mesh's least-constrained affine motion
+//! that moves it off itself and the answer's `departure_from_rigid` (root mean square, in the
+//! meshes' unit): where a mesh slides along itself under a stretch (under 1e-3: an ellipsoid, a
+//! stretched torus) and the answer departs from rigid by more than `rigid_limit` (a tenth of the
+//! node spacing), the same answer stretched along the surface fits as well, and it is not
+//! registered (NOTES 197). The rigid motion is fitted from five starts (the centroids, and the four
+//! turns that put the source's principal axes onto the target's) and the affine map from six (the
+//! centroids, and each rigid motion; where a mesh is open, from the four stretches that put the
+//! source's principal axes and spreads onto the target's, judged on nine tenths of the distances,
+//! and one that fits but is not exact is set against the warp like a second map); where more than
+//! one of the kind taken lays the source as closely as the warp, `maps_apart` gives how far apart
+//! they carry it (`apart`, root mean square) and the `limit` (a tenth of the node spacing) within
+//! which they are one map: further apart, as a box or an ellipsoid turned onto itself is, a box
+//! whose faces a stretch exchanges, or a flat sheet stretched, none is taken and it is not
+//! registered (NOTES 198–199). A point cloud (no faces) must carry its normals. A mesh
 //! without normals has them computed from its triangles after those wound against their
 //! neighbours are turned over (`faces_turned`, per mesh, with a warning; NOTES 141). A
 //! registration that did not register writes its outputs and JSON line, then exits 1 (NOTES

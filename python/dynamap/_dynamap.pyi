@@ -282,14 +282,16 @@ def register_meshes(
     registered over 0.35; None where it was not run), placed_back (whether the vertices are
     where the way back placed them), placed_rigid and placed_affine (whether they are the source
     carried by a rigid motion, or else a global affine map, that lays it on the target as closely
-    as the warp did; the affine map for two closed meshes only; round_trip is then None), affine_slippage ([source,
-    target]: the share of each mesh's least-constrained affine motion that moves it off itself;
+    as the warp did; for an open mesh, an affine map only where it lays every vertex within a
+    tenth of the node spacing; round_trip is then None), affine_slippage ([source, target]: the share of each mesh's least-constrained affine motion that moves it off itself;
     under 1e-3, an ellipsoid, registered is False unless the vertices are rigid) and
     departure_from_rigid (the vertices' root-mean-square distance from the source's nearest
     rigid motion; None where not measured), maps_apart ([apart, limit]: where several rigid
     motions, or else affine maps, fitted from different starts lay the source as closely as the
     warp, how far apart they carry it and the tenth of the node spacing within which they are
-    one; further apart, as for a box or an ellipsoid turned onto itself, registered is False;
+    one; further apart, as for a box or an ellipsoid turned onto itself or a flat rectangle
+    stretched, registered is False; for an open mesh an affine map that fits as closely but not
+    exactly is also set against the warp's vertices;
     None otherwise)."""
 
 def register_frames(

@@ -70,7 +70,7 @@ def test_python_registers_a_sheet_as_the_tool_does(tmp_path):
     trip = tool["round_trip"]
     assert result["round_trip"] == pytest.approx({k: trip[k] for k in ("error", "moved", "ratio")}, rel=1e-9)
     assert result["round_trip"]["ratio"] < trip["limit"], trip
-    # an open sheet is never laid by an affine map or a rigid motion (NOTES 195, 197); both say so
+    # a bent sheet is laid by no affine map or rigid motion (NOTES 195, 197, 199); both say so
     assert result["placed_affine"] is False and tool["placed_affine"] is False
     assert result["placed_rigid"] is False and tool["placed_rigid"] is False
     assert result["maps_apart"] is None and tool["maps_apart"] is None

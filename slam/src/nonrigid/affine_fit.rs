@@ -318,6 +318,12 @@ impl PointSet {
     /// (`points` to this set, this set to `points`): how closely two point sets lie on each
     /// other, whichever of them is larger. Infinite where either has no finite point.
     pub fn two_way_median(&self, points: &[Vector3<f64>]) -> f64 {
+        self.two_way_quantile(points, 0.5)
+    }
+
+    /// As [`Self::two_way_median`], the distance that `share` (in [0, 1]) of the distances do
+    /// not exceed, where the median is 0.5 and the largest 1.
+    pub fn two_way_quantile(&self, points: &[Vector3<f64>], share: f64) -> f64 {
         let points = finite_coords(points);
         if points.is_empty() || self.coords.is_empty() {
             return f64::INFINITY;
@@ -332,8 +338,8 @@ impl PointSet {
             &self.coords,
             &ImmutableKdTree::new_from_slice(&points),
         ));
-        let mid = all.len() / 2;
-        *all.select_nth_unstable_by(mid, f64::total_cmp).1
+        let rank = ((share.clamp(0.0, 1.0) * all.len() as f64) as usize).min(all.len() - 1);
+        *all.select_nth_unstable_by(rank, f64::total_cmp).1
     }
 }
 

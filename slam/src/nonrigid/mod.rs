@@ -54,6 +54,7 @@ pub mod outline_check;
 pub mod outline_start;
 pub mod photometric;
 mod point_terms;
+pub mod principal_axes;
 mod prior_index;
 pub mod reference_frame;
 pub mod register;
@@ -88,10 +89,11 @@ pub use mesh_point::MeshPoint;
 pub use mesh_target::MeshTarget;
 pub use outline_check::{OutlineCheck, MAX_FLUSH_FRACTION};
 pub use photometric::{LiveIntensity, PhotometricFit, PhotometricTarget, RatioImage};
+pub use principal_axes::principal_axes_guesses;
 pub use reference_frame::ReferenceFrame;
 pub use register::{
-    principal_axes_guesses, DepthTarget, RegisterError, RegisterParams, RegisterSummary,
-    RegisterTimes, Samples, Seeds, Target, TexturedDepthTarget, WarpOptimiser,
+    DepthTarget, RegisterError, RegisterParams, RegisterSummary, RegisterTimes, Samples, Seeds,
+    Target, TexturedDepthTarget, WarpOptimiser,
 };
 pub use round_trip::{RoundTrip, MAX_ROUND_TRIP};
 pub use slippage::{Slippage, MAX_SLIPPAGE};

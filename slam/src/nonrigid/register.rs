@@ -16,7 +16,6 @@
 //! structure (rounds, stages, and further calls and frames).
 
 use super::coverage::{sampling_spacing, Coverage, CoverageGates};
-use super::extent::{centroid, finite};
 use super::graph::{Binding, DeformationGraph};
 use super::linear_steps::{LinearEffort, LinearSteps};
 use super::photometric::{PhotometricFit, PhotometricTarget};
@@ -419,7 +418,8 @@ impl WarpOptimiser {
     }
 
     /// [`Self::optimise`] with the rigid pre-alignment started from each of `guesses` (see
-    /// [`principal_axes_guesses`] for whole shapes far apart); the closest fit is kept.
+    /// [`principal_axes_guesses`](super::principal_axes::principal_axes_guesses) for whole
+    /// shapes far apart); the closest fit is kept.
     ///
     /// With `seeds`, the first `seeds.stages` stages, under a wider Tukey kernel, give a point its
     /// seed wherever the seed lies farther than the distance gate from its closest-point partner
@@ -796,60 +796,6 @@ pub fn regulariser_cost(graph: &DeformationGraph, lambda: f64) -> f64 {
         }
     }
     cost
-}
-
-/// Starting motions for registering one whole shape onto another: the identity, and the four
-/// proper rotations that put the source's principal axes (eigenvectors of its covariance) onto the
-/// target's, each moving centroid onto centroid; over the finite points alone (one that is not
-/// would leave the covariance without a number), the identity alone with fewer than three.
-pub fn principal_axes_guesses(
-    source: &[Vector3<f64>],
-    target: &[Vector3<f64>],
-) -> Vec<Isometry3<f64>> {
-    let finite_only = |pts: &[Vector3<f64>]| -> Vec<Vector3<f64>> {
-        pts.iter().filter(|p| finite(p)).copied().collect()
-    };
-    let (source, target) = (finite_only(source), finite_only(target));
-    let frame = |pts: &[Vector3<f64>]| {
-        let n = pts.len().max(1) as f64;
-        let c = centroid(pts);
-        let cov = pts
-            .iter()
-            .map(|p| (p - c) * (p - c).transpose())
-            .sum::<nalgebra::Matrix3<f64>>()
-            / n;
-        let eig = cov.symmetric_eigen();
-        // columns by decreasing variance, made right-handed
-        let mut order = [0, 1, 2];
-        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-        let mut axes = nalgebra::Matrix3::from_columns(
-            &order.map(|k| eig.eigenvectors.column(k).into_owned()),
-        );
-        if axes.determinant() < 0.0 {
-            axes.column_mut(2).neg_mut();
-        }
-        (c, axes)
-    };
-    let mut out = vec![Isometry3::identity()];
-    if source.len() < 3 || target.len() < 3 {
-        return out;
-    }
-    let ((cs, a), (ct, b)) = (frame(&source), frame(&target));
-    for flip in [
-        [1.0, 1.0, 1.0],
-        [1.0, -1.0, -1.0],
-        [-1.0, 1.0, -1.0],
-        [-1.0, -1.0, 1.0],
-    ] {
-        let r = b * nalgebra::Matrix3::from_diagonal(&Vector3::from(flip)) * a.transpose();
-        // a product of orthonormal matrices: orthonormal already
-        let rot = nalgebra::UnitQuaternion::from_rotation_matrix(
-            &nalgebra::Rotation3::from_matrix_unchecked(r),
-        );
-        let t = ct - rot * cs;
-        out.push(Isometry3::from_parts(t.into(), rot));
-    }
-    out
 }
 
 /// Rigid point-to-plane terms of the pre-alignment: warped points against their closest target.
