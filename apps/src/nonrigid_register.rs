@@ -41,7 +41,8 @@
 //! registered (NOTES 197). The rigid motion is fitted from five starts (the centroids, and the four
 //! turns that put the source's principal axes onto the target's) and the affine map from six (the
 //! centroids, and each rigid motion; where a mesh is open, from the four stretches that put the
-//! source's principal axes and spreads onto the target's, judged on nine tenths of the distances,
+//! source's principal axes and spreads onto the target's and, for a flat sheet, the two closest of
+//! 144 turns of its whitened plane, refined point to point, judged on nine tenths of the distances,
 //! and one that fits but is not exact is set against the warp like a second map); where more than
 //! one of the kind taken lays the source as closely as the warp, `maps_apart` gives how far apart
 //! they carry it (`apart`, root mean square) and the `limit` (a tenth of the node spacing) within

@@ -134,11 +134,26 @@ pub fn fit_rigid(
     fit(source, (target, normals), Model::Rigid, start)
 }
 
-/// The maps a fit may take.
+/// The affine map that lays `source` on `target` by the same rounds with point-to-point steps
+/// (each pair's distance along all three axes), from `start`; `None` as for [`fit_affine`].
+/// Within a flat sheet's plane point-to-plane steps see nothing; point-to-point steps pull each
+/// point onto its nearest target point, and from a start within a fraction of the sheet of the
+/// map they reach it (module `global_maps`, NOTES 199).
+pub fn fit_affine_points(
+    source: &[Vector3<f64>],
+    target: (&[Vector3<f64>], &[Vector3<f64>]),
+    start: &AffineMap,
+) -> Option<AffineMap> {
+    fit(source, target, Model::AffinePoints, Some(start))
+}
+
+/// The maps a fit may take, and how its pairs are measured.
 #[derive(Clone, Copy, PartialEq)]
 enum Model {
     Rigid,
     Affine,
+    /// Affine, point to point.
+    AffinePoints,
 }
 
 /// [`fit_affine`] or [`fit_rigid`]: rounds of pairing and stepping from `start`, or else from
@@ -188,6 +203,12 @@ fn fit(
             .map(|(p, k)| (Vector3::from(*p), target[k], normals[k]));
         let next = match model {
             Model::Affine => affine_step(pairs, &map)?,
+            Model::AffinePoints => affine_step(
+                pairs.flat_map(|(p, y, _)| {
+                    [Vector3::x(), Vector3::y(), Vector3::z()].map(|e| (p, y, e))
+                }),
+                &map,
+            )?,
             Model::Rigid => rigid_step(pairs, &map)?,
         };
         let change = (next.linear - map.linear).norm() * extent

@@ -19,16 +19,17 @@
 //!
 //! Where either mesh is open, affine maps are fitted from the four moment stretches instead
 //! ([`moment_stretches`]: the principal axes put onto the target's, each stretched by the ratio
-//! of the spreads) and judged on [`TAIL`] of the distances (`Closeness::open_affine`). A flat
-//! rectangle stretched and turned 45–120° was laid by the warp at one of its symmetries, 11–59 %
-//! off, and reported registered; its moment stretches lay it exactly at each of them, and it is
-//! refused. An L-shaped sheet stretched was laid 10–50 % off by the warp at 15–120°; its one
-//! moment stretch that fits lays it exactly, and is taken (NOTES 199).
+//! of the spreads) and, for a flat sheet, from the two whitened turns that lay it closest
+//! ([`whitened_turns`], refined point to point), and judged on [`TAIL`] of the distances
+//! (`Closeness::open_affine`). A flat rectangle stretched and turned 45–120° was laid by the
+//! warp at one of its symmetries, 11–59 % off, and reported registered; maps lay it exactly at
+//! each of them, and it is refused. An L-shaped sheet stretched was laid 10–50 % off by the warp
+//! at 15–120°; its one map that fits lays it exactly, and is taken (NOTES 199).
 
-use super::affine_fit::{fit_affine, fit_rigid, AffineMap, PointSet};
+use super::affine_fit::{fit_affine, fit_affine_points, fit_rigid, AffineMap, PointSet};
 use super::affine_slippage::RIGID_SHARE;
 use super::extent::finite;
-use super::principal_axes::{moment_stretches, principal_axes_guesses};
+use super::principal_axes::{moment_stretches, principal_axes_guesses, whitened_turns};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -37,7 +38,7 @@ pub struct Maps {
     /// The rigid motions, the one from the centroids first.
     rigid: Vec<AffineMap>,
     /// The affine maps: for closed meshes the one from the centroids first; where either mesh
-    /// is open, from the moment stretches alone.
+    /// is open, those of [`open_affine_maps`].
     affine: Vec<AffineMap>,
     /// Whether either mesh is open: the affine maps are then judged by [`TAIL`] of the
     /// distances and placed only where they lay the source exactly (`Closeness::choose`).
@@ -54,10 +55,9 @@ pub const TAIL: f64 = 0.9;
 
 /// Fits the maps of the module docs of `source` onto `target` (points and vertex normals):
 /// where `closed` (both meshes), affine maps from the centroids and from each rigid motion;
-/// otherwise from the four moment stretches ([`moment_stretches`]). Within an open sheet's
-/// plane the fit's point-to-plane steps do not move the map (from the centroids, a wrong
-/// stretch lay as flush as the right one, `Closeness::explained_by`), so there the start must
-/// be the stretch: the moments give it where it runs along the principal axes. The fits run
+/// otherwise `open_affine_maps`. Within an open sheet's plane the fit's point-to-plane steps
+/// do not move the map (from the centroids, a wrong stretch lay as flush as the right one,
+/// `Closeness::explained_by`), so there the start must be the stretch, or near it. The fits run
 /// in parallel, and a fit that fails is left out.
 pub fn fit_maps(
     source: &[Vector3<f64>],
@@ -69,25 +69,58 @@ pub fn fit_maps(
         .map(AffineMap::of_motion)
         .collect();
     let rigid = fitted(&turns, |s| fit_rigid(source, target, s));
+    let target_set = PointSet::new(target.0);
     let affine = match closed {
         true => fitted(&rigid, |s| fit_affine(source, target, s)),
-        false => (moment_stretches(source, target.0).into_par_iter())
-            .filter_map(|(linear, centre, moved_centre)| {
-                let start = AffineMap {
-                    linear,
-                    centre,
-                    moved_centre,
-                };
-                fit_affine(source, target, Some(&start))
-            })
-            .collect(),
+        false => open_affine_maps(source, target, &target_set),
     };
     Maps {
         rigid,
         affine,
         open: !closed,
-        target: PointSet::new(target.0),
+        target: target_set,
     }
+}
+
+/// How many turns round a flat sheet's plane [`whitened_turns`] samples: 5° apart.
+const WHITENED_STEPS: usize = 72;
+/// How many of the whitened turns, those that lay the source closest in [`TAIL`] of the
+/// distances, are refined.
+const WHITENED_KEPT: usize = 2;
+
+/// An open mesh's affine maps: the four moment stretches, refined point to plane, then, for a
+/// flat sheet, the [`WHITENED_KEPT`] whitened turns ([`whitened_turns`]) that lay it closest,
+/// refined point to point ([`fit_affine_points`]): the moments give a stretch along the sheet's
+/// principal axes; a stretch along another direction of the sheet is one of the whitened turns
+/// to within half a step.
+fn open_affine_maps(
+    source: &[Vector3<f64>],
+    target: (&[Vector3<f64>], &[Vector3<f64>]),
+    target_set: &PointSet,
+) -> Vec<AffineMap> {
+    let map = |(linear, centre, moved_centre)| AffineMap {
+        linear,
+        centre,
+        moved_centre,
+    };
+    let mut maps: Vec<AffineMap> = (moment_stretches(source, target.0).into_par_iter())
+        .filter_map(|s| fit_affine(source, target, Some(&map(s))))
+        .collect();
+    let mut turns: Vec<(f64, AffineMap)> = (whitened_turns(source, target.0, WHITENED_STEPS))
+        .into_par_iter()
+        .map(|s| {
+            let m = map(s);
+            (target_set.two_way_quantile(&carried(&m, source), TAIL), m)
+        })
+        .collect();
+    turns.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let kept: Vec<AffineMap> = turns.iter().take(WHITENED_KEPT).map(|t| t.1).collect();
+    maps.extend(
+        (kept.par_iter())
+            .filter_map(|s| fit_affine_points(source, target, s))
+            .collect::<Vec<_>>(),
+    );
+    maps
 }
 
 /// `fit` from the centroids and from each of `starts`, in parallel and in that order, the fits
@@ -207,23 +240,17 @@ impl<'a> Closeness<'a> {
     /// shapes, the camel's poses and noisy targets are laid closer by the warp, which stays.
     /// An open mesh's affine maps are judged otherwise ([`Self::open_affine`]): by the median, a
     /// wrong stretch of a sheet within its plane lay as flush as the right one (one of seed 31's
-    /// was taken 14.6 % off), where a closed surface's curvature pins the map. Rigid motions are fitted for open
-    /// meshes too: a flat sheet turned 120–150° was laid by the warp exactly, but at its own
-    /// half turn, 52–56 % off and reported registered (NOTES 198).
+    /// was taken 14.6 % off), where a closed surface's curvature pins the map. Rigid motions are
+    /// fitted for open meshes too: a flat sheet turned 120–150° was laid by the warp exactly, but
+    /// at its own half turn, 52–56 % off and reported registered (NOTES 198).
     fn explained_by(&self, map: &AffineMap) -> bool {
         map.is_moderate()
             && self.maps.target.two_way_median(&carried(map, self.source)) <= self.warp + self.tie()
     }
 
-    /// Whether `map`, an open mesh's affine map, is moderate and lays the source on the target
-    /// as closely as the warp in [`TAIL`] of the distances both ways.
-    fn explained_in_tail(&self, map: &AffineMap) -> bool {
-        map.is_moderate()
-            && self
-                .maps
-                .target
-                .two_way_quantile(&carried(map, self.source), TAIL)
-                <= self.warp_tail + self.tie()
+    /// `map`'s [`TAIL`] quantile of the two-way distances.
+    fn tail_of(&self, map: &AffineMap) -> f64 {
+        (self.maps.target).two_way_quantile(&carried(map, self.source), TAIL)
     }
 
     /// Whether `map` lays every point of the source within the agreement limit of a target
@@ -268,17 +295,26 @@ impl<'a> Closeness<'a> {
         })
     }
 
-    /// An open mesh's affine maps (the moment stretches refined), judged in [`TAIL`] of the
-    /// distances: where two that fit carry the source apart (a flat rectangle stretched, at its
+    /// An open mesh's affine maps (module docs), judged in [`TAIL`] of the distances: of the
+    /// moderate ones that lay the source as closely as the warp there, those as close as the
+    /// closest. Where two of them carry the source apart (a flat rectangle stretched, at its
     /// symmetries), a refusal; where they agree, the first is taken if it lays the source
-    /// exactly ([`Self::lays_exactly`]: an L-shaped sheet stretched along its principal axis),
-    /// and otherwise it refuses where it carries the source away from the warp (both lie on the
-    /// target in most of it, and a stretch along another direction, which the moments do not
-    /// give, left such a map 146 % off where the warp was 14 %, NOTES 199); `None` where none
-    /// fits.
+    /// exactly ([`Self::lays_exactly`]: an L-shaped sheet stretched), and otherwise it refuses
+    /// where it carries the source away from the warp (both lie on the target in most of it:
+    /// without the whitened turns, a stretch along no principal axis left such a map 146 % off
+    /// where the warp was 14 %, NOTES 199); `None` where none fits.
     fn open_affine(&self) -> Option<Choice> {
-        let fitting: Vec<&AffineMap> = (self.maps.affine.iter())
-            .filter(|m| self.explained_in_tail(m))
+        let scored: Vec<(&AffineMap, f64)> = (self.maps.affine.iter())
+            .filter(|m| m.is_moderate())
+            .map(|m| (m, self.tail_of(m)))
+            .filter(|&(_, tail)| tail <= self.warp_tail + self.tie())
+            .collect();
+        // of those, the ones as close as the closest: a map that lays the source exactly is not
+        // set against one that only lies as close as the warp
+        let closest = scored.iter().map(|s| s.1).fold(f64::INFINITY, f64::min);
+        let fitting: Vec<&AffineMap> = (scored.iter())
+            .filter(|&&(_, tail)| tail <= closest + self.tie())
+            .map(|&(m, _)| m)
             .collect();
         let (&first, rest) = fitting.split_first()?;
         let apart = self.apart(first, rest);
@@ -349,11 +385,13 @@ mod tests {
         let warped: Vec<Vector3<f64>> = (target.iter().enumerate())
             .map(|(k, p)| p + 1e-3 * (k % 2) as f64 * Vector3::x())
             .collect();
-        let maps = (
-            rigid.iter().copied().map(map).collect(),
-            affine.iter().copied().map(map),
-        );
-        choice_of((source, target), (maps.0, maps.1.collect()), false, &warped)
+        let maps = |linear: &[Matrix3<f64>]| linear.iter().copied().map(map).collect();
+        choice_of(
+            (source, target),
+            (maps(rigid), maps(affine)),
+            false,
+            &warped,
+        )
     }
 
     /// The choice among `rigid` and `affine` maps of `source` onto `target` (either mesh

@@ -3,7 +3,8 @@
 //! onto the target's, and the same with each axis stretched by the ratio of the two spreads
 //! along it (matching the second moments, as moment-based registration does: an affine map A
 //! carries the covariance Σ to A Σ Aᵀ, so a stretch along the principal axes is recovered
-//! exactly, up to the axes' signs).
+//! exactly, up to the axes' signs); and, for flat sheets, the maps that match the second moments
+//! at sampled turns of the whitened plane, among which lies a stretch along any direction.
 
 use super::extent::{centroid, finite};
 use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion, Vector3};
@@ -121,6 +122,40 @@ pub fn moment_stretches(
         .collect()
 }
 
+/// For two flat point sets (each one's least spread under a thousandth of its largest), the
+/// linear maps (with the centroids, as [`moment_stretches`] gives them) that carry the source's
+/// second moments onto the target's in the plane, at `steps` turns evenly round it, each also
+/// with the sheet turned over: an affine map A of the plane carries the covariance Σ to
+/// A Σ Aᵀ, so A = L_t Q L_s⁻¹ for the whitening L = (axes) · diag(spreads) of each and some
+/// orthogonal Q, which the turns sample. A stretch along any direction of the sheet lies among
+/// them to within half a step. Empty where either set is not flat or has fewer than three
+/// finite points.
+pub fn whitened_turns(
+    source: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+    steps: usize,
+) -> Vec<(Matrix3<f64>, Vector3<f64>, Vector3<f64>)> {
+    let Some((s, t)) = frames(source, target) else {
+        return Vec::new();
+    };
+    let flat = |f: &PrincipalFrame| f.spreads[2] <= FLAT_SHARE * f.spreads.max();
+    if !flat(&s) || !flat(&t) || s.spreads[1] <= 0.0 {
+        return Vec::new();
+    }
+    let spreads = |f: &PrincipalFrame| Vector3::new(f.spreads[0], f.spreads[1], 1.0);
+    let unwhiten = t.axes * Matrix3::from_diagonal(&spreads(&t));
+    let whiten = Matrix3::from_diagonal(&spreads(&s).map(|v| 1.0 / v)) * s.axes.transpose();
+    let over = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
+    (0..steps.max(1))
+        .flat_map(|k| {
+            let angle = std::f64::consts::TAU * k as f64 / steps.max(1) as f64;
+            let turn = *Rotation3::from_axis_angle(&Vector3::z_axis(), angle).matrix();
+            [turn, turn * over]
+        })
+        .map(|q| (unwhiten * q * whiten, s.centre, t.centre))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -172,6 +207,41 @@ mod tests {
                 "{singular}"
             );
         }
+    }
+
+    /// The sheet stretched by 1.3 along a direction 30° off its length (a shear of its axes),
+    /// turned 150° and moved: no moment stretch lays it back, but one of the 144 whitened turns
+    /// carries every point within a twentieth of the sheet's length of its image; a ball is not
+    /// flat and gives none.
+    #[test]
+    fn a_sheet_stretched_off_its_axes_is_near_one_of_its_whitened_turns() {
+        let source = sheet();
+        let along = Vector3::new(30f64.to_radians().cos(), 30f64.to_radians().sin(), 0.0);
+        let axis = Unit::new_normalize(Vector3::new(0.2, -0.7, 0.4));
+        let turn = *Rotation3::from_axis_angle(&axis, 150f64.to_radians()).matrix();
+        let linear = turn * (Matrix3::identity() + 0.3 * along * along.transpose());
+        let target: Vec<Vector3<f64>> = source.iter().map(|p| linear * p).collect();
+        let farthest = |(a, cs, ct): &(Matrix3<f64>, Vector3<f64>, Vector3<f64>)| {
+            (source.iter().zip(&target))
+                .map(|(p, t)| (a * (p - cs) + ct - t).norm())
+                .fold(0.0, f64::max)
+        };
+        let nearest = |maps: Vec<_>| maps.iter().map(farthest).fold(f64::MAX, f64::min);
+        assert!(nearest(moment_stretches(&source, &target)) > 0.1);
+        let turns = whitened_turns(&source, &target, 72);
+        assert_eq!(turns.len(), 144);
+        assert!(
+            nearest(turns) < 0.1,
+            "{}",
+            nearest(whitened_turns(&source, &target, 72))
+        );
+        let ball: Vec<Vector3<f64>> = (0..200)
+            .map(|k| {
+                let (a, b) = (0.1 * k as f64, 0.37 * k as f64);
+                Vector3::new(a.sin() * b.cos(), a.sin() * b.sin(), a.cos())
+            })
+            .collect();
+        assert!(whitened_turns(&ball, &ball, 72).is_empty());
     }
 
     /// Two points give no frame: no guesses but the identity and no stretches.
