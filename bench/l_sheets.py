@@ -3,12 +3,14 @@ does `nonrigid_register meshes` place them right, or refuse them, rather than re
 answer as registered (NOTES 199)?
 
 Usage: python bench/l_sheets.py [--count 8] [--seed 5] [--stretch 0.2] [--turn 30]
-[--random-direction] [--bin target/release/nonrigid_register] [--dir /tmp/l_sheets]
+[--random-direction] [--noise F] [--bin target/release/nonrigid_register] [--dir /tmp/l_sheets]
 (a Python with open3d 0.20, numpy and scipy). Each sheet (15–40 × 10–30 vertices, 0.3–2 by
 0.2–1, a corner of 30–70 % of each side cut out) is placed as `symmetric_shapes.py` places its
 shapes, stretched by 1 + S along its longest principal axis (or, with --random-direction, along
 a random direction in space), then turned by DEG degrees about a random axis and moved by 4.3 %
-of its diagonal. The line printed per sheet is the tool's exit code, `registered`,
+of its diagonal; with --noise, each target vertex is then moved by a normal deviate of F times
+the diagonal along each axis (the error is still measured against the noiseless target). The
+line printed per sheet is the tool's exit code, `registered`,
 `placed_affine`, `maps_apart`, and the largest and mean distance of a warped vertex from where
 the stretch sent it (% of the largest displacement).
 """
@@ -42,6 +44,7 @@ def main():
     ap.add_argument("--stretch", type=float, default=0.2)
     ap.add_argument("--turn", type=float, default=30.0)
     ap.add_argument("--random-direction", action="store_true")
+    ap.add_argument("--noise", type=float, default=0.0, help="target noise, a share of the diagonal")
     ap.add_argument("--bin", default="target/release/nonrigid_register")
     ap.add_argument("--dir", default="/tmp/l_sheets")
     a = ap.parse_args()
@@ -58,9 +61,13 @@ def main():
         else:
             moved = stretch(v, a.stretch)
         moved = turn(moved, a.turn, rng)
+        noisy = moved
+        if a.noise:
+            diagonal = np.linalg.norm(np.ptp(moved, 0))
+            noisy = moved + a.noise * diagonal * np.random.default_rng([a.seed, i]).normal(size=moved.shape)
         s, t, w = (os.path.join(a.dir, f"{i}_{k}.ply") for k in "stw")
         o3d.io.write_triangle_mesh(s, mesh(v, f))
-        o3d.io.write_triangle_mesh(t, mesh(moved, f))
+        o3d.io.write_triangle_mesh(t, mesh(noisy, f))
         r, j = register(a.bin, s, t, w, f"{i:2d} {name:22s}")
         if j is None:
             continue
