@@ -98,20 +98,12 @@ fn open_affine_maps(
     target: (&[Vector3<f64>], &[Vector3<f64>]),
     target_set: &PointSet,
 ) -> Vec<AffineMap> {
-    let map = |(linear, centre, moved_centre)| AffineMap {
-        linear,
-        centre,
-        moved_centre,
-    };
     let mut maps: Vec<AffineMap> = (moment_stretches(source, target.0).into_par_iter())
-        .filter_map(|s| fit_affine(source, target, Some(&map(s))))
+        .filter_map(|s| fit_affine(source, target, Some(&s)))
         .collect();
     let mut turns: Vec<(f64, AffineMap)> = (whitened_turns(source, target.0, WHITENED_STEPS))
         .into_par_iter()
-        .map(|s| {
-            let m = map(s);
-            (target_set.two_way_quantile(&carried(&m, source), TAIL), m)
-        })
+        .map(|m| (target_set.two_way_quantile(&carried(&m, source), TAIL), m))
         .collect();
     turns.sort_by(|a, b| a.0.total_cmp(&b.0));
     let kept: Vec<AffineMap> = turns.iter().take(WHITENED_KEPT).map(|t| t.1).collect();

@@ -6,6 +6,7 @@
 //! exactly, up to the axes' signs); and, for flat sheets, the maps that match the second moments
 //! at sampled turns of the whitened plane, among which lies a stretch along any direction.
 
+use super::affine_fit::AffineMap;
 use super::extent::{centroid, finite};
 use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion, Vector3};
 
@@ -70,6 +71,15 @@ fn frames(
     Some((PrincipalFrame::of(source)?, PrincipalFrame::of(target)?))
 }
 
+/// `linear` taken about the source's centroid and carrying it to the target's.
+fn about(linear: Matrix3<f64>, s: &PrincipalFrame, t: &PrincipalFrame) -> AffineMap {
+    AffineMap {
+        linear,
+        centre: s.centre,
+        moved_centre: t.centre,
+    }
+}
+
 /// Starting motions for registering one whole shape onto another: the identity, and the four
 /// proper rotations that put the source's principal axes onto the target's, each moving centroid
 /// onto centroid; over the finite points alone (one that is not would leave the covariance
@@ -92,16 +102,12 @@ pub fn principal_axes_guesses(
     out
 }
 
-/// The four linear maps, each with the centroids it is taken about and carries to
-/// (`(A, c_source, c_target)`, the map `x ↦ A (x − c_source) + c_target`), that put the source's
+/// The four affine maps `x ↦ A (x − c_source) + c_target` that put the source's
 /// principal axes onto the target's (a proper sign change of them, as in
 /// [`principal_axes_guesses`]) and stretch each by the target's spread over the source's along
 /// it; an axis along which either spread is below a thousandth of its largest (a flat sheet's
 /// normal) is not stretched. Empty with fewer than three finite points on either side.
-pub fn moment_stretches(
-    source: &[Vector3<f64>],
-    target: &[Vector3<f64>],
-) -> Vec<(Matrix3<f64>, Vector3<f64>, Vector3<f64>)> {
+pub fn moment_stretches(source: &[Vector3<f64>], target: &[Vector3<f64>]) -> Vec<AffineMap> {
     let Some((s, t)) = frames(source, target) else {
         return Vec::new();
     };
@@ -117,13 +123,13 @@ pub fn moment_stretches(
         .map(|flip| {
             let scaled = Vector3::from(*flip).component_mul(&ratio);
             let linear = t.axes * Matrix3::from_diagonal(&scaled) * s.axes.transpose();
-            (linear, s.centre, t.centre)
+            about(linear, &s, &t)
         })
         .collect()
 }
 
 /// For two flat point sets (each one's least spread under a thousandth of its largest), the
-/// linear maps (with the centroids, as [`moment_stretches`] gives them) that carry the source's
+/// affine maps (about the centroids, as [`moment_stretches`] gives them) that carry the source's
 /// second moments onto the target's in the plane, at `steps` turns evenly round it, each also
 /// with the sheet turned over: an affine map A of the plane carries the covariance Σ to
 /// A Σ Aᵀ, so A = L_t Q L_s⁻¹ for the whitening L = (axes) · diag(spreads) of each and some
@@ -134,7 +140,7 @@ pub fn whitened_turns(
     source: &[Vector3<f64>],
     target: &[Vector3<f64>],
     steps: usize,
-) -> Vec<(Matrix3<f64>, Vector3<f64>, Vector3<f64>)> {
+) -> Vec<AffineMap> {
     let Some((s, t)) = frames(source, target) else {
         return Vec::new();
     };
@@ -152,7 +158,7 @@ pub fn whitened_turns(
             let turn = *Rotation3::from_axis_angle(&Vector3::z_axis(), angle).matrix();
             [turn, turn * over]
         })
-        .map(|q| (unwhiten * q * whiten, s.centre, t.centre))
+        .map(|q| about(unwhiten * q * whiten, &s, &t))
         .collect()
 }
 
@@ -181,9 +187,7 @@ mod tests {
         let target: Vec<Vector3<f64>> = source.iter().map(|p| linear * p + shift).collect();
         let stretches = moment_stretches(&source, &target);
         assert_eq!(stretches.len(), 4);
-        let carried = |(a, cs, ct): &(Matrix3<f64>, Vector3<f64>, Vector3<f64>)| {
-            source.iter().map(|p| a * (p - cs) + ct).collect::<Vec<_>>()
-        };
+        let carried = |m: &AffineMap| source.iter().map(|p| m.apply(p)).collect::<Vec<_>>();
         let exact = stretches.iter().filter(|s| {
             let moved = carried(s);
             (moved.iter().zip(&target)).all(|(m, t)| (m - t).norm() < 1e-9)
@@ -201,7 +205,7 @@ mod tests {
                 })
                 .fold(0.0, f64::max);
             assert!(farthest < 1e-9, "{farthest}");
-            let singular = s.0.singular_values();
+            let singular = s.linear.singular_values();
             assert!(
                 singular.iter().all(|&v| (0.99..=1.31).contains(&v)),
                 "{singular}"
@@ -221,9 +225,9 @@ mod tests {
         let turn = *Rotation3::from_axis_angle(&axis, 150f64.to_radians()).matrix();
         let linear = turn * (Matrix3::identity() + 0.3 * along * along.transpose());
         let target: Vec<Vector3<f64>> = source.iter().map(|p| linear * p).collect();
-        let farthest = |(a, cs, ct): &(Matrix3<f64>, Vector3<f64>, Vector3<f64>)| {
+        let farthest = |m: &AffineMap| {
             (source.iter().zip(&target))
-                .map(|(p, t)| (a * (p - cs) + ct - t).norm())
+                .map(|(p, t)| (m.apply(p) - t).norm())
                 .fold(0.0, f64::max)
         };
         let nearest = |maps: Vec<_>| maps.iter().map(farthest).fold(f64::MAX, f64::min);
